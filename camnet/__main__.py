@@ -1,0 +1,5 @@
+import sys
+
+from camnet.cli import main
+
+sys.exit(main())
