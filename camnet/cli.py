@@ -12,7 +12,9 @@ from camnet.errors import CamnetError
 
 # name -> module in camnet.commands; order is the order shown in --help.
 COMMANDS = {
-    # filled as commands land
+    "calibrate": "Solve a calibration offline from an observations file.",
+    "up": "Run camnet on the built-in simulated rig and compare with its ground truth.",
+    "simulate": "Write the observations of a simulated rig (and its ground truth).",
 }
 
 

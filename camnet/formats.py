@@ -293,8 +293,7 @@ def calibration_to_doc(cal: Calibration) -> dict:
         "units": "m",
         "cameras": cameras,
         "points": [
-            {"id": int(i), "xyz": [float(x) for x in p]}
-            for i, p in zip(cal.point_ids, cal.points, strict=True)
+            {"id": int(i), "xyz": [float(x) for x in p]} for i, p in zip(cal.point_ids, cal.points, strict=True)
         ],
         "rms_reprojection_px": float(cal.rms_reprojection_px),
     }

@@ -1,0 +1,293 @@
+"""Bundle adjustment with a rigid, known-baseline stereo pair.
+
+Levenberg-Marquardt on reprojection error with the points eliminated by the
+Schur complement, so that each step costs a dense solve of the camera
+parameters only (a few hundred unknowns even for 16 cameras) plus one 3x3
+inverse per point. The Jacobian is analytic (`camnet.projection`).
+
+Gauge: camera 0 of the problem (the left stereo camera) has a fixed pose,
+and the right stereo camera's centre is held on the sphere of radius
+``baseline_m`` about it, so the similarity gauge of structure from motion
+is fully fixed: rotation and translation by the left camera, scale by the
+baseline. An unconstrained adjustment frees the right camera's centre in 3-D
+and leaves the scale to float, as in classical structure from motion.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+import scipy.linalg
+import scipy.sparse as sp
+
+from camnet.projection import N_INTRINSICS, project_points, project_with_jacobians, rotation_exp
+
+# Local parameter slots of a camera: intrinsics (9), rotation (3), centre (3).
+ROT = slice(N_INTRINSICS, N_INTRINSICS + 3)
+CEN = slice(N_INTRINSICS + 3, N_INTRINSICS + 6)
+N_LOCAL = N_INTRINSICS + 6
+
+CENTRE_FIXED, CENTRE_FREE, CENTRE_ON_BASELINE = 0, 1, 2
+LOSSES = ("linear", "huber", "soft_l1", "cauchy")
+
+
+@dataclass(frozen=True)
+class State:
+    """Parameters of a network: per camera intrinsics and pose, per track a point."""
+
+    intr: np.ndarray  # (M, 9) see camnet.projection
+    R: np.ndarray  # (M, 3, 3) world -> camera rotation
+    C: np.ndarray  # (M, 3) camera centres, metres
+    X: np.ndarray  # (N, 3) points, metres
+
+    def copy(self) -> State:
+        return State(self.intr.copy(), self.R.copy(), self.C.copy(), self.X.copy())
+
+
+@dataclass(frozen=True)
+class Problem:
+    """Observations and which parameters move.
+
+    ``cam[k]``, ``pt[k]``, ``uv[k]``: observation k is point ``pt[k]`` seen at
+    pixel ``uv[k]`` by camera ``cam[k]``. ``intr_free`` (M, 9) and
+    ``rot_free`` (M, 3) mark free intrinsics and rotation axes; ``centre_mode``
+    (M,) is one of CENTRE_FIXED, CENTRE_FREE, CENTRE_ON_BASELINE.
+    """
+
+    cam: np.ndarray
+    pt: np.ndarray
+    uv: np.ndarray
+    intr_free: np.ndarray
+    rot_free: np.ndarray
+    centre_mode: np.ndarray
+    baseline_m: float
+    n_points: int
+
+    @property
+    def n_cameras(self) -> int:
+        return len(self.centre_mode)
+
+    def columns(self) -> tuple[np.ndarray, int]:
+        """(M, 15) global column of each local camera slot (-1: held), and their count."""
+        free = np.zeros((self.n_cameras, N_LOCAL), dtype=bool)
+        free[:, :N_INTRINSICS] = self.intr_free
+        free[:, ROT] = self.rot_free
+        free[:, CEN] = (self.centre_mode == CENTRE_FREE)[:, None]
+        free[self.centre_mode == CENTRE_ON_BASELINE, CEN.start : CEN.start + 2] = True
+        cols = np.full(free.shape, -1)
+        cols[free] = np.arange(free.sum())
+        return cols, int(free.sum())
+
+    def subset(self, keep: np.ndarray) -> Problem:
+        """The same problem with only the observations where `keep` is true."""
+        return replace(self, cam=self.cam[keep], pt=self.pt[keep], uv=self.uv[keep])
+
+
+@dataclass(frozen=True)
+class SolveInfo:
+    converged: bool
+    reason: str
+    iterations: int
+    initial_cost: float
+    final_cost: float
+
+
+# ---------------------------------------------------------------- robust losses
+
+
+def _rho(z: np.ndarray, loss: str) -> tuple[np.ndarray, np.ndarray]:
+    """SciPy's robust losses of a squared, scaled residual z: (rho(z), rho'(z))."""
+    if loss == "linear":
+        return z, np.ones_like(z)
+    if loss == "huber":
+        big = z > 1.0
+        s = np.sqrt(np.where(big, z, 1.0))
+        return np.where(big, 2.0 * s - 1.0, z), np.where(big, 1.0 / s, 1.0)
+    if loss == "soft_l1":
+        s = np.sqrt(1.0 + z)
+        return 2.0 * (s - 1.0), 1.0 / s
+    if loss == "cauchy":
+        return np.log1p(z), 1.0 / (1.0 + z)
+    raise ValueError(f"unknown loss {loss!r}; expected one of {LOSSES}")
+
+
+# ---------------------------------------------------------------- model evaluation
+
+
+def residuals(problem: Problem, state: State) -> np.ndarray:
+    """Reprojection residuals (n, 2), predicted minus observed, in pixels."""
+    c = problem.cam
+    uv, _ = project_points(state.intr[c], state.R[c], state.C[c], state.X[problem.pt])
+    return uv - problem.uv
+
+
+def _cost(problem: Problem, state: State, loss: str, scale_px: float) -> float:
+    r = residuals(problem, state)
+    z = np.sum(r * r, axis=1) / scale_px**2
+    rho, _ = _rho(z, loss)
+    if not np.all(np.isfinite(rho)):
+        return np.inf
+    return 0.5 * scale_px**2 * float(np.sum(rho))
+
+
+def _tangent_basis(u: np.ndarray) -> np.ndarray:
+    """Two orthonormal vectors (3, 2) orthogonal to the unit vector u."""
+    helper = np.array([0.0, 1.0, 0.0]) if abs(u[1]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    b1 = np.cross(u, helper)
+    b1 /= np.linalg.norm(b1)
+    return np.stack([b1, np.cross(u, b1)], axis=1)
+
+
+@dataclass(frozen=True)
+class NormalEquations:
+    """J^T J and J^T r split into camera (c) and point (p) blocks."""
+
+    U: np.ndarray  # (Pc, Pc)
+    W: sp.csr_matrix  # (Pc, 3N)
+    V: np.ndarray  # (N, 3, 3)
+    gc: np.ndarray  # (Pc,)
+    gp: np.ndarray  # (N, 3)
+    cost: float
+
+
+def normal_equations(problem: Problem, state: State, *, loss: str = "linear", scale_px: float = 1.0) -> NormalEquations:
+    """Gauss-Newton normal equations at `state`, rows weighted by the robust loss."""
+    c, p = problem.cam, problem.pt
+    n = len(c)
+    uv, J_intr, J_rot, J_cen, J_pt = project_with_jacobians(state.intr[c], state.R[c], state.C[c], state.X[p])
+    r = uv - problem.uv
+    z = np.sum(r * r, axis=1) / scale_px**2
+    rho, drho = _rho(z, loss)
+    sw = np.sqrt(drho)[:, None]
+    r = r * sw
+
+    J_local = np.concatenate([J_intr, J_rot, J_cen], axis=2) * sw[:, :, None]
+    J_pt = J_pt * sw[:, :, None]
+    for m in np.flatnonzero(problem.centre_mode == CENTRE_ON_BASELINE):
+        rows = c == m
+        B = problem.baseline_m * _tangent_basis(state.C[m] / np.linalg.norm(state.C[m]))
+        J_local[rows, :, CEN.start : CEN.start + 2] = J_local[rows, :, CEN] @ B
+        J_local[rows, :, CEN.start + 2] = 0.0
+
+    cols, n_cols = problem.columns()
+    obs_cols = cols[c]  # (n, 15)
+    used = obs_cols >= 0
+    k_idx, slot = np.nonzero(used)
+    data = np.concatenate([J_local[k_idx, 0, slot], J_local[k_idx, 1, slot]])
+    rows = np.concatenate([2 * k_idx, 2 * k_idx + 1])
+    colv = np.concatenate([obs_cols[k_idx, slot]] * 2)
+    Jc = sp.csr_matrix((data, (rows, colv)), shape=(2 * n, n_cols))
+    r_flat = r.reshape(-1)
+
+    N = problem.n_points
+    JtJ_p = np.einsum("nki,nkj->nij", J_pt, J_pt).reshape(n, 9)
+    Jtr_p = np.einsum("nki,nk->ni", J_pt, r)
+    V = np.stack([np.bincount(p, JtJ_p[:, i], minlength=N) for i in range(9)], axis=1)
+    gp = np.stack([np.bincount(p, Jtr_p[:, i], minlength=N) for i in range(3)], axis=1)
+    point_cols = np.broadcast_to(3 * p[:, None, None] + np.arange(3), (n, 2, 3))
+    Jp = sp.csr_matrix(
+        (J_pt.reshape(-1), (np.repeat(np.arange(2 * n), 3), point_cols.reshape(-1))),
+        shape=(2 * n, 3 * N),
+    )
+    JcT = Jc.T.tocsr()
+    return NormalEquations(
+        U=(JcT @ Jc).toarray(),
+        W=(JcT @ Jp).tocsr(),
+        V=V.reshape(N, 3, 3),
+        gc=JcT @ r_flat,
+        gp=gp,
+        cost=0.5 * scale_px**2 * float(np.sum(rho)),
+    )
+
+
+def _block_diag(blocks: np.ndarray) -> sp.bsr_matrix:
+    N = len(blocks)
+    return sp.bsr_matrix((blocks, np.arange(N), np.arange(N + 1)), shape=(3 * N, 3 * N))
+
+
+def _solve_damped(ne: NormalEquations, lam: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """Solve (H + lam diag H) d = -g by the Schur complement; None if not positive definite."""
+    dU = np.diag(ne.U).copy()
+    U = ne.U + np.diag(lam * np.maximum(dU, 1e-9))
+    dV = np.einsum("nii->ni", ne.V)
+    V = ne.V + (lam * np.maximum(dV, 1e-9))[:, :, None] * np.eye(3)
+    try:
+        Vinv = np.linalg.inv(V)
+    except np.linalg.LinAlgError:
+        return None
+    WVinv = (ne.W @ _block_diag(Vinv)).tocsr()
+    S = U - (WVinv @ ne.W.T).toarray()
+    rhs = -ne.gc + WVinv @ ne.gp.reshape(-1)
+    try:
+        dc = scipy.linalg.cho_solve(scipy.linalg.cho_factor(S), rhs) if len(rhs) else rhs
+    except np.linalg.LinAlgError:
+        return None
+    dp = -np.einsum("nij,nj->ni", Vinv, ne.gp + (ne.W.T @ dc).reshape(-1, 3))
+    if not (np.all(np.isfinite(dc)) and np.all(np.isfinite(dp))):
+        return None
+    return dc, dp
+
+
+def apply_step(problem: Problem, state: State, dc: np.ndarray, dp: np.ndarray) -> State:
+    """The state moved by a camera step `dc` (in `problem.columns()` order) and point step `dp`."""
+    cols, _ = problem.columns()
+    intr, R, C = state.intr.copy(), state.R.copy(), state.C.copy()
+    for m in range(problem.n_cameras):
+        cm = cols[m]
+        d = np.where(cm >= 0, dc[np.maximum(cm, 0)] if len(dc) else 0.0, 0.0)
+        intr[m] += d[:N_INTRINSICS]
+        if np.any(d[ROT]):
+            R[m] = rotation_exp(d[ROT]) @ R[m]
+        mode = problem.centre_mode[m]
+        if mode == CENTRE_FREE:
+            C[m] += d[CEN]
+        elif mode == CENTRE_ON_BASELINE:
+            u = C[m] / np.linalg.norm(C[m])
+            u = u + _tangent_basis(u) @ d[CEN.start : CEN.start + 2]
+            C[m] = problem.baseline_m * u / np.linalg.norm(u)
+    return State(intr, R, C, state.X + dp)
+
+
+def solve(
+    problem: Problem,
+    state: State,
+    *,
+    loss: str = "linear",
+    scale_px: float = 1.0,
+    max_iterations: int = 100,
+    ftol: float = 1e-10,
+) -> tuple[State, SolveInfo]:
+    """Minimise the (robust) reprojection cost by Levenberg-Marquardt from `state`."""
+    lam = 1e-4
+    ne = normal_equations(problem, state, loss=loss, scale_px=scale_px)
+    initial = ne.cost
+    if not np.isfinite(initial):
+        return state, SolveInfo(False, "the initial state projects points behind a camera", 0, initial, initial)
+    reason, converged = "reached the iteration limit", False
+    iterations = 0
+    for iterations in range(1, max_iterations + 1):  # noqa: B007 (reported after the loop)
+        step = _solve_damped(ne, lam)
+        if step is None:
+            lam *= 10.0
+            if lam > 1e12:
+                reason = "the normal equations are singular (the geometry does not fix the parameters)"
+                break
+            continue
+        trial = apply_step(problem, state, *step)
+        trial_cost = _cost(problem, trial, loss, scale_px)
+        if trial_cost < ne.cost:
+            decrease = ne.cost - trial_cost
+            state = trial
+            lam = max(lam / 5.0, 1e-12)
+            previous = ne.cost
+            ne = normal_equations(problem, state, loss=loss, scale_px=scale_px)
+            if decrease <= ftol * previous:
+                reason, converged = "the cost stopped decreasing (relative change below ftol)", True
+                break
+        else:
+            lam *= 4.0
+            if lam > 1e10:
+                reason, converged = "no step decreases the cost further", True
+                break
+    return state, SolveInfo(converged, reason, iterations, initial, ne.cost)

@@ -1,0 +1,139 @@
+"""The further keys of a calibration: uncertainty, per-camera statistics, warnings.
+
+Documented in docs/calibration-keys.md.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from camnet import bundle
+from camnet.bundle import CEN, CENTRE_FREE, CENTRE_ON_BASELINE, ROT, _tangent_basis
+from camnet.projection import INTRINSIC_NAMES
+from camnet.uncertainty import scale_sigma
+
+MIN_CAMERA_OBSERVATIONS = 12
+MIN_PARALLAX_DEG = 2.0
+COPLANAR_RATIO = 0.02
+POOR_FOCAL_REL = 0.05
+POOR_SCALE_REL = 0.01
+
+
+def _camera_uncertainty(m: int, problem, state, cov) -> dict:
+    cols = cov.columns[m]
+    Sigma = cov.cameras
+
+    def block(slots: list[int]) -> np.ndarray:
+        c = cols[slots]
+        out = np.zeros((len(slots), len(slots)))
+        ok = c >= 0
+        out[np.ix_(ok, ok)] = Sigma[np.ix_(c[ok], c[ok])]
+        return out
+
+    sd = {}
+    for slot, name in enumerate(INTRINSIC_NAMES):
+        if cols[slot] >= 0:
+            sd[name] = float(np.sqrt(max(Sigma[cols[slot], cols[slot]], 0.0)))
+    entry = {
+        "f_px": sd.get("f", 0.0),
+        "cx_px": sd.get("cx", 0.0),
+        "cy_px": sd.get("cy", 0.0),
+        "k1": sd.get("k1", 0.0),
+        "k2": sd.get("k2", 0.0),
+    }
+    rot = block(list(range(ROT.start, ROT.stop)))
+    entry["rotation_deg"] = np.degrees(np.sqrt(np.maximum(np.diag(rot), 0.0))).tolist()
+    mode = problem.centre_mode[m]
+    if mode == CENTRE_FREE:
+        cen = block(list(range(CEN.start, CEN.stop)))
+    elif mode == CENTRE_ON_BASELINE:
+        B = problem.baseline_m * _tangent_basis(state.C[m] / np.linalg.norm(state.C[m]))
+        cen = B @ block([CEN.start, CEN.start + 1]) @ B.T
+    else:
+        cen = np.zeros((3, 3))
+    entry["centre_m"] = np.sqrt(np.maximum(np.diag(cen), 0.0)).tolist()
+    return entry
+
+
+def _parallax_deg(problem, state) -> np.ndarray:
+    """Per point, the widest angle between two of its viewing rays."""
+    rays = state.X[problem.pt] - state.C[problem.cam]
+    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    # The angle to the mean ray, doubled, is a cheap stand-in for the widest pair.
+    mean = np.zeros((problem.n_points, 3))
+    np.add.at(mean, problem.pt, rays)
+    mean /= np.maximum(np.linalg.norm(mean, axis=1, keepdims=True), 1e-12)
+    cosang = np.clip(np.sum(rays * mean[problem.pt], axis=1), -1.0, 1.0)
+    widest = np.zeros(problem.n_points)
+    np.maximum.at(widest, problem.pt, np.degrees(np.arccos(cosang)))
+    return 2.0 * widest
+
+
+def free_parameters(problem, cameras_ids: list[str]) -> dict:
+    """Which intrinsics and stereo rotation axes moved: reused by warm starts."""
+    return {
+        "intrinsics": {
+            cam_id: [n for n, free in zip(INTRINSIC_NAMES, problem.intr_free[m], strict=True) if free]
+            for m, cam_id in enumerate(cameras_ids)
+        },
+        "stereo_rotation_axes": [ax for ax, free in zip("xyz", problem.rot_free[1], strict=True) if free],
+        "stereo_direction": bool(problem.centre_mode[1] == CENTRE_ON_BASELINE),
+    }
+
+
+def describe(obs, order, problem, state, cov, inliers, info, decisions, options, timings) -> dict:
+    ids = [obs.cameras[i].id for i in order]
+    r = np.linalg.norm(bundle.residuals(problem, state), axis=1)
+    warnings = []
+    cameras = {}
+    for m, cam_id in enumerate(ids):
+        mine = problem.cam == m
+        n_in = int(mine.sum())
+        cameras[cam_id] = {
+            "rms_px": float(np.sqrt(np.mean(r[mine] ** 2))) if n_in else None,
+            "inliers": n_in,
+        }
+        if n_in < MIN_CAMERA_OBSERVATIONS:
+            warnings.append(f"camera {cam_id}: only {n_in} inlier observations; its calibration is weak")
+    parallax = _parallax_deg(problem, state)
+    if len(parallax) and np.median(parallax) < MIN_PARALLAX_DEG:
+        warnings.append(
+            f"little parallax: the median point is seen under {np.median(parallax):.2f} deg; "
+            "depth and focal lengths are weakly determined"
+        )
+    centred = state.X - state.X.mean(axis=0)
+    sv = np.linalg.svd(centred, compute_uv=False) if len(centred) >= 3 else np.ones(3)
+    if sv[2] < COPLANAR_RATIO * sv[0]:
+        warnings.append("the points are nearly coplanar; focal lengths and poses trade off")
+    out = {
+        "method": options.method,
+        "diagnostics": {
+            "converged": bool(info.converged),
+            "reason": info.reason,
+            "iterations": int(info.iterations),
+            "observations": int(len(inliers)),
+            "inliers": int(np.sum(inliers)),
+            "cameras": cameras,
+            "median_parallax_deg": float(np.median(parallax)) if len(parallax) else None,
+            "free": free_parameters(problem, ids),
+            "free_rule": decisions,
+            "warnings": warnings,
+        },
+        "timings_s": {k: round(v, 6) for k, v in timings.items()},
+    }
+    if cov is not None:
+        scale = scale_sigma(cov, state.X)
+        per_cam = {cam_id: _camera_uncertainty(m, problem, state, cov) for m, cam_id in enumerate(ids)}
+        for m, cam_id in enumerate(ids):
+            if per_cam[cam_id]["f_px"] > POOR_FOCAL_REL * state.intr[m, 0]:
+                warnings.append(
+                    f"camera {cam_id}: focal length poorly determined (sigma {per_cam[cam_id]['f_px']:.0f} px)"
+                )
+        if scale > POOR_SCALE_REL:
+            warnings.append(f"the scale is uncertain by {100 * scale:.1f}% (1 sigma)")
+        out["uncertainty"] = {
+            "sigma_px": cov.sigma_px,
+            "scale_rel": scale,
+            "cameras": per_cam,
+        }
+    return out

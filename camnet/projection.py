@@ -1,0 +1,130 @@
+"""Vectorised projection with analytic derivatives, for the bundle adjustment.
+
+Per camera the intrinsic vector is ``[f, a, cx, cy, k1, k2, p1, p2, k3]``:
+``fx = f``, ``fy = a * f`` (``a`` is the pixel aspect, 1 for square pixels),
+principal point ``(cx, cy)`` in pixels, OpenCV distortion after it. The pose
+is ``(R, C)``: ``x_cam = R @ (X - C)`` with ``C`` the camera centre in metres,
+so ``t = -R @ C``. Rotations are perturbed on the left, ``R <- expm([w]x) R``,
+which makes ``d x_cam / d w = -[x_cam]x``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+INTRINSIC_NAMES = ("f", "a", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
+N_INTRINSICS = len(INTRINSIC_NAMES)
+
+
+def intrinsics_from_K(K: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """The intrinsic vector of a K matrix (zero skew assumed) and OpenCV distortion."""
+    return np.array([K[0, 0], K[1, 1] / K[0, 0], K[0, 2], K[1, 2], *dist])
+
+
+def K_from_intrinsics(intr: np.ndarray) -> np.ndarray:
+    f, a, cx, cy = intr[:4]
+    return np.array([[f, 0.0, cx], [0.0, a * f, cy], [0.0, 0.0, 1.0]])
+
+
+def skew(v: np.ndarray) -> np.ndarray:
+    """Cross-product matrices of vectors (..., 3) -> (..., 3, 3)."""
+    v = np.asarray(v)
+    out = np.zeros(v.shape[:-1] + (3, 3))
+    out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
+    out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
+    out[..., 2, 0], out[..., 2, 1] = -v[..., 1], v[..., 0]
+    return out
+
+
+def rotation_exp(w: np.ndarray) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) of rotation vectors (..., 3) in radians (Rodrigues)."""
+    w = np.asarray(w, dtype=float)
+    theta = np.linalg.norm(w, axis=-1)[..., None, None]
+    W = skew(w)
+    small = theta < 1e-8
+    safe = np.where(small, 1.0, theta)
+    A = np.where(small, 1.0 - theta**2 / 6.0, np.sin(safe) / safe)
+    B = np.where(small, 0.5 - theta**2 / 24.0, (1.0 - np.cos(safe)) / safe**2)
+    return np.eye(3) + A * W + B * (W @ W)
+
+
+def project_points(intr: np.ndarray, R: np.ndarray, C: np.ndarray, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels (n, 2) and camera-frame points (n, 3), one camera per row.
+
+    intr (n, 9), R (n, 3, 3), C (n, 3) and X (n, 3) are per observation.
+    """
+    xc = np.einsum("nij,nj->ni", R, X - C)
+    return _pixels(intr, xc), xc
+
+
+def _pixels(intr: np.ndarray, xc: np.ndarray) -> np.ndarray:
+    f, a, cx, cy, k1, k2, p1, p2, k3 = intr.T
+    x = xc[:, 0] / xc[:, 2]
+    y = xc[:, 1] / xc[:, 2]
+    r2 = x * x + y * y
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+    return np.stack([f * xd + cx, a * f * yd + cy], axis=1)
+
+
+def project_with_jacobians(
+    intr: np.ndarray, R: np.ndarray, C: np.ndarray, X: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Pixels and their derivatives, one observation per row.
+
+    Returns ``(uv (n,2), J_intr (n,2,9), J_rot (n,2,3), J_centre (n,2,3),
+    J_point (n,2,3))``: derivatives of the pixel with respect to the
+    intrinsic vector, a left rotation perturbation, the camera centre and
+    the world point.
+    """
+    f, a, cx, cy, k1, k2, p1, p2, k3 = intr.T
+    xc = np.einsum("nij,nj->ni", R, X - C)
+    iz = 1.0 / xc[:, 2]
+    x = xc[:, 0] * iz
+    y = xc[:, 1] * iz
+    r2 = x * x + y * y
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+    fy = a * f
+    uv = np.stack([f * xd + cx, fy * yd + cy], axis=1)
+
+    n = len(xc)
+    J_intr = np.zeros((n, 2, 9))
+    J_intr[:, 0, 0] = xd
+    J_intr[:, 1, 0] = a * yd
+    J_intr[:, 1, 1] = f * yd
+    J_intr[:, 0, 2] = 1.0
+    J_intr[:, 1, 3] = 1.0
+    for col, power in ((4, 1), (5, 2), (8, 3)):
+        rp = r2**power
+        J_intr[:, 0, col] = f * x * rp
+        J_intr[:, 1, col] = fy * y * rp
+    J_intr[:, 0, 6] = f * 2.0 * x * y
+    J_intr[:, 1, 6] = fy * (r2 + 2.0 * y * y)
+    J_intr[:, 0, 7] = f * (r2 + 2.0 * x * x)
+    J_intr[:, 1, 7] = fy * 2.0 * x * y
+
+    # d(xd, yd) / d(x, y)
+    dradial = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)  # d radial / d r2
+    dxd_dx = radial + 2.0 * x * x * dradial + 2.0 * p1 * y + 6.0 * p2 * x
+    dxd_dy = 2.0 * x * y * dradial + 2.0 * p1 * x + 2.0 * p2 * y
+    dyd_dx = 2.0 * x * y * dradial + 2.0 * p1 * x + 2.0 * p2 * y
+    dyd_dy = radial + 2.0 * y * y * dradial + 6.0 * p1 * y + 2.0 * p2 * x
+    # d(x, y) / d xc
+    dn = np.zeros((n, 2, 3))
+    dn[:, 0, 0] = iz
+    dn[:, 0, 2] = -x * iz
+    dn[:, 1, 1] = iz
+    dn[:, 1, 2] = -y * iz
+    duv_dn = np.empty((n, 2, 2))
+    duv_dn[:, 0, 0] = f * dxd_dx
+    duv_dn[:, 0, 1] = f * dxd_dy
+    duv_dn[:, 1, 0] = fy * dyd_dx
+    duv_dn[:, 1, 1] = fy * dyd_dy
+    duv_dxc = duv_dn @ dn
+    J_rot = -duv_dxc @ skew(xc)
+    J_point = duv_dxc @ R
+    J_centre = -J_point
+    return uv, J_intr, J_rot, J_centre, J_point
