@@ -139,3 +139,21 @@ def test_config_validation():
         MatcherConfig(ratio=1.5)
     with pytest.raises(ValueError, match="min_matches"):
         MatcherConfig(min_matches=5)
+
+
+def test_orb_brute_force_path_equals_dense_path():
+    config = MatcherConfig(detector=Detector.ORB, max_features=1500)
+    fa = detect(textured_image(5), config)
+    fb = detect(cv2.warpPerspective(textured_image(5), H_TRUE, (640, 480)), config)
+    fast = mutual_ratio_matches(fa, fb, ratio=0.8, cross_check=True)
+    dense = mutual_ratio_matches(
+        fa,
+        fb,
+        ratio=0.8,
+        cross_check=True,
+        allowed=lambda rows: np.ones((len(rows), len(fb)), bool),
+    )
+    # Ties in Hamming distance may break differently; nearly all must agree.
+    same = set(zip(*fast, strict=True)) & set(zip(*dense, strict=True))
+    assert len(fast[0]) > 300
+    assert len(same) >= 0.98 * max(len(fast[0]), len(dense[0]))
