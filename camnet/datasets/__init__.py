@@ -1,0 +1,1 @@
+"""Readers for public multi-camera datasets with published calibrations."""

@@ -1,0 +1,112 @@
+"""Pooling tracks over frame sets: bound, duplicates, spread, output."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from camnet.formats import CameraInfo, Stereo, observations_to_doc, parse_observations
+from camnet.track_pool import PoolConfig, TrackPool, crowding, dedupe_frame_tracks
+from camnet.tracks import FrameTracks
+
+CAMS = (CameraInfo("L", 640, 480), CameraInfo("R", 640, 480), CameraInfo("M", 640, 480))
+STEREO = Stereo("L", "R", 0.12)
+NAN = np.nan
+
+
+def _tracks(rows, ids=("L", "R", "M")) -> FrameTracks:
+    return FrameTracks(tuple(ids), np.array(rows, dtype=float).reshape(len(rows), len(ids), 2))
+
+
+def test_same_frame_duplicates_merge_when_consistent_else_weaker_dropped():
+    uv = np.array(
+        [
+            [[100, 100], [80, 100], [NAN, NAN]],
+            [[100.4, 100.3], [NAN, NAN], [120, 90]],  # same point via another pair: merge
+            [[300, 300], [280, 300], [310, 290]],
+            [[300.5, 300], [200, 300], [NAN, NAN]],  # same left pixel, other right: drop
+        ]
+    )
+    out, removed = dedupe_frame_tracks(uv, 1.0)
+    assert removed == 2
+    assert np.isfinite(out[:, :, 0]).sum(axis=1).tolist() == [3, 3]
+    assert np.allclose(out[0, 2], [120, 90])
+
+
+def test_across_frames_one_coinciding_camera_is_a_new_point_two_are_the_same():
+    pool = TrackPool(CAMS, STEREO)
+    pool.add(_tracks([[[100, 100], [80, 100], [NAN, NAN]]]), frame_seq=0)
+    # Same left pixel, different right pixel: a moved object at another depth.
+    u1 = pool.add(_tracks([[[100, 100], [60, 100], [NAN, NAN]]]), frame_seq=1)
+    assert (u1.added, u1.reobserved) == (1, 0)
+    # Same pixels in L and R: same 3-D point (static background); M gets added to it.
+    u2 = pool.add(_tracks([[[100.3, 100], [80.2, 100], [130, 95]]]), frame_seq=2)
+    assert (u2.added, u2.reobserved) == (0, 1)
+    obs = pool.observations()
+    assert len(obs.track_ids) == 2
+    assert np.bincount(obs.track_index).tolist() == [3, 2]
+
+
+def test_pool_is_bounded_and_spreads_over_the_image():
+    rng = np.random.default_rng(0)
+    pool = TrackPool(CAMS, STEREO, PoolConfig(max_tracks=400, grid_cols=4, grid_rows=4))
+
+    offered_outside = 0
+
+    def batch(n, lo, hi):
+        nonlocal offered_outside
+        left = rng.uniform(lo, hi, size=(n, 2))
+        offered_outside += int(np.sum((left[:, 0] >= 159.5) | (left[:, 1] >= 119.5)))
+        right = left - [20.0, 0.0]
+        return _tracks(np.stack([left, right, np.full((n, 2), NAN)], axis=1))
+
+    for seq in range(5):
+        # Each frame set: a dense textured patch in one corner plus a few points elsewhere.
+        pool.add(batch(300, [5, 5], [120, 100]), frame_seq=seq)
+        pool.add(batch(30, [0, 0], [639, 479]), frame_seq=seq)
+    assert len(pool) == 400
+    obs = pool.observations()
+    left = obs.uv[obs.cam_index == 0]
+    cols = np.clip((left[:, 0] + 0.5) / 640 * 4, 0, 3).astype(int)
+    rows = np.clip((left[:, 1] + 0.5) / 480 * 4, 0, 3).astype(int)
+    occupied = np.unique(rows * 4 + cols).size
+    outside = int(np.sum((left[:, 0] >= 159.5) | (left[:, 1] >= 119.5)))
+    assert occupied == 16
+    # 1500 of 1650 offered tracks sit in the corner cell; eviction must take
+    # from there and keep every sparse track elsewhere.
+    assert outside == offered_outside
+    assert 100 < outside < 400
+
+
+def test_eviction_prefers_fewer_views_then_older():
+    pool = TrackPool(CAMS, STEREO, PoolConfig(max_tracks=2, grid_cols=1, grid_rows=1))
+    pool.add(_tracks([[[10, 10], [5, 10], [NAN, NAN]]]), frame_seq=0)  # old, 2 views
+    pool.add(_tracks([[[50, 50], [45, 50], [60, 50]]]), frame_seq=1)  # 3 views
+    pool.add(_tracks([[[90, 90], [85, 90], [NAN, NAN]]]), frame_seq=2)  # new, 2 views
+    obs = pool.observations()
+    kept = sorted(obs.uv[obs.cam_index == 0, 0].tolist())
+    assert kept == [50.0, 90.0]
+
+
+def test_observations_round_trip_through_the_json_contract():
+    pool = TrackPool(CAMS, STEREO)
+    pool.add(_tracks([[[1, 2], [3, 4]], [[10, 20], [NAN, NAN]]], ids=("L", "M")), frame_seq=0)
+    pool.add(_tracks([[[100, 200], [90, 200], [50, 60]]]), frame_seq=1)
+    obs = pool.observations()
+    back = parse_observations(observations_to_doc(obs))
+    assert back.camera_ids == ["L", "R", "M"]
+    assert back.stereo == STEREO
+    assert back.track_ids.tolist() == obs.track_ids.tolist()
+    # the single-view track is no track; the M-only row had one camera
+    assert np.allclose(back.uv, obs.uv)
+
+
+def test_unknown_camera_is_rejected():
+    pool = TrackPool(CAMS, STEREO)
+    with pytest.raises(ValueError, match="'X'"):
+        pool.add(_tracks([[[1, 2], [3, 4]]], ids=("L", "X")), frame_seq=0)
+
+
+def test_crowding_counts_the_fullest_cell():
+    uv = np.array([[[10, 10]], [[20, 20]], [[600, 400]]], dtype=float)
+    assert crowding(uv, np.array([[640, 480]]), 2, 2).tolist() == [2, 2, 1]
