@@ -35,13 +35,14 @@ from camnet.camera import Camera
 from camnet.errors import SolveError
 from camnet.formats import Calibration, Observations
 from camnet.projection import K_from_intrinsics, rotation_exp
-from camnet.uncertainty import Covariance, covariance, scale_sigma
+from camnet.uncertainty import Covariance, covariance
 
 log = logging.getLogger(__name__)
 
 METHODS = ("paper", "refined", "unconstrained")
 FREE_NAMES = ("f", "aspect", "pp", "k1", "k2", "stereo_rotation", "stereo_direction")
 MIN_SHARED_TRACKS = 4  # eq. 15: N >= 4 points seen by the pair and another camera
+MIN_CAMERA_INLIERS = 6  # fewer observations cannot fix a camera's pose and focal length
 
 
 @dataclass(frozen=True)
@@ -382,6 +383,13 @@ def _choose_free(problem: Problem, state: State, options: Options, widths, heigh
 
 def calibrate(obs: Observations, options: Options = Options(), *, initial: Calibration | None = None) -> Result:
     """Solve the network described by `obs`. Raises SolveError when it cannot."""
+    try:
+        return _calibrate(obs, options, initial)
+    except np.linalg.LinAlgError:
+        raise SolveError("the observations do not determine the calibration (singular equations)") from None
+
+
+def _calibrate(obs: Observations, options: Options, initial: Calibration | None) -> Result:
     if options.method not in METHODS:
         raise SolveError(f"method: unknown {options.method!r}; expected one of {METHODS}")
     timings: dict[str, float] = {}
@@ -429,9 +437,24 @@ def calibrate(obs: Observations, options: Options = Options(), *, initial: Calib
     state = State(intr, start.R, start.C, start.X[track_rows])
 
     t1 = time.perf_counter()
+    # Continuation: from a cold start, a first robust pass moves focal lengths and
+    # poses only; freeing principal points or distortion far from the solution
+    # lets the adjustment settle in a wrong valley.
+    first = full
+    if initial is None and not unconstrained:
+        first = replace(
+            full,
+            intr_free=intr_free & _free_mask(M, frozenset({"f"}), held_K, held_dist),
+            rot_free=np.zeros_like(rot_free),
+            centre_mode=np.where(np.arange(M) == 1, CENTRE_FIXED, full.centre_mode),
+        )
     state, info = bundle.solve(
-        full, state, loss=options.loss, scale_px=options.loss_scale_px, max_iterations=options.max_iterations
+        first, state, loss=options.loss, scale_px=options.loss_scale_px, max_iterations=options.max_iterations
     )
+    if first is not full:
+        state, info = bundle.solve(
+            full, state, loss=options.loss, scale_px=options.loss_scale_px, max_iterations=options.max_iterations
+        )
     inliers = _reject_outliers(full, state, options)
     problem = full.subset(inliers)
     timings["robust_adjustment"] = time.perf_counter() - t1
@@ -455,6 +478,13 @@ def calibrate(obs: Observations, options: Options = Options(), *, initial: Calib
         inliers = new_inliers
         problem = full.subset(inliers)
     timings["adjustment"] = time.perf_counter() - t3
+    per_camera = np.bincount(problem.cam, minlength=M)
+    if per_camera.min() < MIN_CAMERA_INLIERS:
+        weak = [obs.cameras[order[m]].id for m in np.flatnonzero(per_camera < MIN_CAMERA_INLIERS)]
+        raise SolveError(
+            f"cameras {weak}: fewer than {MIN_CAMERA_INLIERS} of their observations agree with the "
+            "solution; the tracks look wrong"
+        )
     t4 = time.perf_counter()
     cov = None if unconstrained else covariance(problem, state)
     timings["uncertainty"] = time.perf_counter() - t4
@@ -604,13 +634,6 @@ def _result(obs, order, problem, state, track_rows, inliers, info, cov, decision
         extra=extra,
     )
     return Result(calibration, state, problem, order, track_rows, cov, info.converged, info.reason, timings)
-
-
-def network_scale_sigma(result: Result) -> float:
-    """Relative standard deviation of the solution's overall scale."""
-    if result.covariance is None:
-        return float("nan")
-    return scale_sigma(result.covariance, result.state.X)
 
 
 __all__ = ["Options", "Result", "calibrate", "check_solvable", "rotation_exp"]

@@ -122,7 +122,8 @@ def describe(obs, order, problem, state, cov, inliers, info, decisions, options,
         "timings_s": {k: round(v, 6) for k, v in timings.items()},
     }
     if cov is not None:
-        scale = scale_sigma(cov, state.X)
+        kept = np.bincount(problem.pt, minlength=problem.n_points) >= 2
+        scale = scale_sigma(cov, state.X, kept)
         per_cam = {cam_id: _camera_uncertainty(m, problem, state, cov) for m, cam_id in enumerate(ids)}
         for m, cam_id in enumerate(ids):
             if per_cam[cam_id]["f_px"] > POOR_FOCAL_REL * state.intr[m, 0]:

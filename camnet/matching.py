@@ -173,9 +173,7 @@ def _as_distance_operands(desc: np.ndarray, detector: Detector) -> tuple[np.ndar
     return vec, np.einsum("ij,ij->i", vec, vec)
 
 
-def _distance_block(
-    va: np.ndarray, na: np.ndarray, vb: np.ndarray, nb: np.ndarray, detector: Detector
-) -> np.ndarray:
+def _distance_block(va: np.ndarray, na: np.ndarray, vb: np.ndarray, nb: np.ndarray, detector: Detector) -> np.ndarray:
     # |a - b|^2 = |a|^2 + |b|^2 - 2 a.b; for bit vectors that is the Hamming distance.
     d = na[:, None] + nb[None, :] - 2.0 * (va @ vb.T)
     np.maximum(d, 0.0, out=d)
@@ -243,11 +241,7 @@ def mutual_ratio_matches(
         d2 = np.take_along_axis(d2, order, axis=1)
         best[rows] = two[:, 0]
         # Ratio on distances: an infinite second best (no other candidate) passes.
-        keep[rows] = (
-            np.isfinite(d2[:, 0])
-            & (d2[:, 0] < ratio * d2[:, 1])
-            & (d2[:, 0] <= outside_margin * best_outside)
-        )
+        keep[rows] = np.isfinite(d2[:, 0]) & (d2[:, 0] < ratio * d2[:, 1]) & (d2[:, 0] <= outside_margin * best_outside)
         block_arg = np.argmin(d, axis=0)
         block_min = d[block_arg, np.arange(nb_pts)]
         better = block_min < col_best_d
@@ -261,9 +255,7 @@ def mutual_ratio_matches(
     return ia.astype(np.int64), ib.astype(np.int64)
 
 
-def _bf_mutual_ratio(
-    fa: Features, fb: Features, *, ratio: float, cross_check: bool
-) -> tuple[np.ndarray, np.ndarray]:
+def _bf_mutual_ratio(fa: Features, fb: Features, *, ratio: float, cross_check: bool) -> tuple[np.ndarray, np.ndarray]:
     """`mutual_ratio_matches` without a prior by OpenCV's brute force matcher.
 
     Same result as the dense path; for binary descriptors it is about 3x
@@ -272,11 +264,7 @@ def _bf_mutual_ratio(
     norm = cv2.NORM_HAMMING if fa.detector is Detector.ORB else cv2.NORM_L2
     matcher = cv2.BFMatcher(norm)
     knn = matcher.knnMatch(fa.descriptors, fb.descriptors, k=2)
-    rows = [
-        (m[0].queryIdx, m[0].trainIdx)
-        for m in knn
-        if len(m) == 2 and m[0].distance < ratio * m[1].distance
-    ]
+    rows = [(m[0].queryIdx, m[0].trainIdx) for m in knn if len(m) == 2 and m[0].distance < ratio * m[1].distance]
     if not rows:
         empty = np.empty(0, dtype=np.int64)
         return empty, empty
@@ -367,11 +355,7 @@ def match_frame_set(
         raise ValueError(f"duplicate camera ids in frame set: {camera_ids}")
     features = tuple(detect(img, config) for _, img in items)
     prior_pair = None
-    if (
-        stereo is not None
-        and config.use_stereo_prior
-        and {stereo.left, stereo.right} <= set(camera_ids)
-    ):
+    if stereo is not None and config.use_stereo_prior and {stereo.left, stereo.right} <= set(camera_ids):
         prior_pair = (camera_ids.index(stereo.left), camera_ids.index(stereo.right))
     pairs = []
     for i in range(len(items)):
@@ -380,8 +364,6 @@ def match_frame_set(
                 # Run the prior with left as `a`: the disparity sign depends on it.
                 m = match_pair(features[j], features[i], config, stereo_prior=True, a=j, b=i)
             else:
-                m = match_pair(
-                    features[i], features[j], config, stereo_prior=prior_pair == (i, j), a=i, b=j
-                )
+                m = match_pair(features[i], features[j], config, stereo_prior=prior_pair == (i, j), a=i, b=j)
             pairs.append(m)
     return FrameSetMatches(camera_ids, features, tuple(pairs))

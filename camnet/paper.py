@@ -20,14 +20,18 @@ from camnet.errors import SolveError
 def focal_ratio(y_left: np.ndarray, y_right: np.ndarray) -> float:
     """k = f_right / f_left from the rows of stereo matches (eq. 4), by least squares.
 
-    An ideal parallel pair images a point on rows ``y_right = k * y_left``;
-    one robust pass discards rows that disagree with the median ratio.
+    An ideal parallel pair images a point on rows ``y_right = k * y_left``.
+    Mismatched rows would drag a plain fit, so it starts from the median
+    ratio of rows away from the centre line and refits on the rows that agree.
     """
     y1, y2 = np.asarray(y_left, float), np.asarray(y_right, float)
-    k = float(np.sum(y1 * y2) / np.sum(y1 * y1))
-    spread = np.median(np.abs(y2 - k * y1)) * 1.4826 + 1e-9
-    keep = np.abs(y2 - k * y1) < max(5.0 * spread, 1.0)
-    if keep.sum() >= 2:
+    away = np.abs(y1) > 0.25 * np.median(np.abs(y1))
+    k = float(np.median(y2[away] / y1[away])) if away.sum() >= 3 else 1.0
+    for _ in range(3):
+        r = y2 - k * y1
+        keep = np.abs(r) < max(5.0 * 1.4826 * np.median(np.abs(r)), 1.0)
+        if keep.sum() < 2:
+            break
         k = float(np.sum(y1[keep] * y2[keep]) / np.sum(y1[keep] ** 2))
     return k
 

@@ -84,9 +84,7 @@ def _agree(uv_a: np.ndarray, uv_b: np.ndarray, radius_px: float) -> tuple[int, b
     return int(both.sum()), bool(np.all(d <= radius_px))
 
 
-def _close_pairs(
-    uv_a: np.ndarray, uv_b: np.ndarray | None, radius_px: float
-) -> set[tuple[int, int]]:
+def _close_pairs(uv_a: np.ndarray, uv_b: np.ndarray | None, radius_px: float) -> set[tuple[int, int]]:
     """Pairs (i, j) of tracks within `radius_px` in at least one camera.
 
     With `uv_b` None, pairs i < j within `uv_a` itself. Arrays are (T, C, 2).
@@ -167,9 +165,7 @@ class TrackPool:
     Not thread-safe: the matcher node owns one and feeds it in order.
     """
 
-    def __init__(
-        self, cameras: Sequence[CameraInfo], stereo: Stereo, config: PoolConfig = PoolConfig()
-    ) -> None:
+    def __init__(self, cameras: Sequence[CameraInfo], stereo: Stereo, config: PoolConfig = PoolConfig()) -> None:
         ids = [c.id for c in cameras]
         if len(set(ids)) != len(ids):
             raise ValueError(f"duplicate camera ids: {ids}")

@@ -56,9 +56,7 @@ def build_tracks(matches: FrameSetMatches, *, min_views: int = 2) -> FrameTracks
     empty = FrameTracks(matches.camera_ids, np.empty((0, n_cams, 2)))
     if src_all.size == 0:
         return empty
-    graph = coo_matrix(
-        (np.ones(src_all.size, dtype=np.int8), (src_all, dst_all)), shape=(n_nodes, n_nodes)
-    )
+    graph = coo_matrix((np.ones(src_all.size, dtype=np.int8), (src_all, dst_all)), shape=(n_nodes, n_nodes))
     _, label = connected_components(graph, directed=False)
     used = np.unique(np.concatenate([src_all, dst_all]))
     used_label = label[used]

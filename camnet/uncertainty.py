@@ -56,10 +56,9 @@ class Covariance:
 def covariance(problem: Problem, state: State, *, sigma_px: float | None = None) -> Covariance:
     """Covariance at `state`; sigma_px None estimates it from the residuals (a posteriori)."""
     ne = normal_equations(problem, state)
-    # A point left without observations (all rejected) carries no information.
-    unseen = np.bincount(problem.pt, minlength=problem.n_points) == 0
-    V_inv = np.linalg.inv(ne.V + unseen[:, None, None] * np.eye(3))
-    V_inv[unseen] = 0.0
+    # A point left without observations (all rejected), or seen along one ray only,
+    # carries no information in some directions: the pseudo-inverse gives it none.
+    V_inv = np.linalg.pinv(ne.V, hermitian=True)
     WV = ne.W @ _block_diag(V_inv)
     S = ne.U - (WV @ ne.W.T).toarray()
     S_inv = scipy.linalg.pinvh(S) if len(S) else S
@@ -82,9 +81,16 @@ def scale_gradient(points: np.ndarray) -> np.ndarray:
     return c / np.sum(c * c)
 
 
-def scale_sigma(cov: Covariance, points: np.ndarray) -> float:
-    """Standard deviation of the network's scale (relative, 0.001 = 0.1%)."""
-    return float(np.sqrt(cov.variance(None, scale_gradient(points))))
+def scale_sigma(cov: Covariance, points: np.ndarray, kept: np.ndarray | None = None) -> float:
+    """Standard deviation of the network's scale (relative, 0.001 = 0.1%).
+
+    kept: the points that make up the cloud (default all); rejected tracks
+    are left out of it.
+    """
+    kept = np.ones(len(points), dtype=bool) if kept is None else kept
+    g = np.zeros_like(points)
+    g[kept] = scale_gradient(points[kept])
+    return float(np.sqrt(cov.variance(None, g)))
 
 
 def shape_rms_bound_m(cov: Covariance, points: np.ndarray) -> float:

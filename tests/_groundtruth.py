@@ -50,9 +50,7 @@ def epipolar_distance_px(uv_a: np.ndarray, uv_b: np.ndarray, cam_a: Camera, cam_
     line_b = ha @ F.T
     line_a = hb @ F
     algebraic = np.abs(np.sum(hb * line_b, axis=1))
-    return np.maximum(
-        algebraic / np.hypot(*line_b[:, :2].T), algebraic / np.hypot(*line_a[:, :2].T)
-    )
+    return np.maximum(algebraic / np.hypot(*line_b[:, :2].T), algebraic / np.hypot(*line_a[:, :2].T))
 
 
 def pairwise_epipolar_fractions(uv: np.ndarray, cameras: list[Camera], tol_px: float) -> dict:
@@ -77,7 +75,5 @@ def read_temple_cameras(root: Path) -> dict[str, Camera]:
         name, *values = line.split()
         v = np.array(values, dtype=float)
         cam_id = name.removesuffix(".png")
-        cameras[cam_id] = Camera(
-            cam_id, 640, 480, K=v[:9].reshape(3, 3), R=v[9:18].reshape(3, 3), t=v[18:21]
-        )
+        cameras[cam_id] = Camera(cam_id, 640, 480, K=v[:9].reshape(3, 3), R=v[9:18].reshape(3, 3), t=v[18:21])
     return cameras

@@ -121,10 +121,7 @@ def test_stereo_prior_is_applied_with_left_first_whatever_the_order():
         (pair,) = matches.pairs
         ids = matches.camera_ids
         assert (ids[pair.a], ids[pair.b]) == ("L", "R")
-        du = (
-            matches.features[pair.a].uv[pair.index_a, 0]
-            - matches.features[pair.b].uv[pair.index_b, 0]
-        )
+        du = matches.features[pair.a].uv[pair.index_a, 0] - matches.features[pair.b].uv[pair.index_b, 0]
         assert len(pair) > 100
         assert np.median(du) == pytest.approx(12.0, abs=0.2)
         forward = len(pair)

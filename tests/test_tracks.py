@@ -40,8 +40,6 @@ def test_chains_consistent_components_and_drops_a_camera_seen_twice():
 def test_no_matches_gives_no_tracks():
     feats = tuple(_features(3, c) for c in range(2))
     empty = np.empty(0, dtype=np.int64)
-    tracks = build_tracks(
-        FrameSetMatches(("a", "b"), feats, (PairMatches(0, 1, empty, empty, None, 0),))
-    )
+    tracks = build_tracks(FrameSetMatches(("a", "b"), feats, (PairMatches(0, 1, empty, empty, None, 0),)))
     assert len(tracks) == 0
     assert tracks.uv.shape == (0, 2, 2)
