@@ -13,6 +13,9 @@ from camnet.errors import CamnetError
 # name -> module in camnet.commands; order is the order shown in --help.
 COMMANDS = {
     # filled as commands land
+    "driver": "run one camera driver (sim, aravis, v4l2) and publish its frames",
+    "router": "run an embedded Zenoh router",
+    "status": "list the live nodes of a rig with their frame rates and drops",
 }
 
 
