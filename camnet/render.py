@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from camnet.camera import Camera
+from camnet.camera import Camera, distort, full_dist
 
 _NEAR_M = 0.01  # near clipping plane in camera z
 
@@ -134,11 +134,12 @@ def distortion_map(camera: Camera) -> DistortionMap | None:
         return None
     u, v = np.meshgrid(np.arange(camera.width, dtype=np.float64),
                        np.arange(camera.height, dtype=np.float64))
-    distorted = np.stack([u.ravel(), v.ravel()], axis=1).reshape(-1, 1, 2)
-    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-10)
-    normalised = cv2.undistortPointsIter(distorted, camera.K, camera.dist, None, None,
-                                         criteria).reshape(-1, 2)
-    ideal = normalised * [camera.K[0, 0], camera.K[1, 1]] + [camera.K[0, 2], camera.K[1, 2]]
+    K = camera.K
+    distorted = np.stack([(u.ravel() - K[0, 2] - K[0, 1] * (v.ravel() - K[1, 2]) / K[1, 1])
+                          / K[0, 0], (v.ravel() - K[1, 2]) / K[1, 1]], axis=1)
+    normalised = undistort_normalised(distorted, camera.dist)
+    ideal = np.stack([K[0, 0] * normalised[:, 0] + K[0, 1] * normalised[:, 1] + K[0, 2],
+                      K[1, 1] * normalised[:, 1] + K[1, 2]], axis=1)
     # The ideal canvas covers every pixel the distorted image looks up (plus a margin).
     lo = np.floor(ideal.min(axis=0)) - 2
     hi = np.ceil(ideal.max(axis=0)) + 2
@@ -150,6 +151,28 @@ def distortion_map(camera: Camera) -> DistortionMap | None:
     shape = (camera.height, camera.width)
     return DistortionMap(canvas[:, 0].reshape(shape).astype(np.float32),
                          canvas[:, 1].reshape(shape).astype(np.float32), canvas_K, size)
+
+
+def undistort_normalised(xd: np.ndarray, dist: np.ndarray, iterations: int = 40) -> np.ndarray:
+    """Normalised points (n, 2) whose OpenCV distortion is `xd`, by fixed-point iteration.
+
+    Converges for the moderate distortion of real lenses; the residual is
+    checked so a lens beyond that fails loudly instead of rendering garbage.
+    """
+    k1, k2, p1, p2, k3 = full_dist(dist)
+    x = xd.copy()
+    for _ in range(iterations):
+        px, py = x[:, 0], x[:, 1]
+        r2 = px * px + py * py
+        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        dx = 2.0 * p1 * px * py + p2 * (r2 + 2.0 * px * px)
+        dy = p1 * (r2 + 2.0 * py * py) + 2.0 * p2 * px * py
+        x = np.stack([(xd[:, 0] - dx) / radial, (xd[:, 1] - dy) / radial], axis=1)
+    residual = np.abs(distort(x, dist) - xd).max()
+    if not residual < 1e-9:
+        raise ValueError(f"distortion {list(dist)} cannot be inverted over the image "
+                         f"(residual {residual:.2g}); is it too strong?")
+    return x
 
 
 class Renderer:
