@@ -6,7 +6,7 @@ the buffer straight back, so no allocation happens per frame.
 
 When the camera disappears (control lost, or no buffer for `lost_after_s`),
 the driver drops it and reconnects by itself with exponential back-off
-(0.5 s doubling to 8 s). Waiting for a reconnection sleeps; it never spins.
+(0.5 s doubling to 4 s). Waiting for a reconnection sleeps; it never spins.
 Timestamps are the camera's own (ns) when it gives them, else the host's.
 """
 
@@ -41,7 +41,7 @@ PIXEL_FORMATS = {
 }
 _CHANNELS = {"rgb8": 3, "bgr8": 3}
 BACKOFF_START_S = 0.5
-BACKOFF_MAX_S = 8.0
+BACKOFF_MAX_S = 4.0
 _FRAME_ID_MODULO = 1 << 16  # GigE Vision 1.x block ids are 16-bit
 
 
