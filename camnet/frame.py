@@ -141,8 +141,14 @@ def _compress(image: np.ndarray, compression: Compression, encoding: str, qualit
 
 
 def decode_frame(data: bytes | bytearray | memoryview) -> Frame:
-    """The Frame in `data`; raises FrameError (never anything else) if malformed."""
-    buf = memoryview(data).cast("B") if not isinstance(data, bytes) else data
+    """The Frame in `data`; raises FrameError (never anything else) if malformed.
+
+    From immutable `bytes`, raw pixels are not copied: the image is a read-only
+    view that keeps `data` alive (copy it to modify). From a mutable buffer
+    the pixels are copied.
+    """
+    # Slicing a memoryview copies nothing; slicing bytes would copy the pixels.
+    buf = memoryview(data).cast("B")
     if len(buf) < 5:
         raise FrameError("truncated", f"{len(buf)} bytes, shorter than any header")
     if bytes(buf[:4]) != MAGIC:
@@ -173,13 +179,14 @@ def decode_frame(data: bytes | bytearray | memoryview) -> Frame:
     if width == 0 or height == 0:
         raise FrameError("bad-size", f"{width}x{height}")
     payload = buf[header_size:header_size + payload_size]
-    image = _pixels(payload, compression, encoding, width, height)
+    image = _pixels(payload, compression, encoding, width, height,
+                    owned=isinstance(data, bytes))
     return Frame(camera_id=camera_id, seq=seq, timestamp_ns=timestamp_ns, encoding=encoding,
                  image=image)
 
 
 def _pixels(payload, compression: Compression, encoding: str, width: int,
-            height: int) -> np.ndarray:
+            height: int, *, owned: bool) -> np.ndarray:
     spec = ENCODINGS[encoding]
     shape = (height, width) if spec.channels == 1 else (height, width, spec.channels)
     if compression is Compression.NONE:
@@ -187,8 +194,10 @@ def _pixels(payload, compression: Compression, encoding: str, width: int,
         if len(payload) != expected:
             raise FrameError("bad-size", f"{len(payload)} pixel bytes, {width}x{height} "
                              f"{encoding} needs {expected}")
-        # A copy: the image must outlive the transport's buffer.
-        image = np.frombuffer(payload, dtype=spec.dtype).reshape(shape).copy()
+        image = np.frombuffer(payload, dtype=spec.dtype).reshape(shape)
+        if not owned:
+            # The caller's buffer may be reused: the image must not alias it.
+            image = image.copy()
         return image.astype(spec.dtype.newbyteorder("="), copy=False)
     import cv2
 
