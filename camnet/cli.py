@@ -12,9 +12,12 @@ from camnet.errors import CamnetError
 
 # name -> module in camnet.commands; order is the order shown in --help.
 COMMANDS = {
-    "calibrate": "Solve a calibration offline from an observations file.",
     "up": "Run camnet on the built-in simulated rig and compare with its ground truth.",
+    "calibrate": "Solve a calibration offline from an observations file.",
     "simulate": "Write the observations of a simulated rig (and its ground truth).",
+    "driver": "Run one camera driver (sim, aravis, v4l2) and publish its frames.",
+    "router": "Run an embedded Zenoh router.",
+    "status": "List the live nodes of a rig with their frame rates and drops.",
 }
 
 

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from _groundtruth import KITTI_ROOT, pairwise_epipolar_fractions, require
 
 from camnet.datasets.kitti import KittiExtract, parse_calib_cam_to_cam, read_image
 from camnet.errors import InputError
@@ -12,6 +11,7 @@ from camnet.formats import CameraInfo, observations_to_doc, parse_observations
 from camnet.matching import MatcherConfig, match_frame_set
 from camnet.track_pool import PoolConfig, TrackPool
 from camnet.tracks import build_tracks
+from tests._groundtruth import KITTI_ROOT, pairwise_epipolar_fractions, require
 
 
 def test_calibration_in_cam0_frame_with_metric_baseline():

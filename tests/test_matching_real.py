@@ -11,17 +11,17 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
-from _groundtruth import (
+
+from camnet.datasets.kitti import KittiExtract, read_image
+from camnet.matching import MatcherConfig, match_frame_set
+from camnet.tracks import build_tracks
+from tests._groundtruth import (
     KITTI_ROOT,
     TEMPLE_ROOT,
     pairwise_epipolar_fractions,
     read_temple_cameras,
     require,
 )
-
-from camnet.datasets.kitti import KittiExtract, read_image
-from camnet.matching import MatcherConfig, match_frame_set
-from camnet.tracks import build_tracks
 
 TOL_PX = 2.0
 MIN_FRACTION = 0.95

@@ -1,0 +1,210 @@
+"""The frame message: one camera image on the wire.
+
+Layout (all integers little-endian), documented byte by byte in
+docs/frame-format.md::
+
+    magic "CNFR" | version u8 | encoding u8 | compression u8 | flags u8 |
+    header_size u16 | id_len u16 | width u32 | height u32 | seq u64 |
+    timestamp_ns u64 | payload_size u32 | camera id (utf-8, id_len bytes) |
+    payload (payload_size bytes)
+
+Raw payloads are the pixels row by row with no padding; 16-bit pixels are
+little-endian. `decode_frame` refuses anything malformed with a `FrameError`
+whose `kind` says what was wrong, so receivers can count and go on.
+"""
+
+from __future__ import annotations
+
+import enum
+import struct
+from dataclasses import dataclass
+
+import numpy as np
+
+MAGIC = b"CNFR"
+VERSION = 1
+_FIXED = struct.Struct("<4sBBBBHHIIQQI")
+FIXED_HEADER_SIZE = _FIXED.size  # 40 bytes
+MAX_ID_BYTES = 255
+MAX_SIDE_PX = 65535
+
+
+class FrameError(ValueError):
+    """A malformed frame; `kind` is a short stable label for counting."""
+
+    def __init__(self, kind: str, message: str) -> None:
+        super().__init__(f"{kind}: {message}")
+        self.kind = kind
+
+
+class Compression(enum.IntEnum):
+    NONE = 0
+    PNG = 1
+    JPEG = 2
+
+
+@dataclass(frozen=True)
+class EncodingSpec:
+    code: int
+    channels: int
+    dtype: np.dtype
+
+
+# ROS sensor_msgs names; codes are part of the wire format: never renumber.
+ENCODINGS: dict[str, EncodingSpec] = {
+    "mono8": EncodingSpec(1, 1, np.dtype(np.uint8)),
+    "mono16": EncodingSpec(2, 1, np.dtype("<u2")),
+    "bgr8": EncodingSpec(3, 3, np.dtype(np.uint8)),
+    "rgb8": EncodingSpec(4, 3, np.dtype(np.uint8)),
+    "bayer_rggb8": EncodingSpec(5, 1, np.dtype(np.uint8)),
+    "bayer_bggr8": EncodingSpec(6, 1, np.dtype(np.uint8)),
+    "bayer_gbrg8": EncodingSpec(7, 1, np.dtype(np.uint8)),
+    "bayer_grbg8": EncodingSpec(8, 1, np.dtype(np.uint8)),
+}
+_BY_CODE = {spec.code: name for name, spec in ENCODINGS.items()}
+
+
+@dataclass(frozen=True, eq=False)
+class Frame:
+    """One image of one camera.
+
+    `image` is (height, width) for one-channel encodings and (height, width, 3)
+    for bgr8/rgb8; dtype uint8, or uint16 for mono16. `timestamp_ns` is the
+    capture time in integer nanoseconds (the camera's clock when it has one,
+    else the host's CLOCK_REALTIME); `seq` counts frames of this camera from 0.
+    """
+
+    camera_id: str
+    seq: int
+    timestamp_ns: int
+    encoding: str
+    image: np.ndarray
+
+    def __post_init__(self) -> None:
+        spec = ENCODINGS.get(self.encoding)
+        if spec is None:
+            known = ", ".join(ENCODINGS)
+            raise ValueError(f"unknown encoding {self.encoding!r} (expected {known})")
+        expected_ndim = 2 if spec.channels == 1 else 3
+        img = self.image
+        if img.ndim != expected_ndim or (spec.channels > 1 and img.shape[2] != spec.channels):
+            wanted = "(h, w)" if spec.channels == 1 else f"(h, w, {spec.channels})"
+            raise ValueError(f"{self.encoding} needs shape {wanted}, got {img.shape}")
+        if img.dtype.itemsize != spec.dtype.itemsize or img.dtype.kind != "u":
+            raise ValueError(f"{self.encoding} needs dtype {spec.dtype.name}, got {img.dtype}")
+        if not 0 <= self.seq < 2**64 or not 0 <= self.timestamp_ns < 2**64:
+            raise ValueError("seq and timestamp_ns must fit in unsigned 64 bits")
+
+    @property
+    def width(self) -> int:
+        return int(self.image.shape[1])
+
+    @property
+    def height(self) -> int:
+        return int(self.image.shape[0])
+
+
+def encode_frame(frame: Frame, *, compression: Compression | str = Compression.NONE,
+                 jpeg_quality: int = 90) -> bytes:
+    """The wire bytes of `frame`; PNG is lossless, JPEG is lossy and 8-bit only."""
+    compression = Compression[compression.upper()] if isinstance(compression, str) \
+        else Compression(compression)
+    spec = ENCODINGS[frame.encoding]
+    id_bytes = frame.camera_id.encode("utf-8")
+    if not id_bytes or len(id_bytes) > MAX_ID_BYTES:
+        raise ValueError(f"camera id must be 1..{MAX_ID_BYTES} utf-8 bytes")
+    if frame.width > MAX_SIDE_PX or frame.height > MAX_SIDE_PX:
+        raise ValueError("image too large for the frame format")
+    image = np.ascontiguousarray(frame.image)
+    if compression is Compression.NONE:
+        payload = image.astype(spec.dtype, copy=False).tobytes()
+    else:
+        payload = _compress(image, compression, frame.encoding, jpeg_quality)
+    header = _FIXED.pack(MAGIC, VERSION, spec.code, int(compression), 0,
+                         FIXED_HEADER_SIZE + len(id_bytes), len(id_bytes), frame.width,
+                         frame.height, frame.seq, frame.timestamp_ns, len(payload))
+    return b"".join((header, id_bytes, payload))
+
+
+def _compress(image: np.ndarray, compression: Compression, encoding: str, quality: int) -> bytes:
+    import cv2  # imported here: raw frames need no codec
+
+    if compression is Compression.JPEG:
+        if image.dtype != np.uint8:
+            raise ValueError(f"JPEG cannot carry {encoding}; use PNG or no compression")
+        ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    else:
+        ok, buf = cv2.imencode(".png", image, [cv2.IMWRITE_PNG_COMPRESSION, 1])
+    if not ok:
+        raise ValueError(f"could not compress a {encoding} image as {compression.name}")
+    return buf.tobytes()
+
+
+def decode_frame(data: bytes | bytearray | memoryview) -> Frame:
+    """The Frame in `data`; raises FrameError (never anything else) if malformed.
+
+    From immutable `bytes`, raw pixels are not copied: the image is a read-only
+    view that keeps `data` alive (copy it to modify). From a mutable buffer
+    the pixels are copied.
+    """
+    # Slicing a memoryview copies nothing; slicing bytes would copy the pixels.
+    buf = memoryview(data).cast("B")
+    if len(buf) < 5:
+        raise FrameError("truncated", f"{len(buf)} bytes, shorter than any header")
+    if bytes(buf[:4]) != MAGIC:
+        raise FrameError("bad-magic", f"starts with {bytes(buf[:4])!r}, expected {MAGIC!r}")
+    if buf[4] != VERSION:
+        raise FrameError("unknown-version", f"version {buf[4]}, this camnet reads {VERSION}")
+    if len(buf) < FIXED_HEADER_SIZE:
+        raise FrameError("truncated", f"{len(buf)} bytes, header needs {FIXED_HEADER_SIZE}")
+    (_, _, code, comp, _flags, header_size, id_len, width, height, seq, timestamp_ns,
+     payload_size) = _FIXED.unpack_from(buf, 0)
+    if header_size != FIXED_HEADER_SIZE + id_len or id_len == 0:
+        raise FrameError("bad-header", f"header_size {header_size} with id_len {id_len}")
+    if len(buf) < header_size + payload_size:
+        raise FrameError("truncated", f"{len(buf)} bytes, frame needs {header_size + payload_size}")
+    if len(buf) > header_size + payload_size:
+        raise FrameError("trailing-bytes", f"{len(buf) - header_size - payload_size} extra bytes")
+    encoding = _BY_CODE.get(code)
+    if encoding is None:
+        raise FrameError("bad-encoding", f"encoding code {code}")
+    try:
+        compression = Compression(comp)
+    except ValueError:
+        raise FrameError("bad-compression", f"compression code {comp}") from None
+    try:
+        camera_id = bytes(buf[FIXED_HEADER_SIZE:header_size]).decode("utf-8")
+    except UnicodeDecodeError:
+        raise FrameError("bad-camera-id", "camera id is not utf-8") from None
+    if width == 0 or height == 0:
+        raise FrameError("bad-size", f"{width}x{height}")
+    payload = buf[header_size:header_size + payload_size]
+    image = _pixels(payload, compression, encoding, width, height,
+                    owned=isinstance(data, bytes))
+    return Frame(camera_id=camera_id, seq=seq, timestamp_ns=timestamp_ns, encoding=encoding,
+                 image=image)
+
+
+def _pixels(payload, compression: Compression, encoding: str, width: int,
+            height: int, *, owned: bool) -> np.ndarray:
+    spec = ENCODINGS[encoding]
+    shape = (height, width) if spec.channels == 1 else (height, width, spec.channels)
+    if compression is Compression.NONE:
+        expected = width * height * spec.channels * spec.dtype.itemsize
+        if len(payload) != expected:
+            raise FrameError("bad-size", f"{len(payload)} pixel bytes, {width}x{height} "
+                             f"{encoding} needs {expected}")
+        image = np.frombuffer(payload, dtype=spec.dtype).reshape(shape)
+        if not owned:
+            # The caller's buffer may be reused: the image must not alias it.
+            image = image.copy()
+        return image.astype(spec.dtype.newbyteorder("="), copy=False)
+    import cv2
+
+    image = cv2.imdecode(np.frombuffer(payload, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+    if image is None:
+        raise FrameError("bad-payload", f"{compression.name} payload does not decode")
+    if image.shape != shape or image.dtype.itemsize != spec.dtype.itemsize:
+        raise FrameError("bad-size", f"decoded {image.shape} {image.dtype}, header says "
+                         f"{shape} {encoding}")
+    return image

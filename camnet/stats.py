@@ -1,0 +1,68 @@
+"""Node statistics published next to each node's liveliness token (JSON)."""
+
+from __future__ import annotations
+
+import json
+import time
+from collections import deque
+from dataclasses import asdict, dataclass
+
+from camnet.errors import InputError
+
+STATS_FORMAT = "camnet.node-stats/1"
+
+
+@dataclass(frozen=True)
+class NodeStats:
+    """One report of a node: `fps` measured over the last few seconds; counters since start."""
+
+    rig: str
+    kind: str
+    node_id: str
+    fps: float
+    frames: int
+    dropped: int
+    timestamp_ns: int
+    detail: str = ""
+
+    def to_json(self) -> bytes:
+        return json.dumps({"format": STATS_FORMAT, **asdict(self)}).encode()
+
+    @staticmethod
+    def from_json(payload: bytes) -> NodeStats:
+        try:
+            doc = json.loads(payload)
+            if doc.get("format") != STATS_FORMAT:
+                raise InputError(f"stats: unsupported format {doc.get('format')!r}")
+            return NodeStats(rig=str(doc["rig"]), kind=str(doc["kind"]),
+                             node_id=str(doc["node_id"]), fps=float(doc["fps"]),
+                             frames=int(doc["frames"]), dropped=int(doc["dropped"]),
+                             timestamp_ns=int(doc["timestamp_ns"]),
+                             detail=str(doc.get("detail", "")))
+        except (ValueError, KeyError, TypeError, AttributeError) as exc:
+            raise InputError(f"stats: malformed message ({exc})") from exc
+
+
+class RateMeter:
+    """Events per second over a sliding window of `window_s` seconds (monotonic clock)."""
+
+    def __init__(self, window_s: float = 2.0) -> None:
+        self.window_s = window_s
+        self._times: deque[float] = deque()
+
+    def tick(self, now_s: float | None = None) -> None:
+        now_s = time.monotonic() if now_s is None else now_s
+        self._times.append(now_s)
+        self._trim(now_s)
+
+    def _trim(self, now_s: float) -> None:
+        while self._times and self._times[0] < now_s - self.window_s:
+            self._times.popleft()
+
+    def rate(self, now_s: float | None = None) -> float:
+        now_s = time.monotonic() if now_s is None else now_s
+        self._trim(now_s)
+        if len(self._times) < 2:
+            return 0.0
+        span = self._times[-1] - self._times[0]
+        return (len(self._times) - 1) / span if span > 0 else 0.0

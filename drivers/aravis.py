@@ -1,0 +1,248 @@
+"""GigE Vision / USB3 Vision cameras through Aravis (GObject introspection).
+
+Acquisition uses Aravis's stream buffer pool: `n_buffers` buffers are pushed
+once, each `read()` pops one (with a timeout), copies the pixels out and pushes
+the buffer straight back, so no allocation happens per frame.
+
+When the camera disappears (control lost, or no buffer for `lost_after_s`),
+the driver drops it and reconnects by itself with exponential back-off
+(0.5 s doubling to 4 s). Waiting for a reconnection sleeps; it never spins.
+Timestamps are the camera's own (ns) when it gives them, else the host's.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+
+import gi
+import numpy as np
+
+gi.require_version("Aravis", "0.8")
+from gi.repository import Aravis, GLib  # noqa: E402  (require_version must come first)
+
+from camnet.frame import Frame  # noqa: E402
+from camnet.rig import AravisConfig, CameraEntry, Rig  # noqa: E402
+from drivers.base import CameraInfo, DeviceError, ReadTimeout  # noqa: E402
+
+log = logging.getLogger(__name__)
+
+# GenICam PFNC codes -> camnet encodings.
+PIXEL_FORMATS = {
+    0x01080001: "mono8",
+    0x01100007: "mono16",
+    0x02180014: "rgb8",
+    0x02180015: "bgr8",
+    0x01080008: "bayer_grbg8",
+    0x01080009: "bayer_rggb8",
+    0x0108000A: "bayer_gbrg8",
+    0x0108000B: "bayer_bggr8",
+}
+_CHANNELS = {"rgb8": 3, "bgr8": 3}
+BACKOFF_START_S = 0.5
+BACKOFF_MAX_S = 4.0
+_FRAME_ID_MODULO = 1 << 16  # GigE Vision 1.x block ids are 16-bit
+
+
+def create(entry: CameraEntry, rig: Rig) -> AravisCamera:
+    return AravisCamera(entry.id, entry.config)
+
+
+class AravisCamera:
+    def __init__(self, camera_id: str, config: AravisConfig, *, lost_after_s: float = 2.0) -> None:
+        self.camera_id = camera_id
+        self.config = config
+        self.lost_after_s = lost_after_s
+        self._camera = None
+        self._stream = None
+        self._info: CameraInfo | None = None
+        self._control_lost = threading.Event()
+        self._seq = 0
+        self._dropped = 0
+        self._reconnects = 0
+        self._last_frame_id: int | None = None
+        self._last_buffer_mono = 0.0
+        self._backoff_s = BACKOFF_START_S
+        self._next_attempt_mono = 0.0
+
+    @property
+    def info(self) -> CameraInfo:
+        if self._info is None:
+            raise DeviceError(f"camera {self.camera_id!r}: not open")
+        return self._info
+
+    @property
+    def dropped(self) -> int:
+        return self._dropped
+
+    @property
+    def reconnects(self) -> int:
+        """How many times the camera was lost and found again."""
+        return self._reconnects
+
+    @property
+    def connected(self) -> bool:
+        return self._camera is not None
+
+    def __enter__(self) -> AravisCamera:
+        if self.config.enable_fake_interface:
+            Aravis.enable_interface("Fake")
+        self._connect()
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self._disconnect()
+
+    def _connect(self) -> None:
+        device = self.config.device_id
+        try:
+            camera = Aravis.Camera.new(device)
+        except GLib.Error as exc:
+            raise DeviceError(
+                f"camera {self.camera_id!r}: cannot open Aravis device "
+                f"{device or '(first found)'!r}: {exc.message}; check that it is powered and "
+                "reachable (arv-tool-0.8 lists cameras), that its id matches, and for GigE that "
+                "it is on this host's subnet") from exc
+        try:
+            self._configure(camera)
+            stream = camera.create_stream(None, None)
+            payload = camera.get_payload()
+            for _ in range(self.config.n_buffers):
+                stream.push_buffer(Aravis.Buffer.new_allocate(payload))
+            camera.start_acquisition()
+        except GLib.Error as exc:
+            raise DeviceError(f"camera {self.camera_id!r}: Aravis device "
+                              f"{device or '(first found)'!r} refused its configuration: "
+                              f"{exc.message}; check pixel_format, size and fps in the rig "
+                              "file") from exc
+        self._control_lost.clear()
+        try:
+            camera.get_device().connect("control-lost", self._on_control_lost)
+        except TypeError:
+            log.debug("device of %s has no control-lost signal", self.camera_id)
+        self._camera, self._stream = camera, stream
+        self._last_frame_id = None
+        self._last_buffer_mono = time.monotonic()
+        self._backoff_s = BACKOFF_START_S
+        _, _, width, height = camera.get_region()
+        encoding = PIXEL_FORMATS.get(camera.get_pixel_format(), "unsupported")
+        fps = camera.get_frame_rate() if camera.is_frame_rate_available() else 0.0
+        self._info = CameraInfo(
+            camera_id=self.camera_id, driver="aravis", width=width, height=height,
+            encoding=encoding, fps=fps,
+            description=f"{camera.get_vendor_name()} {camera.get_model_name()} "
+                        f"({camera.get_device_id()})")
+        log.info("camera %s: opened %s", self.camera_id, self._info.description)
+
+    def _on_control_lost(self, *args) -> None:
+        # Called from Aravis's heartbeat thread: only set a flag.
+        self._control_lost.set()
+
+    def _configure(self, camera) -> None:
+        cfg = self.config
+        camera.set_pixel_format_from_string(cfg.pixel_format)
+        if cfg.width or cfg.height:
+            _, _, width, height = camera.get_region()
+            camera.set_region(0, 0, cfg.width or width, cfg.height or height)
+        if cfg.fps and camera.is_frame_rate_available():
+            camera.set_frame_rate(cfg.fps)
+        if cfg.exposure_us and camera.is_exposure_time_available():
+            camera.set_exposure_time(cfg.exposure_us)
+        if cfg.gain_db is not None and camera.is_gain_available():
+            camera.set_gain(cfg.gain_db)
+        if cfg.packet_size and camera.is_gv_device():
+            camera.gv_set_packet_size(cfg.packet_size)
+
+    def _disconnect(self) -> None:
+        camera, self._camera, self._stream = self._camera, None, None
+        if camera is None:
+            return
+        try:
+            camera.stop_acquisition()
+        except GLib.Error as exc:
+            # Expected when the camera is already gone.
+            log.debug("camera %s: stop_acquisition failed: %s", self.camera_id, exc.message)
+
+    def _lose(self, why: str) -> None:
+        log.warning("camera %s: lost (%s); reconnecting with back-off", self.camera_id, why)
+        self._disconnect()
+        self._next_attempt_mono = time.monotonic() + self._backoff_s
+
+    def _try_reconnect(self, deadline: float) -> None:
+        now = time.monotonic()
+        if now < self._next_attempt_mono:
+            time.sleep(max(0.0, min(self._next_attempt_mono, deadline) - now))
+            if time.monotonic() < self._next_attempt_mono:
+                raise ReadTimeout(f"camera {self.camera_id!r} is gone; next attempt soon")
+        try:
+            self._connect()
+        except DeviceError as exc:
+            self._backoff_s = min(self._backoff_s * 2, BACKOFF_MAX_S)
+            self._next_attempt_mono = time.monotonic() + self._backoff_s
+            log.info("camera %s: reconnection failed (%s); next try in %.1f s", self.camera_id,
+                     exc, self._backoff_s)
+            raise ReadTimeout(f"camera {self.camera_id!r} is gone") from exc
+        self._reconnects += 1
+        log.warning("camera %s: reconnected", self.camera_id)
+
+    def read(self, *, timeout_s: float = 1.0) -> Frame:
+        deadline = time.monotonic() + timeout_s
+        while True:
+            if self._camera is None:
+                self._try_reconnect(deadline)
+            if self._control_lost.is_set():
+                self._lose("control lost")
+                continue
+            remaining_s = deadline - time.monotonic()
+            if remaining_s <= 0:
+                raise ReadTimeout(f"camera {self.camera_id!r}: no frame in {timeout_s} s")
+            buffer = self._stream.timeout_pop_buffer(max(1, int(remaining_s * 1e6)))
+            if buffer is None:
+                if time.monotonic() - self._last_buffer_mono > self.lost_after_s:
+                    self._lose(f"no buffer for {self.lost_after_s} s")
+                raise ReadTimeout(f"camera {self.camera_id!r}: no frame in {timeout_s} s")
+            self._last_buffer_mono = time.monotonic()
+            try:
+                frame = self._frame_from(buffer)
+            finally:
+                self._stream.push_buffer(buffer)
+            if frame is not None:
+                return frame
+
+    def _frame_from(self, buffer) -> Frame | None:
+        """The Frame in `buffer`, or None (counted as dropped) if the buffer is incomplete."""
+        frame_id = buffer.get_frame_id()
+        if self._last_frame_id is not None:
+            gap = (frame_id - self._last_frame_id - 1) % _FRAME_ID_MODULO
+            if 0 < gap < _FRAME_ID_MODULO // 2:
+                self._dropped += gap
+                self._seq += gap
+        self._last_frame_id = frame_id
+        if buffer.get_status() != Aravis.BufferStatus.SUCCESS:
+            self._dropped += 1
+            self._seq += 1
+            return None
+        encoding = PIXEL_FORMATS.get(buffer.get_image_pixel_format())
+        if encoding is None:
+            raise DeviceError(f"camera {self.camera_id!r}: pixel format "
+                              f"0x{buffer.get_image_pixel_format():08x} is not supported; set "
+                              f"pixel_format to one of Mono8, Mono16, RGB8, BGR8, Bayer*8")
+        width, height = buffer.get_image_width(), buffer.get_image_height()
+        dtype = np.dtype("<u2") if encoding == "mono16" else np.dtype(np.uint8)
+        channels = _CHANNELS.get(encoding, 1)
+        shape = (height, width, channels) if channels > 1 else (height, width)
+        data = buffer.get_data()
+        needed = width * height * channels * dtype.itemsize
+        if len(data) < needed:
+            self._dropped += 1
+            self._seq += 1
+            return None
+        # Copy out: the buffer goes back to the pool right after.
+        image = np.frombuffer(data, dtype=dtype, count=needed // dtype.itemsize).reshape(
+            shape).copy()
+        timestamp_ns = buffer.get_timestamp() or buffer.get_system_timestamp() or time.time_ns()
+        frame = Frame(camera_id=self.camera_id, seq=self._seq, timestamp_ns=int(timestamp_ns),
+                      encoding=encoding, image=image)
+        self._seq += 1
+        return frame

@@ -1,0 +1,88 @@
+"""The Camera protocol every driver implements, and the lazy driver registry.
+
+A camera is a context manager: entering opens it, leaving closes it. Inside,
+`read()` returns the next `camnet.frame.Frame` (blocking at most `timeout_s`)
+and `dropped` counts frames the camera produced but the driver lost. Driver
+modules are imported only when chosen, so a missing SDK (Aravis, say) breaks
+only that driver.
+"""
+
+from __future__ import annotations
+
+import importlib
+from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
+
+from camnet.errors import CamnetError
+from camnet.frame import Frame
+from camnet.rig import CameraEntry, Rig
+
+# driver name -> module implementing `create(entry, rig) -> Camera`
+DRIVER_MODULES = {
+    "sim": "drivers.sim",
+    "aravis": "drivers.aravis",
+    "v4l2": "drivers.v4l2",
+}
+
+# What to install when a driver's module cannot be imported.
+_INSTALL_HINTS = {
+    "aravis": "install the Aravis typelib (Debian: gir1.2-aravis-0.8) and PyGObject<3.51 "
+              "(pip install 'camnet[aravis]')",
+}
+
+
+class DeviceError(CamnetError):
+    """A camera cannot be opened or used; the message names it and what to check."""
+
+
+class ReadTimeout(Exception):
+    """No frame arrived within the timeout (camera slow, absent, or reconnecting)."""
+
+
+class EndOfStream(Exception):
+    """A finite source (video file, image sequence) has no more frames."""
+
+
+@dataclass(frozen=True)
+class CameraInfo:
+    """What a driver knows of its camera once open; `fps` is nominal (0 if unknown)."""
+
+    camera_id: str
+    driver: str
+    width: int
+    height: int
+    encoding: str
+    fps: float
+    description: str = ""
+
+
+@runtime_checkable
+class Camera(Protocol):
+    camera_id: str
+
+    @property
+    def info(self) -> CameraInfo: ...
+
+    @property
+    def dropped(self) -> int: ...
+
+    def __enter__(self) -> Camera: ...
+
+    def __exit__(self, *exc_info: object) -> None: ...
+
+    def read(self, *, timeout_s: float = 1.0) -> Frame: ...
+
+
+def create_camera(entry: CameraEntry, rig: Rig) -> Camera:
+    """An unopened camera for `entry`, importing its driver module now."""
+    module_name = DRIVER_MODULES.get(entry.driver)
+    if module_name is None:
+        raise DeviceError(f"camera {entry.id!r}: unknown driver {entry.driver!r} "
+                          f"(expected {', '.join(DRIVER_MODULES)})")
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as exc:
+        hint = _INSTALL_HINTS.get(entry.driver, "check the installation")
+        raise DeviceError(f"camera {entry.id!r}: the {entry.driver} driver is unavailable "
+                          f"({exc}); {hint}") from exc
+    return module.create(entry, rig)

@@ -1,0 +1,40 @@
+"""Shared fixtures: Zenoh peers on loopback with scouting off and their own free ports."""
+
+from __future__ import annotations
+
+import socket
+import time
+
+import pytest
+
+
+def free_port() -> int:
+    """A TCP port on 127.0.0.1 that was free a moment ago."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def wait_for(predicate, timeout_s: float = 10.0, period_s: float = 0.02) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(period_s)
+    return predicate()
+
+
+@pytest.fixture
+def zenoh_pair():
+    """(listener, connector): two peer sessions joined over tcp loopback, no scouting."""
+    from camnet.bus import BusOptions, open_session
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    a = open_session(BusOptions(listen=(endpoint,)))
+    b = open_session(BusOptions(connect=(endpoint,)))
+    try:
+        assert wait_for(lambda: len(list(b.info.peers_zid())) > 0, 5.0), "peers did not connect"
+        yield a, b
+    finally:
+        b.close()
+        a.close()

@@ -1,0 +1,70 @@
+"""Two real Zenoh peers on loopback (scouting off): frames, bad frames, liveliness."""
+
+import time
+
+import numpy as np
+
+from camnet import keys
+from camnet.bus import declare_liveliness
+from camnet.frame import ENCODINGS, encode_frame
+from camnet.receiver import FrameReceiver
+from tests.conftest import wait_for
+from tests.test_frame import _malformed, make_frame
+
+
+def test_frames_cross_the_bus_bit_exact(zenoh_pair):
+    a, b = zenoh_pair
+    receiver = FrameReceiver()
+    got = []
+    sub = b.declare_subscriber(keys.all_frames("t"),
+                               lambda s: got.append(receiver.accept(s.payload.to_bytes())))
+    time.sleep(0.3)
+    sent = [make_frame(enc, seq=i, camera_id="c0", h=1024, w=1280)
+            for i, enc in enumerate(sorted(ENCODINGS))]
+    for frame in sent:
+        a.put(keys.frame("t", "c0"), encode_frame(frame))
+    assert wait_for(lambda: len(got) == len(sent))
+    for frame, back in zip(sent, got, strict=True):
+        assert back.encoding == frame.encoding
+        assert np.array_equal(back.image, frame.image)
+    sub.undeclare()
+
+
+def test_bad_frames_do_not_stop_the_subscriber(zenoh_pair):
+    a, b = zenoh_pair
+    receiver = FrameReceiver()
+    good = []
+
+    def on_sample(sample):
+        frame = receiver.accept(sample.payload.to_bytes())
+        if frame is not None:
+            good.append(frame.seq)
+
+    sub = b.declare_subscriber(keys.all_frames("t"), on_sample)
+    time.sleep(0.3)
+    key = keys.frame("t", "c1")
+    bad = _malformed()
+    seqs = [0, 1, 2, 4, 5, 9]
+    for seq in seqs:
+        for payload in bad.values():
+            a.put(key, payload)
+        a.put(key, encode_frame(make_frame("mono8", seq=seq, camera_id="c1")))
+    assert wait_for(lambda: len(good) == len(seqs))
+    assert good == seqs
+    assert receiver.malformed == {kind: len(seqs) for kind in bad}
+    assert receiver.counts()["c1"].dropped == 4
+    sub.undeclare()
+
+
+def test_liveliness_token_is_seen_and_goes_away(zenoh_pair):
+    a, b = zenoh_pair
+    key = keys.node("t", "driver", "c2")
+    token = declare_liveliness(a, key)
+
+    def live():
+        return [str(r.ok.key_expr) for r in b.liveliness().get(keys.all_nodes("t"), timeout=1.0)
+                if r.ok is not None]
+
+    assert wait_for(lambda: live() == [key], 5.0)
+    token.undeclare()
+    assert wait_for(lambda: live() == [], 5.0)

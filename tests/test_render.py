@@ -1,0 +1,83 @@
+"""The renderer puts known 3-D points on the pixels the ground truth projects them to."""
+
+import numpy as np
+import pytest
+
+from camnet.camera import Camera, look_at
+from camnet.render import Quad, Renderer
+from camnet.rig import load_rig
+from camnet.scene import Scene
+from tests.test_rig import CONFIG
+
+BLOB_SIGMA_TEXELS = 1.6
+
+
+def dot_texture(size_px: int, dots_px: np.ndarray) -> np.ndarray:
+    """Black texture with Gaussian dots centred at sub-texel positions (a, b)."""
+    a, b = np.meshgrid(np.arange(size_px), np.arange(size_px))
+    tex = np.zeros((size_px, size_px))
+    for a0, b0 in dots_px:
+        tex += np.exp(-((a - a0) ** 2 + (b - b0) ** 2) / (2 * BLOB_SIGMA_TEXELS**2))
+    return np.clip(np.round(250 * tex), 0, 255).astype(np.uint8)
+
+
+def centroid(image: np.ndarray, near: np.ndarray, radius_px: int = 7) -> np.ndarray:
+    u0, v0 = np.round(near).astype(int)
+    patch = image[v0 - radius_px:v0 + radius_px + 1, u0 - radius_px:u0 + radius_px + 1]
+    w = patch.astype(float)
+    vs, us = np.mgrid[-radius_px:radius_px + 1, -radius_px:radius_px + 1]
+    return np.array([u0 + (w * us).sum() / w.sum(), v0 + (w * vs).sum() / w.sum()])
+
+
+CAMERAS = {
+    "frontal": Camera("f", 1280, 1024, np.array([[1500, 0, 639.5], [0, 1500, 511.5], [0, 0, 1]])),
+    "oblique_distorted": Camera(
+        "o", 1280, 1024, np.array([[1300, 0, 650.2], [0, 1310, 500.7], [0, 0, 1]]),
+        dist=np.array([-0.12, 0.05, 0.001, -0.0015, 0.0]),
+        **dict(zip(("R", "t"), look_at(np.array([-0.30, 0.02, 0.05]),
+                                       np.array([0.0625, 0.0, 0.65])), strict=True))),
+}
+
+
+@pytest.mark.parametrize("name", sorted(CAMERAS))
+def test_known_points_land_on_projected_pixels(name):
+    camera = CAMERAS[name]
+    rng = np.random.default_rng(3)
+    size = 600
+    grid = np.stack(np.meshgrid(np.linspace(40, size - 40, 7), np.linspace(40, size - 40, 7)),
+                    axis=-1).reshape(-1, 2)
+    dots = grid + rng.uniform(-0.5, 0.5, grid.shape)
+    # A tilted plane 0.3 m wide around (0.06, 0, 0.65): ~0.5 mm texels, ~1.1 px each.
+    tilt = np.deg2rad(25)
+    u = 0.3 * np.array([np.cos(tilt), 0.0, np.sin(tilt)])
+    v = np.array([0.0, 0.3, 0.0])
+    p0 = np.array([0.0625, 0.0, 0.65]) - (u + v) / 2
+    quad = Quad(p0, u, v, dot_texture(size, dots))
+    image = Renderer(camera).render([quad])
+    points = np.array([quad.point(a, b) for a, b in dots])
+    expected = camera.project(points)
+    inside = np.all((expected > 10) & (expected < [camera.width - 11, camera.height - 11]), axis=1)
+    assert inside.sum() >= 30
+    errors = np.array([np.linalg.norm(centroid(image, e) - e) for e in expected[inside]])
+    assert errors.max() < 0.1, f"max error {errors.max():.3f} px"
+
+
+def test_default_rig_every_camera_sees_texture():
+    rig = load_rig(CONFIG / "sim.yaml")
+    scene = Scene(rig.scene)
+    for entry in rig.cameras:
+        image = Renderer(entry.config.camera(entry.id)).render(scene.quads(0.0))
+        assert image.shape == (1024, 1280)
+        for block in (image[:512, :640], image[:512, 640:], image[512:, :640], image[512:, 640:]):
+            assert block.std() > 20, entry.id
+        assert (image == 0).mean() < 0.01
+
+
+def test_box_turns_over_time_and_background_stays():
+    rig = load_rig(CONFIG / "sim.yaml")
+    scene = Scene(rig.scene)
+    renderer = Renderer(rig.camera("left").config.camera("left"))
+    first, later = renderer.render(scene.quads(0.0)), renderer.render(scene.quads(4.0))
+    changed = np.abs(first.astype(int) - later) > 0
+    assert changed[400:600, 600:760].mean() > 0.5  # on the box
+    assert changed[:150, :300].mean() == 0  # far wall, top left

@@ -1,0 +1,109 @@
+import copy
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from camnet.camera import look_at
+from camnet.errors import InputError
+from camnet.rig import AravisConfig, SimConfig, V4l2Config, load_rig, parse_rig
+
+CONFIG = Path(__file__).resolve().parent.parent / "config"
+
+
+def base() -> dict:
+    return {
+        "rig": "r",
+        "stereo": {"left": "a", "right": "b", "baseline_m": 0.1},
+        "cameras": [
+            {"id": "a", "driver": "sim", "sim": {"width": 64, "height": 48, "f_px": 50}},
+            {"id": "b", "driver": "sim", "sim": {"width": 64, "height": 48, "f_px": 50}},
+            {"id": "c", "driver": "v4l2", "v4l2": {"source": "/dev/video0"}},
+        ],
+    }
+
+
+def refused(change, match: str) -> None:
+    data = copy.deepcopy(base())
+    change(data)
+    with pytest.raises(InputError, match=match):
+        parse_rig(data, source="rig.yaml")
+
+
+def test_default_sim_rig_is_the_papers():
+    rig = load_rig(CONFIG / "sim.yaml")
+    assert rig.name == "sim"
+    assert [c.id for c in rig.cameras] == ["left", "right", "mono_a", "mono_b"]
+    assert (rig.stereo.left, rig.stereo.right, rig.stereo.baseline_m) == ("left", "right", 0.125)
+    cams = {c.id: c.config.camera(c.id) for c in rig.cameras}
+    for entry in rig.cameras:
+        cfg = entry.config
+        assert isinstance(cfg, SimConfig)
+        assert (cfg.width, cfg.height, cfg.encoding, cfg.fps) == (1280, 1024, "mono8", 30.0)
+        assert (cfg.cx_px, cfg.cy_px) == (639.5, 511.5)
+    focal = {cid: cam.K[0, 0] for cid, cam in cams.items()}
+    assert focal == {"left": 1500, "right": 1500, "mono_a": 1300, "mono_b": 1400}
+    assert all(cam.K[0, 0] == cam.K[1, 1] for cam in cams.values())
+    assert np.allclose(cams["left"].R, np.eye(3)) and np.allclose(cams["left"].centre, 0)
+    assert np.allclose(cams["right"].R, np.eye(3))
+    assert np.allclose(cams["right"].centre, [0.125, 0, 0])
+    for cid, centre in (("mono_a", [-0.30, 0.0, 0.05]), ("mono_b", [0.425, 0.0, 0.05])):
+        R, t = look_at(np.array(centre), np.array([0.0625, 0.0, 0.65]))
+        assert np.allclose(cams[cid].R, R) and np.allclose(cams[cid].t, t)
+    assert rig.scene.box_centre_m == (0.0625, 0.0, 0.65)
+
+
+@pytest.mark.parametrize("name", ["sim.yaml", "aravis-example.yaml", "v4l2-example.yaml"])
+def test_example_rigs_load(name):
+    rig = load_rig(CONFIG / name)
+    assert rig.cameras
+
+
+def test_per_driver_dataclasses():
+    data = base()
+    data["cameras"].append({"id": "d", "driver": "aravis",
+                            "aravis": {"device_id": "Basler-123", "fps": 20, "gain_db": 3}})
+    rig = parse_rig(data)
+    assert isinstance(rig.camera("c").config, V4l2Config)
+    aravis = rig.camera("d").config
+    assert isinstance(aravis, AravisConfig)
+    assert (aravis.device_id, aravis.fps, aravis.gain_db, aravis.pixel_format) == \
+        ("Basler-123", 20.0, 3.0, "Mono8")
+    with pytest.raises(InputError, match="no camera 'zz'"):
+        rig.camera("zz")
+
+
+def test_errors_name_the_field():
+    refused(lambda d: d["cameras"][2].update(driver="foo"),
+            r"cameras\[2\]\.driver: unknown driver 'foo' \(expected sim, aravis, v4l2\)")
+    refused(lambda d: d["cameras"][1].update(id="a"),
+            r"cameras\[1\]\.id: duplicate id 'a' \(also cameras\[0\]\)")
+    refused(lambda d: d["cameras"][0]["sim"].update(f_px="big"),
+            r"cameras\[0\]\.sim\.f_px: expected a finite number")
+    refused(lambda d: d["cameras"][0]["sim"].update(width=-3),
+            r"cameras\[0\]\.sim\.width: must be positive")
+    refused(lambda d: d["cameras"][0]["sim"].update(fps=float("nan")),
+            r"cameras\[0\]\.sim\.fps: expected a finite number")
+    refused(lambda d: d["stereo"].update(right="nope"),
+            r"stereo\.right: no camera 'nope'")
+    refused(lambda d: d["stereo"].update(baseline_m=0),
+            r"stereo\.baseline_m: must be positive")
+    refused(lambda d: d["cameras"][0].pop("sim"), r"cameras\[0\]\.sim: missing")
+    refused(lambda d: d["cameras"][0]["sim"].update(fx=3), r"cameras\[0\]\.sim\.fx: unknown key")
+    refused(lambda d: d["cameras"][0].update(id="a/b"), r"cameras\[0\]\.id")
+    refused(lambda d: d.pop("cameras"), r"cameras: missing")
+    refused(lambda d: d["cameras"][2]["v4l2"].update(fourcc="MJPEG"),
+            r"cameras\[2\]\.v4l2\.fourcc")
+    refused(lambda d: d["cameras"][0]["sim"].update(dist=[0.1, "x"]),
+            r"cameras\[0\]\.sim\.dist")
+
+
+def test_error_names_the_file(tmp_path):
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump({"rig": "r", "cameras": [{"id": "a", "driver": "x"}]}))
+    with pytest.raises(InputError, match=r"bad\.yaml: cameras\[0\]\.driver"):
+        load_rig(path)
+    path.write_text("rig: [unclosed")
+    with pytest.raises(InputError, match="not valid YAML"):
+        load_rig(path)
