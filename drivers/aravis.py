@@ -154,19 +154,27 @@ class AravisCamera:
         if cfg.packet_size and camera.is_gv_device():
             camera.gv_set_packet_size(cfg.packet_size)
 
-    def _disconnect(self) -> None:
-        camera, self._camera, self._stream = self._camera, None, None
-        if camera is None:
+    def _disconnect(self, *, reachable: bool = True) -> None:
+        held = [self._stream, self._camera]
+        self._camera, self._stream = None, None
+        if held[1] is None:
+            return
+        if not reachable:
+            # Releasing a lost GigE device blocks for ~10 s in Aravis's finalizers (control
+            # release retries): drop the last references in a reaper thread so that
+            # read() keeps its timeout. The camera's own heartbeat timeout ends its stream.
+            threading.Thread(target=held.clear, name=f"aravis-release-{self.camera_id}",
+                             daemon=True).start()
             return
         try:
-            camera.stop_acquisition()
+            held[1].stop_acquisition()
         except GLib.Error as exc:
-            # Expected when the camera is already gone.
             log.debug("camera %s: stop_acquisition failed: %s", self.camera_id, exc.message)
+        held.clear()
 
     def _lose(self, why: str) -> None:
         log.warning("camera %s: lost (%s); reconnecting with back-off", self.camera_id, why)
-        self._disconnect()
+        self._disconnect(reachable=False)
         self._next_attempt_mono = time.monotonic() + self._backoff_s
 
     def _try_reconnect(self, deadline: float) -> None:
