@@ -18,9 +18,10 @@ from __future__ import annotations
 
 import argparse
 import multiprocessing as mp
+import queue
+import socket
 import struct
 import sys
-import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,6 +33,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 RIG_FILE = Path(__file__).resolve().parent.parent / "config" / "sim.yaml"
 POOL_FRAMES = 4
 _BARE_HEADER = struct.Struct("<IQQ")  # camera index, seq, publish timestamp_ns
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
 
 
 def render_pool(camera_index: int, width: int, height: int) -> list[np.ndarray]:
@@ -57,13 +64,12 @@ def render_pool(camera_index: int, width: int, height: int) -> list[np.ndarray]:
 class PooledCamera:
     """A Camera (drivers.base protocol) replaying pre-rendered frames at `fps`."""
 
-    def __init__(self, camera_id: str, pool: list[np.ndarray], fps: float, start) -> None:
+    def __init__(self, camera_id: str, pool: list[np.ndarray], fps: float) -> None:
         from drivers.base import CameraInfo
 
         self.camera_id = camera_id
         self.pool = pool
         self.fps = fps
-        self.start = start
         self.seq = 0
         self.t0_ns = 0
         h, w = pool[0].shape
@@ -71,7 +77,6 @@ class PooledCamera:
         self.dropped = 0
 
     def __enter__(self):
-        self.start.wait()
         self.t0_ns = time.monotonic_ns()
         return self
 
@@ -99,22 +104,12 @@ def publisher(mode: str, index: int, endpoint: str, fps: float, n_frames: int, s
 
     pool = render_pool(index, *size)
     camera_id = f"cam{index}"
-    cpu0, wall0 = time.process_time(), time.monotonic()
     with open_session(BusOptions(connect=(endpoint,))) as session:
         if mode == "camnet":
             from drivers.node import DriverNode
 
-            rig = load_rig(RIG_FILE)
-            node = DriverNode(session, rig, PooledCamera(camera_id, pool, fps, start))
-            cpu0, wall0 = None, None
-            node_start = threading.Event()
-
-            def mark():
-                start.wait()
-                node_start.set()
-
-            threading.Thread(target=mark, daemon=True).start()
-            node_start.wait()
+            node = DriverNode(session, load_rig(RIG_FILE), PooledCamera(camera_id, pool, fps))
+            start.wait()
             cpu0, wall0 = time.process_time(), time.monotonic()
             node.run(max_frames=n_frames)
             sent = node.frames_sent
@@ -149,6 +144,7 @@ class CameraResult:
     sent: int
     received: int
     lost: int
+    gaps: int
     latency_median_ms: float
     latency_p99_ms: float
     cpu_fraction: float
@@ -161,12 +157,10 @@ def run_phase(mode: str, *, cameras: int, fps: float, seconds: float, size=(1280
     from camnet.bus import BusOptions, open_session
     from camnet.receiver import FrameReceiver
 
-    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
-    from conftest import free_port
-
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     n_frames = int(round(fps * seconds))
     lat: dict[int, list[float]] = {i: [] for i in range(cameras)}
+    bare_seqs: dict[int, list[int]] = {i: [] for i in range(cameras)}
     receiver = FrameReceiver()
     ctx = mp.get_context("spawn")
     start = ctx.Event()
@@ -183,8 +177,9 @@ def run_phase(mode: str, *, cameras: int, fps: float, seconds: float, size=(1280
             def on_sample(sample):
                 payload = sample.payload.to_bytes()
                 now = time.time_ns()
-                index, _seq, sent_ns = _BARE_HEADER.unpack_from(payload, 0)
+                index, seq, sent_ns = _BARE_HEADER.unpack_from(payload, 0)
                 lat[index].append((now - sent_ns) / 1e6)
+                bare_seqs[index].append(seq)
         sub = session.declare_subscriber(keys.all_frames(rig_name), on_sample)
         procs = [ctx.Process(target=publisher, args=(mode, i, endpoint, fps, n_frames, size,
                                                      start, results)) for i in range(cameras)]
@@ -202,9 +197,8 @@ def run_phase(mode: str, *, cameras: int, fps: float, seconds: float, size=(1280
             try:
                 index, sent, cpu_s, wall_s = results.get(timeout=0.5)
                 done[index] = (sent, cpu_s, wall_s)
-            except Exception as exc:  # queue.Empty: keep waiting, report progress
-                if type(exc).__name__ != "Empty":
-                    raise
+            except queue.Empty:
+                pass  # still running: report progress below
             if progress and time.monotonic() >= next_report:
                 got = sum(len(v) for v in lat.values())
                 print(f"  [{mode}] {time.monotonic() - wall0:5.1f}/{seconds:.0f} s, "
@@ -220,7 +214,13 @@ def run_phase(mode: str, *, cameras: int, fps: float, seconds: float, size=(1280
     for i in range(cameras):
         sent, cpu_s, wall_s = done[i]
         values = np.array(lat[i]) if lat[i] else np.array([np.nan])
-        out[i] = CameraResult(sent, len(lat[i]), sent - len(lat[i]),
+        if mode == "camnet":
+            counts = receiver.counts().get(f"cam{i}")
+            gaps = counts.dropped if counts else 0
+        else:
+            seqs = bare_seqs[i]
+            gaps = (seqs[-1] - seqs[0] + 1 - len(seqs)) if seqs else 0
+        out[i] = CameraResult(sent, len(lat[i]), sent - len(lat[i]), gaps,
                               float(np.median(values)), float(np.percentile(values, 99)),
                               cpu_s / wall_s if wall_s > 0 else float("nan"))
     return out, sub_cpu
@@ -228,12 +228,14 @@ def run_phase(mode: str, *, cameras: int, fps: float, seconds: float, size=(1280
 
 def print_table(title: str, results: dict[int, CameraResult], sub_cpu: float) -> None:
     print(f"\n{title}")
-    print(f"{'camera':<8}{'sent':>7}{'recv':>7}{'lost':>6}{'lat p50 ms':>12}{'lat p99 ms':>12}"
-          f"{'CPU/cam':>9}")
+    print(f"{'camera':<8}{'sent':>7}{'recv':>7}{'lost':>6}{'gaps':>6}{'lat p50 ms':>12}"
+          f"{'lat p99 ms':>12}{'CPU/cam':>9}")
     for i, r in sorted(results.items()):
-        print(f"cam{i:<5}{r.sent:>7}{r.received:>7}{r.lost:>6}{r.latency_median_ms:>12.2f}"
+        print(f"cam{i:<5}{r.sent:>7}{r.received:>7}{r.lost:>6}{r.gaps:>6}"
+              f"{r.latency_median_ms:>12.2f}"
               f"{r.latency_p99_ms:>12.2f}{r.cpu_fraction:>8.1%}")
-    print(f"subscriber CPU: {sub_cpu:.1%}")
+    print(f"subscriber CPU: {sub_cpu:.1%}   (gaps: lost inside the stream, the rest of "
+          "'lost' at its start or end)")
 
 
 def summary(results: dict[int, CameraResult]) -> tuple[float, float, float, int]:

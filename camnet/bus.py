@@ -78,13 +78,14 @@ def make_config(options: BusOptions):
     if options.listen:
         _insert(config, "listen/endpoints", list(options.listen))
     if not explicit:
-        listen = [RENDEZVOUS_ENDPOINT, EPHEMERAL_LOOPBACK_ENDPOINT]
         if options.mode == "router":
-            listen = [RENDEZVOUS_ENDPOINT]
-        _insert(config, "listen/endpoints", listen)
-        # Only one node can own the rendezvous port: the others must not fail on it.
-        _insert(config, "listen/exit_on_failure", False)
-        if options.mode != "router":
+            # A router exists to hold the rendezvous: failing to listen is an error.
+            _insert(config, "listen/endpoints", [RENDEZVOUS_ENDPOINT])
+        else:
+            _insert(config, "listen/endpoints",
+                    [RENDEZVOUS_ENDPOINT, EPHEMERAL_LOOPBACK_ENDPOINT])
+            # Only one node can own the rendezvous port: the others must not fail on it.
+            _insert(config, "listen/exit_on_failure", False)
             _insert(config, "connect/endpoints", [RENDEZVOUS_ENDPOINT])
             _insert(config, "connect/exit_on_failure", False)
     elif options.connect:

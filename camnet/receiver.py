@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 import threading
+from collections import deque
 from dataclasses import dataclass
 
 from camnet.frame import Frame, FrameError, decode_frame
@@ -86,3 +87,46 @@ class FrameReceiver:
         with self._lock:
             return {cid: CameraCounts(t.received, t.dropped, t.restarts, t.last_seq)
                     for cid, t in self._tracks.items()}
+
+
+class FrameQueue:
+    """Latest-value delivery: a bounded queue of decoded frames that drops the oldest.
+
+    Pass `on_sample` as a Zenoh subscriber callback; it decodes (through a
+    FrameReceiver, which counts malformed frames and gaps) in Zenoh's thread
+    and never blocks it. A slow consumer loses the oldest frames, counted in
+    `overflowed`, instead of growing a backlog.
+    """
+
+    def __init__(self, receiver: FrameReceiver | None = None, *, capacity: int = 2) -> None:
+        if capacity < 1:
+            raise ValueError("capacity must be at least 1")
+        self.receiver = receiver or FrameReceiver()
+        self._frames: deque[Frame] = deque()
+        self._capacity = capacity
+        self._ready = threading.Condition()
+        self.overflowed = 0
+
+    def on_sample(self, sample) -> None:
+        frame = self.receiver.accept(sample.payload.to_bytes())
+        if frame is None:
+            return
+        with self._ready:
+            if len(self._frames) == self._capacity:
+                self._frames.popleft()
+                self.overflowed += 1
+            self._frames.append(frame)
+            self._ready.notify()
+
+    def get(self, *, timeout_s: float) -> Frame | None:
+        """The oldest queued frame, waiting up to `timeout_s`; None if none came."""
+        with self._ready:
+            if not self._ready.wait_for(lambda: self._frames, timeout=timeout_s):
+                return None
+            return self._frames.popleft()
+
+
+def subscribe_frames(session, key_expr: str, *, capacity: int = 2):
+    """(subscriber, FrameQueue) for frames on `key_expr` (see camnet.keys.frame/all_frames)."""
+    queue = FrameQueue(capacity=capacity)
+    return session.declare_subscriber(key_expr, queue.on_sample), queue

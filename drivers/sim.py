@@ -10,6 +10,7 @@ reproducible frame by frame.
 from __future__ import annotations
 
 import time
+import zlib
 
 import numpy as np
 
@@ -40,7 +41,9 @@ class SimCamera:
         self.scene = scene
         self.ground_truth = config.camera(camera_id)
         self._renderer = Renderer(self.ground_truth)
-        self._rng = np.random.default_rng([seed, scene.config.seed, len(camera_id)])
+        # Each camera its own noise, reproducible from the rig's seed and the camera id.
+        self._rng = np.random.default_rng([seed, scene.config.seed,
+                                           zlib.crc32(camera_id.encode())])
         self._info = CameraInfo(camera_id=camera_id, driver="sim", width=config.width,
                                 height=config.height, encoding=config.encoding, fps=config.fps,
                                 description="simulated camera (camnet.render)")

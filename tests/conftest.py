@@ -38,3 +38,18 @@ def zenoh_pair():
     finally:
         b.close()
         a.close()
+
+
+def matched_publisher(session, key_expr: str, timeout_s: float = 5.0):
+    """A publisher with congestion control BLOCK that already sees a matching subscriber.
+
+    Tests must not lose frames to a subscription still in flight or to a full
+    transmit queue; real drivers publish with DROP instead.
+    """
+    import zenoh
+
+    publisher = session.declare_publisher(key_expr,
+                                          congestion_control=zenoh.CongestionControl.BLOCK)
+    assert wait_for(lambda: publisher.matching_status.matching, timeout_s), \
+        f"no subscriber matched {key_expr}"
+    return publisher

@@ -1,14 +1,12 @@
 """Two real Zenoh peers on loopback (scouting off): frames, bad frames, liveliness."""
 
-import time
-
 import numpy as np
 
 from camnet import keys
 from camnet.bus import declare_liveliness
 from camnet.frame import ENCODINGS, encode_frame
 from camnet.receiver import FrameReceiver
-from tests.conftest import wait_for
+from tests.conftest import matched_publisher, wait_for
 from tests.test_frame import _malformed, make_frame
 
 
@@ -18,11 +16,11 @@ def test_frames_cross_the_bus_bit_exact(zenoh_pair):
     got = []
     sub = b.declare_subscriber(keys.all_frames("t"),
                                lambda s: got.append(receiver.accept(s.payload.to_bytes())))
-    time.sleep(0.3)
+    publisher = matched_publisher(a, keys.frame("t", "c0"))
     sent = [make_frame(enc, seq=i, camera_id="c0", h=1024, w=1280)
             for i, enc in enumerate(sorted(ENCODINGS))]
     for frame in sent:
-        a.put(keys.frame("t", "c0"), encode_frame(frame))
+        publisher.put(encode_frame(frame))
     assert wait_for(lambda: len(got) == len(sent))
     for frame, back in zip(sent, got, strict=True):
         assert back.encoding == frame.encoding
@@ -41,14 +39,13 @@ def test_bad_frames_do_not_stop_the_subscriber(zenoh_pair):
             good.append(frame.seq)
 
     sub = b.declare_subscriber(keys.all_frames("t"), on_sample)
-    time.sleep(0.3)
-    key = keys.frame("t", "c1")
+    publisher = matched_publisher(a, keys.frame("t", "c1"))
     bad = _malformed()
     seqs = [0, 1, 2, 4, 5, 9]
     for seq in seqs:
         for payload in bad.values():
-            a.put(key, payload)
-        a.put(key, encode_frame(make_frame("mono8", seq=seq, camera_id="c1")))
+            publisher.put(payload)
+        publisher.put(encode_frame(make_frame("mono8", seq=seq, camera_id="c1")))
     assert wait_for(lambda: len(good) == len(seqs))
     assert good == seqs
     assert receiver.malformed == {kind: len(seqs) for kind in bad}
@@ -68,3 +65,19 @@ def test_liveliness_token_is_seen_and_goes_away(zenoh_pair):
     assert wait_for(lambda: live() == [key], 5.0)
     token.undeclare()
     assert wait_for(lambda: live() == [], 5.0)
+
+
+def test_frame_queue_keeps_the_latest_and_counts_overflow(zenoh_pair):
+    from camnet.receiver import subscribe_frames
+
+    a, b = zenoh_pair
+    sub, queue = subscribe_frames(b, keys.frame("t", "c3"), capacity=2)
+    publisher = matched_publisher(a, keys.frame("t", "c3"))
+    for seq in range(6):
+        publisher.put(encode_frame(make_frame("mono8", seq=seq, camera_id="c3")))
+    assert wait_for(lambda: queue.receiver.counts().get("c3") is not None
+                    and queue.receiver.counts()["c3"].received == 6)
+    assert [queue.get(timeout_s=1.0).seq for _ in range(2)] == [4, 5]
+    assert queue.overflowed == 4
+    assert queue.get(timeout_s=0.05) is None
+    sub.undeclare()

@@ -93,3 +93,4 @@ def test_router_relays_between_peers():
             assert wait_for(lambda: (a.put(keys.observations("r"), b"x"), len(got) > 0)[1], 10.0)
     finally:
         stop(router)
+    assert router.returncode == 0  # SIGTERM ends it cleanly

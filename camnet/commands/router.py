@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import signal
 import threading
 
 log = logging.getLogger(__name__)
@@ -20,6 +21,8 @@ def run(args: argparse.Namespace) -> int:
 
     options = options_from_args(args, mode="router")
     stop = threading.Event()
+    # docker stop / process managers send SIGTERM: leave as cleanly as on Ctrl-C.
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
     with open_session(options) as session:
         endpoints = ", ".join(options.listen) or "the loopback rendezvous (tcp/127.0.0.1:7447)"
         print(f"camnet router {session.info.zid()} listening on {endpoints}; Ctrl-C to stop",

@@ -1,0 +1,81 @@
+"""Bus flags -> zenoh.Config, and the lazy driver registry (no sessions opened)."""
+
+import argparse
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from camnet.bus import BusOptions, add_bus_arguments, make_config, options_from_args
+from camnet.errors import InputError
+from tests.test_rig import CONFIG
+
+
+def config_json(options: BusOptions, key: str):
+    return json.loads(make_config(options).get_json(key))
+
+
+def test_default_is_loopback_rendezvous_without_multicast():
+    options = BusOptions()
+    assert config_json(options, "mode") == "peer"
+    assert config_json(options, "scouting/multicast/enabled") is False
+    assert config_json(options, "listen/endpoints") == ["tcp/127.0.0.1:7447", "tcp/127.0.0.1:0"]
+    assert config_json(options, "connect/endpoints") == ["tcp/127.0.0.1:7447"]
+    assert config_json(BusOptions(mode="router"), "listen/endpoints") == ["tcp/127.0.0.1:7447"]
+
+
+def test_flags_replace_the_defaults():
+    parser = argparse.ArgumentParser()
+    add_bus_arguments(parser)
+    args = parser.parse_args(["--connect", "tcp/10.0.0.5:7447", "--connect", "tcp/10.0.0.6:7447",
+                              "--scouting"])
+    options = options_from_args(args)
+    assert config_json(options, "connect/endpoints") == ["tcp/10.0.0.5:7447",
+                                                         "tcp/10.0.0.6:7447"]
+    assert config_json(options, "scouting/multicast/enabled") is True
+    assert "tcp/127.0.0.1:7447" not in json.dumps(config_json(options, "listen/endpoints"))
+
+
+def test_zenoh_config_file_and_its_errors(tmp_path):
+    good = tmp_path / "z.json5"
+    good.write_text('{ mode: "client", connect: { endpoints: ["tcp/127.0.0.1:7000"] } }')
+    options = BusOptions(zenoh_config=str(good), listen=("tcp/127.0.0.1:7001",))
+    assert config_json(options, "connect/endpoints") == ["tcp/127.0.0.1:7000"]
+    assert config_json(options, "listen/endpoints") == ["tcp/127.0.0.1:7001"]
+    bad = tmp_path / "bad.json5"
+    bad.write_text("{ mode: ")
+    with pytest.raises(InputError, match="bad.json5"):
+        make_config(BusOptions(zenoh_config=str(bad)))
+
+
+def test_package_imports_no_camera_sdk():
+    code = ("import sys, camnet.cli, drivers.base, drivers.sim, drivers.v4l2, drivers.node; "
+            "camnet.cli.build_parser(); "
+            "assert 'gi' not in sys.modules, 'Aravis imported eagerly'")
+    subprocess.run([sys.executable, "-c", code], check=True, timeout=60)
+
+
+@pytest.mark.parametrize("encoding", ["mono8", "mono16", "bgr8", "rgb8"])
+def test_sim_camera_encodings_and_protocol(encoding):
+    from dataclasses import replace
+
+    from camnet.rig import load_rig
+    from drivers.base import Camera, create_camera
+
+    rig = load_rig(CONFIG / "sim.yaml")
+    entry = rig.camera("right")
+    # 500 fps is faster than rendering: slots are skipped, counted and seen as gaps.
+    entry = replace(entry, config=replace(entry.config, encoding=encoding, fps=500.0))
+    camera = create_camera(entry, rig)
+    assert isinstance(camera, Camera)
+    with camera:
+        frames = [camera.read(timeout_s=1.0) for _ in range(3)]
+    assert frames[1].encoding == encoding and frames[1].camera_id == "right"
+    seq_step = frames[2].seq - frames[1].seq
+    assert frames[2].timestamp_ns - frames[1].timestamp_ns == seq_step * 2_000_000
+    assert seq_step > 1 and camera.dropped == frames[2].seq - 2
+    image = frames[1].image
+    assert image.shape[:2] == (1024, 1280)
+    assert image.dtype == (np.uint16 if encoding == "mono16" else np.uint8)
