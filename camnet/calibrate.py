@@ -34,7 +34,7 @@ from camnet.bundle import CENTRE_FIXED, CENTRE_FREE, CENTRE_ON_BASELINE, Problem
 from camnet.camera import Camera
 from camnet.errors import SolveError
 from camnet.formats import Calibration, Observations
-from camnet.projection import K_from_intrinsics, rotation_exp
+from camnet.projection import K_from_intrinsics
 from camnet.uncertainty import Covariance, covariance
 
 log = logging.getLogger(__name__)
@@ -636,4 +636,4 @@ def _result(obs, order, problem, state, track_rows, inliers, info, cov, decision
     return Result(calibration, state, problem, order, track_rows, cov, info.converged, info.reason, timings)
 
 
-__all__ = ["Options", "Result", "calibrate", "check_solvable", "rotation_exp"]
+__all__ = ["Options", "Result", "calibrate", "check_solvable"]
