@@ -38,6 +38,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="seed of the RANSAC sampling")
 
 
+def parse_free(value: str) -> str | frozenset[str]:
+    """The --free flag: "auto" or the set of names (the engine checks them)."""
+    return "auto" if value == "auto" else frozenset(s.strip() for s in value.split(",") if s.strip())
+
+
 def run(args: argparse.Namespace) -> int:
     from camnet.calibrate import Options, calibrate
     from camnet.errors import InputError
@@ -51,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
 
     if not args.loss_scale_px > 0:
         raise InputError(f"--loss-scale-px: must be positive, got {args.loss_scale_px}")
-    free = "auto" if args.free == "auto" else frozenset(s.strip() for s in args.free.split(",") if s.strip())
+    free = parse_free(args.free)
     obs = parse_observations(load_json(args.observations))
     initial = parse_calibration(load_json(args.initial)) if args.initial else None
     options = Options(method=args.method, loss=args.loss, loss_scale_px=args.loss_scale_px, free=free, seed=args.seed)

@@ -1,0 +1,71 @@
+"""`camnet calibrator`: solve the rig's observations as they come and publish the calibration."""
+
+from __future__ import annotations
+
+import argparse
+import os
+from pathlib import Path
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from camnet.bus import add_bus_arguments
+    from camnet.commands.calibrate import FREE_HELP
+
+    parser.add_argument("--rig", required=True, metavar="RIG.yaml|NAME",
+                        help="the rig file, or just the rig's name")
+    parser.add_argument("--state", metavar="FILE.json",
+                        help="where the last good calibration is kept and resumed from "
+                             "(default: $XDG_STATE_HOME/camnet/<rig>/calibration.json)")
+    parser.add_argument("--no-state", action="store_true", help="neither resume nor persist")
+    parser.add_argument("--free", default="auto", help=FREE_HELP)
+    parser.add_argument("--loss", choices=("cauchy", "huber", "soft_l1", "linear"), default="cauchy",
+                        help="robust loss of the adjustment (default cauchy)")
+    parser.add_argument("--max-rms-px", type=float, default=3.0,
+                        help="a solution with a larger reprojection RMS is not trusted (default 3)")
+    parser.add_argument("--max-scale-rel", type=float, default=0.05,
+                        help="a solution whose scale is less certain (1 sigma, relative) is not trusted "
+                             "(default 0.05)")
+    add_bus_arguments(parser)
+
+
+def rig_name(value: str) -> str:
+    """The rig name of `--rig`: a rig file's `rig:` or the value itself."""
+    from camnet.keys import validate_id
+    from camnet.rig import load_rig
+
+    if value.endswith((".yaml", ".yml")) or os.path.sep in value:
+        return load_rig(value).name
+    return validate_id(value, what="--rig")
+
+
+def default_state_path(rig: str) -> Path:
+    base = os.environ.get("XDG_STATE_HOME") or Path.home() / ".local" / "state"
+    return Path(base) / "camnet" / rig / "calibration.json"
+
+
+def run(args: argparse.Namespace) -> int:
+    import signal
+    import threading
+
+    from camnet.bus import open_session, options_from_args
+    from camnet.calibrate import Options
+    from camnet.commands.calibrate import parse_free
+    from camnet.errors import InputError
+    from services.calibrator import CalibratorConfig, CalibratorNode
+
+    name = rig_name(args.rig)
+    for flag, value in (("--max-rms-px", args.max_rms_px), ("--max-scale-rel", args.max_scale_rel)):
+        if not value > 0:
+            raise InputError(f"{flag}: must be positive, got {value}")
+    state = None
+    if not args.no_state:
+        state = Path(args.state) if args.state else default_state_path(name)
+        state.parent.mkdir(parents=True, exist_ok=True)
+    config = CalibratorConfig(options=Options(free=parse_free(args.free), loss=args.loss), state_path=state,
+                              max_rms_px=args.max_rms_px, max_scale_rel=args.max_scale_rel)
+    stop = threading.Event()
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    with open_session(options_from_args(args)) as session:
+        CalibratorNode(session, name, config).run(stop)
+    return 0

@@ -1,0 +1,105 @@
+"""The calibrator node on real Zenoh peers (loopback, scouting off)."""
+
+import json
+import subprocess
+import sys
+import threading
+from contextlib import contextmanager
+
+import numpy as np
+
+from camnet import keys
+from camnet.formats import observations_to_doc, parse_calibration
+from camnet.simulate import make_rig, observe
+from services.calibrator import CalibratorConfig, CalibratorNode
+from tests.conftest import matched_publisher, wait_for
+
+RIG = "calnode"
+
+
+@contextmanager
+def running(session, config):
+    node = CalibratorNode(session, RIG, config)
+    stop = threading.Event()
+    thread = threading.Thread(target=node.run, args=(stop,), daemon=True)
+    thread.start()
+    try:
+        yield node
+    finally:
+        stop.set()
+        thread.join(timeout=30)
+        assert not thread.is_alive(), "calibrator did not stop"
+
+
+def observations_payload(seed: int, n_points: int = 150) -> bytes:
+    doc = observations_to_doc(observe(make_rig(n_points=n_points, seed=seed), seed=seed).observations)
+    doc["latest_capture_ns"] = 123
+    return json.dumps(doc).encode()
+
+
+def test_solves_publishes_persists_and_answers_late_joiners(zenoh_pair, tmp_path):
+    a, b = zenoh_pair
+    state = tmp_path / "calibration.json"
+    got = []
+    sub = b.declare_subscriber(keys.calibration(RIG), lambda s: got.append(json.loads(s.payload.to_bytes())))
+    try:
+        with running(a, CalibratorConfig(state_path=state)) as node:
+            publisher = matched_publisher(b, keys.observations(RIG))
+            publisher.put(b"{not json")
+            assert wait_for(lambda: node.malformed == {"json": 1})
+            publisher.put(json.dumps({"format": "camnet.observations/1", "cameras": 3}).encode())
+            assert wait_for(lambda: node.malformed == {"json": 1, "cameras": 1})
+            publisher.put(observations_payload(seed=1))
+            assert wait_for(lambda: got, 60), "no calibration published"
+            doc = got[-1]
+            assert doc["status"] == "good" and doc["rig"] == RIG and doc["latest_capture_ns"] == 123
+            cal = parse_calibration(doc)
+            assert {c.id for c in cal.cameras} == {"left", "right", "mono_a", "mono_b"}
+            assert json.loads(state.read_text())["solve"] == doc["solve"]
+            replies = list(b.get(keys.calibration(RIG), timeout=5.0))
+            assert len(replies) == 1
+            assert json.loads(replies[0].ok.payload.to_bytes())["solve"] == doc["solve"]
+    finally:
+        sub.undeclare()
+
+
+def test_a_restarted_calibrator_resumes_from_its_state(zenoh_pair, tmp_path):
+    a, b = zenoh_pair
+    state = tmp_path / "calibration.json"
+    with running(a, CalibratorConfig(state_path=state)) as node:
+        publisher = matched_publisher(b, keys.observations(RIG))
+        publisher.put(observations_payload(seed=2))
+        assert wait_for(lambda: node.tracker.good is not None, 60)
+        first = node.tracker.good
+    with running(a, CalibratorConfig(state_path=state)) as node:
+        assert wait_for(lambda: node.latest_doc is not None, 10)
+        replies = list(b.get(keys.calibration(RIG), timeout=5.0))
+        resumed = parse_calibration(json.loads(replies[0].ok.payload.to_bytes()))
+        for cam, before in zip(resumed.cameras, first.cameras, strict=True):
+            np.testing.assert_array_equal(cam.K, before.K)
+            np.testing.assert_array_equal(cam.t, before.t)
+        # The next solve is warm-started from the resumed calibration.
+        publisher = matched_publisher(b, keys.observations(RIG))
+        publisher.put(observations_payload(seed=2, n_points=160))
+        assert wait_for(lambda: sum(node.tracker.counts.values()) == 1, 60)
+        assert node.tracker.counts["good"] == 1
+
+
+def test_a_damaged_state_file_is_kept_aside(zenoh_pair, tmp_path):
+    a, _ = zenoh_pair
+    state = tmp_path / "calibration.json"
+    state.write_text('{"format": "camnet.calibration/1", "cameras": [')
+    with running(a, CalibratorConfig(state_path=state)) as node:
+        assert node.tracker.good is None
+    aside = list(tmp_path.glob("calibration.json.damaged-*"))
+    assert len(aside) == 1 and aside[0].read_text().startswith('{"format"')
+
+
+def test_command_refuses_bad_flags_in_one_line(tmp_path):
+    for flags, fragment in ((["--rig", "a*b"], "--rig"), (["--rig", "r", "--max-rms-px", "0"], "--max-rms-px"),
+                            (["--rig", str(tmp_path / "missing.yaml")], "missing.yaml")):
+        proc = subprocess.run([sys.executable, "-m", "camnet.cli", "calibrator", *flags],
+                              capture_output=True, text=True, timeout=60)
+        assert proc.returncode == 2, proc.stderr
+        lines = proc.stderr.strip().splitlines()
+        assert len(lines) == 1 and fragment in lines[0], proc.stderr
