@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -77,3 +77,15 @@ def format_comparison(c: Comparison) -> str:
         f"shape RMS {c.shape_rms_mm:.3f} mm, reprojection RMS {c.rms_reprojection_px:.3f} px"
     )
     return "\n".join(lines)
+
+
+def compare_cameras(cal: Calibration, truth_cameras: list[Camera]) -> Comparison:
+    """As `compare`, for a calibration whose points have no ground truth (a live rig).
+
+    The scale and shape are those of the camera centres: the similarity
+    that best maps the calibrated centres onto the true ones.
+    """
+    truth = {c.id: c for c in truth_cameras}
+    centres = np.array([c.centre for c in cal.cameras])
+    as_points = replace(cal, point_ids=np.arange(len(centres)), points=centres)
+    return compare(as_points, truth_cameras, np.array([truth[c.id].centre for c in cal.cameras]))

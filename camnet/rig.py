@@ -10,7 +10,7 @@ default. The format is documented in config/README.md.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -147,6 +147,22 @@ class Rig:
         known = ", ".join(c.id for c in self.cameras)
         raise InputError(f"{self.source}: no camera {camera_id!r} in rig {self.name!r} "
                          f"(cameras: {known})")
+
+    def simulated_truth(self) -> list[Camera]:
+        """The simulated cameras' ground truth in the left stereo camera's frame (a calibration's world).
+
+        Empty unless every camera is simulated and the rig has a stereo pair.
+        """
+        if self.stereo is None or any(entry.driver != "sim" for entry in self.cameras):
+            return []
+        cameras = [entry.config.camera(entry.id) for entry in self.cameras]
+        left = next(c for c in cameras if c.id == self.stereo.left)
+        # x_left = R_l X + t_l, so X = R_l^T (x_left - t_l) and x_cam = R R_l^T x_left + (t - R R_l^T t_l).
+        out = []
+        for cam in cameras:
+            R = cam.R @ left.R.T
+            out.append(replace(cam, R=R, t=cam.t - R @ left.t))
+        return out
 
 
 class _Section:

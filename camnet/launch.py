@@ -1,0 +1,108 @@
+"""Starting camnet nodes as child processes on one machine, and always stopping them.
+
+Each node is `python -m camnet.cli <command> ...` with its log in its own
+file. `Launch` is a context manager: leaving it (normally, on an error or on
+Ctrl-C) stops every child with SIGTERM, then SIGKILL after a grace period.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class Child:
+    name: str
+    argv: list[str]
+    log_path: Path
+    process: subprocess.Popen
+
+    def log_tail(self, lines: int = 15) -> str:
+        try:
+            return "\n".join(self.log_path.read_text(errors="replace").splitlines()[-lines:])
+        except OSError:
+            return ""
+
+
+def bus_flags(*, connect: list[str], listen: list[str], zenoh_config: str | None, scouting: bool) -> list[str]:
+    """Bus flags for children of a node that has these flags.
+
+    Children connect to what the parent listens on (a wildcard address
+    becomes loopback) and to what it connects to; with no endpoints at all
+    everyone meets at the default loopback rendezvous.
+    """
+    flags: list[str] = []
+    for endpoint in listen:
+        flags += ["--connect", endpoint.replace("0.0.0.0", "127.0.0.1").replace("[::]", "[::1]")]
+    for endpoint in connect:
+        flags += ["--connect", endpoint]
+    if zenoh_config:
+        flags += ["--zenoh-config", zenoh_config]
+    if scouting:
+        flags.append("--scouting")
+    return flags
+
+
+class Launch:
+    def __init__(self, log_dir: Path, *, grace_s: float = 5.0) -> None:
+        self.log_dir = Path(log_dir)
+        self.grace_s = grace_s
+        self.children: list[Child] = []
+
+    def __enter__(self) -> Launch:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.stop_all()
+
+    def start(self, name: str, command: list[str], *, verbose: bool = True) -> Child:
+        argv = [sys.executable, "-m", "camnet.cli", *(["-v"] if verbose else []), *command]
+        log_path = self.log_dir / f"{name}.log"
+        with open(log_path, "ab") as out:
+            process = subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                                       start_new_session=True)
+        child = Child(name, argv, log_path, process)
+        self.children.append(child)
+        log.info("started %s (pid %d): %s", name, process.pid, " ".join(command))
+        return child
+
+    def exited(self) -> list[Child]:
+        """Children that have ended."""
+        return [c for c in self.children if c.process.poll() is not None]
+
+    def stop(self, child: Child, *, kill: bool = False) -> int:
+        """Stop one child (SIGKILL at once with `kill`); its exit status."""
+        if child.process.poll() is None:
+            child.process.send_signal(signal.SIGKILL if kill else signal.SIGTERM)
+            try:
+                child.process.wait(timeout=self.grace_s)
+            except subprocess.TimeoutExpired:
+                log.warning("%s did not stop in %.0f s: killing it", child.name, self.grace_s)
+                os.killpg(child.process.pid, signal.SIGKILL)
+                child.process.wait()
+        if child in self.children:
+            self.children.remove(child)
+        return child.process.returncode
+
+    def stop_all(self) -> None:
+        for child in self.children:
+            if child.process.poll() is None:
+                child.process.send_signal(signal.SIGTERM)
+        deadline = time.monotonic() + self.grace_s
+        for child in list(self.children):
+            try:
+                child.process.wait(timeout=max(0.0, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                log.warning("%s did not stop in %.0f s: killing it", child.name, self.grace_s)
+                os.killpg(child.process.pid, signal.SIGKILL)
+                child.process.wait()
+        self.children.clear()
