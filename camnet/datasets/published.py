@@ -110,3 +110,32 @@ def distance_scale(
     d_ours = np.linalg.norm(ours[:, None] - ours[None], axis=2)[iu]
     d_ref = np.linalg.norm(ref[:, None] - ref[None], axis=2)[iu]
     return float(np.median(d_ours / d_ref) - 1.0), len(use)
+
+
+@dataclass(frozen=True)
+class VsPublished:
+    """A whole calibration against the published one."""
+
+    cameras: list[CameraVsPublished]
+    distance_rel: float  # median relative error of 3-D point distances, see `distance_scale`
+    distance_points: int  # points those distances were taken between
+    scale_sigma_rel: float  # camnet's reported 1-sigma of its scale (NaN without uncertainty)
+    rms_reprojection_px: float
+    warnings: list[str]
+
+    def camera(self, cam_id: str) -> CameraVsPublished:
+        return next(c for c in self.cameras if c.id == cam_id)
+
+
+def compare(cal: Calibration, obs: Observations, published: dict[str, Camera]) -> VsPublished:
+    """`cal` (solved from `obs`) against `published`; points triangulated with its stereo pair."""
+    ids, points = triangulate_stereo(obs, published[obs.stereo.left], published[obs.stereo.right])
+    distance_rel, n_points = distance_scale(cal, ids, points)
+    return VsPublished(
+        cameras=compare_cameras(cal, published),
+        distance_rel=distance_rel,
+        distance_points=n_points,
+        scale_sigma_rel=float(cal.extra.get("uncertainty", {}).get("scale_rel", np.nan)),
+        rms_reprojection_px=cal.rms_reprojection_px,
+        warnings=list(cal.extra.get("diagnostics", {}).get("warnings", [])),
+    )
