@@ -10,6 +10,7 @@ cam 0, and the four centres are nearly collinear. See the data set's README.
 from __future__ import annotations
 
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -157,3 +158,28 @@ def test_distance_scale_and_camera_errors_on_a_known_distortion():
     assert err.focal_rel == pytest.approx(0.01) and err.centre_mm == pytest.approx(20.0)
     assert err.direction_deg == pytest.approx(np.degrees(np.arctan(0.02 / 0.5)))
     assert err.rotation_deg == 0.0 and np.isnan(err.focal_sigma_rel)
+
+
+@pytest.mark.parametrize(("rig_file", "colour", "frames"), [("kitti-cam3.yaml", "3", (1, 4)),
+                                                            ("kitti-cam2.yaml", "2", (13, 16))])
+def test_rig_files_replay_the_frames_each_colour_camera_has(rig_file, colour, frames, monkeypatch):
+    from camnet.rig import load_rig
+    from drivers.base import EndOfStream
+    from drivers.v4l2 import V4l2Camera
+
+    kitti = KittiExtract.open(require(KITTI_ROOT))
+    root = Path(__file__).resolve().parents[1]
+    rig = load_rig(root / "config" / rig_file)
+    monkeypatch.chdir(root)  # the globs are relative to the project root
+    assert [c.id for c in rig.cameras] == ["0", "1", colour] and rig.stereo.baseline_m == pytest.approx(0.5372)
+    for entry in rig.cameras:
+        assert entry.config.fps == 1.0
+        with V4l2Camera(entry.id, replace(entry.config, fps=100.0)) as cam:  # not to wait 1 s a frame
+            got = [cam.read(timeout_s=1.0) for _ in frames]
+            with pytest.raises(EndOfStream):
+                cam.read(timeout_s=1.0)
+        # Frame k of every camera's sequence is the same trigger, stamped at the same offset.
+        for frame, index in zip(got, frames, strict=True):
+            assert np.array_equal(frame.image, read_image(kitti.frame(index).images[entry.id]))
+        assert [f.seq for f in got] == [0, 1]
+        assert got[1].timestamp_ns - got[0].timestamp_ns == 10_000_000
