@@ -19,7 +19,7 @@ import numpy as np
 
 from camnet.camera import Camera
 from camnet.errors import InputError
-from camnet.formats import Stereo
+from camnet.formats import Calibration, Observations, Stereo
 
 CALIB_FILE = "calib_cam_to_cam.txt"
 STEREO_LEFT, STEREO_RIGHT = "0", "1"
@@ -130,3 +130,45 @@ def read_image(path: str | Path) -> np.ndarray:
     if image is None:
         raise InputError(f"{path}: cannot read image")
     return image
+
+
+# What a user may know before calibrating, from nothing to everything but the poses.
+# Each maps to observations (K, dist, fixed per camera) and an optional initial
+# calibration holding the stereo pair's factory pose (`camnet calibrate --initial`).
+SCENARIOS = {
+    "scene": "nothing known: all intrinsics from the scene",
+    "stereo-K": "stereo K+dist fixed; colour f from the scene, colour dist given",
+    "stereo-head": "stereo K+dist and pose (R, t) fixed; colour f from the scene, colour dist given",
+    "all-K": "every K+dist fixed, stereo pose fixed: colour poses from the scene",
+}
+
+
+def prepare_scenario(
+    obs: Observations, published: dict[str, Camera], scenario: str
+) -> tuple[Observations, Calibration | None]:
+    """(observations carrying what `scenario` knows, initial calibration or None); see SCENARIOS."""
+    from camnet.pipeline import with_known_intrinsics
+
+    if scenario not in SCENARIOS:
+        raise InputError(f"scenario: unknown {scenario!r}; expected one of {sorted(SCENARIOS)}")
+    if scenario == "scene":
+        return obs, None
+    stereo_ids = (STEREO_LEFT, STEREO_RIGHT)
+    others = [c for c in obs.camera_ids if c not in stereo_ids]
+    if scenario == "all-K":
+        obs = with_known_intrinsics(obs, {c: published[c] for c in obs.camera_ids})
+    else:
+        obs = with_known_intrinsics(obs, {c: published[c] for c in stereo_ids})
+        # The colour lenses' distortion as a starting point (held unless the data determine it):
+        # f cannot be recovered with k1 ~ -0.37 left at zero.
+        obs = with_known_intrinsics(obs, {c: published[c] for c in others}, given=("dist",), fixed=())
+    if scenario == "stereo-K":
+        return obs, None
+    head = Calibration(
+        cameras=[published[c] for c in stereo_ids],
+        point_ids=np.empty(0, dtype=np.int64),
+        points=np.empty((0, 3)),
+        rms_reprojection_px=float("nan"),
+        world_frame=STEREO_LEFT,
+    )
+    return obs, head
