@@ -11,6 +11,7 @@ import shlex
 import shutil
 import subprocess
 import sys
+import textwrap
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -171,6 +172,24 @@ def test_service_command_line_parses(service):
         build_parser().parse_args(argv)
     except SystemExit as exc:
         pytest.fail(f"{service}: camnet {' '.join(argv)} does not parse (exit {exc.code})")
+
+
+def test_readme_camera_block_adds_a_camera():
+    """The five lines docker/README.md tells users to paste make a working driver service."""
+    from camnet.cli import build_parser
+
+    readme = (DOCKER / "README.md").read_text()
+    [block] = re.findall(r"```yaml\n(.*?)```", readme, flags=re.DOTALL)
+    block = textwrap.dedent(block)
+    assert len(block.strip().splitlines()) == 5
+    text = (DOCKER / "compose.yaml").read_text().replace("\nservices:\n",
+                                                         "\nservices:\n" + textwrap.indent(block, "  "))
+    compose = yaml.safe_load(_VARIABLE.sub(lambda m: m[3] or "", text))
+    [(name, service)] = [(n, s) for n, s in driver_services(compose).items()
+                         if n not in driver_services(load_compose())]
+    assert "cameras" in service["profiles"] and service["network_mode"] == "host", name
+    assert service["secrets"] == load_compose()["services"]["cam-left"]["secrets"]
+    build_parser().parse_args(service_argv(service))
 
 
 # --- image ------------------------------------------------------------------------------
