@@ -30,8 +30,8 @@ NODE_SERVICES = ("matcher", "calibrator", "recorder")
 # `${NAME:-default}`: every setting of the compose file has a default.
 _VARIABLE = re.compile(r"\$\{(\w+)(:-([^}]*))?\}")
 
-needs_openssl = pytest.mark.skipif(shutil.which("openssl") is None or shutil.which("bash") is None,
-                                   reason="docker/make-certs.sh needs bash and the openssl CLI")
+OPENSSL_MISSING = shutil.which("openssl") is None or shutil.which("bash") is None
+needs_openssl = pytest.mark.skipif(OPENSSL_MISSING, reason="docker/make-certs.sh needs bash and the openssl CLI")
 
 
 def load_compose(env: dict[str, str] | None = None) -> dict:
@@ -105,7 +105,7 @@ def test_compose_has_every_node_of_the_rig():
     assert services["recorder"]["volumes"] == ["sessions:/sessions"]
 
 
-def test_compose_settings_change_what_they_name(tmp_path):
+def test_compose_settings_change_what_they_name():
     compose = load_compose({"CAMNET_RIG": "/srv/lab.yaml", "CAMNET_RIG_NAME": "lab",
                             "CAMNET_IMAGE": "registry.example/camnet:1", "ZENOH_VERSION": "9.9.9"})
     assert compose["configs"]["rig"]["file"] == "/srv/lab.yaml"
@@ -137,6 +137,8 @@ def test_every_service_can_reach_the_router_over_tls():
     [listen_endpoint] = json.loads(listen.get_json("listen/endpoints"))
     [connect_endpoint] = json.loads(connect.get_json("connect/endpoints"))
     assert listen_endpoint.startswith("tls/") and connect_endpoint.startswith("tls/")
+    # A client: the router is the nodes' only link, so every link is TLS with a password.
+    assert json.loads(connect.get_json("mode")) == "client"
     assert listen_endpoint.rsplit(":", 1)[1] == connect_endpoint.rsplit(":", 1)[1] == "7447"
     assert "7447" in (DOCKER / "README.md").read_text()
 
@@ -259,7 +261,7 @@ def make_certs(*args: str) -> subprocess.CompletedProcess:
 
 @pytest.fixture(scope="module")
 def secrets_dir(tmp_path_factory) -> Path:
-    if shutil.which("openssl") is None or shutil.which("bash") is None:
+    if OPENSSL_MISSING:
         pytest.skip("docker/make-certs.sh needs bash and the openssl CLI")
     out = tmp_path_factory.mktemp("secrets")
     done = make_certs("-o", str(out), "localhost")
@@ -449,3 +451,23 @@ def test_a_node_started_before_the_router_waits_for_it(secrets_dir, tmp_path):
     finally:
         close_all(*opened)
         router.close()
+
+
+def test_nodes_refuse_a_router_of_another_deployment(secrets_dir, tmp_path):
+    """A router with a certificate from another CA (and a dictionary holding the node's own
+    password) does not get the node: the node checks the router, not only the reverse."""
+    other = tmp_path / "other"
+    assert make_certs("-o", str(other), "localhost").returncode == 0
+    node_config = deployed_config(secrets_dir / "node.json5", secrets_dir, tmp_path)
+    (tmp_path / "rogue").mkdir()
+    rogue_config = deployed_config(DOCKER / "zenoh" / "router.json5", other, tmp_path / "rogue")
+    shutil.copy(secrets_dir / "passwords.txt", other / "passwords.txt")
+    port = free_port()
+    rogue = open_session(BusOptions(zenoh_config=rogue_config, mode="router",
+                                    listen=(f"tls/127.0.0.1:{port}",)))
+    node = open_node(node_config, f"tls/localhost:{port}")
+    try:
+        assert isinstance(node, Exception) or not wait_for(lambda: list(node.info.routers_zid()), 2.0)
+    finally:
+        close_all(node)
+        rogue.close()
