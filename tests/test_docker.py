@@ -103,6 +103,9 @@ def test_compose_has_every_node_of_the_rig():
     assert option_value(recorder, "--rig") == rig.name
     assert option_value(recorder, "-o").startswith("/sessions/")
     assert services["recorder"]["volumes"] == ["sessions:/sessions"]
+    calibrator = service_argv(services["calibrator"])
+    assert option_value(calibrator, "--state").startswith("/state/")
+    assert services["calibrator"]["volumes"] == ["calibrator-state:/state"]
 
 
 def test_compose_settings_change_what_they_name():
