@@ -12,7 +12,7 @@ router on 7447 (`camnet router` or zenohd) plays the same role.
 Multicast scouting (--scouting) also works on loopback on Linux, but it is
 off by default: it leaks across hosts on a LAN and is often blocked in
 containers. Flags given on the command line replace the defaults and are
-applied over a --zenoh-config file.
+applied over a --zenoh-config file; a mode set in that file is kept.
 """
 
 from __future__ import annotations
@@ -70,7 +70,10 @@ def make_config(options: BusOptions):
             raise InputError(f"{options.zenoh_config}: cannot load Zenoh config: {exc}") from exc
     else:
         config = zenoh.Config()
-    _insert(config, "mode", options.mode)
+    if json.loads(config.get_json("mode")) is None:
+        # A mode written in the file wins, e.g. "client" for nodes that may reach the rig
+        # only through its router (docker/zenoh/node.json5).
+        _insert(config, "mode", options.mode)
     _insert(config, "scouting/multicast/enabled", options.scouting)
     explicit = bool(options.connect or options.listen or options.zenoh_config)
     if options.connect:
