@@ -12,7 +12,7 @@ from camnet.errors import CamnetError
 
 # name -> module in camnet.commands; order is the order shown in --help.
 COMMANDS = {
-    "up": "Run camnet on the built-in simulated rig and compare with its ground truth.",
+    "up": "Run the whole network (drivers, matcher, calibrator) on this machine; default: the simulated rig.",
     "calibrate": "Solve a calibration offline from an observations file.",
     "simulate": "Write the observations of a simulated rig (and its ground truth).",
     "driver": "Run one camera driver (sim, aravis, v4l2) and publish its frames.",

@@ -124,9 +124,3 @@ def test_a_solve_that_cannot_succeed_is_refused(tmp_path, good_doc):
     src.write_text(json.dumps(good_doc))
     proc = run_camnet("calibrate", str(src), "-o", str(out))
     assert proc.returncode != 0 and len(proc.stderr.strip().splitlines()) == 1 and not out.exists()
-
-
-def test_up_prints_the_comparison_with_ground_truth():
-    proc = run_camnet("up")
-    assert proc.returncode == 0, proc.stderr
-    assert "scale error" in proc.stdout and "mono_b" in proc.stdout

@@ -1,39 +1,136 @@
-"""camnet up: calibrate the built-in simulated rig and compare with its ground truth.
+"""`camnet up [RIG.yaml]`: the whole network on this machine, calibrating itself.
 
-Until the live network (drivers, matcher, calibrator on the bus) is in place,
-this runs the offline solve on the paper's simulated rig.
+Starts one driver per camera, the matcher and the calibrator as child
+processes on the bus, follows the calibrations they produce, and ends (after
+`--duration-s`, or never with `--forever`) by printing the last calibration,
+beside the ground truth when the rig is simulated. With no rig file it runs
+the built-in simulated rig: the paper's four cameras.
 """
 
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
+
+DEFAULT_RIG = Path(__file__).resolve().parents[2] / "config" / "sim.yaml"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from camnet.commands.simulate import add_simulation_arguments
+    from camnet.bus import add_bus_arguments
 
-    parser.add_argument("--method", choices=("refined", "paper", "unconstrained"), default="refined")
-    parser.add_argument("-o", "--output", help="also write the calibration here")
-    add_simulation_arguments(parser)
+    parser.add_argument("rig_file", nargs="?", metavar="RIG.yaml",
+                        help="rig file (default: the built-in simulated rig, config/sim.yaml)")
+    parser.add_argument("--duration-s", type=float, default=60.0,
+                        help="seconds to run before printing the result and stopping (default 60)")
+    parser.add_argument("--forever", action="store_true", help="run until interrupted")
+    parser.add_argument("--detector", choices=("sift", "orb"), default="sift", help="matcher features")
+    parser.add_argument("--run-dir", metavar="DIR",
+                        help="where the nodes' logs and the calibration state go (default: a new temporary one)")
+    parser.add_argument("-o", "--output", metavar="CALIBRATION.json", help="also write the final calibration here")
+    add_bus_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
-    from camnet.calibrate import Options, calibrate
-    from camnet.commands.simulate import simulate_from_args
-    from camnet.evaluate import compare, format_comparison
-    from camnet.formats import calibration_to_doc, write_json_atomic
+    import json
+    import tempfile
+    import threading
+    import time
 
-    rig, sim = simulate_from_args(args)
-    obs = sim.observations
-    print(
-        f"simulated rig: {len(rig.cameras)} cameras, {len(obs.track_ids)} tracks, "
-        f"{len(obs.uv)} observations, noise {args.noise_px} px, seed {args.seed}",
-        flush=True,
-    )
-    result = calibrate(obs, Options(method=args.method))
+    from camnet import keys
+    from camnet.bus import open_session, options_from_args
+    from camnet.errors import CamnetError, InputError
+    from camnet.formats import parse_calibration, write_json_atomic
+    from camnet.launch import Launch, bus_flags
+    from camnet.rig import load_rig
+
+    rig_path = Path(args.rig_file) if args.rig_file else DEFAULT_RIG
+    rig = load_rig(rig_path)
+    if rig.stereo is None:
+        raise InputError(f"{rig_path}: the rig has no stereo pair; camnet needs one with a known baseline")
+    if not args.duration_s > 0:
+        raise InputError(f"--duration-s: must be positive, got {args.duration_s}")
+    run_dir = Path(args.run_dir) if args.run_dir else Path(tempfile.mkdtemp(prefix=f"camnet-{rig.name}-"))
+    run_dir.mkdir(parents=True, exist_ok=True)
+    truth = rig.simulated_truth()
+    children_bus = bus_flags(connect=args.connect, listen=args.listen, zenoh_config=args.zenoh_config,
+                             scouting=args.scouting)
+
+    latest: dict[str, dict] = {}
+    arrived = threading.Event()
+
+    def on_calibration(sample) -> None:
+        try:
+            latest["doc"] = json.loads(sample.payload.to_bytes())
+        except ValueError:
+            return
+        arrived.set()
+
+    print(f"camnet up: rig {rig.name!r}, {len(rig.cameras)} cameras, logs in {run_dir}", flush=True)
+    with open_session(options_from_args(args)) as session, Launch(run_dir) as launch:
+        subscriber = session.declare_subscriber(keys.calibration(rig.name), on_calibration)
+        for entry in rig.cameras:
+            launch.start(f"driver-{entry.id}", ["driver", entry.driver, "--rig", str(rig_path),
+                                                "--camera", entry.id, *children_bus])
+        launch.start("matcher", ["matcher", "--rig", str(rig_path), "--detector", args.detector, *children_bus])
+        launch.start("calibrator", ["calibrator", "--rig", str(rig_path), "--state",
+                                    str(run_dir / "calibration.json"), *children_bus])
+        start = time.monotonic()
+        next_wait_note = start + 10.0
+        try:
+            while args.forever or time.monotonic() - start < args.duration_s:
+                for child in launch.exited():
+                    raise CamnetError(f"node {child.name} exited with status {child.process.returncode}; "
+                                      f"the end of {child.log_path}:\n{child.log_tail()}")
+                if arrived.wait(timeout=0.5):
+                    arrived.clear()
+                    print(progress_line(time.monotonic() - start, latest["doc"], truth), flush=True)
+                elif "doc" not in latest and time.monotonic() >= next_wait_note:
+                    print(f"{time.monotonic() - start:7.1f} s  waiting for the first calibration "
+                          f"(see {run_dir}/*.log)", flush=True)
+                    next_wait_note = time.monotonic() + 10.0
+        except KeyboardInterrupt:
+            print("interrupted", flush=True)
+        subscriber.undeclare()
+    doc = latest.get("doc")
+    if doc is None:
+        raise CamnetError(f"no calibration in {args.duration_s:.0f} s; the nodes' logs are in {run_dir}")
     if args.output:
-        write_json_atomic(args.output, calibration_to_doc(result.calibration))
-    print(format_comparison(compare(result.calibration, rig.cameras, rig.points)))
-    for warning in result.calibration.extra["diagnostics"]["warnings"]:
-        print(f"warning: {warning}")
+        write_json_atomic(args.output, doc)
+    print(final_report(parse_calibration(doc), truth))
     return 0
+
+
+def progress_line(elapsed_s: float, doc: dict, truth) -> str:
+    """One line per calibration: what it holds, how sure it is, and how right when the truth is known."""
+    scale_rel = doc.get("uncertainty", {}).get("scale_rel", float("nan"))
+    line = (f"{elapsed_s:7.1f} s  solve {doc.get('solve', '?'):>3}  {len(doc['cameras'])} cameras "
+            f"{len(doc.get('points', [])):5d} points  rms {doc.get('rms_reprojection_px', float('nan')):.2f} px  "
+            f"scale sigma {100 * scale_rel:.3f}%")
+    if "latest_capture_ns" in doc and "solved_ns" in doc:
+        line += f"  capture->solution {(doc['solved_ns'] - doc['latest_capture_ns']) / 1e9:.1f} s"
+    if truth:
+        from camnet.evaluate import compare_cameras
+        from camnet.formats import parse_calibration
+
+        c = compare_cameras(parse_calibration(doc), truth)
+        focal = max(abs(e.focal_rel) for e in c.cameras)
+        centre = max(e.centre_mm for e in c.cameras)
+        line += f" | vs truth: scale {100 * c.scale_rel:+.3f}%, focal <= {100 * focal:.2f}%, centres <= {centre:.1f} mm"
+    if doc.get("moved"):
+        line += f"  moved: {', '.join(doc['moved'])}"
+    return line
+
+
+def final_report(cal, truth) -> str:
+    from camnet.evaluate import compare_cameras, format_comparison
+
+    lines = ["", "final calibration:"]
+    if truth:
+        lines.append(format_comparison(compare_cameras(cal, truth)))
+        lines.append("(scale and shape from the camera centres against the simulation's ground truth)")
+    else:
+        for cam in cal.cameras:
+            lines.append(f"{cam.id:<10} f {cam.K[0, 0]:9.2f} px  centre {1e3 * cam.centre} mm")
+    for warning in cal.extra.get("diagnostics", {}).get("warnings", []):
+        lines.append(f"warning: {warning}")
+    return "\n".join(lines)
