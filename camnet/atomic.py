@@ -9,6 +9,9 @@ from pathlib import Path
 
 from camnet.errors import InputError
 
+NEW_FILE_MODE = 0o644
+NEW_DIRECTORY_MODE = 0o755
+
 
 def _parent(path: Path) -> Path:
     parent = path.parent
@@ -20,6 +23,8 @@ def _parent(path: Path) -> Path:
 def _write_replace(path: Path, text: str) -> None:
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
+        # mkstemp makes the file private; an output file gets the usual mode, or keeps the one it had.
+        os.fchmod(fd, path.stat().st_mode & 0o777 if path.exists() else NEW_FILE_MODE)
         with os.fdopen(fd, "w") as f:
             f.write(text)
             f.flush()
@@ -61,6 +66,7 @@ def write_directory_atomic(path: str | Path, files: dict[str, str]) -> list[Path
         return [path / name for name in files]
     tmp = Path(tempfile.mkdtemp(dir=_parent(path), prefix=f".{path.name}.", suffix=".tmp"))
     try:
+        tmp.chmod(NEW_DIRECTORY_MODE)
         for name, text in files.items():
             (tmp / name).write_text(text)
         os.rename(tmp, path)

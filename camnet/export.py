@@ -144,20 +144,6 @@ def colmap_quaternion(R: np.ndarray) -> np.ndarray:
     return np.array([w, x, y, z])
 
 
-def default_max_error_px(cal: Calibration) -> float:
-    """The solver's outlier rule (camnet.calibrate.Options): 4 sigma_px, at least 1.5 px.
-
-    Without a sigma in the calibration every observation of a kept point links.
-    """
-    from camnet.calibrate import Options
-
-    options = Options()
-    sigma = cal.extra.get("uncertainty", {}).get("sigma_px", cal.rms_reprojection_px)
-    if not isinstance(sigma, int | float) or not math.isfinite(sigma):
-        return math.inf
-    return max(options.outlier_sigmas * float(sigma), options.min_outlier_px)
-
-
 def colmap_model(
     cal: Calibration, observations: Observations | None = None, *, max_error_px: float | None = None
 ) -> dict[str, str]:
@@ -171,7 +157,7 @@ def colmap_model(
     - POINT3D_ID is camnet's track id (must be >= 0); XYZ in metres; colour grey.
     - With `observations`, every observation becomes a 2-D point of its image
       (``u + 0.5, v + 0.5``); one of a kept point whose reprojection error is
-      at most `max_error_px` (default `default_max_error_px`) joins that
+      at most `max_error_px` (default: `camnet.residuals.outlier_limit_px`) joins that
       point's track, others get POINT3D_ID -1. ERROR is the track's mean
       reprojection error in pixels. Without observations the images have no
       2-D points, the tracks are empty and ERROR is -1 (COLMAP's "unknown"):
@@ -214,10 +200,10 @@ def colmap_model(
 
 
 def _link_observations(cal, observations, max_error_px, points2d, tracks, track_errors) -> None:
-    from camnet.residuals import reprojection_residuals
+    from camnet.residuals import outlier_limit_px, reprojection_residuals
 
     res = reprojection_residuals(cal, observations)
-    limit = default_max_error_px(cal) if max_error_px is None else max_error_px
+    limit = outlier_limit_px(cal) if max_error_px is None else max_error_px
     error = res.error_px
     linked_point = np.full(len(observations.uv), -1, dtype=np.int64)
     ok = np.isfinite(error) & (error <= limit)

@@ -7,6 +7,7 @@ top-left pixel, u right, v down.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -35,6 +36,21 @@ class Residuals:
     def error_px(self) -> np.ndarray:
         """Reprojection error per observation (n,), pixels."""
         return np.linalg.norm(self.residual_px, axis=1)
+
+
+def outlier_limit_px(cal: Calibration) -> float:
+    """The solver's outlier rule (camnet.calibrate.Options): 4 sigma_px, at least 1.5 px.
+
+    sigma_px is the calibration's ``uncertainty.sigma_px``, else its RMS;
+    without either, infinity (nothing is an outlier).
+    """
+    from camnet.calibrate import Options
+
+    options = Options()
+    sigma = cal.extra.get("uncertainty", {}).get("sigma_px", cal.rms_reprojection_px)
+    if not isinstance(sigma, int | float) or not math.isfinite(sigma):
+        return math.inf
+    return max(options.outlier_sigmas * float(sigma), options.min_outlier_px)
 
 
 def reprojection_residuals(cal: Calibration, obs: Observations) -> Residuals:
