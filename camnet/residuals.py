@@ -47,8 +47,10 @@ def outlier_limit_px(cal: Calibration) -> float:
     from camnet.calibrate import Options
 
     options = Options()
-    sigma = cal.extra.get("uncertainty", {}).get("sigma_px", cal.rms_reprojection_px)
-    if not isinstance(sigma, int | float) or not math.isfinite(sigma):
+    uncertainty = cal.extra.get("uncertainty")
+    sigma = uncertainty.get("sigma_px") if isinstance(uncertainty, dict) else None
+    sigma = cal.rms_reprojection_px if sigma is None else sigma
+    if isinstance(sigma, bool) or not isinstance(sigma, int | float) or not math.isfinite(sigma):
         return math.inf
     return max(options.outlier_sigmas * float(sigma), options.min_outlier_px)
 

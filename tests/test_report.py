@@ -20,7 +20,7 @@ import pytest
 from camnet.calibrate import Options, calibrate
 from camnet.errors import InputError
 from camnet.formats import CameraInfo, calibration_to_doc, observations_to_doc
-from camnet.report import SECTIONS, bounding_box, frustum_xz, render_report
+from camnet.report import SECTIONS, bounding_box, frustum_xz, further_keys, render_report
 from camnet.residuals import reprojection_residuals
 from camnet.simulate import make_rig, observe
 
@@ -118,6 +118,21 @@ def test_html_holds_every_section_and_the_numbers(solved):
     assert "holds no uncertainty" in render_report(bare) and '<p class="note">None.</p>' in render_report(bare)
 
 
+def test_further_keys_are_checked(solved):
+    cal, _ = solved
+    for extra, message in [
+        ({"uncertainty": 5}, "uncertainty: expected an object"),
+        ({"uncertainty": {"sigma_px": "0.5"}}, "uncertainty.sigma_px: expected a number"),
+        ({"diagnostics": {"warnings": "none"}}, "diagnostics.warnings: expected a list"),
+        ({"uncertainty": {"cameras": {"left": {"f_px": [1]}}}}, "uncertainty.cameras.left.f_px"),
+    ]:
+        with pytest.raises(InputError, match=re.escape(message)):
+            render_report(replace(cal, extra=extra))
+    fk = further_keys(cal)
+    assert fk.sigma_px == cal.extra["uncertainty"]["sigma_px"] and fk.method == "refined"
+    assert fk.uncertainty["mono_a"]["centre_m"] == cal.extra["uncertainty"]["cameras"]["mono_a"]["centre_m"]
+
+
 def run_camnet(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "camnet", *args], capture_output=True, text=True, timeout=120)
 
@@ -147,16 +162,21 @@ def test_report_command_bad_input_is_one_line_and_writes_nothing(tmp_path, repor
     ]
     ghost = tmp_path / "ghost.json"
     ghost.write_text(json.dumps(obs_doc))
+    doc = json.loads((report_files / "cal.json").read_text())
+    doc["uncertainty"]["cameras"]["mono_a"]["centre_m"] = [0.1, 0.2]
+    short = tmp_path / "short.json"
+    short.write_text(json.dumps(doc))
     out = tmp_path / "report.html"
     for args, message in [
         ([str(broken)], "cameras[1].R: not a rotation matrix"),
         ([str(report_files / "cal.json"), "--observations", str(ghost)], "camera 'ghost' is not in the calibration"),
         ([str(tmp_path / "absent.json")], "cannot read"),
+        ([str(short)], "uncertainty.cameras.mono_a.centre_m: expected 3 numbers"),
     ]:
         proc = run_camnet("report", *args, "-o", str(out))
         assert proc.returncode == 2, proc.stderr
         assert proc.stderr.count("\n") == 1 and message in proc.stderr, proc.stderr
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["broken.json", "ghost.json"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["broken.json", "ghost.json", "short.json"]
 
 
 def screenshot(html_path, png_path, profile_dir, *, timeout_s: float = 120.0) -> None:
