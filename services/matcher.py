@@ -39,7 +39,7 @@ from camnet.matching import Detector, MatcherConfig, match_frame_set, to_grey
 from camnet.receiver import FrameReceiver
 from camnet.rig import Rig
 from camnet.stats import NodeStats, RateMeter
-from camnet.sync import FrameSet, FrameSynchronizer
+from camnet.sync import FrameSet, FrameSynchronizer, SyncCounts
 from camnet.track_pool import PoolConfig, PoolUpdate, TrackPool
 from camnet.tracks import FrameTracks, build_tracks
 
@@ -258,9 +258,14 @@ class MatcherNode:
                    latest_capture_ns=self.latest_capture_ns, published_ns=time.time_ns())
         return doc
 
-    def stats(self) -> NodeStats:
+    def sync_counts(self) -> SyncCounts:
+        """Frames received, frame sets formed, frames dropped by synchronization."""
         with self._ready:
-            counts = self._sync.counts
+            return self._sync.counts
+
+    def stats(self) -> NodeStats:
+        counts = self.sync_counts()
+        with self._ready:
             malformed = self.receiver.malformed_total + sum(self._rejected.values())
         pooled = len(self._pool) if self._pool is not None else 0
         detail = (f"{pooled} tracks pooled, {self.frame_sets_pooled} sets, match "
@@ -278,8 +283,7 @@ class MatcherNode:
 
     def _check_health(self, now_s: float) -> None:
         """Say so when frames are dropped for slow matching, or when no frame set forms."""
-        with self._ready:
-            dropped = self._sync.counts.dropped
+        dropped = self.sync_counts().dropped
         if dropped > self._dropped_at_warning and self.frame_sets_matched and self._may_warn("drop", now_s):
             log.warning("matching (%.0f ms per frame set) is slower than the cameras: %d frames dropped "
                         "since the last warning; the latest frames are matched", 1e3 * self.last_match_s,
@@ -311,9 +315,9 @@ class MatcherNode:
                 frame_set = self.next_frame_set(timeout_s=0.05)
                 now_s = time.monotonic()
                 if frame_set is not None:
-                    self._last_set_s = now_s
                     self._process_safely(frame_set)
-                    now_s = time.monotonic()
+                    # Waiting for the next set starts now: matching time is not a missing set.
+                    now_s = self._last_set_s = time.monotonic()
                 if self._dirty and now_s >= next_publish_s:
                     self._latest_document = json.dumps(self.document()).encode()
                     publisher.put(self._latest_document)
