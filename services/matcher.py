@@ -9,6 +9,8 @@ changed it publishes the pool on ``keys.observations(rig)``, at most once per
 publish period. The document carries, beside the contract's keys:
 
 - ``rig``: the rig name;
+- ``pool_id``: new whenever the pool starts afresh (a node start, or a camera
+  whose image size became known later), when track ids start over;
 - ``frame_sets``: how many frame sets contributed to the pool;
 - ``latest_capture_ns``: capture time of the newest of them (Unix epoch, ns),
   from which a consumer measures capture-to-result latency;
@@ -25,6 +27,7 @@ import json
 import logging
 import threading
 import time
+import uuid
 from dataclasses import dataclass
 
 import cv2
@@ -139,6 +142,7 @@ class MatcherNode:
                                        frames_per_camera=config.frames_per_camera)
         self._sizes = {c: s for c in self.camera_ids if (s := _configured_size(rig, c)) is not None}
         self._pool: TrackPool | None = None
+        self._pool_id = ""
         self._rejected: dict[str, int] = {}  # frames decoded but not usable, by kind
         self._failed: dict[str, int] = {}  # frame sets whose matching raised, by error type
         self.frame_sets_matched = 0
@@ -214,6 +218,7 @@ class MatcherNode:
                                                                        for c in cameras), len(self._pool))
             self._pool = regrow_pool(self._pool, cameras, self.stereo, self.config.pool_config(),
                                      frame_seq=self.frame_sets_matched)
+            self._pool_id = uuid.uuid4().hex
         return self._pool
 
     def process(self, frame_set: FrameSet) -> PoolUpdate:
@@ -254,7 +259,7 @@ class MatcherNode:
     def document(self) -> dict:
         """The observations document of the pool now (contract keys plus the node's own)."""
         doc = observations_to_doc(self._ensure_pool().observations())
-        doc.update(rig=self.rig.name, frame_sets=self.frame_sets_pooled,
+        doc.update(rig=self.rig.name, pool_id=self._pool_id, frame_sets=self.frame_sets_pooled,
                    latest_capture_ns=self.latest_capture_ns, published_ns=time.time_ns())
         return doc
 
