@@ -71,7 +71,8 @@ class Frame:
     `image` is (height, width) for one-channel encodings and (height, width, 3)
     for bgr8/rgb8; dtype uint8, or uint16 for mono16. `timestamp_ns` is the
     capture time in integer nanoseconds (the camera's clock when it has one,
-    else the host's CLOCK_REALTIME); `seq` counts frames of this camera from 0.
+    else the host's CLOCK_REALTIME); `seq` numbers the frames of this camera
+    (a gap: lost frames; simulated cameras number the slots of their common clock).
     """
 
     camera_id: str

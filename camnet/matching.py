@@ -110,17 +110,38 @@ class FrameSetMatches:
     pairs: tuple[PairMatches, ...] = field(default_factory=tuple)
 
 
-def to_grey(image: np.ndarray) -> np.ndarray:
-    """uint8 grey image (H, W) from grey (H, W), (H, W, 1), BGR (H, W, 3) or BGRA."""
+# ROS Bayer names -> OpenCV codes. OpenCV names a mosaic by the second row's
+# second and third pixels, so ROS rggb is OpenCV's BG (the mapping cv_bridge uses).
+_BAYER_TO_GREY = {
+    "bayer_rggb8": cv2.COLOR_BayerBG2GRAY,
+    "bayer_bggr8": cv2.COLOR_BayerRG2GRAY,
+    "bayer_gbrg8": cv2.COLOR_BayerGR2GRAY,
+    "bayer_grbg8": cv2.COLOR_BayerGB2GRAY,
+}
+
+
+def to_grey(image: np.ndarray, *, encoding: str | None = None) -> np.ndarray:
+    """uint8 grey image (H, W) from grey (H, W), (H, W, 1), BGR (H, W, 3) or BGRA.
+
+    `encoding` (a camnet.frame encoding name) says what a frame's pixels are:
+    rgb8 is taken as RGB, bayer_* mosaics are demosaiced; without it three
+    channels are BGR. uint16 images (mono16) are shifted down to 8 bits keeping
+    their highest used bit, so 10- or 12-bit data in 16-bit words keeps its contrast.
+    """
     image = np.asarray(image)
+    if image.dtype == np.uint16:
+        shift = max(0, int(image.max()).bit_length() - 8)
+        image = (image >> shift).astype(np.uint8)
     if image.dtype != np.uint8:
-        raise ValueError(f"expected a uint8 image, got {image.dtype}")
+        raise ValueError(f"expected a uint8 or uint16 image, got {image.dtype}")
+    if encoding in _BAYER_TO_GREY and image.ndim == 2:
+        return cv2.cvtColor(image, _BAYER_TO_GREY[encoding])
     if image.ndim == 2:
         return image
     if image.ndim == 3 and image.shape[2] == 1:
         return image[:, :, 0]
     if image.ndim == 3 and image.shape[2] == 3:
-        return cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+        return cv2.cvtColor(image, cv2.COLOR_RGB2GRAY if encoding == "rgb8" else cv2.COLOR_BGR2GRAY)
     if image.ndim == 3 and image.shape[2] == 4:
         return cv2.cvtColor(image, cv2.COLOR_BGRA2GRAY)
     raise ValueError(f"expected an (H, W) or (H, W, 1|3|4) image, got shape {image.shape}")

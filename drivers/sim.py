@@ -1,16 +1,26 @@
 """The simulated camera: renders the rig file's scene from its ground-truth camera.
 
-Frames come at the configured rate on the host's clock. Frame slot k is due at
-``start + k / fps``; if rendering falls behind by a whole slot the slot is
-skipped and counted as dropped, and its sequence number is skipped too, so
-receivers see the gap. The scene's time is the slot's time, so a run is
-reproducible frame by frame.
+Simulated cameras behave like hardware-triggered cameras on one common clock:
+frame slot k is due at ``k / fps`` seconds of the host's wall clock (Unix
+epoch), and its frame has ``seq = k``, ``timestamp_ns = k * 1e9 / fps``
+(exact integer) and shows the scene at time ``k / fps``. So every simulated
+camera of a rig with the same fps stamps the same instants and sees the same
+scene at each, whichever process runs it and whenever it started; the matcher
+can form frame sets from equal timestamps.
+
+A camera that falls behind by a whole slot skips slots, counts them as
+dropped, and its sequence numbers skip too, so receivers see the gap. It
+resumes on a multiple of the smallest power of two above the number of slots
+it was late by: cameras that fall behind alike (same rendering cost, same
+machine) then land on the same slots instead of on interleaved ones, and the
+coarser grids of the worse-off cameras nest in the finer ones.
 """
 
 from __future__ import annotations
 
 import time
 import zlib
+from fractions import Fraction
 
 import numpy as np
 
@@ -42,15 +52,14 @@ class SimCamera:
         self.ground_truth = config.camera(camera_id)
         self._renderer = Renderer(self.ground_truth)
         # Each camera its own noise, reproducible from the rig's seed and the camera id.
-        self._rng = np.random.default_rng([seed, scene.config.seed,
-                                           zlib.crc32(camera_id.encode())])
+        self._noise_seed = (seed, scene.config.seed, zlib.crc32(camera_id.encode()))
         self._info = CameraInfo(camera_id=camera_id, driver="sim", width=config.width,
                                 height=config.height, encoding=config.encoding, fps=config.fps,
                                 description="simulated camera (camnet.render)")
+        # fps as an exact fraction, so that every camera computes the same integer timestamps.
+        self._fps = Fraction(config.fps)
         self._dropped = 0
-        self._slot = 0
-        self._start_mono_ns = 0
-        self._start_wall_ns = 0
+        self._next_slot = 0
 
     @property
     def info(self) -> CameraInfo:
@@ -61,41 +70,49 @@ class SimCamera:
         return self._dropped
 
     def __enter__(self) -> SimCamera:
-        self._start_mono_ns = time.monotonic_ns()
-        self._start_wall_ns = time.time_ns()
-        self._slot = 0
+        self._next_slot = self.slot_at(time.time_ns()) + 1
         return self
 
     def __exit__(self, *exc_info: object) -> None:
         return None
 
+    def slot_timestamp_ns(self, slot: int) -> int:
+        """Capture time of frame slot `slot`: ``slot * 1e9 / fps`` ns of the Unix epoch, rounded down."""
+        return slot * 1_000_000_000 * self._fps.denominator // self._fps.numerator
+
+    def slot_at(self, time_ns: int) -> int:
+        """The last slot due at or before `time_ns` (Unix epoch, ns)."""
+        return time_ns * self._fps.numerator // (1_000_000_000 * self._fps.denominator)
+
     def render(self, slot: int) -> np.ndarray:
-        """The image of frame slot `slot` (scene time slot / fps), in the camera's encoding."""
+        """The image of frame slot `slot` (scene time slot / fps), in the camera's encoding.
+
+        Deterministic: the sensor noise is seeded by the slot too.
+        """
         quads = self.scene.quads(slot / self.config.fps)
-        image = self._renderer.render(quads, noise_sigma_dn=self.config.noise_sigma_dn,
-                                      rng=self._rng)
+        rng = np.random.default_rng([*self._noise_seed, slot])
+        image = self._renderer.render(quads, noise_sigma_dn=self.config.noise_sigma_dn, rng=rng)
         return _convert(image, self.config.encoding)
 
     def read(self, *, timeout_s: float = 1.0) -> Frame:
-        period_ns = 1e9 / self.config.fps
-        now = time.monotonic_ns()
-        late_slots = int((now - self._start_mono_ns) // period_ns) - self._slot
+        now_ns = time.time_ns()
+        slot = self._next_slot
+        late_slots = self.slot_at(now_ns) - slot
         if late_slots > 0:
-            self._dropped += late_slots
-            self._slot += late_slots
-        due_ns = self._start_mono_ns + int(self._slot * period_ns)
-        wait_s = (due_ns - now) / 1e9
+            stride = 1 << late_slots.bit_length()  # the smallest power of two > late_slots
+            resume = -(-self.slot_at(now_ns) // stride) * stride
+            self._dropped += resume - slot
+            slot = self._next_slot = resume
+        timestamp_ns = self.slot_timestamp_ns(slot)
+        wait_s = (timestamp_ns - now_ns) / 1e9
         if wait_s > timeout_s:
             time.sleep(timeout_s)
             raise ReadTimeout(f"next simulated frame due in {wait_s:.3f} s")
         if wait_s > 0:
             time.sleep(wait_s)
-        slot = self._slot
-        self._slot += 1
-        image = self.render(slot)
-        return Frame(camera_id=self._info.camera_id, seq=slot,
-                     timestamp_ns=self._start_wall_ns + int(slot * period_ns),
-                     encoding=self.config.encoding, image=image)
+        self._next_slot = slot + 1
+        return Frame(camera_id=self._info.camera_id, seq=slot, timestamp_ns=timestamp_ns,
+                     encoding=self.config.encoding, image=self.render(slot))
 
 
 def groundtruth_document(rig: Rig) -> dict:

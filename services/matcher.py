@@ -1,0 +1,343 @@
+"""The matcher node: a rig's frames in, pooled multi-view tracks out (camnet.observations/1).
+
+Zenoh's callback threads only decode frames and hand them to a
+`camnet.sync.FrameSynchronizer` (under a lock), which keeps the latest few
+frames per camera and counts what it drops. `MatcherNode.run` is the worker:
+it takes the newest ready frame set, matches it (`camnet.matching`), chains
+tracks (`camnet.tracks`) and pools them (`camnet.track_pool`); when the pool
+changed it publishes the pool on ``keys.observations(rig)``, at most once per
+publish period. The document carries, beside the contract's keys:
+
+- ``rig``: the rig name;
+- ``pool_id``: new whenever the pool starts afresh (a node start, or a camera
+  whose image size became known later), when track ids start over;
+- ``frame_sets``: how many frame sets contributed to the pool;
+- ``latest_capture_ns``: capture time of the newest of them (Unix epoch, ns),
+  from which a consumer measures capture-to-result latency;
+- ``published_ns``: when this document was published (Unix epoch, ns).
+
+Cameras are listed with the sizes of their frames (or of the rig file before
+the first frame); no intrinsics are passed on, not even a simulated camera's
+ground truth. The latest document also answers queries on the same key.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import threading
+import time
+import uuid
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from camnet import keys
+from camnet.bus import declare_liveliness
+from camnet.errors import InputError
+from camnet.formats import CameraInfo, Stereo, observations_to_doc
+from camnet.frame import Frame
+from camnet.matching import Detector, MatcherConfig, match_frame_set, to_grey
+from camnet.receiver import FrameReceiver
+from camnet.rig import Rig
+from camnet.stats import NodeStats, RateMeter
+from camnet.sync import FrameSet, FrameSynchronizer, SyncCounts
+from camnet.track_pool import PoolConfig, PoolUpdate, TrackPool
+from camnet.tracks import FrameTracks, build_tracks
+
+log = logging.getLogger(__name__)
+
+NODE_KIND = "matcher"
+NODE_ID = "matcher"
+WARNING_PERIOD_S = 30.0  # at most one warning of each kind per this many seconds
+NO_SET_WARNING_S = 10.0  # frames arrive but no frame set forms for this long: say why
+
+
+@dataclass(frozen=True)
+class MatcherNodeConfig:
+    """Options of the matcher node; see `camnet matcher --help` for their meaning."""
+
+    detector: str = "sift"  # sift | orb
+    sync_tolerance_ms: float = 5.0  # capture times of one frame set differ by at most this
+    max_wait_s: float = 0.5  # then a frame set goes without its late cameras (never without the stereo pair)
+    frames_per_camera: int = 4  # latest frames kept per camera while matching runs
+    publish_period_s: float = 1.0  # at most one observations document per period
+    max_tracks: int = 5000  # pool bound
+    max_features: int = 4000  # per image
+    max_image_side_px: int | None = None  # detect on a downscaled copy above this size
+    stats_period_s: float = 1.0
+
+    def __post_init__(self) -> None:
+        if self.detector not in {d.value for d in Detector}:
+            raise InputError(f"detector: unknown {self.detector!r} (expected sift or orb)")
+        for name in ("sync_tolerance_ms", "max_wait_s"):
+            if not getattr(self, name) >= 0:
+                raise InputError(f"{name}: must be >= 0, got {getattr(self, name)}")
+        for name in ("publish_period_s", "stats_period_s"):
+            if not getattr(self, name) > 0:
+                raise InputError(f"{name}: must be > 0, got {getattr(self, name)}")
+        for name in ("frames_per_camera", "max_tracks", "max_features"):
+            if getattr(self, name) < 1:
+                raise InputError(f"{name}: must be at least 1, got {getattr(self, name)}")
+        if self.max_image_side_px is not None and self.max_image_side_px < 16:
+            raise InputError(f"max_image_side_px: must be at least 16, got {self.max_image_side_px}")
+
+    def matcher_config(self) -> MatcherConfig:
+        return MatcherConfig(detector=Detector(self.detector), max_features=self.max_features,
+                             max_image_side_px=self.max_image_side_px)
+
+    def pool_config(self) -> PoolConfig:
+        return PoolConfig(max_tracks=self.max_tracks)
+
+
+def rig_stereo(rig: Rig) -> Stereo:
+    """The rig's stereo pair; InputError if it has none."""
+    if rig.stereo is None:
+        raise InputError(f"{rig.source}: rig {rig.name!r} has no stereo pair; the matcher needs one "
+                         "(add a 'stereo:' section with left, right and baseline_m)")
+    return Stereo(rig.stereo.left, rig.stereo.right, rig.stereo.baseline_m)
+
+
+def _configured_size(rig: Rig, camera_id: str) -> tuple[int, int] | None:
+    """(width, height) the rig file gives for a camera, if it gives one."""
+    config = rig.camera(camera_id).config
+    width, height = getattr(config, "width", None), getattr(config, "height", None)
+    return (width, height) if width and height else None
+
+
+def regrow_pool(pool: TrackPool | None, cameras: list[CameraInfo], stereo: Stereo, config: PoolConfig,
+                *, frame_seq: int) -> TrackPool:
+    """A pool over `cameras` holding the tracks of `pool` (None: an empty pool).
+
+    For a camera whose size became known, or changed, after pooling began.
+    Track ids are renumbered.
+    """
+    grown = TrackPool(cameras, stereo, config)
+    if pool is None or len(pool) == 0:
+        return grown
+    obs = pool.observations()
+    column = {c.id: i for i, c in enumerate(cameras)}
+    uv = np.full((len(obs.track_ids), len(cameras), 2), np.nan)
+    uv[obs.track_index, [column[obs.cameras[c].id] for c in obs.cam_index]] = obs.uv
+    grown.add(FrameTracks(tuple(column), uv), frame_seq=frame_seq)
+    return grown
+
+
+class MatcherNode:
+    """Matches the frames of `rig` published on `session`; `run` until `stop` is set."""
+
+    def __init__(self, session, rig: Rig, *, config: MatcherNodeConfig = MatcherNodeConfig()) -> None:
+        self.stereo = rig_stereo(rig)
+        self.session = session
+        self.rig = rig
+        self.config = config
+        self.camera_ids = tuple(c.id for c in rig.cameras)
+        self.receiver = FrameReceiver()
+        self._matcher_config = config.matcher_config()
+        self._ready = threading.Condition()
+        self._sync = FrameSynchronizer(self.camera_ids, required=(self.stereo.left, self.stereo.right),
+                                       tolerance_ns=round(config.sync_tolerance_ms * 1e6),
+                                       max_wait_s=config.max_wait_s,
+                                       frames_per_camera=config.frames_per_camera)
+        self._sizes = {c: s for c in self.camera_ids if (s := _configured_size(rig, c)) is not None}
+        self._pool: TrackPool | None = None
+        self._pool_id = ""
+        self._rejected: dict[str, int] = {}  # frames decoded but not usable, by kind
+        self._failed: dict[str, int] = {}  # frame sets whose matching raised, by error type
+        self.frame_sets_matched = 0
+        self.frame_sets_pooled = 0
+        self.latest_capture_ns = 0
+        self.last_match_s = 0.0
+        self.published = 0
+        self._dirty = False
+        self._latest_document: bytes | None = None
+        self._rate = RateMeter(window_s=10.0)
+        self._last_set_s = time.monotonic()
+        self._warned_s: dict[str, float] = {}
+        self._dropped_at_warning = 0
+
+    # ------------------------------------------------------------ Zenoh's threads
+
+    def on_sample(self, sample) -> None:
+        """Subscriber callback: decode, check, hand over; nothing heavy, never raises."""
+        frame = self.receiver.accept(sample.payload.to_bytes())
+        if frame is None:
+            return
+        kind = self._check(frame, str(sample.key_expr))
+        if kind is not None:
+            self._reject(kind, frame)
+            return
+        with self._ready:
+            self._sync.add(frame, now_s=time.monotonic())
+            self._ready.notify()
+
+    def _check(self, frame: Frame, key: str) -> str | None:
+        if frame.camera_id not in self.camera_ids:
+            return "unknown-camera"
+        try:
+            _, key_camera = keys.parse_frame(key)
+        except InputError:
+            return "bad-key"
+        return None if key_camera == frame.camera_id else "camera-mismatch"
+
+    def _reject(self, kind: str, frame: Frame) -> None:
+        with self._ready:
+            first = kind not in self._rejected
+            self._rejected[kind] = self._rejected.get(kind, 0) + 1
+        if first:
+            log.warning("dropping a frame of camera %r (%s; rig %r has cameras %s); further ones of "
+                        "this kind are only counted", frame.camera_id, kind, self.rig.name,
+                        ", ".join(self.camera_ids))
+
+    def _on_query(self, query) -> None:
+        document = self._latest_document
+        if document is not None:
+            query.reply(keys.observations(self.rig.name), document)
+
+    # ------------------------------------------------------------ the worker
+
+    @property
+    def pool(self) -> TrackPool | None:
+        return self._pool
+
+    def next_frame_set(self, *, timeout_s: float) -> FrameSet | None:
+        """The newest ready frame set, waiting up to `timeout_s` for one."""
+        with self._ready:
+            frame_set = self._sync.pop(now_s=time.monotonic())
+            if frame_set is None:
+                self._ready.wait(timeout_s)
+                frame_set = self._sync.pop(now_s=time.monotonic())
+            return frame_set
+
+    def _ensure_pool(self) -> TrackPool:
+        cameras = [CameraInfo(c, *self._sizes[c]) for c in self.camera_ids if c in self._sizes]
+        if self._pool is None or list(self._pool.cameras) != cameras:
+            if self._pool is not None:
+                log.info("cameras now %s: re-pooling %d tracks", ", ".join(f"{c.id} {c.width}x{c.height}"
+                                                                       for c in cameras), len(self._pool))
+            self._pool = regrow_pool(self._pool, cameras, self.stereo, self.config.pool_config(),
+                                     frame_seq=self.frame_sets_matched)
+            self._pool_id = uuid.uuid4().hex
+        return self._pool
+
+    def process(self, frame_set: FrameSet) -> PoolUpdate:
+        """Match one frame set and pool its tracks."""
+        start_s = time.perf_counter()
+        for camera_id, frame in frame_set.frames.items():
+            self._sizes[camera_id] = (frame.width, frame.height)
+        pool = self._ensure_pool()
+        images = {c: to_grey(f.image, encoding=f.encoding) for c, f in frame_set.frames.items()}
+        tracks = build_tracks(match_frame_set(images, self._matcher_config, stereo=self.stereo))
+        update = pool.add(tracks, frame_seq=self.frame_sets_matched)
+        self.last_match_s = time.perf_counter() - start_s
+        self.frame_sets_matched += 1
+        self._rate.tick()
+        if update.added or update.reobserved:
+            self.frame_sets_pooled += 1
+            self.latest_capture_ns = max(self.latest_capture_ns, frame_set.timestamp_ns)
+        if update.added or update.reobserved or update.evicted:
+            self._dirty = True
+        missing = f" (without {', '.join(frame_set.missing)})" if frame_set.missing else ""
+        log.info("frame set %d: %d cameras%s, %d tracks (%d seen by 3+), +%d new, pool %d, %.0f ms",
+                 self.frame_sets_matched, len(frame_set.frames), missing, len(tracks),
+                 int(np.sum(tracks.views >= 3)), update.added, len(pool), 1e3 * self.last_match_s)
+        return update
+
+    def _process_safely(self, frame_set: FrameSet) -> None:
+        # Frames that decode but hold unusable pixels (tiny, constant) must not stop the node.
+        try:
+            self.process(frame_set)
+        except (cv2.error, ValueError) as exc:
+            kind = type(exc).__name__
+            first = kind not in self._failed
+            self._failed[kind] = self._failed.get(kind, 0) + 1
+            if first:
+                log.warning("frame set at %d ns could not be matched (%s); further failures of this "
+                            "kind are only counted", frame_set.timestamp_ns, exc)
+
+    def document(self) -> dict:
+        """The observations document of the pool now (contract keys plus the node's own)."""
+        doc = observations_to_doc(self._ensure_pool().observations())
+        doc.update(rig=self.rig.name, pool_id=self._pool_id, frame_sets=self.frame_sets_pooled,
+                   latest_capture_ns=self.latest_capture_ns, published_ns=time.time_ns())
+        return doc
+
+    def sync_counts(self) -> SyncCounts:
+        """Frames received, frame sets formed, frames dropped by synchronization."""
+        with self._ready:
+            return self._sync.counts
+
+    def stats(self) -> NodeStats:
+        counts = self.sync_counts()
+        with self._ready:
+            malformed = self.receiver.malformed_total + sum(self._rejected.values())
+        pooled = len(self._pool) if self._pool is not None else 0
+        detail = (f"{pooled} tracks pooled, {self.frame_sets_pooled} sets, match "
+                  f"{1e3 * self.last_match_s:.0f} ms, {counts.partial_sets} partial, {malformed} bad frames")
+        return NodeStats(rig=self.rig.name, kind=NODE_KIND, node_id=NODE_ID, fps=round(self._rate.rate(), 2),
+                         frames=self.frame_sets_matched, dropped=counts.dropped,
+                         timestamp_ns=time.time_ns(), detail=detail)
+
+    def _may_warn(self, kind: str, now_s: float) -> bool:
+        """True at most once per WARNING_PERIOD_S for each kind of warning."""
+        if now_s - self._warned_s.get(kind, -WARNING_PERIOD_S) < WARNING_PERIOD_S:
+            return False
+        self._warned_s[kind] = now_s
+        return True
+
+    def _check_health(self, now_s: float) -> None:
+        """Say so when frames are dropped for slow matching, or when no frame set forms."""
+        dropped = self.sync_counts().dropped
+        if dropped > self._dropped_at_warning and self.frame_sets_matched and self._may_warn("drop", now_s):
+            log.warning("matching (%.0f ms per frame set) is slower than the cameras: %d frames dropped "
+                        "since the last warning; the latest frames are matched", 1e3 * self.last_match_s,
+                        dropped - self._dropped_at_warning)
+            self._dropped_at_warning = dropped
+        if now_s - self._last_set_s >= NO_SET_WARNING_S and self._may_warn("no-set", now_s):
+            counts = self.receiver.counts()
+            received = ", ".join(f"{c} {counts[c].received if c in counts else 0}" for c in self.camera_ids)
+            log.warning("no frame set for %.0f s (frames received: %s); the stereo cameras must publish, "
+                        "with capture times within %.1f ms of each other", now_s - self._last_set_s,
+                        received, self.config.sync_tolerance_ms)
+
+    def run(self, stop: threading.Event) -> int:
+        """Subscribe, match and publish until `stop` is set (or Ctrl-C)."""
+        import zenoh
+
+        rig = self.rig.name
+        publisher = self.session.declare_publisher(keys.observations(rig),
+                                                   congestion_control=zenoh.CongestionControl.BLOCK)
+        stats_publisher = self.session.declare_publisher(keys.node_stats(rig, NODE_KIND, NODE_ID))
+        subscriber = self.session.declare_subscriber(keys.all_frames(rig), self.on_sample)
+        queryable = self.session.declare_queryable(keys.observations(rig), self._on_query)
+        token = declare_liveliness(self.session, keys.node(rig, NODE_KIND, NODE_ID))
+        log.info("matching %s (stereo %s-%s), publishing %s", ", ".join(self.camera_ids), self.stereo.left,
+                 self.stereo.right, keys.observations(rig))
+        next_publish_s = next_stats_s = time.monotonic()
+        try:
+            while not stop.is_set():
+                frame_set = self.next_frame_set(timeout_s=0.05)
+                now_s = time.monotonic()
+                if frame_set is not None:
+                    self._process_safely(frame_set)
+                    # Waiting for the next set starts now: matching time is not a missing set.
+                    now_s = self._last_set_s = time.monotonic()
+                if self._dirty and now_s >= next_publish_s:
+                    self._latest_document = json.dumps(self.document()).encode()
+                    publisher.put(self._latest_document)
+                    self.published += 1
+                    self._dirty = False
+                    next_publish_s = now_s + self.config.publish_period_s
+                if now_s >= next_stats_s:
+                    stats_publisher.put(self.stats().to_json())
+                    next_stats_s = now_s + self.config.stats_period_s
+                self._check_health(now_s)
+        except KeyboardInterrupt:
+            log.info("matcher: interrupted")
+        finally:
+            subscriber.undeclare()
+            queryable.undeclare()
+            stats_publisher.put(self.stats().to_json())
+            token.undeclare()
+        return 0
