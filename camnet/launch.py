@@ -53,7 +53,7 @@ def bus_flags(*, connect: list[str], listen: list[str], zenoh_config: str | None
 
 
 class Launch:
-    def __init__(self, log_dir: Path, *, grace_s: float = 5.0) -> None:
+    def __init__(self, log_dir: Path, *, grace_s: float = 10.0) -> None:
         self.log_dir = Path(log_dir)
         self.grace_s = grace_s
         self.children: list[Child] = []

@@ -27,10 +27,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--run-dir", metavar="DIR",
                         help="where the nodes' logs and the calibration state go (default: a new temporary one)")
     parser.add_argument("-o", "--output", metavar="CALIBRATION.json", help="also write the final calibration here")
+    parser.add_argument("--progress-jsonl", metavar="FILE",
+                        help="also write one JSON line per calibration (what the progress lines show)")
     add_bus_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
+    import contextlib
     import json
     import tempfile
     import threading
@@ -66,7 +69,10 @@ def run(args: argparse.Namespace) -> int:
         arrived.set()
 
     print(f"camnet up: rig {rig.name!r}, {len(rig.cameras)} cameras, logs in {run_dir}", flush=True)
-    with open_session(options_from_args(args)) as session, Launch(run_dir) as launch:
+    with contextlib.ExitStack() as stack:
+        progress_file = stack.enter_context(open(args.progress_jsonl, "w")) if args.progress_jsonl else None
+        session = stack.enter_context(open_session(options_from_args(args)))
+        launch = stack.enter_context(Launch(run_dir))
         subscriber = session.declare_subscriber(keys.calibration(rig.name), on_calibration)
         for entry in rig.cameras:
             launch.start(f"driver-{entry.id}", ["driver", entry.driver, "--rig", str(rig_path),
@@ -83,7 +89,11 @@ def run(args: argparse.Namespace) -> int:
                                       f"the end of {child.log_path}:\n{child.log_tail()}")
                 if arrived.wait(timeout=0.5):
                     arrived.clear()
-                    print(progress_line(time.monotonic() - start, latest["doc"], truth), flush=True)
+                    summary = summarise(time.monotonic() - start, latest["doc"], truth)
+                    print(progress_line(summary), flush=True)
+                    if progress_file is not None:
+                        progress_file.write(json.dumps(summary) + "\n")
+                        progress_file.flush()
                 elif "doc" not in latest and time.monotonic() >= next_wait_note:
                     print(f"{time.monotonic() - start:7.1f} s  waiting for the first calibration "
                           f"(see {run_dir}/*.log)", flush=True)
@@ -100,24 +110,41 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def progress_line(elapsed_s: float, doc: dict, truth) -> str:
-    """One line per calibration: what it holds, how sure it is, and how right when the truth is known."""
-    scale_rel = doc.get("uncertainty", {}).get("scale_rel", float("nan"))
-    line = (f"{elapsed_s:7.1f} s  solve {doc.get('solve', '?'):>3}  {len(doc['cameras'])} cameras "
-            f"{len(doc.get('points', [])):5d} points  rms {doc.get('rms_reprojection_px', float('nan')):.2f} px  "
-            f"scale sigma {100 * scale_rel:.3f}%")
+def summarise(elapsed_s: float, doc: dict, truth) -> dict:
+    """What one calibration holds, how sure it is, and how right when the truth is known."""
+    summary = {
+        "elapsed_s": round(elapsed_s, 3),
+        "solve": doc.get("solve"),
+        "cameras": len(doc["cameras"]),
+        "points": len(doc.get("points", [])),
+        "rms_px": doc.get("rms_reprojection_px"),
+        "scale_sigma_rel": doc.get("uncertainty", {}).get("scale_rel"),
+        "moved": doc.get("moved", []),
+    }
     if "latest_capture_ns" in doc and "solved_ns" in doc:
-        line += f"  capture->solution {(doc['solved_ns'] - doc['latest_capture_ns']) / 1e9:.1f} s"
+        summary["capture_to_solution_s"] = (doc["solved_ns"] - doc["latest_capture_ns"]) / 1e9
     if truth:
         from camnet.evaluate import compare_cameras
         from camnet.formats import parse_calibration
 
         c = compare_cameras(parse_calibration(doc), truth)
-        focal = max(abs(e.focal_rel) for e in c.cameras)
-        centre = max(e.centre_mm for e in c.cameras)
-        line += f" | vs truth: scale {100 * c.scale_rel:+.3f}%, focal <= {100 * focal:.2f}%, centres <= {centre:.1f} mm"
-    if doc.get("moved"):
-        line += f"  moved: {', '.join(doc['moved'])}"
+        summary["scale_error_rel"] = c.scale_rel
+        summary["max_focal_error_rel"] = max(abs(e.focal_rel) for e in c.cameras)
+        summary["max_centre_error_mm"] = max(e.centre_mm for e in c.cameras)
+    return summary
+
+
+def progress_line(s: dict) -> str:
+    nan = float("nan")
+    line = (f"{s['elapsed_s']:7.1f} s  solve {s['solve'] or '?':>3}  {s['cameras']} cameras {s['points']:5d} points  "
+            f"rms {s['rms_px'] or nan:.2f} px  scale sigma {100 * (s['scale_sigma_rel'] or nan):.3f}%")
+    if "capture_to_solution_s" in s:
+        line += f"  capture->solution {s['capture_to_solution_s']:.1f} s"
+    if "scale_error_rel" in s:
+        line += (f" | vs truth: scale {100 * s['scale_error_rel']:+.3f}%, "
+                 f"focal <= {100 * s['max_focal_error_rel']:.2f}%, centres <= {s['max_centre_error_mm']:.1f} mm")
+    if s["moved"]:
+        line += f"  moved: {', '.join(s['moved'])}"
     return line
 
 
