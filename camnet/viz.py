@@ -43,6 +43,7 @@ from __future__ import annotations
 import argparse
 import functools
 import logging
+import socket
 import weakref
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
@@ -67,6 +68,7 @@ SOLVE_TIMELINE = "solve"
 ERROR_RANGE_PX = (0.0, 2.0)
 REJECTED_RGB = (128, 128, 128)
 JPEG_QUALITY = 80
+OPEN_TIMEOUT_S = 5.0
 DEFAULT_GRPC_PORT = 9876  # Rerun's own defaults
 DEFAULT_WEB_PORT = 9090
 SINK_KINDS = ("spawn", "connect", "serve", "save")
@@ -182,7 +184,10 @@ def open_recording(
     """A recording streaming to `sinks`, or None (and Rerun not imported) when there are none.
 
     Raises CamnetError when a sink cannot be opened (a port in use, no viewer
-    to spawn): better to fail at start than to run unseen.
+    to spawn or connect to): better to fail at start than to run unseen. The
+    sinks' descriptions (`RerunSink.describe`, with the web viewer's URL) are
+    logged at INFO; a command may print them. Rerun cannot stop the web viewer's
+    HTTP server: it lives as long as the process.
     """
     if not sinks:
         return None
@@ -204,16 +209,19 @@ def open_recording(
                 server = rr.GrpcServerSink(port=sink.grpc_port, cors_allow_origin=[f"http://*:{sink.web_port}"])
                 targets.append(server)
         rec.set_sinks(*targets)
+        # A gRPC server that cannot bind, or a viewer that cannot be reached, shows only here.
+        rec.flush(timeout_sec=OPEN_TIMEOUT_S)
         for sink in sinks:
             if sink.kind == "serve":
                 rr.serve_web_viewer(web_port=sink.web_port, open_browser=False)
-    except Exception as exc:  # Rerun raises plain RuntimeError/ValueError for bind and spawn failures
-        raise CamnetError(f"--rerun: cannot open {', '.join(s.kind for s in sinks)}: {exc}") from exc
+    except Exception as exc:  # Rerun raises plain RuntimeError/ValueError for bind, connect and spawn failures
+        rec.disconnect()
+        raise CamnetError(f"--rerun {' '.join(s.kind for s in sinks)}: cannot open: {exc}") from exc
     rec.send_recording_name(rig)
     rec.log("world", rr.ViewCoordinates.RDF, static=True)
     _solve_counts[rec] = -1
     for sink in sinks:
-        log.info(sink.describe())
+        log.info(sink.describe(host=socket.gethostname()))
     return rec
 
 

@@ -237,3 +237,16 @@ def test_web_viewer_url_points_the_viewer_at_the_grpc_server():
     url = viz.web_viewer_url(host="rig-host", web_port=9090, grpc_port=9876)
     assert url == "http://rig-host:9090/?url=rerun%2Bhttp%3A%2F%2Frig-host%3A9876%2Fproxy"
     assert "rig-host:9090" in viz.RerunSink("serve").describe(host="rig-host")
+
+
+def test_a_sink_that_cannot_open_is_a_clear_error():
+    import socket
+
+    from camnet.errors import CamnetError
+    from tests.conftest import free_port
+
+    with socket.socket() as busy:
+        busy.bind(("0.0.0.0", 0))
+        busy.listen()
+        with pytest.raises(CamnetError, match="^--rerun serve: cannot open"):
+            viz.open_recording(rig="sim", sinks=[viz.parse_sink(f"serve={free_port()},{busy.getsockname()[1]}")])
