@@ -48,7 +48,7 @@ import weakref
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 from urllib.parse import quote
 
 import numpy as np
@@ -92,7 +92,7 @@ class RerunSink:
     ``save`` (write the .rrd file `path`).
     """
 
-    kind: str
+    kind: Literal["spawn", "connect", "serve", "save"]
     url: str = ""
     path: str = ""
     grpc_port: int = DEFAULT_GRPC_PORT
