@@ -46,7 +46,7 @@ import logging
 import socket
 import weakref
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 from urllib.parse import quote
@@ -290,44 +290,27 @@ def error_colors(error_px: np.ndarray) -> np.ndarray:
 
 
 @dataclass(frozen=True)
-class Residuals:
-    """Reprojection errors of a calibration's points over the observations.
-
-    obs_error_px: (n,) per observation, NaN for tracks the calibration has no
-    point for (rejected). point_rms_px: (N,) RMS over each point's views, NaN
-    for a point no observation sees.
-    """
+class ReprojectionErrors:
+    """What the colours show: obs_error_px (n,) per observation, NaN for tracks the
+    calibration rejected; point_rms_px (N,) RMS over each point's views, NaN for a
+    point no observation sees."""
 
     obs_error_px: np.ndarray
     point_rms_px: np.ndarray
 
 
-def reprojection_residuals(calibration: Calibration, observations: Observations) -> Residuals:
-    """Pixel distance between each observation and its point projected by `camnet.camera.project`."""
-    point_ids = np.asarray(calibration.point_ids)
-    obs_track_ids = observations.track_ids[observations.track_index]
-    error = np.full(len(obs_track_ids), np.nan)
-    if not len(point_ids):
-        return Residuals(error, np.empty(0))
-    sorter = np.argsort(point_ids)
-    pos = np.minimum(np.searchsorted(point_ids, obs_track_ids, sorter=sorter), len(point_ids) - 1)
-    point_of_obs = sorter[pos]
-    has_point = point_ids[point_of_obs] == obs_track_ids
-    cameras = {c.id: c for c in calibration.cameras}
-    for c, info in enumerate(observations.cameras):
-        rows = np.flatnonzero((observations.cam_index == c) & has_point)
-        cam = cameras.get(info.id)
-        if cam is None or not rows.size:
-            continue
-        uv = cam.project(calibration.points[point_of_obs[rows]])
-        error[rows] = np.linalg.norm(uv - observations.uv[rows], axis=1)
-    seen = np.isfinite(error)
-    n_points = len(point_ids)
-    sq = np.bincount(point_of_obs[seen], weights=error[seen] ** 2, minlength=n_points)
-    count = np.bincount(point_of_obs[seen], minlength=n_points)
+def reprojection_errors(calibration: Calibration, observations: Observations) -> ReprojectionErrors:
+    """Per observation and per point, from `camnet.residuals.reprojection_residuals` (pixels)."""
+    from camnet.residuals import reprojection_residuals
+
+    residuals = reprojection_residuals(calibration, observations)
+    obs_error = np.full(len(observations.uv), np.nan)
+    obs_error[residuals.obs_row] = residuals.error_px
+    n_points = len(calibration.points)
+    sq = np.bincount(residuals.point_index, weights=residuals.error_px**2, minlength=n_points)
+    count = np.bincount(residuals.point_index, minlength=n_points)
     with np.errstate(invalid="ignore", divide="ignore"):
-        point_rms = np.sqrt(sq / count)
-    return Residuals(error, point_rms)
+        return ReprojectionErrors(obs_error, np.sqrt(sq / count))
 
 
 def _degenerate(calibration: Calibration) -> str:
@@ -372,12 +355,12 @@ def log_calibration(
         rec.log("log", rr.TextLog(f"solve {solve_index}: degenerate calibration, not shown: {problem}",
                                   level=rr.TextLogLevel.ERROR))
         return
-    residuals = reprojection_residuals(calibration, observations) if observations is not None else None
+    errors = reprojection_errors(calibration, observations) if observations is not None else None
     _log_cameras(rec, calibration)
-    colors = error_colors(residuals.point_rms_px) if residuals is not None else None
+    colors = error_colors(errors.point_rms_px) if errors is not None else None
     rec.log("world/points", rr.Points3D(calibration.points, colors=colors, radii=rr.Radius.ui_points(2.5)))
-    if residuals is not None:
-        _log_observations(rec, observations, residuals)
+    if errors is not None:
+        _log_observations(rec, observations, errors)
     _log_series(rec, calibration, truth)
     _log_text(rec, calibration, solve_index)
 
@@ -400,10 +383,10 @@ def _log_cameras(rec: rr.RecordingStream, calibration: Calibration) -> None:
         )
 
 
-def _log_observations(rec: rr.RecordingStream, observations: Observations, residuals: Residuals) -> None:
+def _log_observations(rec: rr.RecordingStream, observations: Observations, errors: ReprojectionErrors) -> None:
     import rerun as rr
 
-    colors = error_colors(residuals.obs_error_px)
+    colors = error_colors(errors.obs_error_px)
     for c, info in enumerate(observations.cameras):
         rows = observations.cam_index == c
         rec.log(
@@ -420,7 +403,7 @@ def _scalar(rec: rr.RecordingStream, value: float, *parts: str) -> None:
 
 
 def _log_series(rec: rr.RecordingStream, calibration: Calibration, truth) -> None:
-    from camnet.evaluate import compare
+    from camnet.evaluate import compare, compare_cameras
 
     extra = calibration.extra
     uncertainty = extra.get("uncertainty", {})
@@ -442,11 +425,7 @@ def _log_series(rec: rr.RecordingStream, calibration: Calibration, truth) -> Non
         truth_points[truth.point_ids] = truth.points
         comparison = compare(calibration, truth.cameras, truth_points)
     else:
-        # Cameras alone: compare the camera centres as if they were the cloud.
-        by_id = {c.id: c for c in truth}
-        centres = replace(calibration, point_ids=np.arange(len(calibration.cameras)),
-                          points=np.array([c.centre for c in calibration.cameras]))
-        comparison = compare(centres, list(truth), np.array([by_id[c.id].centre for c in calibration.cameras]))
+        comparison = compare_cameras(calibration, list(truth))
     _scalar(rec, 100.0 * comparison.scale_rel, "network", "scale_error_pct")
     for error in comparison.cameras:
         _scalar(rec, 100.0 * error.focal_rel, "focal_error_pct", error.id)
@@ -542,7 +521,7 @@ def log_frame(
 __all__ = [
     "ERROR_RANGE_PX",
     "RerunSink",
-    "Residuals",
+    "ReprojectionErrors",
     "add_rerun_arguments",
     "close_recording",
     "error_colors",
@@ -551,7 +530,7 @@ __all__ = [
     "log_solve_failure",
     "open_recording",
     "parse_sink",
-    "reprojection_residuals",
+    "reprojection_errors",
     "sinks_from_args",
     "web_viewer_url",
 ]

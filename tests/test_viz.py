@@ -111,7 +111,7 @@ def test_saved_recording_holds_cameras_cloud_and_series(recording, solves):
 def test_residuals_and_colours_follow_the_observations(solves):
     _, _, runs = solves
     cal, obs = runs[0]
-    residuals = viz.reprojection_residuals(cal, obs)
+    residuals = viz.reprojection_errors(cal, obs)
     kept = np.isin(obs.track_ids[obs.track_index], cal.point_ids)
     assert np.all(np.isfinite(residuals.obs_error_px[kept])) and np.all(np.isnan(residuals.obs_error_px[~kept]))
     assert np.median(residuals.obs_error_px[kept]) < 1.5  # 0.5 px noise per axis
@@ -120,7 +120,7 @@ def test_residuals_and_colours_follow_the_observations(solves):
     moved = obs.uv.copy()
     k = int(np.flatnonzero(kept)[0])
     moved[k, 0] += 30.0
-    shifted = viz.reprojection_residuals(cal, type(obs)(**{**obs.__dict__, "uv": moved}))
+    shifted = viz.reprojection_errors(cal, type(obs)(**{**obs.__dict__, "uv": moved}))
     assert shifted.obs_error_px[k] == pytest.approx(30.0, abs=2.0)
 
     colors = viz.error_colors(np.array([0.0, 1.0, 2.0, 50.0, np.nan]))
@@ -132,19 +132,21 @@ def test_residuals_and_colours_follow_the_observations(solves):
 
 def test_degenerate_and_failed_solves_are_text_not_cameras(recording, solves):
     rec, path = recording
-    _, _, runs = solves
+    rig, _, runs = solves
     cal = runs[0][0]
     broken = Camera("left", 1280, 1024, np.full((3, 3), np.nan))
     bad = Calibration([broken, *cal.cameras[1:]], cal.point_ids, cal.points, 0.5, "left")
     viz.log_calibration(rec, bad, time_ns=T0_NS)
     viz.log_solve_failure(rec, "too few tracks", time_ns=T0_NS + 1)
-    viz.log_calibration(rec, cal, time_ns=T0_NS + 2)
+    viz.log_calibration(rec, cal, time_ns=T0_NS + 2, truth=rig.cameras)
     viz.close_recording(rec)
     data = read_rrd(path)
     texts = [text for cell in data["/log"]["TextLog:text"] for text in cell]
     assert any("degenerate" in t and "'left'" in t for t in texts)
     assert any("solve 1 failed: too few tracks" in t for t in texts)
     assert data["/world/cameras/left"]["solve"] == [2]  # only the good solve shows cameras
+    assert data["/series/network/scale_error_pct"]["solve"] == [2]  # truth as cameras alone
+    assert data["/series/centre_error_mm/mono_a"]["solve"] == [2]
 
 
 @pytest.mark.parametrize(
