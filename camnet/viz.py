@@ -500,7 +500,7 @@ def log_frame(
     encoding: mono8, mono16, bgr8, rgb8 or bayer_*8 (camnet.frame names);
     None infers mono8/mono16 from a 2-D array and bgr8 (OpenCV's order) from
     a 3-channel one. The image is sent as a JPEG (quality `JPEG_QUALITY`) at
-    full resolution: about 10x smaller than raw pixels, so a few Hz per camera
+    full resolution: 10-25x smaller than raw pixels, so a few Hz per camera
     stay cheap, while it keeps lining up with the camera's pinhole and its
     observations (a downscaled image would not). mono16 is stretched to 8 bits
     by the frame's maximum.
