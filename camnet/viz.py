@@ -1,0 +1,536 @@
+"""A live calibration in Rerun: plain functions on an explicit `rerun.RecordingStream`.
+
+The calibrator opens a recording with `open_recording` (sinks from the
+repeatable ``--rerun`` flag: `add_rerun_arguments`, `sinks_from_args`), calls
+`log_calibration` after every solve (`log_solve_failure` when a solve fails),
+`log_frame` for the images it uses, and `close_recording` when it stops. With
+no sink the recording is None, every function does nothing and Rerun is not
+even imported. Visualization is a sidecar: a failure to log is warned about
+once per kind and never raised into the caller.
+
+Entity layout (application id ``camnet``, recording name = the rig)::
+
+    world                                   view coordinates RDF (the left stereo camera's frame)
+    world/cameras/<id>                      Transform3D world_from_cam + Pinhole (K, resolution, RDF)
+    world/cameras/<id>/image                the latest image (JPEG)
+    world/cameras/<id>/image/observations   Points2D: the camera's track observations, coloured
+                                            by reprojection error; grey: tracks the solve rejected
+    world/points                            Points3D: the cloud, coloured by reprojection error
+    series/network/rms_px                   reprojection RMS of the whole network
+    series/network/points                   number of points
+    series/network/scale_sigma_pct          1-sigma relative scale uncertainty, %
+    series/rms_px/<id>                      reprojection RMS per camera
+    series/sigma_f_px/<id>                  1-sigma of the focal length, px
+    series/sigma_centre_mm/<id>             1-sigma of the camera centre (norm over axes), mm
+    series/network/scale_error_pct          with ground truth only: scale error, %
+    series/focal_error_pct/<id>             with ground truth only: focal length error, %
+    series/centre_error_mm/<id>             with ground truth only: camera centre error, mm
+    log                                     TextLog: one line per solve, solver warnings, failures
+
+Timelines: ``capture_time`` (timestamp of the newest frame set a solve
+includes, or of the frame) and ``solve`` (solve sequence number from 0,
+counted per recording; frames carry the number of the latest solve).
+
+Conventions: Rerun puts pixel (0, 0)'s corner at the image origin, camnet
+(like OpenCV) puts its centre there, so pixels and principal points are
+shifted by +0.5 px on the way to Rerun. Colours map the reprojection error
+linearly onto OpenCV's turbo colormap over `ERROR_RANGE_PX` (0 px blue,
+2 px and above dark red).
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import logging
+import socket
+import weakref
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Literal
+from urllib.parse import quote
+
+import numpy as np
+
+from camnet.camera import Camera
+from camnet.errors import CamnetError, InputError
+from camnet.formats import Calibration, Observations
+
+if TYPE_CHECKING:
+    import rerun as rr
+
+log = logging.getLogger(__name__)
+
+APPLICATION_ID = "camnet"
+CAPTURE_TIMELINE = "capture_time"
+SOLVE_TIMELINE = "solve"
+ERROR_RANGE_PX = (0.0, 2.0)
+REJECTED_RGB = (128, 128, 128)
+JPEG_QUALITY = 80
+OPEN_TIMEOUT_S = 5.0
+DEFAULT_GRPC_PORT = 9876  # Rerun's own defaults
+DEFAULT_WEB_PORT = 9090
+SINK_KINDS = ("spawn", "connect", "serve", "save")
+FLAG_HELP = "spawn, connect[=URL], serve[=WEB_PORT[,GRPC_PORT]] or save=FILE.rrd"
+
+# Solves counted per recording; weak keys so a dropped recording leaves nothing behind.
+_solve_counts: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+_warned: set[tuple[str, str]] = set()
+
+
+# ---------------------------------------------------------------- sinks
+
+
+@dataclass(frozen=True)
+class RerunSink:
+    """Where a recording goes: one parsed ``--rerun`` value.
+
+    kind: ``spawn`` (start a native viewer on `grpc_port` and stream to it),
+    ``connect`` (stream to the viewer or server at `url`), ``serve`` (host a
+    gRPC server on `grpc_port` and Rerun's web viewer on `web_port`) or
+    ``save`` (write the .rrd file `path`).
+    """
+
+    kind: Literal["spawn", "connect", "serve", "save"]
+    url: str = ""
+    path: str = ""
+    grpc_port: int = DEFAULT_GRPC_PORT
+    web_port: int = DEFAULT_WEB_PORT
+
+    def describe(self, *, host: str = "localhost") -> str:
+        """One line for the operator; for ``serve``, the page to open (on `host`)."""
+        if self.kind == "serve":
+            return f"Rerun web viewer: {web_viewer_url(host=host, web_port=self.web_port, grpc_port=self.grpc_port)}"
+        if self.kind == "save":
+            return f"Rerun recording: {self.path}"
+        if self.kind == "connect":
+            return f"Rerun: streaming to {self.url}"
+        return f"Rerun: native viewer on port {self.grpc_port}"
+
+
+def web_viewer_url(*, host: str, web_port: int, grpc_port: int) -> str:
+    """The web viewer page on `host` that connects to the gRPC server on the same host."""
+    grpc_url = f"rerun+http://{host}:{grpc_port}/proxy"
+    return f"http://{host}:{web_port}/?url={quote(grpc_url, safe='')}"
+
+
+def _port(text: str, value: str) -> int:
+    if not text.isdigit() or not 0 < int(text) < 65536:
+        raise InputError(f"--rerun {value}: {text!r} is not a port number (1-65535)")
+    return int(text)
+
+
+def parse_sink(value: str) -> RerunSink:
+    """The sink named by one ``--rerun`` value; a bad value is an `InputError` naming the flag."""
+    kind, has_arg, arg = value.partition("=")
+    if kind not in SINK_KINDS:
+        raise InputError(f"--rerun {value}: unknown sink {kind!r}; expected {FLAG_HELP}")
+    if kind == "spawn":
+        if has_arg:
+            raise InputError(f"--rerun {value}: spawn takes no value")
+        return RerunSink("spawn")
+    if kind == "connect":
+        url = arg or f"rerun+http://127.0.0.1:{DEFAULT_GRPC_PORT}/proxy"
+        if not url.startswith(("rerun://", "rerun+http://", "rerun+https://")) or not url.endswith("/proxy"):
+            raise InputError(f"--rerun {value}: expected a URL like rerun+http://HOST:9876/proxy")
+        return RerunSink("connect", url=url)
+    if kind == "serve":
+        ports = arg.split(",") if arg else []
+        if len(ports) > 2:
+            raise InputError(f"--rerun {value}: expected serve[=WEB_PORT[,GRPC_PORT]]")
+        web_port = _port(ports[0], value) if ports else DEFAULT_WEB_PORT
+        grpc_port = _port(ports[1], value) if len(ports) == 2 else DEFAULT_GRPC_PORT
+        if web_port == grpc_port:
+            raise InputError(f"--rerun {value}: the web viewer and the gRPC server need two different ports")
+        return RerunSink("serve", web_port=web_port, grpc_port=grpc_port)
+    if not arg.endswith(".rrd") or arg == ".rrd":
+        raise InputError(f"--rerun {value}: expected save=FILE.rrd")
+    if not Path(arg).resolve().parent.is_dir():
+        raise InputError(f"--rerun {value}: directory {str(Path(arg).parent)!r} does not exist")
+    return RerunSink("save", path=arg)
+
+
+def add_rerun_arguments(parser: argparse.ArgumentParser) -> None:
+    """The repeatable ``--rerun SINK`` flag; without it nothing is sent to Rerun."""
+    parser.add_argument(
+        "--rerun",
+        action="append",
+        default=[],
+        metavar="SINK",
+        help=f"stream the calibration to Rerun (repeatable): {FLAG_HELP}. "
+        f"serve hosts Rerun's web viewer (default ports {DEFAULT_WEB_PORT} and {DEFAULT_GRPC_PORT}) "
+        "for watching a headless rig from a browser",
+    )
+
+
+def sinks_from_args(args: argparse.Namespace) -> tuple[RerunSink, ...]:
+    """The sinks of the ``--rerun`` flags; two sinks on one port or file are an `InputError`."""
+    sinks = tuple(parse_sink(value) for value in args.rerun or ())
+    ports = [s.grpc_port for s in sinks if s.kind in ("spawn", "serve")]
+    ports += [s.web_port for s in sinks if s.kind == "serve"]
+    paths = [Path(s.path).resolve() for s in sinks if s.kind == "save"]
+    if len(set(ports)) < len(ports) or len(set(paths)) < len(paths):
+        raise InputError("--rerun: two sinks use the same port or file")
+    return sinks
+
+
+# ---------------------------------------------------------------- recording
+
+
+def open_recording(
+    *, rig: str, sinks: Sequence[RerunSink], recording_id: str | None = None
+) -> rr.RecordingStream | None:
+    """A recording streaming to `sinks`, or None (and Rerun not imported) when there are none.
+
+    Raises CamnetError when a sink cannot be opened (a port in use, no viewer
+    to spawn or connect to): better to fail at start than to run unseen. The
+    sinks' descriptions (`RerunSink.describe`, with the web viewer's URL) are
+    logged at INFO; a command may print them. Rerun cannot stop the web viewer's
+    HTTP server: it lives as long as the process.
+    """
+    if not sinks:
+        return None
+    import rerun as rr
+
+    rec = rr.RecordingStream(APPLICATION_ID, recording_id=recording_id)
+    targets: list[Any] = []
+    try:
+        for sink in sinks:
+            if sink.kind == "save":
+                targets.append(rr.FileSink(sink.path))
+            elif sink.kind == "connect":
+                targets.append(rr.GrpcSink(sink.url))
+            elif sink.kind == "spawn":
+                rr.spawn(port=sink.grpc_port, connect=False, recording=rec)
+                targets.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{sink.grpc_port}/proxy"))
+            else:
+                # The page is served from the rig's host name: let it reach the gRPC server from there.
+                server = rr.GrpcServerSink(port=sink.grpc_port, cors_allow_origin=[f"http://*:{sink.web_port}"])
+                targets.append(server)
+        rec.set_sinks(*targets)
+        # A gRPC server that cannot bind, or a viewer that cannot be reached, shows only here.
+        rec.flush(timeout_sec=OPEN_TIMEOUT_S)
+        for sink in sinks:
+            if sink.kind == "serve":
+                rr.serve_web_viewer(web_port=sink.web_port, open_browser=False)
+    except Exception as exc:  # Rerun raises plain RuntimeError/ValueError for bind, connect and spawn failures
+        rec.disconnect()
+        raise CamnetError(f"--rerun {' '.join(s.kind for s in sinks)}: cannot open: {exc}") from exc
+    rec.send_recording_name(rig)
+    rec.log("world", rr.ViewCoordinates.RDF, static=True)
+    _solve_counts[rec] = -1
+    for sink in sinks:
+        log.info(sink.describe(host=socket.gethostname()))
+    return rec
+
+
+def close_recording(rec: rr.RecordingStream | None, *, timeout_s: float = 10.0) -> None:
+    """Flush and disconnect every sink: a saved .rrd is complete afterwards. None is a no-op."""
+    if rec is None:
+        return
+    try:
+        rec.flush(timeout_sec=timeout_s)
+    except Exception as exc:
+        log.warning("Rerun: flush failed, the recording may be incomplete: %s", exc)
+    rec.disconnect()
+
+
+def _sidecar(fn):
+    """Make a logging function a no-op on a None recording and never raise into the caller."""
+
+    @functools.wraps(fn)
+    def wrapper(rec, *args, **kwargs):
+        if rec is None:
+            return
+        try:
+            fn(rec, *args, **kwargs)
+        except Exception as exc:
+            key = (fn.__name__, type(exc).__name__)
+            if key in _warned:
+                log.debug("Rerun: %s failed again: %s", fn.__name__, exc)
+            else:
+                _warned.add(key)
+                log.warning("Rerun: %s failed (%s); visualization goes on without it", fn.__name__, exc)
+
+    return wrapper
+
+
+def _set_times(rec: rr.RecordingStream, *, time_ns: int, solve_index: int) -> None:
+    rec.set_time(CAPTURE_TIMELINE, timestamp=np.datetime64(int(time_ns), "ns"))
+    rec.set_time(SOLVE_TIMELINE, sequence=max(solve_index, 0))
+
+
+def _next_solve(rec: rr.RecordingStream) -> int:
+    index = _solve_counts.get(rec, -1) + 1
+    _solve_counts[rec] = index
+    return index
+
+
+def _entity(*parts: str) -> str:
+    import rerun as rr
+
+    return "/".join(rr.escape_entity_path_part(p) for p in parts)
+
+
+# ---------------------------------------------------------------- geometry to colours
+
+
+def error_colors(error_px: np.ndarray) -> np.ndarray:
+    """RGB uint8 (n, 3) of reprojection errors (n,) px over `ERROR_RANGE_PX`; NaN is grey."""
+    import cv2
+
+    lo, hi = ERROR_RANGE_PX
+    error_px = np.asarray(error_px, dtype=float)
+    level = np.clip((np.nan_to_num(error_px, nan=lo) - lo) / (hi - lo), 0.0, 1.0)
+    bgr = cv2.applyColorMap(np.round(255 * level).astype(np.uint8).reshape(-1, 1), cv2.COLORMAP_TURBO)
+    rgb = np.ascontiguousarray(bgr[:, 0, ::-1])
+    rgb[np.isnan(error_px)] = REJECTED_RGB
+    return rgb
+
+
+@dataclass(frozen=True)
+class ReprojectionErrors:
+    """What the colours show: obs_error_px (n,) per observation, NaN for tracks the
+    calibration rejected; point_rms_px (N,) RMS over each point's views, NaN for a
+    point no observation sees."""
+
+    obs_error_px: np.ndarray
+    point_rms_px: np.ndarray
+
+
+def reprojection_errors(calibration: Calibration, observations: Observations) -> ReprojectionErrors:
+    """Per observation and per point, from `camnet.residuals.reprojection_residuals` (pixels)."""
+    from camnet.residuals import reprojection_residuals
+
+    residuals = reprojection_residuals(calibration, observations)
+    obs_error = np.full(len(observations.uv), np.nan)
+    obs_error[residuals.obs_row] = residuals.error_px
+    n_points = len(calibration.points)
+    sq = np.bincount(residuals.point_index, weights=residuals.error_px**2, minlength=n_points)
+    count = np.bincount(residuals.point_index, minlength=n_points)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return ReprojectionErrors(obs_error, np.sqrt(sq / count))
+
+
+def _degenerate(calibration: Calibration) -> str:
+    """Why `calibration` cannot be shown, or "" when it can."""
+    if not calibration.cameras:
+        return "no cameras"
+    for cam in calibration.cameras:
+        if not all(np.all(np.isfinite(a)) for a in (cam.K, cam.R, cam.t)) or cam.K[0, 0] <= 0:
+            return f"camera {cam.id!r} has a non-finite or non-positive K, R or t"
+    if calibration.points.size and not np.all(np.isfinite(calibration.points)):
+        return "non-finite points"
+    return ""
+
+
+# ---------------------------------------------------------------- logging
+
+
+@_sidecar
+def log_calibration(
+    rec: rr.RecordingStream | None,
+    calibration: Calibration,
+    *,
+    time_ns: int,
+    observations: Observations | None = None,
+    truth: Calibration | Sequence[Camera] | None = None,
+) -> None:
+    """Log one solve: cameras, cloud, observations on the images, time series.
+
+    time_ns: capture timestamp (ns since the epoch) of the newest frame set the
+    solve includes. observations: what the solve was given; without them the
+    cloud is white and no 2-D points are logged. truth: ground truth, as a
+    Calibration (points by track id) or as cameras alone (then the scale error
+    is that of the camera centres); adds the error series. A degenerate
+    calibration is logged as an error line in ``log``, not as cameras.
+    """
+    import rerun as rr
+
+    solve_index = _next_solve(rec)
+    _set_times(rec, time_ns=time_ns, solve_index=solve_index)
+    problem = _degenerate(calibration)
+    if problem:
+        rec.log("log", rr.TextLog(f"solve {solve_index}: degenerate calibration, not shown: {problem}",
+                                  level=rr.TextLogLevel.ERROR))
+        return
+    errors = reprojection_errors(calibration, observations) if observations is not None else None
+    _log_cameras(rec, calibration)
+    colors = error_colors(errors.point_rms_px) if errors is not None else None
+    rec.log("world/points", rr.Points3D(calibration.points, colors=colors, radii=rr.Radius.ui_points(2.5)))
+    if errors is not None:
+        _log_observations(rec, observations, errors)
+    _log_series(rec, calibration, truth)
+    _log_text(rec, calibration, solve_index)
+
+
+def _log_cameras(rec: rr.RecordingStream, calibration: Calibration) -> None:
+    import rerun as rr
+
+    plane_m = None
+    if len(calibration.points):
+        depth = calibration.points @ calibration.cameras[0].R[2] + calibration.cameras[0].t[2]
+        plane_m = 0.15 * float(np.median(np.abs(depth)))
+    for cam in calibration.cameras:
+        K = np.array(cam.K, dtype=float)
+        K[:2, 2] += 0.5  # pixel centre to pixel corner origin
+        rec.log(
+            _entity("world", "cameras", cam.id),
+            rr.Transform3D(translation=cam.centre, mat3x3=cam.R.T),  # world_from_cam
+            rr.Pinhole(image_from_camera=K, resolution=[cam.width, cam.height], camera_xyz=rr.ViewCoordinates.RDF,
+                       image_plane_distance=plane_m),
+        )
+
+
+def _log_observations(rec: rr.RecordingStream, observations: Observations, errors: ReprojectionErrors) -> None:
+    import rerun as rr
+
+    colors = error_colors(errors.obs_error_px)
+    for c, info in enumerate(observations.cameras):
+        rows = observations.cam_index == c
+        rec.log(
+            _entity("world", "cameras", info.id, "image", "observations"),
+            rr.Points2D(observations.uv[rows] + 0.5, colors=colors[rows], radii=rr.Radius.ui_points(3.0)),
+        )
+
+
+def _scalar(rec: rr.RecordingStream, value: float, *parts: str) -> None:
+    import rerun as rr
+
+    if value is not None and np.isfinite(value):
+        rec.log(_entity("series", *parts), rr.Scalars(float(value)))
+
+
+def _log_series(rec: rr.RecordingStream, calibration: Calibration, truth) -> None:
+    from camnet.evaluate import compare, compare_cameras
+
+    extra = calibration.extra
+    uncertainty = extra.get("uncertainty", {})
+    diagnostics = extra.get("diagnostics", {}).get("cameras", {})
+    _scalar(rec, calibration.rms_reprojection_px, "network", "rms_px")
+    _scalar(rec, len(calibration.points), "network", "points")
+    _scalar(rec, 100.0 * uncertainty.get("scale_rel", np.nan), "network", "scale_sigma_pct")
+    for cam in calibration.cameras:
+        _scalar(rec, diagnostics.get(cam.id, {}).get("rms_px", np.nan), "rms_px", cam.id)
+        sigma = uncertainty.get("cameras", {}).get(cam.id, {})
+        _scalar(rec, sigma.get("f_px", np.nan), "sigma_f_px", cam.id)
+        if "centre_m" in sigma:
+            _scalar(rec, 1e3 * float(np.linalg.norm(sigma["centre_m"])), "sigma_centre_mm", cam.id)
+    if truth is None:
+        return
+    if isinstance(truth, Calibration):
+        size = 1 + int(max(truth.point_ids.max(initial=-1), calibration.point_ids.max(initial=-1)))
+        truth_points = np.full((size, 3), np.nan)
+        truth_points[truth.point_ids] = truth.points
+        comparison = compare(calibration, truth.cameras, truth_points)
+    else:
+        comparison = compare_cameras(calibration, list(truth))
+    _scalar(rec, 100.0 * comparison.scale_rel, "network", "scale_error_pct")
+    for error in comparison.cameras:
+        _scalar(rec, 100.0 * error.focal_rel, "focal_error_pct", error.id)
+        _scalar(rec, error.centre_mm, "centre_error_mm", error.id)
+
+
+def _log_text(rec: rr.RecordingStream, calibration: Calibration, solve_index: int) -> None:
+    import rerun as rr
+
+    diagnostics = calibration.extra.get("diagnostics", {})
+    converged = diagnostics.get("converged")
+    state = "" if converged is None else (", converged" if converged else ", NOT converged")
+    rec.log("log", rr.TextLog(
+        f"solve {solve_index}: {len(calibration.cameras)} cameras, {len(calibration.points)} points, "
+        f"RMS {calibration.rms_reprojection_px:.3f} px{state}", level=rr.TextLogLevel.INFO))
+    for warning in diagnostics.get("warnings", []):
+        rec.log("log", rr.TextLog(f"solve {solve_index}: {warning}", level=rr.TextLogLevel.WARN))
+
+
+@_sidecar
+def log_solve_failure(rec: rr.RecordingStream | None, reason: str, *, time_ns: int) -> None:
+    """Log a solve that failed (e.g. a SolveError's message) as an error line; counts as a solve."""
+    import rerun as rr
+
+    solve_index = _next_solve(rec)
+    _set_times(rec, time_ns=time_ns, solve_index=solve_index)
+    rec.log("log", rr.TextLog(f"solve {solve_index} failed: {reason}", level=rr.TextLogLevel.ERROR))
+
+
+_BAYER = {
+    "bayer_rggb8": "COLOR_BayerRGGB2BGR",
+    "bayer_bggr8": "COLOR_BayerBGGR2BGR",
+    "bayer_gbrg8": "COLOR_BayerGBRG2BGR",
+    "bayer_grbg8": "COLOR_BayerGRBG2BGR",
+}
+
+
+def _jpeg_input(image: np.ndarray, encoding: str) -> np.ndarray:
+    """`image` as 8-bit grey or BGR, what cv2.imencode takes."""
+    import cv2
+
+    if encoding == "mono16":
+        # Stretch by the frame's maximum: 10- and 12-bit cameras would look black if shifted by 8 bits.
+        top = max(int(image.max()), 1)
+        return (image.astype(np.float32) * (255.0 / top)).astype(np.uint8)
+    if encoding == "rgb8":
+        return cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
+    if encoding in _BAYER:
+        return cv2.cvtColor(image, getattr(cv2, _BAYER[encoding]))
+    if encoding in ("mono8", "bgr8"):
+        return image
+    raise ValueError(f"unknown encoding {encoding!r}")
+
+
+def _infer_encoding(image: np.ndarray) -> str:
+    if image.ndim == 2:
+        return "mono16" if image.dtype == np.uint16 else "mono8"
+    return "bgr8"
+
+
+@_sidecar
+def log_frame(
+    rec: rr.RecordingStream | None,
+    camera_id: str,
+    image: np.ndarray,
+    *,
+    time_ns: int,
+    encoding: str | None = None,
+) -> None:
+    """Log a camera's latest image at `world/cameras/<id>/image`.
+
+    encoding: mono8, mono16, bgr8, rgb8 or bayer_*8 (camnet.frame names);
+    None infers mono8/mono16 from a 2-D array and bgr8 (OpenCV's order) from
+    a 3-channel one. The image is sent as a JPEG (quality `JPEG_QUALITY`) at
+    full resolution: 10-25x smaller than raw pixels, so a few Hz per camera
+    stay cheap, while it keeps lining up with the camera's pinhole and its
+    observations (a downscaled image would not). mono16 is stretched to 8 bits
+    by the frame's maximum.
+    """
+    import cv2
+    import rerun as rr
+
+    image = np.asarray(image)
+    pixels = _jpeg_input(image, encoding or _infer_encoding(image))
+    ok, jpeg = cv2.imencode(".jpg", pixels, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+    if not ok:
+        raise ValueError(f"cannot JPEG-encode a {image.shape} {image.dtype} image")
+    _set_times(rec, time_ns=time_ns, solve_index=_solve_counts.get(rec, 0))
+    rec.log(_entity("world", "cameras", camera_id, "image"),
+            rr.EncodedImage(contents=jpeg.tobytes(), media_type="image/jpeg"))
+
+
+__all__ = [
+    "ERROR_RANGE_PX",
+    "RerunSink",
+    "ReprojectionErrors",
+    "add_rerun_arguments",
+    "close_recording",
+    "error_colors",
+    "log_calibration",
+    "log_frame",
+    "log_solve_failure",
+    "open_recording",
+    "parse_sink",
+    "reprojection_errors",
+    "sinks_from_args",
+    "web_viewer_url",
+]
