@@ -336,6 +336,8 @@ class CalibratorNode:
             log.info("resumed from %s (%d cameras)", self.config.state_path, len(resumed.cameras))
         queryable = self.session.declare_queryable(keys.calibration(rig), self._on_query)
         subscriber = self.session.declare_subscriber(keys.observations(rig), self._on_observations)
+        frames = (self.session.declare_subscriber(keys.all_frames(rig), self.viewer.on_frame)
+                  if self.viewer is not None else None)
         token = declare_liveliness(self.session, keys.node(rig, NODE_KIND, NODE_KIND))
         next_stats = 0.0
         try:
@@ -349,5 +351,42 @@ class CalibratorNode:
         finally:
             stats_publisher.put(self._stats().to_json())
             subscriber.undeclare()
+            if frames is not None:
+                frames.undeclare()
             queryable.undeclare()
             token.undeclare()
+
+
+class RerunView:
+    """What the calibrator shows in Rerun: every solve, and the latest frame of each camera with it.
+
+    Frames are received only to be shown; they are logged at the solve rate.
+    """
+
+    def __init__(self, rec, *, truth=None) -> None:
+        from camnet.receiver import FrameReceiver
+
+        self.rec = rec
+        self.truth = truth
+        self._receiver = FrameReceiver()
+        self._frames: dict = {}
+        self._lock = threading.Lock()
+
+    def on_frame(self, sample) -> None:
+        frame = self._receiver.accept(sample.payload.to_bytes())
+        if frame is not None:
+            with self._lock:
+                self._frames[frame.camera_id] = frame
+
+    def solved(self, outcome: Outcome, obs: Observations, doc: dict) -> None:
+        from camnet import viz
+
+        time_ns = int(doc.get("latest_capture_ns") or time.time_ns())
+        with self._lock:
+            frames = list(self._frames.values())
+        for frame in frames:
+            viz.log_frame(self.rec, frame.camera_id, frame.image, time_ns=time_ns, encoding=frame.encoding)
+        if outcome.status == "good":
+            viz.log_calibration(self.rec, outcome.calibration, time_ns=time_ns, observations=obs, truth=self.truth)
+        else:
+            viz.log_solve_failure(self.rec, f"{outcome.status}: {outcome.reason}", time_ns=time_ns)

@@ -10,6 +10,7 @@ from pathlib import Path
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from camnet.bus import add_bus_arguments
     from camnet.commands.calibrate import FREE_HELP
+    from camnet.viz import add_rerun_arguments
 
     parser.add_argument("--rig", required=True, metavar="RIG.yaml|NAME",
                         help="the rig file, or just the rig's name")
@@ -25,17 +26,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-scale-rel", type=float, default=0.05,
                         help="a solution whose scale is less certain (1 sigma, relative) is not trusted "
                              "(default 0.05)")
+    add_rerun_arguments(parser)
     add_bus_arguments(parser)
 
 
-def rig_name(value: str) -> str:
-    """The rig name of `--rig`: a rig file's `rig:` or the value itself."""
+def load_rig_arg(value: str):
+    """(name, Rig or None) of `--rig`: a rig file, or just a rig's name."""
     from camnet.keys import validate_id
     from camnet.rig import load_rig
 
     if value.endswith((".yaml", ".yml")) or os.path.sep in value:
-        return load_rig(value).name
-    return validate_id(value, what="--rig")
+        rig = load_rig(value)
+        return rig.name, rig
+    return validate_id(value, what="--rig"), None
 
 
 def default_state_path(rig: str) -> Path:
@@ -45,15 +48,18 @@ def default_state_path(rig: str) -> Path:
 
 def run(args: argparse.Namespace) -> int:
     import signal
+    import socket
     import threading
 
     from camnet.bus import open_session, options_from_args
     from camnet.calibrate import Options
     from camnet.commands.calibrate import parse_free
     from camnet.errors import InputError
-    from services.calibrator import CalibratorConfig, CalibratorNode
+    from camnet.viz import close_recording, open_recording, sinks_from_args
+    from services.calibrator import CalibratorConfig, CalibratorNode, RerunView
 
-    name = rig_name(args.rig)
+    name, rig = load_rig_arg(args.rig)
+    sinks = sinks_from_args(args)
     for flag, value in (("--max-rms-px", args.max_rms_px), ("--max-scale-rel", args.max_scale_rel)):
         if not value > 0:
             raise InputError(f"{flag}: must be positive, got {value}")
@@ -66,6 +72,14 @@ def run(args: argparse.Namespace) -> int:
     stop = threading.Event()
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    with open_session(options_from_args(args)) as session:
-        CalibratorNode(session, name, config).run(stop)
+    rec = open_recording(rig=name, sinks=sinks)
+    try:
+        for sink in sinks:
+            print(f"rerun: {sink.describe(host=socket.gethostname())}", flush=True)
+        truth = (rig.simulated_truth() if rig is not None else []) or None
+        viewer = RerunView(rec, truth=truth) if rec is not None else None
+        with open_session(options_from_args(args)) as session:
+            CalibratorNode(session, name, config, viewer=viewer).run(stop)
+    finally:
+        close_recording(rec)
     return 0

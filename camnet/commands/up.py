@@ -17,6 +17,7 @@ DEFAULT_RIG = Path(__file__).resolve().parents[2] / "config" / "sim.yaml"
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from camnet.bus import add_bus_arguments
+    from camnet.viz import add_rerun_arguments
 
     parser.add_argument("rig_file", nargs="?", metavar="RIG.yaml",
                         help="rig file (default: the built-in simulated rig, config/sim.yaml)")
@@ -29,6 +30,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-o", "--output", metavar="CALIBRATION.json", help="also write the final calibration here")
     parser.add_argument("--progress-jsonl", metavar="FILE",
                         help="also write one JSON line per calibration (what the progress lines show)")
+    add_rerun_arguments(parser)
     add_bus_arguments(parser)
 
 
@@ -45,6 +47,7 @@ def run(args: argparse.Namespace) -> int:
     from camnet.formats import parse_calibration, write_json_atomic
     from camnet.launch import Launch, bus_flags
     from camnet.rig import load_rig
+    from camnet.viz import sinks_from_args
 
     rig_path = Path(args.rig_file) if args.rig_file else DEFAULT_RIG
     rig = load_rig(rig_path)
@@ -55,6 +58,8 @@ def run(args: argparse.Namespace) -> int:
     run_dir = Path(args.run_dir) if args.run_dir else Path(tempfile.mkdtemp(prefix=f"camnet-{rig.name}-"))
     run_dir.mkdir(parents=True, exist_ok=True)
     truth = rig.simulated_truth()
+    sinks_from_args(args)  # refuse a bad --rerun here, before any node starts
+    rerun_flags = [flag for value in args.rerun for flag in ("--rerun", value)]
     children_bus = bus_flags(connect=args.connect, listen=args.listen, zenoh_config=args.zenoh_config,
                              scouting=args.scouting)
 
@@ -79,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
                                                 "--camera", entry.id, *children_bus])
         launch.start("matcher", ["matcher", "--rig", str(rig_path), "--detector", args.detector, *children_bus])
         launch.start("calibrator", ["calibrator", "--rig", str(rig_path), "--state",
-                                    str(run_dir / "calibration.json"), *children_bus])
+                                    str(run_dir / "calibration.json"), *rerun_flags, *children_bus])
         start = time.monotonic()
         next_wait_note = start + 10.0
         try:
