@@ -18,6 +18,8 @@ COMMANDS = {
     "driver": "Run one camera driver (sim, aravis, v4l2) and publish its frames.",
     "calibrator": "Solve the rig's observations as they come; publish and keep the calibration.",
     "router": "Run an embedded Zenoh router.",
+    "record": "Record everything a rig publishes into an MCAP session file.",
+    "replay": "Publish a recorded session's frames on the live keys.",
     "status": "List the live nodes of a rig with their frame rates and drops.",
     "export": "Write a calibration for OpenCV, COLMAP, ROS or Kalibr.",
     "report": "Write an HTML report of a calibration: errors, uncertainty, layout.",
