@@ -78,8 +78,10 @@ def frame_header(data: bytes) -> FrameHeader:
     (payload_size,) = struct.unpack_from("<I", data, 36)
     if header_size != FIXED_HEADER_SIZE + id_len or id_len == 0:
         raise FrameError("bad-header", f"header_size {header_size} with id_len {id_len}")
-    if len(data) != header_size + payload_size:
-        raise FrameError("bad-size", f"{len(data)} bytes, header says {header_size + payload_size}")
+    if len(data) < header_size + payload_size:
+        raise FrameError("truncated", f"{len(data)} bytes, frame needs {header_size + payload_size}")
+    if len(data) > header_size + payload_size:
+        raise FrameError("trailing-bytes", f"{len(data) - header_size - payload_size} extra bytes")
     seq, timestamp_ns = _SEQ_AND_TIME.unpack_from(data, 20)
     try:
         camera_id = bytes(data[FIXED_HEADER_SIZE:header_size]).decode("utf-8")
