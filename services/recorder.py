@@ -38,7 +38,7 @@ from services import session_file as sf
 log = logging.getLogger(__name__)
 
 NODE_KIND = "recorder"
-COMPRESSIONS = ("zstd", "lz4", "none")
+COMPRESSIONS = ("lz4", "zstd", "none")
 
 
 @dataclass(frozen=True)
@@ -48,7 +48,7 @@ class RecorderConfig:
     rig: str
     path: Path
     duration_s: float = 0.0
-    compression: str = "zstd"
+    compression: str = "lz4"  # zstd (level 3 in mcap) is 8x slower for ~15% on noisy frames
     chunk_size_bytes: int = 4 << 20
     flush_period_s: float = 1.0
     queue_capacity_bytes: int = 512 << 20

@@ -76,7 +76,8 @@ def recorded(tmp_path_factory):
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     bus = open_session(BusOptions(listen=(endpoint,)))
     recorder_bus = open_session(BusOptions(connect=(endpoint,)))
-    recorder = Recorder(recorder_bus, RecorderConfig(rig=RIG, path=path, flush_period_s=0.5))
+    recorder = Recorder(recorder_bus, RecorderConfig(rig=RIG, path=path, flush_period_s=0.5,
+                                                      compression="zstd"))
     result = {}
     nodes, threads = [], []
     try:
@@ -278,6 +279,7 @@ def test_sigterm_finishes_the_file_with_its_summary(tmp_path):
     assert process.returncode == 0, err
     assert "k" in out and " 30 " in out.splitlines()[1]
     _, channels, by_topic, summary = read_all(path)
+    assert {c.compression for c in summary.chunk_indexes} == {"lz4"}
     assert [m.data for m in by_topic[keys.frame("term", "k")]] == sent
     assert summary.statistics.message_count >= 30
     assert open_session_file(path).damage is None

@@ -14,8 +14,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="MCAP file to write (refused if it exists, unless --force)")
     parser.add_argument("--duration-s", type=float, default=0.0, metavar="S",
                         help="stop after S seconds (default: until Ctrl-C or SIGTERM)")
-    parser.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd",
-                        help="chunk compression (default: zstd)")
+    parser.add_argument("--compression", choices=("lz4", "zstd", "none"), default="lz4",
+                        help="chunk compression (default: lz4; zstd makes smaller files but "
+                             "costs much more CPU)")
     parser.add_argument("--flush-period-s", type=float, default=1.0, metavar="S",
                         help="write out the chunk in progress at least this often; what is "
                              "written survives a killed recorder (default: 1)")
