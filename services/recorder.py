@@ -30,7 +30,7 @@ from pathlib import Path
 
 from camnet import __version__, keys
 from camnet.bus import declare_liveliness
-from camnet.errors import InputError
+from camnet.errors import CamnetError, InputError
 from camnet.frame import FrameError
 from camnet.stats import NodeStats, RateMeter
 from services import session_file as sf
@@ -115,7 +115,7 @@ class _Item:
 
 
 class _ByteBoundedQueue:
-    """FIFO bounded in bytes; a full queue refuses the new item (counted per key)."""
+    """FIFO bounded in bytes; a full queue refuses the new item, counted in total and per key."""
 
     def __init__(self, capacity_bytes: int) -> None:
         self.capacity_bytes = capacity_bytes
@@ -123,12 +123,14 @@ class _ByteBoundedQueue:
         self._bytes = 0
         self._last_ns = 0
         self._ready = threading.Condition()
-        self.overflows: dict[str, int] = {}
+        self._refused_by_key: dict[str, int] = {}
+        self.refused = 0
 
     def put(self, key: str, payload: bytes, event: str = "") -> None:
         with self._ready:
             if self._items and self._bytes + len(payload) > self.capacity_bytes:
-                self.overflows[key] = self.overflows.get(key, 0) + 1
+                self._refused_by_key[key] = self._refused_by_key.get(key, 0) + 1
+                self.refused += 1
                 return
             # Stamped under the lock: queue order is log-time order.
             self._last_ns = max(time.time_ns(), self._last_ns)
@@ -144,13 +146,10 @@ class _ByteBoundedQueue:
             self._bytes -= len(item.payload)
             return item
 
-    def take_overflows(self, key: str) -> int:
+    def take_refused(self, key: str) -> int:
+        """Items of `key` refused since the last call."""
         with self._ready:
-            return self.overflows.pop(key, 0)
-
-    def total_overflows(self, taken: int) -> int:
-        with self._ready:
-            return taken + sum(self.overflows.values())
+            return self._refused_by_key.pop(key, 0)
 
 
 @dataclass
@@ -207,7 +206,6 @@ class Recorder:
         self._queue = _ByteBoundedQueue(config.queue_capacity_bytes)
         self._tallies: dict[str, CameraTally] = {}
         self._malformed: dict[str, int] = {}
-        self._overflows_taken = 0
         self._messages = 0
         self._sequence: dict[str, int] = {}
         self._meter = RateMeter()
@@ -271,8 +269,7 @@ class Recorder:
         """Count the frame; write a gap or restart message if its seq does not follow."""
         camera = header.camera_id
         tally = self._tallies.get(camera, CameraTally())
-        dropped_here = self._queue.take_overflows(item.key)
-        self._overflows_taken += dropped_here
+        dropped_here = self._queue.take_refused(item.key)
         gap = None
         if tally.last_seq >= 0 and header.seq != tally.last_seq + 1:
             restart = header.seq <= tally.last_seq
@@ -312,7 +309,7 @@ class Recorder:
         return RecordingSummary(
             path=path, duration_s=time.monotonic() - self._started, messages=self._messages,
             file_bytes=path.stat().st_size if path.exists() else 0, cameras=dict(self._tallies),
-            queue_overflows=self._queue.total_overflows(self._overflows_taken),
+            queue_overflows=self._queue.refused,
             malformed=dict(self._malformed))
 
     def _stats(self, summary: RecordingSummary) -> NodeStats:
@@ -335,15 +332,10 @@ class Recorder:
         except OSError as exc:
             raise InputError(f"{path}: cannot write: {exc.strerror or exc}") from exc
 
-    def run(self, *, on_progress: Callable[[RecordingSummary], None] | None = None,
-            progress_period_s: float = 1.0) -> RecordingSummary:
-        """Record until stopped (stop event, SIGTERM, Ctrl-C) or `duration_s`; the summary."""
+    def _start_writer(self, stream):
         from mcap.writer import CompressionType, Writer
 
         cfg = self.config
-        if threading.current_thread() is threading.main_thread():
-            signal.signal(signal.SIGTERM, lambda *_: self.stop.set())
-        stream = self._open_file()
         writer = Writer(stream, chunk_size=cfg.chunk_size_bytes,
                         compression=CompressionType[cfg.compression.upper()])
         writer.start(profile=sf.PROFILE, library=f"camnet {__version__}")
@@ -351,7 +343,45 @@ class Recorder:
             "rig": cfg.rig, "camnet_version": __version__, "recorder": cfg.node_id,
             "started_ns": str(time.time_ns()), "compression": cfg.compression})
         stream.flush()
-        channels = _Channels(writer)
+        return writer
+
+    def _loop(self, channels: _Channels, stats_publisher, on_progress, progress_period_s: float) -> None:
+        cfg = self.config
+        self._started = now = time.monotonic()
+        deadline = now + cfg.duration_s if cfg.duration_s > 0 else float("inf")
+        next_flush, next_stats, next_progress = now + cfg.flush_period_s, now, now + progress_period_s
+        refused_reported = 0
+        while not self.stop.is_set() and time.monotonic() < deadline:
+            item = self._queue.get(timeout_s=0.05)
+            if item is not None:
+                self._write(channels, item)
+            now = time.monotonic()
+            if now >= next_flush:
+                channels.writer.flush()
+                next_flush = now + cfg.flush_period_s
+                if self._queue.refused > refused_reported:
+                    log.warning("receive queue full: %d message(s) lost (%d in all); writing "
+                                "cannot keep up (try --compression none, or a faster disk)",
+                                self._queue.refused - refused_reported, self._queue.refused)
+                    refused_reported = self._queue.refused
+            if now >= next_stats:
+                stats_publisher.put(self._stats(self.summary()).to_json())
+                next_stats = now + cfg.stats_period_s
+            if on_progress is not None and now >= next_progress:
+                on_progress(self.summary())
+                next_progress = now + progress_period_s
+
+    def run(self, *, on_progress: Callable[[RecordingSummary], None] | None = None,
+            progress_period_s: float = 1.0) -> RecordingSummary:
+        """Record until stopped (stop event, SIGTERM, Ctrl-C) or `duration_s`; the summary."""
+        cfg = self.config
+        if threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGTERM, lambda *_: self.stop.set())
+        stream = self._open_file()
+        try:
+            channels = _Channels(self._start_writer(stream))
+        except OSError as exc:
+            raise CamnetError(f"{cfg.path}: cannot write ({exc.strerror or exc})") from exc
         prefix = keys.rig_prefix(cfg.rig)
         subscriber = self.session.declare_subscriber(f"{prefix}/**", self._on_sample)
         nodes = self.session.liveliness().declare_subscriber(keys.all_nodes(cfg.rig),
@@ -363,38 +393,32 @@ class Recorder:
         stats_publisher = self.session.declare_publisher(
             keys.node_stats(cfg.rig, NODE_KIND, cfg.node_id))
         token = declare_liveliness(self.session, keys.node(cfg.rig, NODE_KIND, cfg.node_id))
-        self._started = now = time.monotonic()
-        deadline = now + cfg.duration_s if cfg.duration_s > 0 else float("inf")
-        next_flush, next_stats, next_progress = now + cfg.flush_period_s, now, now + progress_period_s
         log.info("recording %s/** to %s", prefix, cfg.path)
+        error = None
         try:
-            while not self.stop.is_set() and time.monotonic() < deadline:
-                item = self._queue.get(timeout_s=0.05)
-                if item is not None:
-                    self._write(channels, item)
-                now = time.monotonic()
-                if now >= next_flush:
-                    writer.flush()
-                    next_flush = now + cfg.flush_period_s
-                if now >= next_stats:
-                    stats_publisher.put(self._stats(self.summary()).to_json())
-                    next_stats = now + cfg.stats_period_s
-                if on_progress is not None and now >= next_progress:
-                    on_progress(self.summary())
-                    next_progress = now + progress_period_s
+            self._loop(channels, stats_publisher, on_progress, progress_period_s)
         except KeyboardInterrupt:
             log.info("recorder: interrupted")
+        except OSError as exc:
+            error = exc
         finally:
             subscriber.undeclare()
             nodes.undeclare()
-            while (item := self._queue.get(timeout_s=0.0)) is not None:
-                self._write(channels, item)
-            summary = self.summary()
-            writer.add_metadata(sf.SUMMARY_METADATA, _summary_metadata(summary))
-            writer.finish()
-            stream.close()
-            stats_publisher.put(self._stats(summary).to_json())
-            token.undeclare()
+            try:
+                if error is None:
+                    while (item := self._queue.get(timeout_s=0.0)) is not None:
+                        self._write(channels, item)
+                    channels.writer.add_metadata(sf.SUMMARY_METADATA, _summary_metadata(self.summary()))
+                    channels.writer.finish()
+                stream.close()
+            except OSError as exc:
+                error = error or exc
+            finally:
+                stats_publisher.put(self._stats(self.summary()).to_json())
+                token.undeclare()
+        if error is not None:
+            raise CamnetError(f"{cfg.path}: cannot write ({error.strerror or error}); the file is "
+                              "readable up to the last flush") from error
         return self.summary()
 
 

@@ -189,7 +189,7 @@ def test_queue_bounded_in_bytes_counts_what_it_refuses():
     queue = _ByteBoundedQueue(25)
     for _ in range(3):
         queue.put("k", b"x" * 10)
-    assert queue.take_overflows("k") == 1
+    assert queue.take_refused("k") == 1 and queue.take_refused("k") == 0 and queue.refused == 1
     times = [queue.get(timeout_s=0).log_time_ns for _ in range(2)]
     assert times == sorted(times) and queue.get(timeout_s=0) is None
 
@@ -505,3 +505,13 @@ def test_record_refuses_an_existing_file(tmp_path, capsys):
                  f"tcp/127.0.0.1:{free_port()}"]) == 2
     assert "exists (pass --force to overwrite)" in capsys.readouterr().err
     assert path.read_bytes() == b"keep me"
+
+
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full (Linux)")
+def test_record_reports_a_full_disk_in_one_line(capsys):
+    from camnet.cli import main
+
+    assert main(["record", "--rig", "x", "-o", "/dev/full", "--force", "--duration-s", "0.5",
+                 "--listen", f"tcp/127.0.0.1:{free_port()}"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "/dev/full: cannot write" in err
