@@ -431,8 +431,11 @@ def test_flipped_bytes_are_refused_or_read_up_to_the_damage(recorded, tmp_path):
 def test_damage_found_while_replaying_stops_with_one_warning(recorded, tmp_path, caplog):
     path, _, _ = recorded
     with open(path, "rb") as stream:
-        last_chunk = max(make_reader(stream).get_summary().chunk_indexes,
-                         key=lambda c: c.chunk_start_offset)
+        summary = make_reader(stream).get_summary()
+    frame_channels = {i for i, c in summary.channels.items() if c.topic.endswith("/frame")}
+    last_chunk = max((c for c in summary.chunk_indexes
+                      if frame_channels & set(c.message_index_offsets)),
+                     key=lambda c: c.chunk_start_offset)
     data = bytearray(path.read_bytes())
     data[last_chunk.chunk_start_offset + last_chunk.chunk_length // 2] ^= 0xFF
     bad = tmp_path / "late-damage.mcap"
