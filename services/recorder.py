@@ -28,6 +28,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+from mcap.writer import CompressionType, Writer
+
 from camnet import __version__, keys
 from camnet.bus import declare_liveliness
 from camnet.errors import CamnetError, InputError
@@ -333,8 +335,6 @@ class Recorder:
             raise InputError(f"{path}: cannot write: {exc.strerror or exc}") from exc
 
     def _start_writer(self, stream):
-        from mcap.writer import CompressionType, Writer
-
         cfg = self.config
         writer = Writer(stream, chunk_size=cfg.chunk_size_bytes,
                         compression=CompressionType[cfg.compression.upper()])

@@ -24,6 +24,14 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import zstandard
+from mcap.exceptions import EndOfFile, McapError
+from mcap.opcode import Opcode
+from mcap.reader import SeekingReader
+from mcap.records import Channel, Message, Schema
+from mcap.stream_reader import StreamReader
+from mcap.writer import MCAP0_MAGIC
+
 from camnet import keys
 from camnet.errors import InputError
 from camnet.frame import ENCODINGS, FIXED_HEADER_SIZE, MAGIC, VERSION, Compression, FrameError
@@ -45,7 +53,6 @@ SUMMARY_METADATA = "camnet.recording-summary"
 # A record longer than this is taken as damage (a changed length field must not
 # make the reader allocate gigabytes).
 RECORD_SIZE_LIMIT_BYTES = 1 << 30
-_MCAP_MAGIC = b"\x89MCAP0\r\n"
 _FOOTER = struct.Struct("<BQQQI")  # opcode, record length, summary_start, summary_offset_start, crc
 _SEQ_AND_TIME = struct.Struct("<QQ")  # seq and timestamp_ns at byte 20 of a frame
 
@@ -184,12 +191,8 @@ class Damage:
 # What the mcap readers raise on bad bytes: their own errors, CRC mismatches
 # (ValueError), short reads (struct.error), bad utf-8 (ValueError), codec
 # errors (zstandard's own, lz4's RuntimeError), and unknown ids from a changed record.
-def _damage_errors() -> tuple[type[BaseException], ...]:
-    import zstandard
-    from mcap.exceptions import McapError
-
-    return (McapError, ValueError, struct.error, zstandard.ZstdError, RuntimeError, KeyError,
-            IndexError, EOFError, OverflowError, MemoryError)
+DAMAGE_ERRORS = (McapError, ValueError, struct.error, zstandard.ZstdError, RuntimeError, KeyError,
+                 IndexError, EOFError, OverflowError, MemoryError)
 
 
 @dataclass
@@ -218,9 +221,6 @@ class SessionFile:
 
     def messages(self) -> Iterator[SessionMessage]:
         """The messages in log-time order (ties: file order), stopping at the first damage."""
-        from mcap.reader import SeekingReader
-
-        errors = _damage_errors()
         count = 0
         limit = None if self.damage is None else self.damage.messages_before
         with open(self.path, "rb") as stream:
@@ -239,7 +239,7 @@ class SessionFile:
                                          schema.name if schema is not None else "",
                                          message.log_time, message.publish_time, message.data)
                     count += 1
-            except errors as exc:
+            except DAMAGE_ERRORS as exc:
                 if self.damage is None:
                     self.damage = Damage(_reason(exc), count)
                     log.warning("%s", self.damage.describe(self.path))
@@ -247,9 +247,6 @@ class SessionFile:
 
 def _stream_messages(stream):
     """(schema, channel, message) in file order from mcap's StreamReader (no summary needed)."""
-    from mcap.records import Channel, Message, Schema
-    from mcap.stream_reader import StreamReader
-
     schemas: dict[int, Schema] = {}
     channels: dict[int, Channel] = {}
     reader = StreamReader(stream, validate_crcs=True, record_size_limit=RECORD_SIZE_LIMIT_BYTES)
@@ -271,8 +268,6 @@ def _parse_frame_topic(topic: str) -> tuple[str, str] | None:
 
 
 def _reason(exc: BaseException) -> str:
-    from mcap.exceptions import EndOfFile
-
     if isinstance(exc, EndOfFile | struct.error):
         return "the file ends in the middle of a record: truncated"
     text = str(exc) or type(exc).__name__
@@ -290,8 +285,8 @@ def open_session_file(path: str | Path) -> SessionFile:
     path = Path(path)
     try:
         with open(path, "rb") as stream:
-            head = stream.read(len(_MCAP_MAGIC))
-            if head != _MCAP_MAGIC:
+            head = stream.read(len(MCAP0_MAGIC))
+            if head != MCAP0_MAGIC:
                 raise InputError(f"{path}: not an MCAP file (starts with {head[:8]!r})")
             session = _from_summary(path, stream) or _from_scan(path, stream)
     except OSError as exc:
@@ -313,15 +308,13 @@ def open_session_file(path: str | Path) -> SessionFile:
 
 def _from_summary(path: Path, stream) -> SessionFile | None:
     """The session from the file's summary section, or None if it has no valid one."""
-    from mcap.reader import SeekingReader
-
     if not _summary_crc_ok(stream):
         return None
     stream.seek(0)
     try:
         summary = SeekingReader(stream, validate_crcs=True,
                                 record_size_limit=RECORD_SIZE_LIMIT_BYTES).get_summary()
-    except _damage_errors():
+    except DAMAGE_ERRORS:
         return None
     if summary is None or not summary.chunk_indexes or summary.statistics is None:
         return None
@@ -339,15 +332,15 @@ def _summary_crc_ok(stream) -> bool:
     """True if the footer is present and its CRC matches the summary section (MCAP spec)."""
     stream.seek(0, io.SEEK_END)
     size = stream.tell()
-    tail = _FOOTER.size + len(_MCAP_MAGIC)
-    if size < len(_MCAP_MAGIC) + tail:
+    tail = _FOOTER.size + len(MCAP0_MAGIC)
+    if size < len(MCAP0_MAGIC) + tail:
         return False
     stream.seek(size - tail)
     footer = stream.read(tail)
     opcode, length, summary_start, _offset_start, crc = _FOOTER.unpack_from(footer)
-    if opcode != 0x02 or length != 20 or footer[_FOOTER.size:] != _MCAP_MAGIC:
+    if opcode != Opcode.FOOTER or length != 20 or footer[_FOOTER.size:] != MCAP0_MAGIC:
         return False
-    if not len(_MCAP_MAGIC) <= summary_start < size - tail or crc == 0:
+    if not len(MCAP0_MAGIC) <= summary_start < size - tail or crc == 0:
         return False
     stream.seek(summary_start)
     covered = stream.read(size - tail - summary_start) + footer[:_FOOTER.size - 4]
@@ -367,6 +360,6 @@ def _from_scan(path: Path, stream) -> SessionFile:
                                               schema.name if schema is not None else ""))
             counts[channel.topic] = counts.get(channel.topic, 0) + 1
             total += 1
-    except _damage_errors() as exc:
+    except DAMAGE_ERRORS as exc:
         damage = Damage(_reason(exc), total)
     return SessionFile(path, topics, counts, damage)
