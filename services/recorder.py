@@ -63,9 +63,11 @@ class RecorderConfig:
         keys.validate_id(self.node_id, what="node id")
         if self.compression not in COMPRESSIONS:
             raise InputError(f"compression: {self.compression!r} (expected {', '.join(COMPRESSIONS)})")
-        for name in ("duration_s", "flush_period_s", "stats_period_s"):
-            if not getattr(self, name) >= 0:
-                raise InputError(f"{name}: must be >= 0, got {getattr(self, name)}")
+        if not self.duration_s >= 0:
+            raise InputError(f"duration_s: must be >= 0, got {self.duration_s}")
+        for name in ("flush_period_s", "stats_period_s"):
+            if not getattr(self, name) > 0:
+                raise InputError(f"{name}: must be > 0, got {getattr(self, name)}")
         if self.chunk_size_bytes < 1 or self.queue_capacity_bytes < 1:
             raise InputError("chunk size and queue capacity must be positive")
 
