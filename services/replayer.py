@@ -218,7 +218,8 @@ class Replayer:
         started_s = time.monotonic()
         try:
             self._wait_for_subscribers(cameras)
-            started_s = next_stats_s = next_progress_s = time.monotonic()
+            started_s = next_stats_s = time.monotonic()
+            next_progress_s = started_s + progress_period_s
             for message in self.file.messages():
                 if self.stop.is_set():
                     break
