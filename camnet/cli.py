@@ -19,6 +19,8 @@ COMMANDS = {
     "matcher": "Match a rig's frames into tracks and publish them as observations.",
     "calibrator": "Solve the rig's observations as they come; publish and keep the calibration.",
     "router": "Run an embedded Zenoh router.",
+    "record": "Record everything a rig publishes into an MCAP session file.",
+    "replay": "Publish a recorded session's frames on the live keys.",
     "status": "List the live nodes of a rig with their frame rates and drops.",
     "export": "Write a calibration for OpenCV, COLMAP, ROS or Kalibr.",
     "report": "Write an HTML report of a calibration: errors, uncertainty, layout.",

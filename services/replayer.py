@@ -1,0 +1,261 @@
+"""The replay node: a recorded session's frames back on the bus, as the drivers sent them.
+
+Frames go out on the live drivers' keys with their recorded bytes unchanged
+(so seq and capture timestamps are the recorded ones), each camera with a
+liveliness token and statistics like a driver's; a recorded ground truth is
+put and answered to queries as the sim driver does. Observations and
+calibrations are left to the live matcher and calibrator unless asked for.
+
+Order is the file's log-time order (ties: file order), the same on every
+run. At `rate` r > 0, message k is due (t_k - t_0) / r after the start, where
+t is the capture timestamp moved onto the recorder's clock (one offset per
+channel, set by its first message and again if a source's clock jumps by more
+than `RESYNC_NS`, e.g. a driver restart); frames then go out with congestion
+control DROP, as a driver's. At rate 0 (as fast as possible) they go out with
+BLOCK: as fast as the subscribers take them, no frame dropped on the bus.
+
+This is a service rather than a driver: one process replays every camera of
+the session in one global order, which a per-camera `drivers.base.Camera`
+cannot express, and it shares the session layout with the recorder.
+"""
+
+from __future__ import annotations
+
+import logging
+import signal
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from camnet import keys
+from camnet.bus import declare_liveliness
+from camnet.errors import InputError
+from camnet.frame import FrameError
+from camnet.stats import NodeStats, RateMeter
+from services import session_file as sf
+
+log = logging.getLogger(__name__)
+
+NODE_KIND = "driver"  # to the rest of the rig, a replayed camera is a driver
+RESYNC_NS = 2_000_000_000
+
+
+@dataclass(frozen=True)
+class ReplayOptions:
+    """`rate` 1.0 is the recorded pace, 0 as fast as the subscribers keep up."""
+
+    rate: float = 1.0
+    rig: str | None = None  # publish under this rig name (default: the recorded one)
+    include_results: bool = False  # also replay recorded observations and calibrations
+    wait_s: float = 10.0  # how long to wait for subscribers of the frames before starting
+    stats_period_s: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not self.rate >= 0:
+            raise InputError(f"rate: must be >= 0, got {self.rate}")
+        if self.rig is not None:
+            keys.validate_id(self.rig, what="rig")
+
+
+@dataclass(frozen=True)
+class ReplaySummary:
+    rig: str
+    frames: dict[str, int]
+    messages: int
+    total_frames: int
+    duration_s: float
+    damage: str | None
+    malformed: dict[str, int] = field(default_factory=dict)
+
+    def lines(self) -> list[str]:
+        frames = sum(self.frames.values())
+        rows = [f"replayed {frames}/{self.total_frames} frames of {len(self.frames)} camera(s) "
+                f"({self.messages} messages) on rig {self.rig} in {self.duration_s:.1f} s"]
+        rows += [f"  {camera_id:<16}{n:>8}" for camera_id, n in sorted(self.frames.items())]
+        if self.malformed:
+            rows.append("malformed frames (not published): " + ", ".join(
+                f"{kind} {n}" for kind, n in sorted(self.malformed.items())))
+        if self.damage:
+            rows.append(f"stopped at damage: {self.damage}")
+        return rows
+
+
+class Pacer:
+    """When each message is due, in seconds of `time.monotonic()`; never earlier than the last."""
+
+    def __init__(self, rate: float) -> None:
+        self.rate = rate
+        self._offsets: dict[str, int] = {}
+        self._origin: tuple[int, float] | None = None
+        self._last_due_s = 0.0
+
+    def due_s(self, topic: str, log_time_ns: int, publish_time_ns: int) -> float:
+        offset = self._offsets.get(topic)
+        if offset is None or abs(publish_time_ns + offset - log_time_ns) > RESYNC_NS:
+            # Map this source's clock (a camera's, maybe) onto the recorder's.
+            offset = self._offsets[topic] = log_time_ns - publish_time_ns
+        t_ns = publish_time_ns + offset
+        if self._origin is None:
+            self._origin = (t_ns, time.monotonic())
+        origin_ns, origin_s = self._origin
+        due = origin_s + (t_ns - origin_ns) / 1e9 / self.rate if self.rate > 0 else origin_s
+        self._last_due_s = max(due, self._last_due_s)
+        return self._last_due_s
+
+
+@dataclass
+class _Camera:
+    publisher: object
+    stats_publisher: object
+    token: object
+    meter: RateMeter = field(default_factory=RateMeter)
+    frames: int = 0
+
+
+class Replayer:
+    def __init__(self, session, session_file: sf.SessionFile, *,
+                 options: ReplayOptions = ReplayOptions()) -> None:
+        self.session = session
+        self.file = session_file
+        self.options = options
+        self.stop = threading.Event()
+        self.recorded_rig = session_file.rigs[0]
+        self.rig = options.rig or self.recorded_rig
+        self._malformed: dict[str, int] = {}
+        self._groundtruth: bytes | None = None
+
+    def _routes(self) -> dict[str, str]:
+        """Recorded topic -> key to publish on, for what is replayed."""
+        src, dst = self.recorded_rig, self.rig
+        routes = {keys.frame(src, cam): keys.frame(dst, cam)
+                  for cam in (keys.parse_frame(t)[1] for t in self.file.frame_topics())}
+        routes[keys.groundtruth(src)] = keys.groundtruth(dst)
+        if self.options.include_results:
+            routes[keys.observations(src)] = keys.observations(dst)
+            routes[keys.calibration(src)] = keys.calibration(dst)
+        return {topic: key for topic, key in routes.items() if topic in self.file.topics}
+
+    def _declare_cameras(self) -> dict[str, _Camera]:
+        import zenoh
+
+        congestion = (zenoh.CongestionControl.DROP if self.options.rate > 0
+                      else zenoh.CongestionControl.BLOCK)
+        cameras = {}
+        for topic in self.file.frame_topics():
+            camera_id = keys.parse_frame(topic)[1]
+            cameras[topic] = _Camera(
+                publisher=self.session.declare_publisher(keys.frame(self.rig, camera_id),
+                                                         congestion_control=congestion),
+                stats_publisher=self.session.declare_publisher(
+                    keys.node_stats(self.rig, NODE_KIND, camera_id)),
+                token=declare_liveliness(self.session, keys.node(self.rig, NODE_KIND, camera_id)))
+        return cameras
+
+    def _wait_for_subscribers(self, cameras: dict[str, _Camera]) -> None:
+        deadline = time.monotonic() + self.options.wait_s
+        while not self.stop.is_set() and time.monotonic() < deadline:
+            if all(c.publisher.matching_status.matching for c in cameras.values()):
+                return
+            time.sleep(0.02)
+        waiting = [keys.parse_frame(t)[1] for t, c in cameras.items()
+                   if not c.publisher.matching_status.matching]
+        if waiting:
+            log.warning("no subscriber for the frames of %s after %.1f s; replaying anyway",
+                        ", ".join(waiting), self.options.wait_s)
+
+    def _on_groundtruth_query(self, query) -> None:
+        payload = self._groundtruth
+        if payload is not None:
+            query.reply(keys.groundtruth(self.rig), payload)
+
+    def _publish_stats(self, cameras: dict[str, _Camera]) -> None:
+        for topic, camera in cameras.items():
+            camera_id = keys.parse_frame(topic)[1]
+            camera.stats_publisher.put(NodeStats(
+                rig=self.rig, kind=NODE_KIND, node_id=camera_id, fps=round(camera.meter.rate(), 2),
+                frames=camera.frames, dropped=0, timestamp_ns=time.time_ns(),
+                detail=f"replay {self.file.path.name}").to_json())
+
+    def _count_malformed(self, exc: FrameError, topic: str) -> None:
+        first = exc.kind not in self._malformed
+        self._malformed[exc.kind] = self._malformed.get(exc.kind, 0) + 1
+        if first:
+            log.warning("skipping a malformed recorded frame on %s (%s); further ones of this kind "
+                        "are only counted", topic, exc)
+
+    def _sleep_until(self, due_s: float) -> None:
+        while not self.stop.is_set():
+            wait_s = due_s - time.monotonic()
+            if wait_s <= 0:
+                return
+            time.sleep(min(wait_s, 0.1))
+
+    def summary(self, cameras: dict[str, _Camera], messages: int, started_s: float) -> ReplaySummary:
+        damage = self.file.damage.describe(self.file.path) if self.file.damage else None
+        total = sum(self.file.message_counts.get(t, 0) for t in self.file.frame_topics())
+        return ReplaySummary(
+            rig=self.rig, frames={keys.parse_frame(t)[1]: c.frames for t, c in cameras.items()},
+            messages=messages, total_frames=total, duration_s=time.monotonic() - started_s,
+            damage=damage, malformed=dict(self._malformed))
+
+    def run(self, *, on_progress: Callable[[ReplaySummary], None] | None = None,
+            progress_period_s: float = 1.0) -> ReplaySummary:
+        """Replay the session once, or until stopped; the summary."""
+        if threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGTERM, lambda *_: self.stop.set())
+        routes = self._routes()
+        groundtruth_key = keys.groundtruth(self.recorded_rig)
+        cameras = self._declare_cameras()
+        others = {topic: self.session.declare_publisher(key) for topic, key in routes.items()
+                  if topic not in cameras}
+        queryable = None
+        if groundtruth_key in routes:
+            queryable = self.session.declare_queryable(keys.groundtruth(self.rig),
+                                                       self._on_groundtruth_query)
+        pacer = Pacer(self.options.rate)
+        messages = 0
+        started_s = time.monotonic()
+        try:
+            self._wait_for_subscribers(cameras)
+            started_s = next_stats_s = time.monotonic()
+            next_progress_s = started_s + progress_period_s
+            for message in self.file.messages():
+                if self.stop.is_set():
+                    break
+                topic = message.topic
+                if topic not in routes:
+                    continue
+                camera = cameras.get(topic)
+                if camera is not None:
+                    try:
+                        sf.frame_header(message.data)
+                    except FrameError as exc:
+                        self._count_malformed(exc, topic)
+                        continue
+                self._sleep_until(pacer.due_s(topic, message.log_time_ns, message.publish_time_ns))
+                if camera is not None:
+                    camera.publisher.put(message.data)
+                    camera.frames += 1
+                    camera.meter.tick()
+                else:
+                    if topic == groundtruth_key:
+                        self._groundtruth = message.data
+                    others[topic].put(message.data)
+                messages += 1
+                now = time.monotonic()
+                if now >= next_stats_s:
+                    self._publish_stats(cameras)
+                    next_stats_s = now + self.options.stats_period_s
+                if on_progress is not None and now >= next_progress_s:
+                    on_progress(self.summary(cameras, messages, started_s))
+                    next_progress_s = now + progress_period_s
+        except KeyboardInterrupt:
+            log.info("replay: interrupted")
+        finally:
+            self._publish_stats(cameras)
+            if queryable is not None:
+                queryable.undeclare()
+            for camera in cameras.values():
+                camera.token.undeclare()
+        return self.summary(cameras, messages, started_s)
