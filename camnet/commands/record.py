@@ -11,7 +11,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     parser.add_argument("--rig", required=True, metavar="NAME", help="rig name (as in its file)")
     parser.add_argument("-o", "--output", required=True, metavar="SESSION.mcap",
-                        help="MCAP file to write (refused if it exists, unless --force)")
+                        help="MCAP file to write (refused if it exists, unless --force); an existing "
+                             "directory gets a new <rig>-<UTC time>.mcap in it")
     parser.add_argument("--duration-s", type=float, default=0.0, metavar="S",
                         help="stop after S seconds (default: until Ctrl-C or SIGTERM)")
     parser.add_argument("--compression", choices=("lz4", "zstd", "none"), default="lz4",
@@ -30,12 +31,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import time
     from pathlib import Path
 
     from camnet.bus import open_session, options_from_args
     from services.recorder import Recorder, RecorderConfig
 
-    config = RecorderConfig(rig=args.rig, path=Path(args.output), duration_s=args.duration_s,
+    output = Path(args.output)
+    if output.is_dir():
+        # A restarted recorder (e.g. a container) starts a new file and never overwrites the last one.
+        output = output / f"{args.rig}-{time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())}.mcap"
+    config = RecorderConfig(rig=args.rig, path=output, duration_s=args.duration_s,
                             compression=args.compression, flush_period_s=args.flush_period_s,
                             queue_capacity_bytes=int(args.queue_mb * 1e6), node_id=args.id,
                             overwrite=args.force)
