@@ -518,3 +518,16 @@ def test_record_reports_a_full_disk_in_one_line(capsys):
                  "--listen", f"tcp/127.0.0.1:{free_port()}"]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "/dev/full: cannot write" in err
+
+
+def test_an_output_directory_gets_a_new_session_each_start(tmp_path):
+    command = [sys.executable, "-m", "camnet.cli", "record", "--rig", "dirrig", "-o", str(tmp_path),
+               "--duration-s", "0.5", "--listen", f"tcp/127.0.0.1:{free_port()}"]
+    for _ in range(2):
+        subprocess.run(command, check=True, capture_output=True, timeout=60)
+        time.sleep(1.1)  # the file name carries the start time to the second
+    sessions = sorted(tmp_path.glob("dirrig-*.mcap"))
+    assert len(sessions) == 2
+    for path in sessions:
+        with open(path, "rb") as f:
+            assert make_reader(f).get_summary() is not None
