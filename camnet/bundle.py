@@ -19,7 +19,6 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 import scipy.linalg
-import scipy.sparse as sp
 
 from camnet.projection import N_INTRINSICS, project_points, project_with_jacobians, rotation_exp
 
@@ -141,20 +140,29 @@ def _tangent_basis(u: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class NormalEquations:
-    """J^T J and J^T r split into camera (c) and point (p) blocks."""
+    """J^T J and J^T r split into camera (c) and point (p) blocks.
+
+    W is dense: a camera sees a good share of the points in the networks
+    camnet solves, and one BLAS product on it beats sparse bookkeeping.
+    """
 
     U: np.ndarray  # (Pc, Pc)
-    W: sp.csr_matrix  # (Pc, 3N)
+    W: np.ndarray  # (Pc, 3N)
     V: np.ndarray  # (N, 3, 3)
     gc: np.ndarray  # (Pc,)
     gp: np.ndarray  # (N, 3)
     cost: float
 
 
+def _row_products(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """A_k^T B_k for stacks of two-row matrices A (n, 2, i), B (n, 2, j): (n, i, j)."""
+    return A[:, 0, :, None] * B[:, 0, None, :] + A[:, 1, :, None] * B[:, 1, None, :]
+
+
 def normal_equations(problem: Problem, state: State, *, loss: str = "linear", scale_px: float = 1.0) -> NormalEquations:
     """Gauss-Newton normal equations at `state`, rows weighted by the robust loss."""
     c, p = problem.cam, problem.pt
-    n = len(c)
+    n, N = len(c), problem.n_points
     uv, J_intr, J_rot, J_cen, J_pt = project_with_jacobians(state.intr[c], state.R[c], state.C[c], state.X[p])
     r = uv - problem.uv
     z = np.sum(r * r, axis=1) / scale_px**2
@@ -171,39 +179,40 @@ def normal_equations(problem: Problem, state: State, *, loss: str = "linear", sc
         J_local[rows, :, CEN.start + 2] = 0.0
 
     cols, n_cols = problem.columns()
-    obs_cols = cols[c]  # (n, 15)
-    used = obs_cols >= 0
-    k_idx, slot = np.nonzero(used)
-    data = np.concatenate([J_local[k_idx, 0, slot], J_local[k_idx, 1, slot]])
-    rows = np.concatenate([2 * k_idx, 2 * k_idx + 1])
-    colv = np.concatenate([obs_cols[k_idx, slot]] * 2)
-    Jc = sp.csr_matrix((data, (rows, colv)), shape=(2 * n, n_cols))
-    r_flat = r.reshape(-1)
+    U = np.zeros((n_cols, n_cols))
+    gc = np.zeros(n_cols)
+    W = np.zeros((n_cols, N, 3))
+    # An observation touches one camera only: U is block diagonal, one block per camera.
+    for m in range(problem.n_cameras):
+        slots = np.flatnonzero(cols[m] >= 0)
+        if not len(slots):
+            continue
+        rows = np.flatnonzero(c == m)
+        Jm = J_local[rows][:, :, slots]  # (n_m, 2, k)
+        flat = Jm.reshape(-1, len(slots))
+        cm = cols[m, slots]
+        U[np.ix_(cm, cm)] = flat.T @ flat
+        gc[cm] = flat.T @ r[rows].reshape(-1)
+        np.add.at(W, (cm[:, None], p[rows][None, :]), _row_products(Jm, J_pt[rows]).transpose(1, 0, 2))
 
-    N = problem.n_points
-    JtJ_p = np.einsum("nki,nkj->nij", J_pt, J_pt).reshape(n, 9)
-    Jtr_p = np.einsum("nki,nk->ni", J_pt, r)
+    JtJ_p = _row_products(J_pt, J_pt).reshape(n, 9)
+    Jtr_p = J_pt[:, 0] * r[:, :1] + J_pt[:, 1] * r[:, 1:]
     V = np.stack([np.bincount(p, JtJ_p[:, i], minlength=N) for i in range(9)], axis=1)
     gp = np.stack([np.bincount(p, Jtr_p[:, i], minlength=N) for i in range(3)], axis=1)
-    point_cols = np.broadcast_to(3 * p[:, None, None] + np.arange(3), (n, 2, 3))
-    Jp = sp.csr_matrix(
-        (J_pt.reshape(-1), (np.repeat(np.arange(2 * n), 3), point_cols.reshape(-1))),
-        shape=(2 * n, 3 * N),
-    )
-    JcT = Jc.T.tocsr()
     return NormalEquations(
-        U=(JcT @ Jc).toarray(),
-        W=(JcT @ Jp).tocsr(),
+        U=U,
+        W=W.reshape(n_cols, 3 * N),
         V=V.reshape(N, 3, 3),
-        gc=JcT @ r_flat,
+        gc=gc,
         gp=gp,
         cost=0.5 * scale_px**2 * float(np.sum(rho)),
     )
 
 
-def _block_diag(blocks: np.ndarray) -> sp.bsr_matrix:
-    N = len(blocks)
-    return sp.bsr_matrix((blocks, np.arange(N), np.arange(N + 1)), shape=(3 * N, 3 * N))
+def times_block_diag(W: np.ndarray, blocks: np.ndarray) -> np.ndarray:
+    """W (P, 3N) times the block-diagonal matrix of `blocks` (N, 3, 3)."""
+    P, N = len(W), len(blocks)
+    return (W.reshape(P, N, 3).transpose(1, 0, 2) @ blocks).transpose(1, 0, 2).reshape(P, 3 * N)
 
 
 def _solve_damped(ne: NormalEquations, lam: float) -> tuple[np.ndarray, np.ndarray] | None:
@@ -216,8 +225,8 @@ def _solve_damped(ne: NormalEquations, lam: float) -> tuple[np.ndarray, np.ndarr
         Vinv = np.linalg.inv(V)
     except np.linalg.LinAlgError:
         return None
-    WVinv = (ne.W @ _block_diag(Vinv)).tocsr()
-    S = U - (WVinv @ ne.W.T).toarray()
+    WVinv = times_block_diag(ne.W, Vinv)
+    S = U - WVinv @ ne.W.T
     rhs = -ne.gc + WVinv @ ne.gp.reshape(-1)
     try:
         dc = scipy.linalg.cho_solve(scipy.linalg.cho_factor(S), rhs) if len(rhs) else rhs
