@@ -90,6 +90,7 @@ class SolveInfo:
     iterations: int
     initial_cost: float
     final_cost: float
+    normal: NormalEquations | None = None  # at the final state, weighted by the loss
 
 
 # ---------------------------------------------------------------- robust losses
@@ -209,6 +210,11 @@ def normal_equations(problem: Problem, state: State, *, loss: str = "linear", sc
     )
 
 
+def restrict(ne: NormalEquations, columns: np.ndarray) -> NormalEquations:
+    """The normal equations with only the camera parameters at `columns` free."""
+    return NormalEquations(ne.U[np.ix_(columns, columns)], ne.W[columns], ne.V, ne.gc[columns], ne.gp, ne.cost)
+
+
 def times_block_diag(W: np.ndarray, blocks: np.ndarray) -> np.ndarray:
     """W (P, 3N) times the block-diagonal matrix of `blocks` (N, 3, 3)."""
     P, N = len(W), len(blocks)
@@ -258,6 +264,15 @@ def apply_step(problem: Problem, state: State, dc: np.ndarray, dp: np.ndarray) -
     return State(intr, R, C, state.X + dp)
 
 
+def _predicted_decrease(ne: NormalEquations, lam: float, dc: np.ndarray, dp: np.ndarray) -> float:
+    """Decrease of the Gauss-Newton model cost along the damped step (dc, dp), >= 0."""
+    # With (H + lam D) d = -g: -g.d - d.H.d / 2 = (lam d.D.d - g.d) / 2.
+    dU = np.maximum(np.diag(ne.U), 1e-9)
+    dV = np.maximum(np.einsum("nii->ni", ne.V), 1e-9)
+    damped = lam * (float(dc @ (dU * dc)) + float(np.sum(dV * dp * dp)))
+    return 0.5 * (damped - float(ne.gc @ dc) - float(np.sum(ne.gp * dp)))
+
+
 def solve(
     problem: Problem,
     state: State,
@@ -265,38 +280,55 @@ def solve(
     loss: str = "linear",
     scale_px: float = 1.0,
     max_iterations: int = 100,
-    ftol: float = 1e-10,
+    ftol: float = 1e-9,
 ) -> tuple[State, SolveInfo]:
-    """Minimise the (robust) reprojection cost by Levenberg-Marquardt from `state`."""
-    lam = 1e-4
+    """Minimise the (robust) reprojection cost by Levenberg-Marquardt from `state`.
+
+    Damping by Nielsen's rule (the gain ratio of actual to predicted
+    decrease). It stops when the cost is exact to rounding, or when a step
+    lowers it by less than ``ftol`` relative *and* an undamped Gauss-Newton
+    step would too: a small decrease under heavy damping is no minimum.
+    """
+    lam, nu = 1e-4, 2.0
     ne = normal_equations(problem, state, loss=loss, scale_px=scale_px)
     initial = ne.cost
     if not np.isfinite(initial):
         return state, SolveInfo(False, "the initial state projects points behind a camera", 0, initial, initial)
+    exact_cost = 0.5 * len(problem.cam) * 1e-18  # residuals of 1e-9 px: rounding
     reason, converged = "reached the iteration limit", False
     iterations = 0
     for iterations in range(1, max_iterations + 1):  # noqa: B007 (reported after the loop)
+        if ne.cost <= exact_cost:
+            reason, converged = "the observations are fitted exactly", True
+            break
         step = _solve_damped(ne, lam)
         if step is None:
-            lam *= 10.0
+            lam, nu = lam * nu, 2.0 * nu
             if lam > 1e12:
                 reason = "the normal equations are singular (the geometry does not fix the parameters)"
                 break
             continue
         trial = apply_step(problem, state, *step)
         trial_cost = _cost(problem, trial, loss, scale_px)
-        if trial_cost < ne.cost:
-            decrease = ne.cost - trial_cost
-            state = trial
-            lam = max(lam / 5.0, 1e-12)
+        decrease = ne.cost - trial_cost
+        if decrease > 0:
+            gain = decrease / max(_predicted_decrease(ne, lam, *step), 1e-300)
             previous = ne.cost
+            state = trial
             ne = normal_equations(problem, state, loss=loss, scale_px=scale_px)
-            if decrease <= ftol * previous:
+            lam, nu = max(lam * max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3), 1e-12), 2.0
+            if decrease <= ftol * previous and _gauss_newton_decrease(ne) <= ftol * ne.cost:
                 reason, converged = "the cost stopped decreasing (relative change below ftol)", True
                 break
         else:
-            lam *= 4.0
+            lam, nu = lam * nu, 2.0 * nu
             if lam > 1e10:
                 reason, converged = "no step decreases the cost further", True
                 break
-    return state, SolveInfo(converged, reason, iterations, initial, ne.cost)
+    return state, SolveInfo(converged, reason, iterations, initial, ne.cost, ne)
+
+
+def _gauss_newton_decrease(ne: NormalEquations) -> float:
+    """The decrease an (almost) undamped step promises; infinite if it cannot be solved."""
+    step = _solve_damped(ne, 1e-9)
+    return np.inf if step is None else _predicted_decrease(ne, 1e-9, *step)
