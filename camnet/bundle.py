@@ -289,7 +289,7 @@ def solve(
     lowers it by less than ``ftol`` relative *and* an undamped Gauss-Newton
     step would too: a small decrease under heavy damping is no minimum.
     """
-    lam, nu = 1e-4, 2.0
+    lam, nu = 1e-9, 2.0
     ne = normal_equations(problem, state, loss=loss, scale_px=scale_px)
     initial = ne.cost
     if not np.isfinite(initial):

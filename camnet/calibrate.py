@@ -286,6 +286,7 @@ def _calibrate(
     names = _free_names(options)
     intr_free = _free_mask(M, names, held_K, held_dist)
     rot_free = np.zeros((M, 3), dtype=bool)
+    rot_free[2:] = True  # every camera outside the stereo pair turns freely
     if "stereo_rotation" in names or options.method == "unconstrained":
         rot_free[1] = True
     if initial is not None and options.free == "auto":
@@ -365,14 +366,15 @@ def _robust_passes(full: Problem, state: State, options: Options, *, cold: bool,
     """The robust adjustment of every parameter that moves, from a rough start."""
     robust = dict(loss=options.loss, scale_px=options.loss_scale_px, max_iterations=options.max_iterations)
     if cold and options.method != "unconstrained":
-        # Continuation: a first pass moves focal lengths and poses only; freeing
+        # Continuation: a first pass moves focal lengths and the poses outside the
+        # stereo pair only; freeing
         # principal points or distortion far from the solution lets the adjustment
         # settle in a wrong valley.
         M = full.n_cameras
         first = replace(
             full,
             intr_free=full.intr_free & _free_mask(M, frozenset({"f"}), held_K, held_dist),
-            rot_free=np.zeros_like(full.rot_free),
+            rot_free=full.rot_free & (np.arange(M) != 1)[:, None],
             centre_mode=np.where(np.arange(M) == 1, CENTRE_FIXED, full.centre_mode),
         )
         state, _ = bundle.solve(first, state, **robust)

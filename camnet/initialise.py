@@ -23,6 +23,7 @@ from camnet.projection import K_from_intrinsics
 log = logging.getLogger(__name__)
 
 MIN_REGISTRATION_POINTS = 6  # a DLT has 11 degrees of freedom
+EQ13_START_FTOL = 1e-4  # eq. 13 as a start for the adjustment: its last digits do not matter
 
 
 @dataclass
@@ -155,7 +156,7 @@ def paper_start(
         others.append(m)
     if others:
         f_left, f[others], R[others], C[others], _ = paper.refine_eq13(
-            f_left, f[others], R[others], C[others], P0, cams
+            f_left, f[others], R[others], C[others], P0, cams, ftol=1e-8 if max_tracks is None else EQ13_START_FTOL
         )
         f[0], f[1] = f_left, k * f_left
         X = P0 * np.array([1.0, 1.0, f_left])

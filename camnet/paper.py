@@ -207,12 +207,16 @@ def refine_eq13(
     C: np.ndarray,
     P0: np.ndarray,
     cams: list[np.ndarray],
+    *,
+    ftol: float = 1e-8,
 ) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, float]:
     """Minimise eq. 13 jointly over f_left and every other camera's f, R, C.
 
     ``cams[j] = (tracks (n,), centred pixels (n, 2))`` for the j-th other
     camera; ``f, R, C`` hold their starting values in the same order. The
     points are ``P0 * [1, 1, f_left]``, so they move only through f_left.
+    ftol: relative cost change at which to stop (SciPy's); a starting point
+    for an adjustment needs far less than the paper's solution itself.
     """
     from scipy.spatial.transform import Rotation
 
@@ -243,6 +247,6 @@ def refine_eq13(
     sparsity[:, 0] = True
     for j in range(m):
         sparsity[starts[j] : starts[j + 1], 1 + 7 * j : 8 + 7 * j] = True
-    res = scipy.optimize.least_squares(fun, x0, jac_sparsity=sparsity, method="trf", x_scale="jac")
+    res = scipy.optimize.least_squares(fun, x0, jac_sparsity=sparsity, method="trf", x_scale="jac", ftol=ftol)
     fl, fs, Rs, Cs = unpack(res.x)
     return float(fl), fs, Rs, Cs, float(res.cost)

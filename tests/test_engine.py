@@ -65,30 +65,12 @@ def test_zero_noise_paper_rig_is_recovered_exactly(method):
     assert_exact(result, rig)
 
 
-LOCAL_MINIMUM = (
-    "known limitation: with intrinsics beyond the focal length free, the adjustment from the paper's "
-    "start can stop in a local minimum 0.05-0.2 px RMS from the exact solution"
-)
-
-
 @pytest.mark.parametrize(
     "rig_args, free",
     [
-        pytest.param(
-            dict(n_cameras=8, n_points=200, pp_offset_px=25.0),
-            {"f", "pp"},
-            marks=pytest.mark.xfail(strict=True, reason=LOCAL_MINIMUM),
-        ),
-        pytest.param(
-            dict(n_cameras=6, n_points=150, k1=-0.15, k2=0.05),
-            {"f", "k1", "k2"},
-            marks=pytest.mark.xfail(strict=True, reason=LOCAL_MINIMUM),
-        ),
-        pytest.param(
-            dict(n_cameras=5, n_points=150, stereo_rotation_deg=0.4),
-            {"f", "stereo_rotation", "stereo_direction"},
-            marks=pytest.mark.xfail(strict=True, reason=LOCAL_MINIMUM),
-        ),
+        (dict(n_cameras=8, n_points=200, pp_offset_px=25.0), {"f", "pp"}),
+        (dict(n_cameras=6, n_points=150, k1=-0.15, k2=0.05), {"f", "k1", "k2"}),
+        (dict(n_cameras=5, n_points=150, stereo_rotation_deg=0.4), {"f", "stereo_rotation", "stereo_direction"}),
     ],
     ids=["principal-points", "distortion", "rotated-stereo-pair"],
 )
