@@ -304,11 +304,12 @@ def _calibrate(
     state = State(intr, start.R, start.C, start.X[track_rows])
 
     t1 = time.perf_counter()
-    near = False
+    near, start_kind = False, "cold"
     if initial is not None:
         new_points = ~np.isin(obs.track_ids[track_rows], initial.point_ids)
         state = _fit_points(full, state, new_points, options)
         near = _near_solution(full, state, options)
+        start_kind = "warm" if near else "warm, robust"
     if not near:
         state = _robust_passes(full, state, options, cold=initial is None, held_K=held_K, held_dist=held_dist)
     inliers = _reject_outliers(full, state, options)
@@ -348,7 +349,9 @@ def _calibrate(
     timings["total"] = time.perf_counter() - t0
     if not info.converged:
         raise SolveError(f"the adjustment did not converge: {info.reason}")
-    return _result(obs, order, problem, state, track_rows, inliers, info, cov, decisions, options, timings)
+    return _result(
+        obs, order, problem, state, track_rows, inliers, info, cov, decisions, options, timings, start=start_kind
+    )
 
 
 def _reset_indices(obs: Observations, order: list[int], reset_cameras: Collection[str]) -> set[int]:
@@ -485,7 +488,9 @@ def _paper_result(obs, order, intr, rows, start: Start, timings) -> Result:
     )
 
 
-def _result(obs, order, problem, state, track_rows, inliers, info, cov, decisions, options, timings) -> Result:
+def _result(
+    obs, order, problem, state, track_rows, inliers, info, cov, decisions, options, timings, *, start: str = "cold"
+) -> Result:
     from camnet.diagnostics import describe
 
     cameras_by_m = []
@@ -512,6 +517,7 @@ def _result(obs, order, problem, state, track_rows, inliers, info, cov, decision
     r = bundle.residuals(problem, state)
     rms = float(np.sqrt(np.mean(np.sum(r * r, axis=1)))) if len(r) else float("nan")
     extra = describe(obs, order, problem, state, cov, inliers, info, decisions, options, timings)
+    extra["diagnostics"]["start"] = start
     calibration = Calibration(
         cameras=cameras,
         point_ids=obs.track_ids[track_rows[kept]],
