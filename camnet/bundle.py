@@ -15,10 +15,13 @@ and leaves the scale to float, as in classical structure from motion.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, replace
+from functools import cached_property
 
 import numpy as np
 import scipy.linalg
+import scipy.sparse as sp
 
 from camnet.projection import N_INTRINSICS, project_points, project_with_jacobians, rotation_exp
 
@@ -26,6 +29,8 @@ from camnet.projection import N_INTRINSICS, project_points, project_with_jacobia
 ROT = slice(N_INTRINSICS, N_INTRINSICS + 3)
 CEN = slice(N_INTRINSICS + 3, N_INTRINSICS + 6)
 N_LOCAL = N_INTRINSICS + 6
+
+log = logging.getLogger(__name__)
 
 CENTRE_FIXED, CENTRE_FREE, CENTRE_ON_BASELINE = 0, 1, 2
 LOSSES = ("linear", "huber", "soft_l1", "cauchy")
@@ -77,6 +82,34 @@ class Problem:
         cols = np.full(free.shape, -1)
         cols[free] = np.arange(free.sum())
         return cols, int(free.sum())
+
+    @cached_property
+    def camera_groups(self) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+        """Cameras grouped by their free local slots, for the normal equations.
+
+        Per group ``(slots (k,), cameras (c,), rows, starts (c,))``: the
+        observations of its cameras that have any, sorted by camera, and where
+        each camera's run begins in `rows`.
+        """
+        cols, _ = self.columns()
+        counts = np.bincount(self.cam, minlength=self.n_cameras)
+        patterns: dict[bytes, list[int]] = {}
+        for m in np.flatnonzero((counts > 0) & np.any(cols >= 0, axis=1)):
+            patterns.setdefault((cols[m] >= 0).tobytes(), []).append(int(m))
+        order = np.argsort(self.cam, kind="stable")
+        bounds = np.searchsorted(self.cam[order], np.arange(self.n_cameras + 1))
+        groups = []
+        for cams in patterns.values():
+            rows = np.concatenate([order[bounds[m] : bounds[m + 1]] for m in cams])
+            starts = np.concatenate([[0], np.cumsum(counts[cams])[:-1]])
+            groups.append((np.flatnonzero(cols[cams[0]] >= 0), np.array(cams), rows, starts))
+        return groups
+
+    @cached_property
+    def point_sum(self) -> sp.csr_matrix:
+        """(N, n) incidence matrix: summing per-observation terms into their points."""
+        n = len(self.pt)
+        return sp.csr_matrix((np.ones(n), (self.pt, np.arange(n))), shape=(self.n_points, n))
 
     def subset(self, keep: np.ndarray) -> Problem:
         """The same problem with only the observations where `keep` is true."""
@@ -182,24 +215,32 @@ def normal_equations(problem: Problem, state: State, *, loss: str = "linear", sc
     cols, n_cols = problem.columns()
     U = np.zeros((n_cols, n_cols))
     gc = np.zeros(n_cols)
-    W = np.zeros((n_cols, N, 3))
+    w_index, w_value = [], []
     # An observation touches one camera only: U is block diagonal, one block per camera.
-    for m in range(problem.n_cameras):
-        slots = np.flatnonzero(cols[m] >= 0)
-        if not len(slots):
-            continue
-        rows = np.flatnonzero(c == m)
-        Jm = J_local[rows][:, :, slots]  # (n_m, 2, k)
-        flat = Jm.reshape(-1, len(slots))
-        cm = cols[m, slots]
-        U[np.ix_(cm, cm)] = flat.T @ flat
-        gc[cm] = flat.T @ r[rows].reshape(-1)
-        np.add.at(W, (cm[:, None], p[rows][None, :]), _row_products(Jm, J_pt[rows]).transpose(1, 0, 2))
+    # Cameras with the same free slots are handled together.
+    for slots, cams, rows, starts in problem.camera_groups:
+        cm = cols[cams][:, slots]  # (cameras, k)
+        Jg = J_local[rows][:, :, slots]  # (n_g, 2, k), rows sorted by camera
+        for c_m, (a, b) in zip(cm, zip(starts, [*starts[1:], len(rows)], strict=True), strict=True):
+            flat = Jg[a:b].reshape(-1, len(slots))
+            U[np.ix_(c_m, c_m)] = flat.T @ flat
+        g = np.add.reduceat(Jg[:, 0] * r[rows, :1] + Jg[:, 1] * r[rows, 1:], starts, axis=0)
+        gc[cm] = g
+        # W[column, point, axis], flattened; bincount adds (a track seen twice by one camera adds up).
+        obs_cols = np.repeat(cm, np.diff(np.append(starts, len(rows))), axis=0)  # (n_g, k)
+        w_index.append(((obs_cols[:, :, None] * N + p[rows][:, None, None]) * 3 + np.arange(3)).ravel())
+        w_value.append(_row_products(Jg, J_pt[rows]).ravel())
+    W = np.bincount(
+        np.concatenate(w_index) if w_index else np.zeros(0, int),
+        np.concatenate(w_value) if w_value else None,
+        minlength=n_cols * N * 3,
+    )
 
-    JtJ_p = _row_products(J_pt, J_pt).reshape(n, 9)
-    Jtr_p = J_pt[:, 0] * r[:, :1] + J_pt[:, 1] * r[:, 1:]
-    V = np.stack([np.bincount(p, JtJ_p[:, i], minlength=N) for i in range(9)], axis=1)
-    gp = np.stack([np.bincount(p, Jtr_p[:, i], minlength=N) for i in range(3)], axis=1)
+    point_terms = np.concatenate(
+        [_row_products(J_pt, J_pt).reshape(n, 9), J_pt[:, 0] * r[:, :1] + J_pt[:, 1] * r[:, 1:]], axis=1
+    )
+    summed = problem.point_sum @ point_terms
+    V, gp = summed[:, :9], summed[:, 9:]
     return NormalEquations(
         U=U,
         W=W.reshape(n_cols, 3 * N),
@@ -313,12 +354,19 @@ def solve(
         decrease = ne.cost - trial_cost
         if decrease > 0:
             gain = decrease / max(_predicted_decrease(ne, lam, *step), 1e-300)
-            previous = ne.cost
             state = trial
             ne = normal_equations(problem, state, loss=loss, scale_px=scale_px)
             lam, nu = max(lam * max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3), 1e-12), 2.0
-            if decrease <= ftol * previous and _gauss_newton_decrease(ne) <= ftol * ne.cost:
-                reason, converged = "the cost stopped decreasing (relative change below ftol)", True
+            remaining = gauss_newton_decrease(ne)
+            log.debug(
+                "LM: cost %.9g (-%.3g), lambda %.2g, a Gauss-Newton step would gain %.3g",
+                ne.cost,
+                decrease,
+                lam,
+                remaining,
+            )
+            if remaining <= ftol * ne.cost:
+                reason, converged = "a Gauss-Newton step would lower the cost by less than ftol (relative)", True
                 break
         else:
             lam, nu = lam * nu, 2.0 * nu
@@ -328,7 +376,7 @@ def solve(
     return state, SolveInfo(converged, reason, iterations, initial, ne.cost, ne)
 
 
-def _gauss_newton_decrease(ne: NormalEquations) -> float:
+def gauss_newton_decrease(ne: NormalEquations) -> float:
     """The decrease an (almost) undamped step promises; infinite if it cannot be solved."""
     step = _solve_damped(ne, 1e-9)
     return np.inf if step is None else _predicted_decrease(ne, 1e-9, *step)

@@ -62,6 +62,7 @@ class Options:
     loss_scale_px: float = 2.0
     free: str | frozenset[str] = "auto"  # "auto" or a subset of FREE_NAMES
     determined_px: float = 1.0
+    significance: float = 1e-3  # false-alarm rate of the auto rule's chi-square test
     outlier_sigmas: float = 4.0  # reject residuals beyond this many robust sigmas
     min_outlier_px: float = 1.5  # never reject residuals below this
     max_iterations: int = 100
@@ -172,55 +173,90 @@ def _pixel_effect(name: str, state: State, cov: Covariance, widths, heights) -> 
     return np.array([f[m] * r_max[m] ** 5 * sigma(m, 5) for m in cams])
 
 
+_CANDIDATES = ("stereo_pitch_roll", "stereo_direction", "stereo_yaw", "pp", "k1", "k2")
+_SLOTS = {"pp": (2, 3), "k1": (4,), "k2": (5,)}
+
+
+def _with_block(problem: Problem, name: str, cameras: np.ndarray) -> Problem:
+    """`problem` with the candidate block `name` also free (for `cameras` (M,) bool, per-camera blocks)."""
+    intr_free, rot_free, centre_mode = problem.intr_free.copy(), problem.rot_free.copy(), problem.centre_mode.copy()
+    if name == "stereo_pitch_roll":
+        rot_free[1, [0, 2]] = True
+    elif name == "stereo_direction":
+        centre_mode[1] = CENTRE_ON_BASELINE
+    elif name == "stereo_yaw":
+        rot_free[1, 1] = True
+    else:
+        for s in _SLOTS[name]:
+            intr_free[cameras, s] = True
+    return replace(problem, intr_free=intr_free, rot_free=rot_free, centre_mode=centre_mode)
+
+
 def _choose_free(problem: Problem, state: State, options: Options, widths, heights, held_K, held_dist):
-    """Apply the free-parameter rule of the module docstring; returns (problem, decisions)."""
-    intr_free, rot_free = problem.intr_free.copy(), problem.rot_free.copy()
-    decisions = []
-    centre_mode = problem.centre_mode.copy()
-    candidates = [
-        ("stereo_pitch_roll", None),
-        ("stereo_direction", None),
-        ("stereo_yaw", None),
-        ("pp", (2, 3)),
-        ("k1", (4,)),
-        ("k2", (5,)),
-    ]
+    """Apply the free-parameter rule of the module docstring; returns (problem, decisions).
+
+    `state` is the least-squares solution of `problem`. Both tests are
+    linearised at it: the standard deviation from the covariance with the
+    block free, the cost decrease from the Gauss-Newton step with it free
+    (the score test, first-order equal to the likelihood ratio).
+    """
+    from scipy.special import chdtri
+
+    M = problem.n_cameras
+    can_move = {
+        "pp": ~held_K,
+        "k1": ~held_dist,
+        "k2": ~held_dist,
+    }
     # A block's Jacobian does not depend on which other blocks are free: one set of
     # normal equations with every candidate free serves every trial.
-    everything = replace(
-        problem,
-        intr_free=intr_free | _free_mask(len(intr_free), frozenset({"pp", "k1", "k2"}), held_K, held_dist),
-        rot_free=rot_free | (np.arange(len(rot_free)) == 1)[:, None],
-        centre_mode=np.where(np.arange(len(centre_mode)) == 1, CENTRE_ON_BASELINE, centre_mode),
-    )
+    everything = problem
+    for name in _CANDIDATES:
+        everything = _with_block(everything, name, can_move.get(name, np.ones(M, bool)))
     ne = bundle.normal_equations(everything, state)
     columns = everything.columns()[0]
-    for name, slots in candidates:
-        trial_intr, trial_rot, trial_centre = intr_free.copy(), rot_free.copy(), centre_mode.copy()
-        if name == "stereo_pitch_roll":
-            trial_rot[1, [0, 2]] = True
-        elif name == "stereo_direction":
-            trial_centre[1] = CENTRE_ON_BASELINE
-        elif name == "stereo_yaw":
-            trial_rot[1, 1] = True
-        else:
-            held = held_K if name == "pp" else held_dist
-            for s in slots:
-                trial_intr[~held, s] = True
-        trial = replace(problem, intr_free=trial_intr, rot_free=trial_rot, centre_mode=trial_centre)
-        trial_ne = bundle.restrict(ne, columns[trial.columns()[0] >= 0])
-        effect = _pixel_effect(name, state, covariance(trial, state, normal=trial_ne), widths, heights)
+
+    def restricted(trial: Problem):
+        return bundle.restrict(ne, columns[trial.columns()[0] >= 0])
+
+    dof = 2 * len(problem.cam) - problem.columns()[1] - 3 * problem.n_points
+    variance = 2.0 * ne.cost / max(dof, 1)  # a posteriori pixel variance
+
+    def significant(trial: Problem, base_decrease: float, k: int) -> tuple[bool, float]:
+        """Whether freeing the trial's new block lowers the cost beyond chance (chi-square, k dof)."""
+        statistic = 2.0 * (bundle.gauss_newton_decrease(restricted(trial)) - base_decrease) / max(variance, 1e-300)
+        # An infinite decrease means the block is not determined at all: no evidence for it.
+        wanted = variance > 1e-12 and np.isfinite(statistic) and statistic > chdtri(k, options.significance)
+        return bool(wanted), statistic
+
+    decisions = []
+    for name in _CANDIDATES:
+        base = bundle.gauss_newton_decrease(restricted(problem))
+        movable = can_move.get(name, np.ones(M, bool))
+        trial = _with_block(problem, name, movable)
+        effect = _pixel_effect(name, state, covariance(trial, state, normal=restricted(trial)), widths, heights)
         if name.startswith("stereo"):
-            if effect <= options.determined_px:
-                rot_free, centre_mode = trial_rot, trial_centre
-            decisions.append(f"{name}: {'free' if effect <= options.determined_px else 'held'} (sigma {effect:.2g} px)")
-        else:
-            for m in range(len(effect)):
-                if np.isfinite(effect[m]) and effect[m] <= options.determined_px:
-                    for s in slots:
-                        intr_free[m, s] = True
-            decisions.append(f"{name}: sigma px per camera {np.round(effect, 2).tolist()}")
-    return replace(problem, intr_free=intr_free, rot_free=rot_free, centre_mode=centre_mode), decisions
+            k = int(trial.columns()[1] - problem.columns()[1])
+            wanted, statistic = significant(trial, base, k)
+            free = effect <= options.determined_px or wanted
+            if free:
+                problem = trial
+            decisions.append(
+                f"{name}: {'free' if free else 'held'} (sigma {effect:.2g} px, chi2 {statistic:.3g} on {k} dof)"
+            )
+            continue
+        k = len(_SLOTS[name])
+        determined = np.isfinite(effect) & (effect <= options.determined_px) & movable
+        wanted = np.zeros(M, bool)
+        if significant(trial, base, k * int(movable.sum()))[0]:  # the block as a whole; then camera by camera
+            for m in np.flatnonzero(movable & ~determined):
+                wanted[m] = significant(_with_block(problem, name, np.arange(M) == m), base, k)[0]
+        problem = _with_block(problem, name, determined | wanted)
+        decisions.append(
+            f"{name}: sigma px per camera {np.round(effect, 2).tolist()}; "
+            f"freed by significance {[m for m in np.flatnonzero(wanted & ~determined).tolist()]}"
+        )
+    return problem, decisions
 
 
 def calibrate(
@@ -321,7 +357,10 @@ def _calibrate(
         t2 = time.perf_counter()
         widths = [obs.cameras[i].width for i in order]
         heights = [obs.cameras[i].height for i in order]
-        state, _ = bundle.solve(problem, state, max_iterations=options.max_iterations)
+        # The rule starts from the ideal pair: its rotation held at the identity.
+        R = state.R.copy()
+        R[1] = np.eye(3)
+        state, _ = bundle.solve(problem, State(state.intr, R, state.C, state.X), max_iterations=options.max_iterations)
         problem, decisions = _choose_free(problem, state, options, widths, heights, held_K, held_dist)
         full = replace(full, intr_free=problem.intr_free, rot_free=problem.rot_free, centre_mode=problem.centre_mode)
         timings["choose_free"] = time.perf_counter() - t2
@@ -381,6 +420,10 @@ def _robust_passes(full: Problem, state: State, options: Options, *, cold: bool,
             centre_mode=np.where(np.arange(M) == 1, CENTRE_FIXED, full.centre_mode),
         )
         state, _ = bundle.solve(first, state, **robust)
+    if cold and options.free == "auto" and options.method == "refined":
+        # Outliers are judged with the stereo pair free to turn: a pair that is not quite
+        # parallel, or principal points off centre, must not cost it its observations.
+        full = replace(full, rot_free=full.rot_free | (np.arange(full.n_cameras) == 1)[:, None])
     state, _ = bundle.solve(full, state, **robust)
     return state
 
