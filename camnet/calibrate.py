@@ -12,13 +12,25 @@ Methods:
   as classical structure from motion: the scale is left to the optimiser.
 
 Which intrinsics move (``free="auto"``): the focal length of every camera
-always (unless the observations fix K). Then, in this order, each block is
-freed when the data determine it, i.e. when its standard deviation, with it
-and the blocks before it free, moves the image by at most ``determined_px``
-pixels: the right stereo camera's pitch and roll, its yaw, the principal
-points, k1, k2. A block that is not determined is held at its given value
-(K and dist in the observations) or the ideal (image centre, no distortion,
-a parallel pair). An explicit ``free`` set replaces the rule.
+always (unless the observations fix K), and the pose of every camera outside
+the stereo pair. Then, in this order, each block is freed when the data
+determine it, i.e. when its standard deviation, with it and the blocks
+before it free, moves the image by at most ``determined_px`` pixels, or when
+the data ask for it, i.e. when freeing it lowers the cost by more than
+chance allows (a chi-square score test at false-alarm rate
+``significance``, on the a-posteriori pixel variance): the right stereo
+camera's pitch and roll, the direction of its baseline, its yaw, the
+principal points, k1, k2 (the last three camera by camera). A block that is
+neither is held at its given value (K and dist in the observations) or the
+ideal (image centre, no distortion, a parallel pair). Outliers are judged
+before the rule with the stereo pair free to turn. An explicit ``free`` set
+replaces the rule.
+
+Warm starts (``initial=``) reuse the previous solution's points and free
+parameters; when every camera still fits its observations only the new
+tracks get a robust fit before the least-squares adjustment
+(``diagnostics.start`` says which path ran). ``reset_cameras`` places
+bumped cameras again (see `calibrate`).
 """
 
 from __future__ import annotations
