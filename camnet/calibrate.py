@@ -291,8 +291,13 @@ def calibrate(
     camera moves the frame and the scale of every point, so it falls back
     to a cold solve. Ignored without `initial`.
     """
+    from threadpoolctl import threadpool_limits
+
     try:
-        return _calibrate(obs, options, initial, reset_cameras)
+        # The dense products here have a few hundred rows: BLAS threads gain little on
+        # them, and on a machine shared with drivers and the matcher they stall each other.
+        with threadpool_limits(limits=1, user_api="blas"):
+            return _calibrate(obs, options, initial, reset_cameras)
     except np.linalg.LinAlgError:
         raise SolveError("the observations do not determine the calibration (singular equations)") from None
 

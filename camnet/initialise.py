@@ -208,6 +208,8 @@ def warm_start(
         if int(pid) in index:
             X[index[int(pid)]] = p
     for m in reset:
+        if not np.isfinite(f[m]):
+            continue  # not in `initial` either: registered below like any new camera
         # Points the moved camera helped to place are still fine: the other cameras hold them.
         R[m], C[m] = register_pnp(X, xy, rows[:, order[m]], f[m], obs.cameras[order[m]].id, _threshold_px(obs, order))
         registered[m] = True
