@@ -34,6 +34,7 @@ log = logging.getLogger(__name__)
 
 CENTRE_FIXED, CENTRE_FREE, CENTRE_ON_BASELINE = 0, 1, 2
 LOSSES = ("linear", "huber", "soft_l1", "cauchy")
+GAUSS_NEWTON_LAMBDA = 1e-9  # damping of the (almost) undamped step: keeps a singular direction solvable
 
 
 @dataclass(frozen=True)
@@ -326,11 +327,12 @@ def solve(
     """Minimise the (robust) reprojection cost by Levenberg-Marquardt from `state`.
 
     Damping by Nielsen's rule (the gain ratio of actual to predicted
-    decrease). It stops when the cost is exact to rounding, or when a step
-    lowers it by less than ``ftol`` relative *and* an undamped Gauss-Newton
-    step would too: a small decrease under heavy damping is no minimum.
+    decrease), starting almost undamped. It stops when the cost is exact to
+    rounding, or when an undamped Gauss-Newton step promises to lower it by
+    less than ``ftol`` relative: near the minimum that promise is kept to
+    rounding, and a small decrease under heavy damping is no minimum.
     """
-    lam, nu = 1e-9, 2.0
+    lam, nu = GAUSS_NEWTON_LAMBDA, 2.0
     ne = normal_equations(problem, state, loss=loss, scale_px=scale_px)
     initial = ne.cost
     if not np.isfinite(initial):
@@ -338,11 +340,16 @@ def solve(
     exact_cost = 0.5 * len(problem.cam) * 1e-18  # residuals of 1e-9 px: rounding
     reason, converged = "reached the iteration limit", False
     iterations = 0
+    gauss_newton_step = None  # the convergence check's step at the current state, reused when lam is as small
     for iterations in range(1, max_iterations + 1):  # noqa: B007 (reported after the loop)
         if ne.cost <= exact_cost:
             reason, converged = "the observations are fitted exactly", True
             break
-        step = _solve_damped(ne, lam)
+        if gauss_newton_step is not None and lam <= GAUSS_NEWTON_LAMBDA:
+            step, step_lam = gauss_newton_step, GAUSS_NEWTON_LAMBDA
+        else:
+            step, step_lam = _solve_damped(ne, lam), lam
+        gauss_newton_step = None
         if step is None:
             lam, nu = lam * nu, 2.0 * nu
             if lam > 1e12:
@@ -353,11 +360,12 @@ def solve(
         trial_cost = _cost(problem, trial, loss, scale_px)
         decrease = ne.cost - trial_cost
         if decrease > 0:
-            gain = decrease / max(_predicted_decrease(ne, lam, *step), 1e-300)
+            gain = decrease / max(_predicted_decrease(ne, step_lam, *step), 1e-300)
             state = trial
             ne = normal_equations(problem, state, loss=loss, scale_px=scale_px)
             lam, nu = max(lam * max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3), 1e-12), 2.0
-            remaining = gauss_newton_decrease(ne)
+            gauss_newton_step = _solve_damped(ne, GAUSS_NEWTON_LAMBDA)
+            remaining = _gauss_newton_decrease(ne, gauss_newton_step)
             log.debug(
                 "LM: cost %.9g (-%.3g), lambda %.2g, a Gauss-Newton step would gain %.3g",
                 ne.cost,
@@ -376,7 +384,10 @@ def solve(
     return state, SolveInfo(converged, reason, iterations, initial, ne.cost, ne)
 
 
+def _gauss_newton_decrease(ne: NormalEquations, step: tuple[np.ndarray, np.ndarray] | None) -> float:
+    return np.inf if step is None else _predicted_decrease(ne, GAUSS_NEWTON_LAMBDA, *step)
+
+
 def gauss_newton_decrease(ne: NormalEquations) -> float:
     """The decrease an (almost) undamped step promises; infinite if it cannot be solved."""
-    step = _solve_damped(ne, 1e-9)
-    return np.inf if step is None else _predicted_decrease(ne, 1e-9, *step)
+    return _gauss_newton_decrease(ne, _solve_damped(ne, GAUSS_NEWTON_LAMBDA))
