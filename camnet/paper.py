@@ -114,7 +114,7 @@ def dlt_ransac(
     rng = np.random.default_rng(seed)
     # Score on a subset: a few hundred points rank hypotheses as well as all of them.
     probe = rng.choice(n, size=min(n, 300), replace=False)
-    best_score, best_P, drawn = np.inf, None, 0
+    best_score, best_P, drawn, needed = np.inf, None, 0, n_hypotheses
     batch = 32
     while drawn < n_hypotheses:
         samples = np.argsort(rng.random((batch, n)), axis=1)[:, :6]

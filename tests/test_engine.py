@@ -10,7 +10,7 @@ from camnet.calibrate import Options, calibrate
 from camnet.errors import SolveError
 from camnet.evaluate import compare, per_camera_rms, rotation_angle_deg
 from camnet.projection import intrinsics_from_K, project_with_jacobians, rotation_exp
-from camnet.simulate import make_rig, observe
+from camnet.simulate import make_rig, move_camera, observe
 from camnet.uncertainty import covariance, scale_sigma
 
 
@@ -183,26 +183,12 @@ def test_warm_start_after_new_tracks_converges_to_the_same_solution():
     assert warm.extra["diagnostics"]["start"] == "warm"
 
 
-def moved_camera(rig, camera_id: str, *, shift_m: float, angle_deg: float, seed: int):
-    """The rig with one camera bumped: its centre shifted and its orientation turned, in random directions."""
-    rng = np.random.default_rng(seed)
-    cameras = []
-    for cam in rig.cameras:
-        if cam.id == camera_id:
-            d, w = rng.normal(size=3), rng.normal(size=3)
-            R = rotation_exp(np.deg2rad(angle_deg) * w / np.linalg.norm(w)) @ cam.R
-            C = cam.centre + shift_m * d / np.linalg.norm(d)
-            cam = replace(cam, R=R, t=-R @ C)
-        cameras.append(cam)
-    return replace(rig, cameras=cameras)
-
-
 @pytest.fixture(scope="module")
 def bumped():
     """A solved rig, then the same rig with mono_02 moved 5 cm and turned 3 degrees, observed again."""
     rig = make_rig(n_cameras=6, n_points=300, seed=8)
     previous = calibrate(observe(rig, noise_px=0.5, seed=8).observations).calibration
-    rig_now = moved_camera(rig, "mono_02", shift_m=0.05, angle_deg=3.0, seed=8)
+    rig_now = move_camera(rig, "mono_02", shift_m=0.05, angle_deg=3.0, seed=8)
     return previous, rig_now, observe(rig_now, noise_px=0.5, seed=9).observations
 
 
