@@ -456,8 +456,14 @@ def _fit_points(full: Problem, state: State, which: np.ndarray, options: Options
         rot_free=np.zeros_like(full.rot_free),
         centre_mode=np.full_like(full.centre_mode, CENTRE_FIXED),
     )
+    # A start for the joint adjustment, which refines these points again: loose tolerance.
     state, _ = bundle.solve(
-        points_only, state, loss=options.loss, scale_px=options.loss_scale_px, max_iterations=options.max_iterations
+        points_only,
+        state,
+        loss=options.loss,
+        scale_px=options.loss_scale_px,
+        max_iterations=options.max_iterations,
+        ftol=1e-6,
     )
     return state
 
