@@ -15,7 +15,9 @@ and leaves the scale to float, as in classical structure from motion.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, replace
+from functools import cached_property
 
 import numpy as np
 import scipy.linalg
@@ -28,8 +30,11 @@ ROT = slice(N_INTRINSICS, N_INTRINSICS + 3)
 CEN = slice(N_INTRINSICS + 3, N_INTRINSICS + 6)
 N_LOCAL = N_INTRINSICS + 6
 
+log = logging.getLogger(__name__)
+
 CENTRE_FIXED, CENTRE_FREE, CENTRE_ON_BASELINE = 0, 1, 2
 LOSSES = ("linear", "huber", "soft_l1", "cauchy")
+GAUSS_NEWTON_LAMBDA = 1e-9  # damping of the (almost) undamped step: keeps a singular direction solvable
 
 
 @dataclass(frozen=True)
@@ -79,6 +84,34 @@ class Problem:
         cols[free] = np.arange(free.sum())
         return cols, int(free.sum())
 
+    @cached_property
+    def camera_groups(self) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+        """Cameras grouped by their free local slots, for the normal equations.
+
+        Per group ``(slots (k,), cameras (c,), rows, starts (c,))``: the
+        observations of its cameras that have any, sorted by camera, and where
+        each camera's run begins in `rows`.
+        """
+        cols, _ = self.columns()
+        counts = np.bincount(self.cam, minlength=self.n_cameras)
+        patterns: dict[bytes, list[int]] = {}
+        for m in np.flatnonzero((counts > 0) & np.any(cols >= 0, axis=1)):
+            patterns.setdefault((cols[m] >= 0).tobytes(), []).append(int(m))
+        order = np.argsort(self.cam, kind="stable")
+        bounds = np.searchsorted(self.cam[order], np.arange(self.n_cameras + 1))
+        groups = []
+        for cams in patterns.values():
+            rows = np.concatenate([order[bounds[m] : bounds[m + 1]] for m in cams])
+            starts = np.concatenate([[0], np.cumsum(counts[cams])[:-1]])
+            groups.append((np.flatnonzero(cols[cams[0]] >= 0), np.array(cams), rows, starts))
+        return groups
+
+    @cached_property
+    def point_sum(self) -> sp.csr_matrix:
+        """(N, n) incidence matrix: summing per-observation terms into their points."""
+        n = len(self.pt)
+        return sp.csr_matrix((np.ones(n), (self.pt, np.arange(n))), shape=(self.n_points, n))
+
     def subset(self, keep: np.ndarray) -> Problem:
         """The same problem with only the observations where `keep` is true."""
         return replace(self, cam=self.cam[keep], pt=self.pt[keep], uv=self.uv[keep])
@@ -91,6 +124,7 @@ class SolveInfo:
     iterations: int
     initial_cost: float
     final_cost: float
+    normal: NormalEquations | None = None  # at the final state, weighted by the loss
 
 
 # ---------------------------------------------------------------- robust losses
@@ -141,20 +175,29 @@ def _tangent_basis(u: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class NormalEquations:
-    """J^T J and J^T r split into camera (c) and point (p) blocks."""
+    """J^T J and J^T r split into camera (c) and point (p) blocks.
+
+    W is dense: a camera sees a good share of the points in the networks
+    camnet solves, and one BLAS product on it beats sparse bookkeeping.
+    """
 
     U: np.ndarray  # (Pc, Pc)
-    W: sp.csr_matrix  # (Pc, 3N)
+    W: np.ndarray  # (Pc, 3N)
     V: np.ndarray  # (N, 3, 3)
     gc: np.ndarray  # (Pc,)
     gp: np.ndarray  # (N, 3)
     cost: float
 
 
+def _row_products(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """A_k^T B_k for stacks of two-row matrices A (n, 2, i), B (n, 2, j): (n, i, j)."""
+    return A[:, 0, :, None] * B[:, 0, None, :] + A[:, 1, :, None] * B[:, 1, None, :]
+
+
 def normal_equations(problem: Problem, state: State, *, loss: str = "linear", scale_px: float = 1.0) -> NormalEquations:
     """Gauss-Newton normal equations at `state`, rows weighted by the robust loss."""
     c, p = problem.cam, problem.pt
-    n = len(c)
+    n, N = len(c), problem.n_points
     uv, J_intr, J_rot, J_cen, J_pt = project_with_jacobians(state.intr[c], state.R[c], state.C[c], state.X[p])
     r = uv - problem.uv
     z = np.sum(r * r, axis=1) / scale_px**2
@@ -171,39 +214,53 @@ def normal_equations(problem: Problem, state: State, *, loss: str = "linear", sc
         J_local[rows, :, CEN.start + 2] = 0.0
 
     cols, n_cols = problem.columns()
-    obs_cols = cols[c]  # (n, 15)
-    used = obs_cols >= 0
-    k_idx, slot = np.nonzero(used)
-    data = np.concatenate([J_local[k_idx, 0, slot], J_local[k_idx, 1, slot]])
-    rows = np.concatenate([2 * k_idx, 2 * k_idx + 1])
-    colv = np.concatenate([obs_cols[k_idx, slot]] * 2)
-    Jc = sp.csr_matrix((data, (rows, colv)), shape=(2 * n, n_cols))
-    r_flat = r.reshape(-1)
-
-    N = problem.n_points
-    JtJ_p = np.einsum("nki,nkj->nij", J_pt, J_pt).reshape(n, 9)
-    Jtr_p = np.einsum("nki,nk->ni", J_pt, r)
-    V = np.stack([np.bincount(p, JtJ_p[:, i], minlength=N) for i in range(9)], axis=1)
-    gp = np.stack([np.bincount(p, Jtr_p[:, i], minlength=N) for i in range(3)], axis=1)
-    point_cols = np.broadcast_to(3 * p[:, None, None] + np.arange(3), (n, 2, 3))
-    Jp = sp.csr_matrix(
-        (J_pt.reshape(-1), (np.repeat(np.arange(2 * n), 3), point_cols.reshape(-1))),
-        shape=(2 * n, 3 * N),
+    U = np.zeros((n_cols, n_cols))
+    gc = np.zeros(n_cols)
+    w_index, w_value = [], []
+    # An observation touches one camera only: U is block diagonal, one block per camera.
+    # Cameras with the same free slots are handled together.
+    for slots, cams, rows, starts in problem.camera_groups:
+        cm = cols[cams][:, slots]  # (cameras, k)
+        Jg = J_local[rows][:, :, slots]  # (n_g, 2, k), rows sorted by camera
+        for c_m, (a, b) in zip(cm, zip(starts, [*starts[1:], len(rows)], strict=True), strict=True):
+            flat = Jg[a:b].reshape(-1, len(slots))
+            U[np.ix_(c_m, c_m)] = flat.T @ flat
+        g = np.add.reduceat(Jg[:, 0] * r[rows, :1] + Jg[:, 1] * r[rows, 1:], starts, axis=0)
+        gc[cm] = g
+        # W[column, point, axis], flattened; bincount adds (a track seen twice by one camera adds up).
+        obs_cols = np.repeat(cm, np.diff(np.append(starts, len(rows))), axis=0)  # (n_g, k)
+        w_index.append(((obs_cols[:, :, None] * N + p[rows][:, None, None]) * 3 + np.arange(3)).ravel())
+        w_value.append(_row_products(Jg, J_pt[rows]).ravel())
+    W = np.bincount(
+        np.concatenate(w_index) if w_index else np.zeros(0, int),
+        np.concatenate(w_value) if w_value else None,
+        minlength=n_cols * N * 3,
     )
-    JcT = Jc.T.tocsr()
+
+    point_terms = np.concatenate(
+        [_row_products(J_pt, J_pt).reshape(n, 9), J_pt[:, 0] * r[:, :1] + J_pt[:, 1] * r[:, 1:]], axis=1
+    )
+    summed = problem.point_sum @ point_terms
+    V, gp = summed[:, :9], summed[:, 9:]
     return NormalEquations(
-        U=(JcT @ Jc).toarray(),
-        W=(JcT @ Jp).tocsr(),
+        U=U,
+        W=W.reshape(n_cols, 3 * N),
         V=V.reshape(N, 3, 3),
-        gc=JcT @ r_flat,
+        gc=gc,
         gp=gp,
         cost=0.5 * scale_px**2 * float(np.sum(rho)),
     )
 
 
-def _block_diag(blocks: np.ndarray) -> sp.bsr_matrix:
-    N = len(blocks)
-    return sp.bsr_matrix((blocks, np.arange(N), np.arange(N + 1)), shape=(3 * N, 3 * N))
+def restrict(ne: NormalEquations, columns: np.ndarray) -> NormalEquations:
+    """The normal equations with only the camera parameters at `columns` free."""
+    return NormalEquations(ne.U[np.ix_(columns, columns)], ne.W[columns], ne.V, ne.gc[columns], ne.gp, ne.cost)
+
+
+def times_block_diag(W: np.ndarray, blocks: np.ndarray) -> np.ndarray:
+    """W (P, 3N) times the block-diagonal matrix of `blocks` (N, 3, 3)."""
+    P, N = len(W), len(blocks)
+    return (W.reshape(P, N, 3).transpose(1, 0, 2) @ blocks).transpose(1, 0, 2).reshape(P, 3 * N)
 
 
 def _solve_damped(ne: NormalEquations, lam: float) -> tuple[np.ndarray, np.ndarray] | None:
@@ -216,8 +273,8 @@ def _solve_damped(ne: NormalEquations, lam: float) -> tuple[np.ndarray, np.ndarr
         Vinv = np.linalg.inv(V)
     except np.linalg.LinAlgError:
         return None
-    WVinv = (ne.W @ _block_diag(Vinv)).tocsr()
-    S = U - (WVinv @ ne.W.T).toarray()
+    WVinv = times_block_diag(ne.W, Vinv)
+    S = U - WVinv @ ne.W.T
     rhs = -ne.gc + WVinv @ ne.gp.reshape(-1)
     try:
         dc = scipy.linalg.cho_solve(scipy.linalg.cho_factor(S), rhs) if len(rhs) else rhs
@@ -249,6 +306,15 @@ def apply_step(problem: Problem, state: State, dc: np.ndarray, dp: np.ndarray) -
     return State(intr, R, C, state.X + dp)
 
 
+def _predicted_decrease(ne: NormalEquations, lam: float, dc: np.ndarray, dp: np.ndarray) -> float:
+    """Decrease of the Gauss-Newton model cost along the damped step (dc, dp), >= 0."""
+    # With (H + lam D) d = -g: -g.d - d.H.d / 2 = (lam d.D.d - g.d) / 2.
+    dU = np.maximum(np.diag(ne.U), 1e-9)
+    dV = np.maximum(np.einsum("nii->ni", ne.V), 1e-9)
+    damped = lam * (float(dc @ (dU * dc)) + float(np.sum(dV * dp * dp)))
+    return 0.5 * (damped - float(ne.gc @ dc) - float(np.sum(ne.gp * dp)))
+
+
 def solve(
     problem: Problem,
     state: State,
@@ -256,38 +322,72 @@ def solve(
     loss: str = "linear",
     scale_px: float = 1.0,
     max_iterations: int = 100,
-    ftol: float = 1e-10,
+    ftol: float = 1e-9,
 ) -> tuple[State, SolveInfo]:
-    """Minimise the (robust) reprojection cost by Levenberg-Marquardt from `state`."""
-    lam = 1e-4
+    """Minimise the (robust) reprojection cost by Levenberg-Marquardt from `state`.
+
+    Damping by Nielsen's rule (the gain ratio of actual to predicted
+    decrease), starting almost undamped. It stops when the cost is exact to
+    rounding, or when an undamped Gauss-Newton step promises to lower it by
+    less than ``ftol`` relative: near the minimum that promise is kept to
+    rounding, and a small decrease under heavy damping is no minimum.
+    """
+    lam, nu = GAUSS_NEWTON_LAMBDA, 2.0
     ne = normal_equations(problem, state, loss=loss, scale_px=scale_px)
     initial = ne.cost
     if not np.isfinite(initial):
         return state, SolveInfo(False, "the initial state projects points behind a camera", 0, initial, initial)
+    exact_cost = 0.5 * len(problem.cam) * 1e-18  # residuals of 1e-9 px: rounding
     reason, converged = "reached the iteration limit", False
     iterations = 0
+    gauss_newton_step = None  # the convergence check's step at the current state, reused when lam is as small
     for iterations in range(1, max_iterations + 1):  # noqa: B007 (reported after the loop)
-        step = _solve_damped(ne, lam)
+        if ne.cost <= exact_cost:
+            reason, converged = "the observations are fitted exactly", True
+            break
+        if gauss_newton_step is not None and lam <= GAUSS_NEWTON_LAMBDA:
+            step, step_lam = gauss_newton_step, GAUSS_NEWTON_LAMBDA
+        else:
+            step, step_lam = _solve_damped(ne, lam), lam
+        gauss_newton_step = None
         if step is None:
-            lam *= 10.0
+            lam, nu = lam * nu, 2.0 * nu
             if lam > 1e12:
                 reason = "the normal equations are singular (the geometry does not fix the parameters)"
                 break
             continue
         trial = apply_step(problem, state, *step)
         trial_cost = _cost(problem, trial, loss, scale_px)
-        if trial_cost < ne.cost:
-            decrease = ne.cost - trial_cost
+        decrease = ne.cost - trial_cost
+        if decrease > 0:
+            gain = decrease / max(_predicted_decrease(ne, step_lam, *step), 1e-300)
             state = trial
-            lam = max(lam / 5.0, 1e-12)
-            previous = ne.cost
             ne = normal_equations(problem, state, loss=loss, scale_px=scale_px)
-            if decrease <= ftol * previous:
-                reason, converged = "the cost stopped decreasing (relative change below ftol)", True
+            lam, nu = max(lam * max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3), 1e-12), 2.0
+            gauss_newton_step = _solve_damped(ne, GAUSS_NEWTON_LAMBDA)
+            remaining = _gauss_newton_decrease(ne, gauss_newton_step)
+            log.debug(
+                "LM: cost %.9g (-%.3g), lambda %.2g, a Gauss-Newton step would gain %.3g",
+                ne.cost,
+                decrease,
+                lam,
+                remaining,
+            )
+            if remaining <= ftol * ne.cost:
+                reason, converged = "a Gauss-Newton step would lower the cost by less than ftol (relative)", True
                 break
         else:
-            lam *= 4.0
+            lam, nu = lam * nu, 2.0 * nu
             if lam > 1e10:
                 reason, converged = "no step decreases the cost further", True
                 break
-    return state, SolveInfo(converged, reason, iterations, initial, ne.cost)
+    return state, SolveInfo(converged, reason, iterations, initial, ne.cost, ne)
+
+
+def _gauss_newton_decrease(ne: NormalEquations, step: tuple[np.ndarray, np.ndarray] | None) -> float:
+    return np.inf if step is None else _predicted_decrease(ne, GAUSS_NEWTON_LAMBDA, *step)
+
+
+def gauss_newton_decrease(ne: NormalEquations) -> float:
+    """The decrease an (almost) undamped step promises; infinite if it cannot be solved."""
+    return _gauss_newton_decrease(ne, _solve_damped(ne, GAUSS_NEWTON_LAMBDA))

@@ -12,28 +12,50 @@ Methods:
   as classical structure from motion: the scale is left to the optimiser.
 
 Which intrinsics move (``free="auto"``): the focal length of every camera
-always (unless the observations fix K). Then, in this order, each block is
-freed when the data determine it, i.e. when its standard deviation, with it
-and the blocks before it free, moves the image by at most ``determined_px``
-pixels: the right stereo camera's pitch and roll, its yaw, the principal
-points, k1, k2. A block that is not determined is held at its given value
-(K and dist in the observations) or the ideal (image centre, no distortion,
-a parallel pair). An explicit ``free`` set replaces the rule.
+always (unless the observations fix K), and the pose of every camera outside
+the stereo pair. Then, in this order, each block is freed when the data
+determine it, i.e. when its standard deviation, with it and the blocks
+before it free, moves the image by at most ``determined_px`` pixels, or when
+the data ask for it, i.e. when freeing it lowers the cost by more than
+chance allows (a chi-square score test at false-alarm rate
+``significance``, on the a-posteriori pixel variance): the right stereo
+camera's pitch and roll, the direction of its baseline, its yaw, the
+principal points, k1, k2 (the last three camera by camera). A block that is
+neither is held at its given value (K and dist in the observations) or the
+ideal (image centre, no distortion, a parallel pair). Outliers are judged
+before the rule with the stereo pair free to turn. An explicit ``free`` set
+replaces the rule.
+
+Warm starts (``initial=``) reuse the previous solution's points and free
+parameters; when every camera still fits its observations only the new
+tracks get a robust fit before the least-squares adjustment
+(``diagnostics.start`` says which path ran). ``reset_cameras`` places
+bumped cameras again (see `calibrate`).
 """
 
 from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Collection
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from camnet import bundle, paper
+from camnet import bundle
 from camnet.bundle import CENTRE_FIXED, CENTRE_FREE, CENTRE_ON_BASELINE, Problem, State
 from camnet.camera import Camera
 from camnet.errors import SolveError
 from camnet.formats import Calibration, Observations
+from camnet.initialise import (
+    Start,
+    camera_order,
+    centred,
+    initial_intrinsics,
+    observation_rows,
+    paper_start,
+    warm_start,
+)
 from camnet.projection import K_from_intrinsics
 from camnet.uncertainty import Covariance, covariance
 
@@ -52,6 +74,7 @@ class Options:
     loss_scale_px: float = 2.0
     free: str | frozenset[str] = "auto"  # "auto" or a subset of FREE_NAMES
     determined_px: float = 1.0
+    significance: float = 1e-3  # false-alarm rate of the auto rule's chi-square test
     outlier_sigmas: float = 4.0  # reject residuals beyond this many robust sigmas
     min_outlier_px: float = 1.5  # never reject residuals below this
     max_iterations: int = 100
@@ -74,16 +97,11 @@ class Result:
 # ---------------------------------------------------------------- validation
 
 
-def _camera_order(obs: Observations) -> list[int]:
-    left, right = obs.index_of(obs.stereo.left), obs.index_of(obs.stereo.right)
-    return [left, right] + [i for i in range(len(obs.cameras)) if i not in (left, right)]
-
-
 def check_solvable(obs: Observations) -> None:
     """Refuse observations that cannot determine a metric network (eq. 15)."""
     if len(obs.cameras) < 3:
         raise SolveError(f"cameras: {len(obs.cameras)} given; a metric solve needs at least 3 (eq. 15)")
-    order = _camera_order(obs)
+    order = camera_order(obs)
     seen = np.zeros((len(obs.track_ids), len(obs.cameras)), dtype=bool)
     seen[obs.track_index, obs.cam_index] = True
     pair = seen[:, order[0]] & seen[:, order[1]]
@@ -94,180 +112,6 @@ def check_solvable(obs: Observations) -> None:
             f"({obs.stereo.left}, {obs.stereo.right}) and another camera; need at least "
             f"{MIN_SHARED_TRACKS}"
         )
-
-
-# ---------------------------------------------------------------- initialisation
-
-
-def _initial_intrinsics(obs: Observations, order: list[int]) -> np.ndarray:
-    intr = np.zeros((len(order), 9))
-    for m, i in enumerate(order):
-        cam = obs.cameras[i]
-        if cam.K is not None:
-            intr[m, :4] = cam.K[0, 0], cam.K[1, 1] / cam.K[0, 0], cam.K[0, 2], cam.K[1, 2]
-        else:
-            intr[m, :4] = np.nan, 1.0, (cam.width - 1) / 2, (cam.height - 1) / 2
-        if cam.dist is not None:
-            intr[m, 4:] = cam.dist
-    return intr
-
-
-def _centred(obs: Observations, order: list[int], intr: np.ndarray) -> np.ndarray:
-    """Observed pixels relative to each camera's principal point, undistorted where known."""
-    import cv2
-
-    m_of = np.empty(len(obs.cameras), dtype=int)
-    m_of[order] = np.arange(len(order))
-    m = m_of[obs.cam_index]
-    xy = obs.uv - intr[m, 2:4]
-    for mm in np.flatnonzero(np.any(intr[:, 4:] != 0, axis=1) & np.isfinite(intr[:, 0])):
-        rows = m == mm
-        K = K_from_intrinsics(intr[mm])
-        und = cv2.undistortPoints(obs.uv[rows].reshape(-1, 1, 2), K, intr[mm, 4:], P=K)
-        xy[rows] = und.reshape(-1, 2) - intr[mm, 2:4]
-    return xy
-
-
-@dataclass
-class _Start:
-    f: np.ndarray  # (M,)
-    R: np.ndarray
-    C: np.ndarray
-    X: np.ndarray  # (T, 3) NaN where unknown
-    registered: np.ndarray  # (M,) bool
-    P0: np.ndarray
-    k: float
-
-
-def _paper_start(
-    obs: Observations,
-    order: list[int],
-    intr: np.ndarray,
-    xy: np.ndarray,
-    seed: int,
-    max_tracks: int | None = None,
-) -> _Start:
-    """The paper's unknowns from nothing but the observations.
-
-    max_tracks: use at most this many tracks per camera in eq. 13, which is
-    plenty for a starting point; None uses all (the paper's method itself).
-    """
-    M, T = len(order), len(obs.track_ids)
-    rows = np.full((T, len(obs.cameras)), -1)
-    rows[obs.track_index, obs.cam_index] = np.arange(len(obs.uv))
-    left, right = rows[:, order[0]], rows[:, order[1]]
-    pair = (left >= 0) & (right >= 0)
-    given_f = intr[:, 0]
-    if np.isfinite(given_f[0]) and np.isfinite(given_f[1]):
-        k = given_f[1] / given_f[0]
-    else:
-        k = paper.focal_ratio(xy[left[pair], 1], xy[right[pair], 1])
-    P0 = np.full((T, 3), np.nan)
-    P0_pair, valid = paper.triangulate_parallel(xy[left[pair]], xy[right[pair]], k, 1.0)
-    P0[np.flatnonzero(pair)[valid]] = P0_pair[valid]
-    has_P0 = np.all(np.isfinite(P0), axis=1)
-
-    threshold = 0.01 * float(np.hypot(obs.cameras[order[0]].width, obs.cameras[order[0]].height))
-    stretched = {}  # camera -> (DLT matrix on P0, its inlier tracks)
-    for m in range(2, M):
-        trk = np.flatnonzero(has_P0 & (rows[:, order[m]] >= 0))
-        if len(trk) < 6:
-            continue
-        P, inl = paper.dlt_ransac(P0[trk], xy[rows[trk, order[m]]], threshold_px=threshold, seed=seed)
-        stretched[m] = (P, trk[inl])
-    if np.isfinite(given_f[0]):
-        f_left = given_f[0]
-    else:
-        candidates = [paper.focals_from_stretched_dlt(P)[1] for P, _ in stretched.values()]
-        finite = [c for c in candidates if np.isfinite(c) and c > 0]
-        if not finite:
-            raise SolveError(
-                "the left camera's focal length is not determined: no other camera sees "
-                "at least 6 stereo tracks in a non-degenerate configuration"
-            )
-        f_left = float(np.median(finite))
-
-    # The paper's stereo cloud in metres (its baseline scaled in).
-    P0 = P0 * obs.stereo.baseline_m
-    X = P0 * np.array([1.0, 1.0, f_left])
-    f = np.full(M, np.nan)
-    f[0], f[1] = f_left, k * f_left
-    R = np.tile(np.eye(3), (M, 1, 1))
-    C = np.zeros((M, 3))
-    C[1, 0] = obs.stereo.baseline_m
-    registered = np.zeros(M, dtype=bool)
-    registered[:2] = True
-    # The paper's start: every camera that shares six stereo tracks, by DLT, then eq. 13.
-    # A DLT on the stretched cloud P0 (f_left = 1, unit baseline) acts on the metric
-    # cloud X = P0 * [l, l, l f_left] once its columns are divided by the same.
-    cams, others = [], []
-    to_metric = np.diag([1.0 / obs.stereo.baseline_m] * 2 + [1.0 / (obs.stereo.baseline_m * f_left), 1.0])
-    for m, (P, use) in stretched.items():
-        f[m], R[m], C[m] = paper.pose_from_dlt(P @ to_metric)
-        if max_tracks is not None and len(use) > max_tracks:
-            use = use[np.linspace(0, len(use) - 1, max_tracks).astype(int)]
-        cams.append((use, xy[rows[use, order[m]]]))
-        others.append(m)
-    if others:
-        f_left, f[others], R[others], C[others], _ = paper.refine_eq13(
-            f_left, f[others], R[others], C[others], P0, cams
-        )
-        f[0], f[1] = f_left, k * f_left
-        X = P0 * np.array([1.0, 1.0, f_left])
-        registered[others] = True
-    _register_and_triangulate(obs, order, xy, rows, f, R, C, X, registered, threshold, seed)
-    return _Start(f, R, C, X, registered, P0, k)
-
-
-def _register_and_triangulate(obs, order, xy, rows, f, R, C, X, registered, threshold, seed) -> None:
-    """Alternately register cameras (DLT on known points) and triangulate tracks, in place."""
-    M = len(order)
-    while True:
-        progress = False
-        for m in np.flatnonzero(~registered):
-            has_X = np.all(np.isfinite(X), axis=1) & (rows[:, order[m]] >= 0)
-            trk = np.flatnonzero(has_X)
-            if len(trk) < 6:
-                continue
-            P, _ = paper.dlt_ransac(X[trk], xy[rows[trk, order[m]]], threshold_px=threshold, seed=seed)
-            f[m], R[m], C[m] = paper.pose_from_dlt(P)
-            registered[m] = True
-            progress = True
-        progress |= _triangulate_missing(order, xy, rows, f, R, C, X, registered) > 0
-        if not progress or registered.all():
-            break
-    if not registered.all():
-        missing = [obs.cameras[order[m]].id for m in range(M) if not registered[m]]
-        raise SolveError(
-            f"cameras {missing}: too few tracks shared with the solved cameras to place them (need at least 6)"
-        )
-    _triangulate_missing(order, xy, rows, f, R, C, X, registered)
-
-
-def _triangulate_missing(order, xy, rows, f, R, C, X, registered) -> int:
-    """Midpoint triangulation of tracks without a point, seen by >= 2 placed cameras."""
-    todo = ~np.all(np.isfinite(X), axis=1)
-    A = np.zeros((len(X), 3, 3))
-    b = np.zeros((len(X), 3))
-    count = np.zeros(len(X), dtype=int)
-    for m in np.flatnonzero(registered):
-        trk = np.flatnonzero(todo & (rows[:, order[m]] >= 0))
-        if not len(trk):
-            continue
-        p = xy[rows[trk, order[m]]] / f[m]
-        d = np.concatenate([p, np.ones((len(trk), 1))], axis=1) @ R[m]  # rays in the world
-        d /= np.linalg.norm(d, axis=1, keepdims=True)
-        Pm = np.eye(3) - d[:, :, None] * d[:, None, :]
-        A[trk] += Pm
-        b[trk] += Pm @ C[m]
-        count[trk] += 1
-    ok = todo & (count >= 2)
-    if not ok.any():
-        return 0
-    det = np.linalg.det(A[ok])
-    good = np.flatnonzero(ok)[det > 1e-9]
-    X[good] = np.linalg.solve(A[good], b[good][:, :, None])[:, :, 0]
-    return len(good)
 
 
 # ---------------------------------------------------------------- the adjustment
@@ -341,78 +185,153 @@ def _pixel_effect(name: str, state: State, cov: Covariance, widths, heights) -> 
     return np.array([f[m] * r_max[m] ** 5 * sigma(m, 5) for m in cams])
 
 
+_CANDIDATES = ("stereo_pitch_roll", "stereo_direction", "stereo_yaw", "pp", "k1", "k2")
+_SLOTS = {"pp": (2, 3), "k1": (4,), "k2": (5,)}
+
+
+def _with_block(problem: Problem, name: str, cameras: np.ndarray) -> Problem:
+    """`problem` with the candidate block `name` also free (for `cameras` (M,) bool, per-camera blocks)."""
+    intr_free, rot_free, centre_mode = problem.intr_free.copy(), problem.rot_free.copy(), problem.centre_mode.copy()
+    if name == "stereo_pitch_roll":
+        rot_free[1, [0, 2]] = True
+    elif name == "stereo_direction":
+        centre_mode[1] = CENTRE_ON_BASELINE
+    elif name == "stereo_yaw":
+        rot_free[1, 1] = True
+    else:
+        for s in _SLOTS[name]:
+            intr_free[cameras, s] = True
+    return replace(problem, intr_free=intr_free, rot_free=rot_free, centre_mode=centre_mode)
+
+
 def _choose_free(problem: Problem, state: State, options: Options, widths, heights, held_K, held_dist):
-    """Apply the free-parameter rule of the module docstring; returns (problem, decisions)."""
-    intr_free, rot_free = problem.intr_free.copy(), problem.rot_free.copy()
+    """Apply the free-parameter rule of the module docstring; returns (problem, decisions).
+
+    `state` is the least-squares solution of `problem`. Both tests are
+    linearised at it: the standard deviation from the covariance with the
+    block free, the cost decrease from the Gauss-Newton step with it free
+    (the score test, first-order equal to the likelihood ratio).
+    """
+    from scipy.special import chdtri
+
+    M = problem.n_cameras
+    can_move = {
+        "pp": ~held_K,
+        "k1": ~held_dist,
+        "k2": ~held_dist,
+    }
+    # A block's Jacobian does not depend on which other blocks are free: one set of
+    # normal equations with every candidate free serves every trial.
+    everything = problem
+    for name in _CANDIDATES:
+        everything = _with_block(everything, name, can_move.get(name, np.ones(M, bool)))
+    ne = bundle.normal_equations(everything, state)
+    columns = everything.columns()[0]
+
+    def restricted(trial: Problem):
+        return bundle.restrict(ne, columns[trial.columns()[0] >= 0])
+
+    dof = 2 * len(problem.cam) - problem.columns()[1] - 3 * problem.n_points
+    variance = 2.0 * ne.cost / max(dof, 1)  # a posteriori pixel variance
+
+    def significant(trial: Problem, base_decrease: float, k: int) -> tuple[bool, float]:
+        """Whether freeing the trial's new block lowers the cost beyond chance (chi-square, k dof)."""
+        statistic = 2.0 * (bundle.gauss_newton_decrease(restricted(trial)) - base_decrease) / max(variance, 1e-300)
+        # An infinite decrease means the block is not determined at all: no evidence for it.
+        wanted = variance > 1e-12 and np.isfinite(statistic) and statistic > chdtri(k, options.significance)
+        return bool(wanted), statistic
+
     decisions = []
-    centre_mode = problem.centre_mode.copy()
-    candidates = [
-        ("stereo_pitch_roll", None),
-        ("stereo_direction", None),
-        ("stereo_yaw", None),
-        ("pp", (2, 3)),
-        ("k1", (4,)),
-        ("k2", (5,)),
-    ]
-    for name, slots in candidates:
-        trial_intr, trial_rot, trial_centre = intr_free.copy(), rot_free.copy(), centre_mode.copy()
-        if name == "stereo_pitch_roll":
-            trial_rot[1, [0, 2]] = True
-        elif name == "stereo_direction":
-            trial_centre[1] = CENTRE_ON_BASELINE
-        elif name == "stereo_yaw":
-            trial_rot[1, 1] = True
-        else:
-            held = held_K if name == "pp" else held_dist
-            for s in slots:
-                trial_intr[~held, s] = True
-        trial = replace(problem, intr_free=trial_intr, rot_free=trial_rot, centre_mode=trial_centre)
-        effect = _pixel_effect(name, state, covariance(trial, state), widths, heights)
+    for name in _CANDIDATES:
+        base = bundle.gauss_newton_decrease(restricted(problem))
+        movable = can_move.get(name, np.ones(M, bool))
+        trial = _with_block(problem, name, movable)
+        effect = _pixel_effect(name, state, covariance(trial, state, normal=restricted(trial)), widths, heights)
         if name.startswith("stereo"):
-            if effect <= options.determined_px:
-                rot_free, centre_mode = trial_rot, trial_centre
-            decisions.append(f"{name}: {'free' if effect <= options.determined_px else 'held'} (sigma {effect:.2g} px)")
-        else:
-            for m in range(len(effect)):
-                if np.isfinite(effect[m]) and effect[m] <= options.determined_px:
-                    for s in slots:
-                        intr_free[m, s] = True
-            decisions.append(f"{name}: sigma px per camera {np.round(effect, 2).tolist()}")
-    return replace(problem, intr_free=intr_free, rot_free=rot_free, centre_mode=centre_mode), decisions
+            k = int(trial.columns()[1] - problem.columns()[1])
+            wanted, statistic = significant(trial, base, k)
+            free = effect <= options.determined_px or wanted
+            if free:
+                problem = trial
+            decisions.append(
+                f"{name}: {'free' if free else 'held'} (sigma {effect:.2g} px, chi2 {statistic:.3g} on {k} dof)"
+            )
+            continue
+        k = len(_SLOTS[name])
+        determined = np.isfinite(effect) & (effect <= options.determined_px) & movable
+        wanted = np.zeros(M, bool)
+        if significant(trial, base, k * int(movable.sum()))[0]:  # the block as a whole; then camera by camera
+            for m in np.flatnonzero(movable & ~determined):
+                wanted[m] = significant(_with_block(problem, name, np.arange(M) == m), base, k)[0]
+        problem = _with_block(problem, name, determined | wanted)
+        decisions.append(
+            f"{name}: sigma px per camera {np.round(effect, 2).tolist()}; "
+            f"freed by significance {[m for m in np.flatnonzero(wanted & ~determined).tolist()]}"
+        )
+    return problem, decisions
 
 
-def calibrate(obs: Observations, options: Options = Options(), *, initial: Calibration | None = None) -> Result:
-    """Solve the network described by `obs`. Raises SolveError when it cannot."""
+def calibrate(
+    obs: Observations,
+    options: Options = Options(),
+    *,
+    initial: Calibration | None = None,
+    reset_cameras: Collection[str] = (),
+) -> Result:
+    """Solve the network described by `obs`. Raises SolveError when it cannot.
+
+    initial: a previous calibration of the same rig to start from (a warm
+    start): its cameras, its points, its free parameters; only new tracks
+    are triangulated and, when every camera still fits its observations,
+    only they get the robust pass.
+    reset_cameras: ids of cameras whose pose in `initial` is no longer
+    trusted (a camera that was bumped). A non-stereo camera keeps only its
+    intrinsics and is placed again by PnP RANSAC on the points the other
+    cameras determine, before the joint adjustment. Resetting a stereo
+    camera moves the frame and the scale of every point, so it falls back
+    to a cold solve. Ignored without `initial`.
+    """
+    from threadpoolctl import threadpool_limits
+
     try:
-        return _calibrate(obs, options, initial)
+        # The dense products here have a few hundred rows: BLAS threads gain little on
+        # them, and on a machine shared with drivers and the matcher they stall each other.
+        with threadpool_limits(limits=1, user_api="blas"):
+            return _calibrate(obs, options, initial, reset_cameras)
     except np.linalg.LinAlgError:
         raise SolveError("the observations do not determine the calibration (singular equations)") from None
 
 
-def _calibrate(obs: Observations, options: Options, initial: Calibration | None) -> Result:
+def _calibrate(
+    obs: Observations, options: Options, initial: Calibration | None, reset_cameras: Collection[str]
+) -> Result:
     if options.method not in METHODS:
         raise SolveError(f"method: unknown {options.method!r}; expected one of {METHODS}")
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     check_solvable(obs)
-    order = _camera_order(obs)
+    order = camera_order(obs)
     M = len(order)
-    intr = _initial_intrinsics(obs, order)
+    reset = _reset_indices(obs, order, reset_cameras)
+    if initial is not None and reset & {0, 1}:
+        log.info("a stereo camera is reset: solving from scratch")
+        initial = None
+    intr = initial_intrinsics(obs, order)
     held_K = np.array([obs.cameras[i].K is not None and "K" in obs.cameras[i].fixed for i in order])
     held_dist = np.array([obs.cameras[i].dist is not None and "dist" in obs.cameras[i].fixed for i in order])
-    xy = _centred(obs, order, intr)
-    rows = np.full((len(obs.track_ids), len(obs.cameras)), -1)
-    rows[obs.track_index, obs.cam_index] = np.arange(len(obs.uv))
+    xy = centred(obs, order, intr)
+    rows = observation_rows(obs)
 
     if initial is not None:
-        start = _warm_start(obs, order, intr, xy, rows, initial, options.seed)
+        start = warm_start(obs, order, intr, xy, rows, initial, seed=options.seed, reset=reset)
     else:
-        start = _paper_start(obs, order, intr, xy, options.seed, max_tracks=None if options.method == "paper" else 150)
+        max_tracks = None if options.method == "paper" else 150
+        start = paper_start(obs, order, intr, xy, rows, options.seed, max_tracks=max_tracks)
     intr[:, 0] = np.where(np.isfinite(intr[:, 0]) & held_K, intr[:, 0], start.f)
     timings["initialise"] = time.perf_counter() - t0
 
     if options.method == "paper":
-        return _paper_result(obs, order, intr, xy, rows, start, timings)
+        return _paper_result(obs, order, intr, rows, start, timings)
 
     has_X = np.all(np.isfinite(start.X), axis=1)
     track_rows = np.flatnonzero(has_X)
@@ -420,6 +339,7 @@ def _calibrate(obs: Observations, options: Options, initial: Calibration | None)
     names = _free_names(options)
     intr_free = _free_mask(M, names, held_K, held_dist)
     rot_free = np.zeros((M, 3), dtype=bool)
+    rot_free[2:] = True  # every camera outside the stereo pair turns freely
     if "stereo_rotation" in names or options.method == "unconstrained":
         rot_free[1] = True
     if initial is not None and options.free == "auto":
@@ -437,24 +357,14 @@ def _calibrate(obs: Observations, options: Options, initial: Calibration | None)
     state = State(intr, start.R, start.C, start.X[track_rows])
 
     t1 = time.perf_counter()
-    # Continuation: from a cold start, a first robust pass moves focal lengths and
-    # poses only; freeing principal points or distortion far from the solution
-    # lets the adjustment settle in a wrong valley.
-    first = full
-    if initial is None and not unconstrained:
-        first = replace(
-            full,
-            intr_free=intr_free & _free_mask(M, frozenset({"f"}), held_K, held_dist),
-            rot_free=np.zeros_like(rot_free),
-            centre_mode=np.where(np.arange(M) == 1, CENTRE_FIXED, full.centre_mode),
-        )
-    state, info = bundle.solve(
-        first, state, loss=options.loss, scale_px=options.loss_scale_px, max_iterations=options.max_iterations
-    )
-    if first is not full:
-        state, info = bundle.solve(
-            full, state, loss=options.loss, scale_px=options.loss_scale_px, max_iterations=options.max_iterations
-        )
+    near, start_kind = False, "cold"
+    if initial is not None:
+        new_points = ~np.isin(obs.track_ids[track_rows], initial.point_ids)
+        state = _fit_points(full, state, new_points, options)
+        near = _near_solution(full, state, options)
+        start_kind = "warm" if near else "warm, robust"
+    if not near:
+        state = _robust_passes(full, state, options, cold=initial is None, held_K=held_K, held_dist=held_dist)
     inliers = _reject_outliers(full, state, options)
     problem = full.subset(inliers)
     timings["robust_adjustment"] = time.perf_counter() - t1
@@ -464,34 +374,109 @@ def _calibrate(obs: Observations, options: Options, initial: Calibration | None)
         t2 = time.perf_counter()
         widths = [obs.cameras[i].width for i in order]
         heights = [obs.cameras[i].height for i in order]
-        state, _ = bundle.solve(problem, state, max_iterations=options.max_iterations)
+        # The rule starts from the ideal pair: its rotation held at the identity.
+        R = state.R.copy()
+        R[1] = np.eye(3)
+        state, _ = bundle.solve(problem, State(state.intr, R, state.C, state.X), max_iterations=options.max_iterations)
         problem, decisions = _choose_free(problem, state, options, widths, heights, held_K, held_dist)
         full = replace(full, intr_free=problem.intr_free, rot_free=problem.rot_free, centre_mode=problem.centre_mode)
         timings["choose_free"] = time.perf_counter() - t2
 
     t3 = time.perf_counter()
-    for _ in range(4):  # least squares on the inliers until the inlier set settles
-        state, info = bundle.solve(problem, state, max_iterations=options.max_iterations)
+    state, info = bundle.solve(problem, state, max_iterations=options.max_iterations)
+    for _ in range(3):  # least squares on the inliers until the inlier set settles
         new_inliers = _reject_outliers(full, state, options)
         if np.array_equal(new_inliers, inliers):
             break
         inliers = new_inliers
         problem = full.subset(inliers)
+        state, info = bundle.solve(problem, state, max_iterations=options.max_iterations)
     timings["adjustment"] = time.perf_counter() - t3
     per_camera = np.bincount(problem.cam, minlength=M)
     if per_camera.min() < MIN_CAMERA_INLIERS:
         weak = [obs.cameras[order[m]].id for m in np.flatnonzero(per_camera < MIN_CAMERA_INLIERS)]
         raise SolveError(
             f"cameras {weak}: fewer than {MIN_CAMERA_INLIERS} of their observations agree with the "
-            "solution; the tracks look wrong"
+            "solution; the tracks look wrong or the camera moved (re-solve with it reset)"
         )
     t4 = time.perf_counter()
-    cov = None if unconstrained else covariance(problem, state)
+    cov = None if unconstrained else covariance(problem, state, normal=info.normal)
     timings["uncertainty"] = time.perf_counter() - t4
     timings["total"] = time.perf_counter() - t0
     if not info.converged:
         raise SolveError(f"the adjustment did not converge: {info.reason}")
-    return _result(obs, order, problem, state, track_rows, inliers, info, cov, decisions, options, timings)
+    return _result(
+        obs, order, problem, state, track_rows, inliers, info, cov, decisions, options, timings, start=start_kind
+    )
+
+
+def _reset_indices(obs: Observations, order: list[int], reset_cameras: Collection[str]) -> set[int]:
+    """Problem indices of the cameras named in reset_cameras."""
+    if isinstance(reset_cameras, str):  # one id, not its letters
+        reset_cameras = [reset_cameras]
+    ids = [obs.cameras[i].id for i in order]
+    unknown = sorted(set(reset_cameras) - set(ids))
+    if unknown:
+        raise SolveError(f"reset_cameras: unknown camera(s) {unknown}; the observations have {ids}")
+    return {ids.index(c) for c in reset_cameras}
+
+
+def _robust_passes(full: Problem, state: State, options: Options, *, cold: bool, held_K, held_dist) -> State:
+    """The robust adjustment of every parameter that moves, from a rough start."""
+    robust = dict(loss=options.loss, scale_px=options.loss_scale_px, max_iterations=options.max_iterations)
+    if cold and options.method != "unconstrained":
+        # Continuation: a first pass moves focal lengths and the poses outside the
+        # stereo pair only; freeing
+        # principal points or distortion far from the solution lets the adjustment
+        # settle in a wrong valley.
+        M = full.n_cameras
+        first = replace(
+            full,
+            intr_free=full.intr_free & _free_mask(M, frozenset({"f"}), held_K, held_dist),
+            rot_free=full.rot_free & (np.arange(M) != 1)[:, None],
+            centre_mode=np.where(np.arange(M) == 1, CENTRE_FIXED, full.centre_mode),
+        )
+        state, _ = bundle.solve(first, state, **robust)
+    if cold and options.free == "auto" and options.method == "refined":
+        # Outliers are judged with the stereo pair free to turn: a pair that is not quite
+        # parallel, or principal points off centre, must not cost it its observations.
+        full = replace(full, rot_free=full.rot_free | (np.arange(full.n_cameras) == 1)[:, None])
+    state, _ = bundle.solve(full, state, **robust)
+    return state
+
+
+def _fit_points(full: Problem, state: State, which: np.ndarray, options: Options) -> State:
+    """Robust fit of the points marked in `which` (N,) with every camera held."""
+    rows = which[full.pt]
+    if not rows.any():
+        return state
+    points_only = replace(
+        full.subset(rows),
+        intr_free=np.zeros_like(full.intr_free),
+        rot_free=np.zeros_like(full.rot_free),
+        centre_mode=np.full_like(full.centre_mode, CENTRE_FIXED),
+    )
+    # A start for the joint adjustment, which refines these points again: loose tolerance.
+    state, _ = bundle.solve(
+        points_only,
+        state,
+        loss=options.loss,
+        scale_px=options.loss_scale_px,
+        max_iterations=options.max_iterations,
+        ftol=1e-6,
+    )
+    return state
+
+
+def _near_solution(problem: Problem, state: State, options: Options) -> bool:
+    """Whether every camera's median residual is within the outlier threshold (no camera moved)."""
+    r = np.linalg.norm(bundle.residuals(problem, state), axis=1)
+    threshold = max(options.outlier_sigmas * np.median(r) / 1.1774, options.min_outlier_px)
+    for m in range(problem.n_cameras):
+        mine = r[problem.cam == m]
+        if len(mine) and np.median(mine) > threshold:
+            return False
+    return True
 
 
 def _free_names(options: Options) -> frozenset[str]:
@@ -523,37 +508,8 @@ def _restored_direction(initial: Calibration | None, options: Options) -> bool:
     return bool(initial.extra.get("diagnostics", {}).get("free", {}).get("stereo_direction", False))
 
 
-def _warm_start(obs, order, intr, xy, rows, initial: Calibration, seed: int) -> _Start:
-    """Start from a previous calibration: its cameras, its points, new tracks triangulated."""
-    by_id = {c.id: c for c in initial.cameras}
-    M = len(order)
-    f = np.full(M, np.nan)
-    R = np.tile(np.eye(3), (M, 1, 1))
-    C = np.zeros((M, 3))
-    registered = np.zeros(M, dtype=bool)
-    for m, i in enumerate(order):
-        cam = by_id.get(obs.cameras[i].id)
-        if cam is None:
-            continue
-        intr[m, :4] = cam.K[0, 0], cam.K[1, 1] / cam.K[0, 0], cam.K[0, 2], cam.K[1, 2]
-        intr[m, 4:] = cam.dist
-        f[m], R[m], C[m] = cam.K[0, 0], cam.R, cam.centre
-        registered[m] = True
-    if not registered[:2].all():
-        raise SolveError("initial calibration: it does not hold both stereo cameras")
-    xy[:] = _centred(obs, order, intr)
-    X = np.full((len(obs.track_ids), 3), np.nan)
-    index = {int(t): j for j, t in enumerate(obs.track_ids)}
-    for pid, p in zip(initial.point_ids, initial.points, strict=True):
-        if int(pid) in index:
-            X[index[int(pid)]] = p
-    threshold = 0.01 * float(np.hypot(obs.cameras[order[0]].width, obs.cameras[order[0]].height))
-    _register_and_triangulate(obs, order, xy, rows, f, R, C, X, registered, threshold, seed)
-    return _Start(f, R, C, X, registered, np.full_like(X, np.nan), f[1] / f[0])
-
-
-def _paper_result(obs, order, intr, xy, rows, start: _Start, timings) -> Result:
-    """The paper's method as solved by `_paper_start`: points from the stereo pair alone."""
+def _paper_result(obs, order, intr, rows, start: Start, timings) -> Result:
+    """The paper's method as solved by `paper_start`: points from the stereo pair alone."""
     t0 = time.perf_counter()
     has_P0 = np.all(np.isfinite(start.P0), axis=1)
     for m in range(2, len(order)):
@@ -598,7 +554,9 @@ def _paper_result(obs, order, intr, xy, rows, start: _Start, timings) -> Result:
     )
 
 
-def _result(obs, order, problem, state, track_rows, inliers, info, cov, decisions, options, timings) -> Result:
+def _result(
+    obs, order, problem, state, track_rows, inliers, info, cov, decisions, options, timings, *, start: str = "cold"
+) -> Result:
     from camnet.diagnostics import describe
 
     cameras_by_m = []
@@ -625,6 +583,7 @@ def _result(obs, order, problem, state, track_rows, inliers, info, cov, decision
     r = bundle.residuals(problem, state)
     rms = float(np.sqrt(np.mean(np.sum(r * r, axis=1)))) if len(r) else float("nan")
     extra = describe(obs, order, problem, state, cov, inliers, info, decisions, options, timings)
+    extra["diagnostics"]["start"] = start
     calibration = Calibration(
         cameras=cameras,
         point_ids=obs.track_ids[track_rows[kept]],

@@ -69,6 +69,26 @@ def _parallax_deg(problem, state) -> np.ndarray:
     return 2.0 * widest
 
 
+def _held_disparity_warning(obs, order, problem, state) -> list[str]:
+    """The scale's sensitivity to the difference of the stereo pair's principal-point columns, when held.
+
+    A column difference shifts every disparity by as much; with the right
+    camera's yaw and principal point held, the uncertainty cannot show it.
+    """
+    right = obs.cameras[order[1]]
+    known = right.K is not None and "K" in right.fixed
+    if known or problem.rot_free[1, 1] or problem.intr_free[1, 2]:
+        return []
+    depth_m = float(np.median(state.X[:, 2])) if len(state.X) else np.nan
+    disparity_px = state.intr[0, 0] * np.linalg.norm(state.C[1]) / depth_m
+    if not np.isfinite(disparity_px) or disparity_px <= 0:
+        return []
+    return [
+        f"the scale assumes the stereo cameras' principal points in the same column: each pixel of "
+        f"difference moves it by {100 / disparity_px:.2f}% (give the pair's K, or free stereo_rotation)"
+    ]
+
+
 def free_parameters(problem, cameras_ids: list[str]) -> dict:
     """Which intrinsics and stereo rotation axes moved: reused by warm starts."""
     return {
@@ -105,6 +125,7 @@ def describe(obs, order, problem, state, cov, inliers, info, decisions, options,
     sv = np.linalg.svd(centred, compute_uv=False) if len(centred) >= 3 else np.ones(3)
     if sv[2] < COPLANAR_RATIO * sv[0]:
         warnings.append("the points are nearly coplanar; focal lengths and poses trade off")
+    warnings += _held_disparity_warning(obs, order, problem, state)
     out = {
         "method": options.method,
         "diagnostics": {

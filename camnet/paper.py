@@ -88,34 +88,47 @@ def dlt_ransac(
     threshold_px: float,
     seed: int = 0,
     n_hypotheses: int = 256,
+    confidence: float = 0.999,
 ) -> tuple[np.ndarray, np.ndarray]:
     """A general 3x4 projection matrix from 3-D points (n, 3) and pixels (n, 2), with RANSAC.
 
     Both sides are normalised (per axis) for conditioning; the result acts
-    on the caller's coordinates. Returns ``(P (3, 4), inliers (n,))``.
-    Needs n >= 6 points not all on one plane.
+    on the caller's coordinates. Hypotheses are drawn in batches until the
+    best inlier share found so far makes an all-outlier draw unlikely
+    (``confidence``), at most ``n_hypotheses``. Returns ``(P (3, 4),
+    inliers (n,))``. Needs n >= 6 points not all on one plane.
     """
     n = len(X)
     if n < 6:
         raise SolveError(f"a camera shares only {n} points with the solved ones (need at least 6)")
     mX, sX = X.mean(axis=0), X.std(axis=0) + 1e-12
     mx, sx = x.mean(axis=0), x.std() + 1e-12
-    Tx = np.array([[1 / sx, 0, -mx[0] / sx], [0, 1 / sx, -mx[1] / sx], [0, 0, 1]])
+    Tx_inv = np.array([[sx, 0, mx[0]], [0, sx, mx[1]], [0, 0, 1]])
     TX = np.diag(np.append(1 / sX, 1.0))
     TX[:3, 3] = -mX / sX
     Xn, xn = (X - mX) / sX, (x - mx) / sx
 
     def denormalise(P: np.ndarray) -> np.ndarray:
-        return np.linalg.inv(Tx) @ P @ TX
+        return Tx_inv @ P @ TX
 
     rng = np.random.default_rng(seed)
-    samples = np.argsort(rng.random((n_hypotheses, n)), axis=1)[:, :6]
-    P = np.array([denormalise(p) for p in _dlt_batch(Xn[samples], xn[samples])])
     # Score on a subset: a few hundred points rank hypotheses as well as all of them.
     probe = rng.choice(n, size=min(n, 300), replace=False)
-    err = _reprojection_errors(P, X[probe], x[probe])
-    score = np.sum(np.minimum(err, threshold_px) ** 2, axis=1)  # MSAC
-    inliers = _reprojection_errors(P[np.argmin(score)][None], X, x)[0] < threshold_px
+    best_score, best_P, drawn, needed = np.inf, None, 0, n_hypotheses
+    batch = 32
+    while drawn < n_hypotheses:
+        samples = np.argsort(rng.random((batch, n)), axis=1)[:, :6]
+        P = denormalise(_dlt_batch(Xn[samples], xn[samples]))
+        err = _reprojection_errors(P, X[probe], x[probe])
+        score = np.sum(np.minimum(err, threshold_px) ** 2, axis=1)  # MSAC
+        drawn += batch
+        if score.min() < best_score:
+            best_score, best_P = score.min(), P[np.argmin(score)]
+            share = float(np.mean(err[np.argmin(score)] < threshold_px))
+            needed = np.log(1.0 - confidence) / np.log1p(-min(max(share**6, 1e-12), 1.0 - 1e-12))
+        if drawn >= needed:
+            break
+    inliers = _reprojection_errors(best_P[None], X, x)[0] < threshold_px
     for _ in range(3):  # refit on the consensus set
         if inliers.sum() < 6:
             break
@@ -194,12 +207,16 @@ def refine_eq13(
     C: np.ndarray,
     P0: np.ndarray,
     cams: list[np.ndarray],
+    *,
+    ftol: float = 1e-8,
 ) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, float]:
     """Minimise eq. 13 jointly over f_left and every other camera's f, R, C.
 
     ``cams[j] = (tracks (n,), centred pixels (n, 2))`` for the j-th other
     camera; ``f, R, C`` hold their starting values in the same order. The
     points are ``P0 * [1, 1, f_left]``, so they move only through f_left.
+    ftol: relative cost change at which to stop (SciPy's); a starting point
+    for an adjustment needs far less than the paper's solution itself.
     """
     from scipy.spatial.transform import Rotation
 
@@ -210,6 +227,9 @@ def refine_eq13(
     x0 = np.asarray(x0)
     sizes = [2 * len(trk) for trk, _ in cams]
     starts = np.concatenate([[0], np.cumsum(sizes)])
+    tracks = np.concatenate([trk for trk, _ in cams])
+    pixels = np.concatenate([xy for _, xy in cams])
+    cam_of = np.repeat(np.arange(m), [len(trk) for trk, _ in cams])
 
     def unpack(x: np.ndarray):
         per = x[1:].reshape(m, 7)
@@ -217,19 +237,16 @@ def refine_eq13(
 
     def fun(x: np.ndarray) -> np.ndarray:
         fl, fs, Rs, Cs = unpack(x)
-        out = np.empty(starts[-1])
-        for j, (trk, xy) in enumerate(cams):
-            X = P0[trk] * np.array([1.0, 1.0, fl])
-            xc = (X - Cs[j]) @ Rs[j].T
-            with np.errstate(divide="ignore", invalid="ignore"):
-                proj = fs[j] * xc[:, :2] / xc[:, 2:3]
-            out[starts[j] : starts[j + 1]] = (proj - xy).ravel()
+        X = P0[tracks] * np.array([1.0, 1.0, fl])
+        xc = np.einsum("nij,nj->ni", Rs[cam_of], X - Cs[cam_of])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            out = (fs[cam_of, None] * xc[:, :2] / xc[:, 2:3] - pixels).ravel()
         return np.where(np.isfinite(out), out, 1e6)
 
     sparsity = np.zeros((starts[-1], len(x0)), dtype=bool)
     sparsity[:, 0] = True
     for j in range(m):
         sparsity[starts[j] : starts[j + 1], 1 + 7 * j : 8 + 7 * j] = True
-    res = scipy.optimize.least_squares(fun, x0, jac_sparsity=sparsity, method="trf", x_scale="jac")
+    res = scipy.optimize.least_squares(fun, x0, jac_sparsity=sparsity, method="trf", x_scale="jac", ftol=ftol)
     fl, fs, Rs, Cs = unpack(res.x)
     return float(fl), fs, Rs, Cs, float(res.cost)

@@ -112,19 +112,17 @@ def project_with_jacobians(
     dxd_dy = 2.0 * x * y * dradial + 2.0 * p1 * x + 2.0 * p2 * y
     dyd_dx = 2.0 * x * y * dradial + 2.0 * p1 * x + 2.0 * p2 * y
     dyd_dy = radial + 2.0 * y * y * dradial + 6.0 * p1 * y + 2.0 * p2 * x
-    # d(x, y) / d xc
-    dn = np.zeros((n, 2, 3))
-    dn[:, 0, 0] = iz
-    dn[:, 0, 2] = -x * iz
-    dn[:, 1, 1] = iz
-    dn[:, 1, 2] = -y * iz
+    # d pixel / d xc through the normalised point (x, y) = (xc_0 / xc_2, xc_1 / xc_2).
     duv_dn = np.empty((n, 2, 2))
     duv_dn[:, 0, 0] = f * dxd_dx
     duv_dn[:, 0, 1] = f * dxd_dy
     duv_dn[:, 1, 0] = fy * dyd_dx
     duv_dn[:, 1, 1] = fy * dyd_dy
-    duv_dxc = duv_dn @ dn
-    J_rot = -duv_dxc @ skew(xc)
-    J_point = duv_dxc @ R
+    duv_dxc = np.empty((n, 2, 3))
+    duv_dxc[:, :, :2] = duv_dn * iz[:, None, None]
+    duv_dxc[:, :, 2] = -(duv_dn[:, :, 0] * x[:, None] + duv_dn[:, :, 1] * y[:, None]) * iz[:, None]
+    # a^T [xc]x = a x xc, so d pixel / d w = -duv_dxc [xc]x = xc x duv_dxc (row-wise).
+    J_rot = np.cross(xc[:, None, :], duv_dxc)
+    J_point = duv_dxc[:, :, :1] * R[:, None, 0] + duv_dxc[:, :, 1:2] * R[:, None, 1] + duv_dxc[:, :, 2:] * R[:, None, 2]
     J_centre = -J_point
     return uv, J_intr, J_rot, J_centre, J_point

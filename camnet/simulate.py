@@ -9,7 +9,7 @@ partial visibility. Everything is in the left camera's frame, in metres.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -90,6 +90,21 @@ def make_rig(
         R, t = look_at(np.array(centre), OBJECT_CENTRE + rng.normal(scale=0.01, size=3))
         cameras.append(Camera(name, WIDTH, HEIGHT, _K(f, pp()), dist, R, t))
     return SimRig(cameras, PAPER_BASELINE_M, points)
+
+
+def move_camera(rig: SimRig, camera_id: str, *, shift_m: float, angle_deg: float, seed: int = 0) -> SimRig:
+    """The rig with one camera bumped: its centre shifted by shift_m and its
+    orientation turned by angle_deg, both in seeded random directions."""
+    rng = np.random.default_rng(seed)
+    cameras = []
+    for cam in rig.cameras:
+        if cam.id == camera_id:
+            d, w = rng.normal(size=3), rng.normal(size=3)
+            R = rotation_exp(np.deg2rad(angle_deg) * w / np.linalg.norm(w)) @ cam.R
+            C = cam.centre + shift_m * d / np.linalg.norm(d)
+            cam = replace(cam, R=R, t=-R @ C)
+        cameras.append(cam)
+    return replace(rig, cameras=cameras)
 
 
 @dataclass(frozen=True)

@@ -15,14 +15,14 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-from camnet.bundle import Problem, State, _block_diag, normal_equations
+from camnet.bundle import NormalEquations, Problem, State, normal_equations, times_block_diag
 
 
 @dataclass(frozen=True)
 class Covariance:
     sigma_px: float  # pixel noise sigma the covariance is scaled by
     S_inv: np.ndarray  # (Pc, Pc) inverse Schur complement (unscaled)
-    W: object  # (Pc, 3N) sparse
+    W: np.ndarray  # (Pc, 3N)
     V_inv: np.ndarray  # (N, 3, 3)
     columns: np.ndarray  # (M, 15) problem.columns()
 
@@ -44,23 +44,24 @@ class Covariance:
 
     def point_sigmas_m(self) -> np.ndarray:
         """(N,) RMS over axes of each point's standard deviation, metres."""
-        WV = (self.W @ _block_diag(self.V_inv)).tocsc()
-        extra = np.empty(len(self.V_inv))
-        for j in range(len(self.V_inv)):
-            B = WV[:, 3 * j : 3 * j + 3].toarray()
-            extra[j] = np.trace(B.T @ self.S_inv @ B)
+        WV = times_block_diag(self.W, self.V_inv)
+        extra = np.sum((self.S_inv @ WV) * WV, axis=0).reshape(-1, 3).sum(axis=1)
         total = np.einsum("nii->n", self.V_inv) + extra
         return self.sigma_px * np.sqrt(np.maximum(total, 0.0) / 3.0)
 
 
-def covariance(problem: Problem, state: State, *, sigma_px: float | None = None) -> Covariance:
-    """Covariance at `state`; sigma_px None estimates it from the residuals (a posteriori)."""
-    ne = normal_equations(problem, state)
+def covariance(
+    problem: Problem, state: State, *, sigma_px: float | None = None, normal: NormalEquations | None = None
+) -> Covariance:
+    """Covariance at `state`; sigma_px None estimates it from the residuals (a posteriori).
+
+    normal: the unweighted normal equations at `state` when the caller has them.
+    """
+    ne = normal_equations(problem, state) if normal is None else normal
     # A point left without observations (all rejected), or seen along one ray only,
     # carries no information in some directions: the pseudo-inverse gives it none.
     V_inv = np.linalg.pinv(ne.V, hermitian=True)
-    WV = ne.W @ _block_diag(V_inv)
-    S = ne.U - (WV @ ne.W.T).toarray()
+    S = ne.U - times_block_diag(ne.W, V_inv) @ ne.W.T
     S_inv = scipy.linalg.pinvh(S) if len(S) else S
     if sigma_px is None:
         cols, n_cols = problem.columns()
@@ -110,8 +111,8 @@ def shape_rms_bound_m(cov: Covariance, points: np.ndarray) -> float:
         basis.append(np.cross(w, c))
     basis.append(c)
     Q, _ = np.linalg.qr(np.stack([b.reshape(-1) for b in basis], axis=1))
-    WV = (cov.W @ _block_diag(cov.V_inv)).tocsr()
-    trace_total = float(np.einsum("nii->", cov.V_inv)) + float(np.sum(cov.S_inv * (WV @ WV.T).toarray()))
+    WV = times_block_diag(cov.W, cov.V_inv)
+    trace_total = float(np.einsum("nii->", cov.V_inv)) + float(np.sum(cov.S_inv * (WV @ WV.T)))
     VQ = np.einsum("nij,njk->nik", cov.V_inv, Q.reshape(N, 3, -1)).reshape(3 * N, -1)
     WVQ = WV @ Q
     trace_sim = float(np.trace(Q.T @ VQ) + np.trace(WVQ.T @ cov.S_inv @ WVQ))

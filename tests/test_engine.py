@@ -1,13 +1,16 @@
 """The calibration engine on seeded simulated rigs with known ground truth."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from camnet.bundle import State
 from camnet.calibrate import Options, calibrate
-from camnet.evaluate import compare
+from camnet.errors import SolveError
+from camnet.evaluate import compare, per_camera_rms, rotation_angle_deg
 from camnet.projection import intrinsics_from_K, project_with_jacobians, rotation_exp
-from camnet.simulate import make_rig, observe
+from camnet.simulate import make_rig, move_camera, observe
 from camnet.uncertainty import covariance, scale_sigma
 
 
@@ -65,32 +68,18 @@ def test_zero_noise_paper_rig_is_recovered_exactly(method):
     assert_exact(result, rig)
 
 
-LOCAL_MINIMUM = (
-    "known limitation: with intrinsics beyond the focal length free, the adjustment from the paper's "
-    "start can stop in a local minimum 0.05-0.2 px RMS from the exact solution"
-)
-
-
 @pytest.mark.parametrize(
     "rig_args, free",
     [
-        pytest.param(
-            dict(n_cameras=8, n_points=200, pp_offset_px=25.0),
-            {"f", "pp"},
-            marks=pytest.mark.xfail(strict=True, reason=LOCAL_MINIMUM),
-        ),
-        pytest.param(
-            dict(n_cameras=6, n_points=150, k1=-0.15, k2=0.05),
-            {"f", "k1", "k2"},
-            marks=pytest.mark.xfail(strict=True, reason=LOCAL_MINIMUM),
-        ),
-        pytest.param(
-            dict(n_cameras=5, n_points=150, stereo_rotation_deg=0.4),
-            {"f", "stereo_rotation", "stereo_direction"},
-            marks=pytest.mark.xfail(strict=True, reason=LOCAL_MINIMUM),
+        (dict(n_cameras=8, n_points=200, pp_offset_px=25.0), {"f", "pp"}),
+        (dict(n_cameras=6, n_points=150, k1=-0.15, k2=0.05), {"f", "k1", "k2"}),
+        (dict(n_cameras=5, n_points=150, stereo_rotation_deg=0.4), {"f", "stereo_rotation", "stereo_direction"}),
+        (
+            dict(n_cameras=6, n_points=200, pp_offset_px=25.0, k1=-0.1, stereo_rotation_deg=0.3),
+            {"f", "pp", "k1", "stereo_rotation", "stereo_direction"},
         ),
     ],
-    ids=["principal-points", "distortion", "rotated-stereo-pair"],
+    ids=["principal-points", "distortion", "rotated-stereo-pair", "all-of-them"],
 )
 def test_zero_noise_general_rigs_are_recovered_exactly(rig_args, free):
     rig = make_rig(seed=2, **rig_args)
@@ -118,9 +107,7 @@ def test_errors_lie_within_the_reported_uncertainty():
         total += 1
         within += abs(c.scale_rel) <= 3 * c.scale_sigma_rel
     assert total > 150
-    # Measured: 93% (the issue asks 95%); the shortfall comes from solves that stop
-    # slightly short of the best minimum, which the linearised covariance cannot see.
-    assert within / total >= 0.90, f"{within}/{total} within 3 sigma"
+    assert within / total >= 0.95, f"{within}/{total} within 3 sigma"  # measured: 99.6% over 30 seeds
 
 
 def test_reported_uncertainty_matches_the_cramer_rao_bound():
@@ -178,8 +165,6 @@ def test_warm_start_after_new_tracks_converges_to_the_same_solution():
     rig = make_rig(n_cameras=6, n_points=400, seed=6)
     obs = observe(rig, noise_px=0.5, seed=6).observations
     first = obs.track_index < 380
-    from dataclasses import replace
-
     part = replace(
         obs,
         cam_index=obs.cam_index[first],
@@ -192,5 +177,85 @@ def test_warm_start_after_new_tracks_converges_to_the_same_solution():
     warm = calibrate(obs, initial=previous).calibration
     for a, b in zip(cold.cameras, warm.cameras, strict=True):
         sd = cold.extra["uncertainty"]["cameras"][a.id]
-        assert abs(a.K[0, 0] - b.K[0, 0]) < 1.0 * sd["f_px"] + 1e-6  # measured up to 0.55 sigma
-        assert np.linalg.norm(a.centre - b.centre) < 1.0 * np.linalg.norm(sd["centre_m"]) + 1e-9
+        # Measured: 0.00-0.03 sigma over seeds 6-11 (the inlier sets differ by one observation at most).
+        assert abs(a.K[0, 0] - b.K[0, 0]) < 0.1 * sd["f_px"] + 1e-6
+        assert np.linalg.norm(a.centre - b.centre) < 0.1 * np.linalg.norm(sd["centre_m"]) + 1e-9
+    assert warm.extra["diagnostics"]["start"] == "warm"
+
+
+@pytest.fixture(scope="module")
+def bumped():
+    """A solved rig, then the same rig with mono_02 moved 5 cm and turned 3 degrees, observed again."""
+    rig = make_rig(n_cameras=6, n_points=300, seed=8)
+    previous = calibrate(observe(rig, noise_px=0.5, seed=8).observations).calibration
+    rig_now = move_camera(rig, "mono_02", shift_m=0.05, angle_deg=3.0, seed=8)
+    return previous, rig_now, observe(rig_now, noise_px=0.5, seed=9).observations
+
+
+def test_per_camera_rms_singles_out_a_moved_camera(bumped):
+    previous, _, obs = bumped
+    rms = per_camera_rms(previous, obs)
+    assert set(rms) == {c.id for c in obs.cameras}
+    assert rms["mono_02"] > 20.0
+    assert all(0.5 < v < 1.0 for k, v in rms.items() if k != "mono_02")  # 0.5 px per axis: |r| ~ 0.7 px
+
+
+def test_per_camera_rms_skips_unknown_tracks_and_cameras(bumped):
+    previous, _, obs = bumped
+    few = replace(previous, point_ids=previous.point_ids[:5], points=previous.points[:5])
+    no_points = replace(previous, point_ids=previous.point_ids[:0], points=previous.points[:0])
+    fewer_cameras = replace(previous, cameras=previous.cameras[:3])
+    assert np.isfinite(list(per_camera_rms(few, obs).values())).all()
+    assert np.isnan(list(per_camera_rms(no_points, obs).values())).all()
+    assert set(per_camera_rms(fewer_cameras, obs)) == {c.id for c in previous.cameras[:3]}
+
+
+def test_reset_camera_is_placed_again_within_its_uncertainty(bumped):
+    previous, rig_now, obs = bumped
+    plain = calibrate(obs, initial=previous)
+    reset = calibrate(obs, initial=previous, reset_cameras={"mono_02"})
+    cold = calibrate(obs)
+    # Without the reset the warm start does not fit the moved camera and falls back to the robust passes.
+    assert plain.calibration.extra["diagnostics"]["start"] == "warm, robust"
+    assert reset.calibration.extra["diagnostics"]["start"] == "warm"
+    truth = {c.id: c for c in rig_now.cameras}
+    for result in (reset, cold):
+        cam = {c.id: c for c in result.calibration.cameras}["mono_02"]
+        sd = result.calibration.extra["uncertainty"]["cameras"]["mono_02"]
+        assert np.linalg.norm(cam.centre - truth["mono_02"].centre) < 3 * np.linalg.norm(sd["centre_m"])
+        assert rotation_angle_deg(cam.R @ truth["mono_02"].R.T) < 3 * np.linalg.norm(sd["rotation_deg"])
+    # The reset solve is the cold solve to a fraction of its uncertainty (measured: 0.14 sigma;
+    # the two keep a few different observations at the outlier threshold).
+    for a, b in zip(cold.calibration.cameras, reset.calibration.cameras, strict=True):
+        sd = cold.calibration.extra["uncertainty"]["cameras"][a.id]
+        assert abs(a.K[0, 0] - b.K[0, 0]) < 0.3 * sd["f_px"] + 1e-9
+        assert np.linalg.norm(a.centre - b.centre) < 0.3 * np.linalg.norm(sd["centre_m"]) + 1e-12
+
+
+def test_resetting_a_stereo_camera_solves_from_scratch(bumped):
+    previous, _, obs = bumped
+    cold = calibrate(obs).calibration
+    reset = calibrate(obs, initial=previous, reset_cameras=["left"]).calibration
+    assert reset.extra["diagnostics"]["start"] == "cold"
+    np.testing.assert_allclose(reset.points, cold.points)
+
+
+def test_reset_of_an_unknown_camera_is_refused(bumped):
+    previous, _, obs = bumped
+    with pytest.raises(SolveError, match="reset_cameras: unknown camera"):
+        calibrate(obs, initial=previous, reset_cameras={"nope"})
+
+
+def test_a_held_stereo_column_difference_is_warned_about_unless_k_is_given():
+    rig = make_rig(seed=3)
+    sim = observe(rig, noise_px=0.5, seed=3, with_intrinsics=True)
+    plain = observe(rig, noise_px=0.5, seed=3).observations
+    warned = calibrate(plain).calibration.extra["diagnostics"]["warnings"]
+    # 0.125 m baseline, f = 1500 px, 0.65 m away: a disparity of about 290 px, 0.35% per pixel.
+    assert any("principal points in the same column" in w and "0.3" in w for w in warned)
+    given = replace(
+        sim.observations,
+        cameras=tuple(replace(c, fixed=frozenset({"K", "dist"})) for c in sim.observations.cameras),
+    )
+    quiet = calibrate(given).calibration.extra["diagnostics"]["warnings"]
+    assert not any("principal points in the same column" in w for w in quiet)
