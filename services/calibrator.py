@@ -163,16 +163,12 @@ class Tracker:
         return tuple(moved)
 
     def _initial(self) -> Calibration | None:
-        if self.good is None:
+        """The warm start: the last good calibration (its points only while they mean the same tracks)."""
+        if self.good is None or len(self._reset) == len(self.good.cameras):
             return None
-        cal = self.good
-        stereo_reset = len(self._reset) == len(cal.cameras)
-        if stereo_reset:
-            return None
-        cameras = [c for c in cal.cameras if c.id not in self._reset]
         if self._points_valid:
-            return replace(cal, cameras=cameras)
-        return replace(cal, cameras=cameras, point_ids=np.empty(0, dtype=np.int64), points=np.empty((0, 3)))
+            return self.good
+        return replace(self.good, point_ids=np.empty(0, dtype=np.int64), points=np.empty((0, 3)))
 
     def _solve(self, obs: Observations, moved: tuple[str, ...]) -> Outcome:
         initial = self._initial()
@@ -180,7 +176,8 @@ class Tracker:
         reason = ""
         for start in attempts:
             try:
-                cal = calibrate(obs, self.config.options, initial=start).calibration
+                reset = self._reset if start is not None else ()
+                cal = calibrate(obs, self.config.options, initial=start, reset_cameras=reset).calibration
             except CamnetError as exc:
                 reason = f"solve failed: {exc}"
                 status = "failed"
