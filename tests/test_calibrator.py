@@ -108,3 +108,11 @@ def test_a_bad_solve_never_replaces_a_good_calibration(broken):
     assert outcome.status in ("failed", "rejected") and outcome.reason
     assert tracker.good is good
     assert tracker.counts[outcome.status] == 1
+
+
+def test_the_command_default_is_the_live_default():
+    from camnet.commands.calibrate import parse_free
+    from camnet.commands.calibrator import DEFAULT_FREE
+    from services.calibrator import LIVE_FREE
+
+    assert parse_free(DEFAULT_FREE) == LIVE_FREE == CalibratorConfig().options.free

@@ -72,8 +72,10 @@ def test_a_restarted_calibrator_resumes_from_its_state(zenoh_pair, tmp_path):
         assert wait_for(lambda: node.tracker.good is not None, 60)
         first = node.tracker.good
     with running(a, CalibratorConfig(state_path=state)) as node:
-        assert wait_for(lambda: node.latest_doc is not None, 10)
-        replies = list(b.get(keys.calibration(RIG), timeout=5.0))
+        replies = []
+        # The queryable is declared just after the resumed calibration is loaded; let it reach the other peer.
+        assert wait_for(lambda: replies.extend(r for r in b.get(keys.calibration(RIG), timeout=1.0) if r.ok)
+                        or replies, 10)
         resumed = parse_calibration(json.loads(replies[0].ok.payload.to_bytes()))
         for cam, before in zip(resumed.cameras, first.cameras, strict=True):
             np.testing.assert_array_equal(cam.K, before.K)

@@ -6,10 +6,12 @@ import argparse
 import os
 from pathlib import Path
 
+# services.calibrator.LIVE_FREE, spelled out so that building the parser imports no numpy.
+DEFAULT_FREE = "f,k1,k2,stereo_rotation,stereo_direction"
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from camnet.bus import add_bus_arguments
-    from camnet.commands.calibrate import FREE_HELP
     from camnet.viz import add_rerun_arguments
 
     parser.add_argument("--rig", required=True, metavar="RIG.yaml|NAME",
@@ -18,7 +20,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="where the last good calibration is kept and resumed from "
                              "(default: $XDG_STATE_HOME/camnet/<rig>/calibration.json)")
     parser.add_argument("--no-state", action="store_true", help="neither resume nor persist")
-    parser.add_argument("--free", default="auto", help=FREE_HELP)
+    parser.add_argument("--free", default=DEFAULT_FREE,
+                        help="intrinsics to estimate: a comma list of f, aspect, pp, k1, k2, stereo_rotation, "
+                             "stereo_direction, or 'auto' for the engine's rule (default: %(default)s; the "
+                             "principal points are held, see services/calibrator.py)")
     parser.add_argument("--loss", choices=("cauchy", "huber", "soft_l1", "linear"), default="cauchy",
                         help="robust loss of the adjustment (default cauchy)")
     parser.add_argument("--max-rms-px", type=float, default=3.0,
