@@ -322,7 +322,7 @@ def solve(
     loss: str = "linear",
     scale_px: float = 1.0,
     max_iterations: int = 100,
-    ftol: float = 1e-9,
+    ftol: float = 1e-6,
 ) -> tuple[State, SolveInfo]:
     """Minimise the (robust) reprojection cost by Levenberg-Marquardt from `state`.
 

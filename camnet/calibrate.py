@@ -77,7 +77,7 @@ class Options:
     significance: float = 1e-3  # false-alarm rate of the auto rule's chi-square test
     outlier_sigmas: float = 4.0  # reject residuals beyond this many robust sigmas
     min_outlier_px: float = 1.5  # never reject residuals below this
-    max_iterations: int = 100
+    max_iterations: int = 300  # LM stops on the Gauss-Newton decrement long before this in most solves
     seed: int = 0
 
 
