@@ -16,6 +16,7 @@ from camnet.evaluate import compare_cameras
 from camnet.formats import parse_calibration
 from camnet.rig import load_rig
 from tests.conftest import free_port
+from tests.test_viz import read_rrd
 
 BOX_CENTRE = [0.0625, 0.0, 0.65]
 
@@ -59,10 +60,11 @@ def rig_file(tmp_path, n_cameras: int) -> str:
 def test_simulated_network_calibrates_to_scale_within_a_minute(tmp_path, n_cameras):
     rig_path = rig_file(tmp_path, n_cameras)
     out = tmp_path / "calibration.json"
+    rrd = tmp_path / "run.rrd"
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     proc = subprocess.run(
         [sys.executable, "-m", "camnet.cli", "up", rig_path, "--duration-s", "60", "--run-dir",
-         str(tmp_path / "run"), "-o", str(out), "--listen", endpoint],
+         str(tmp_path / "run"), "-o", str(out), "--listen", endpoint, "--rerun", f"save={rrd}"],
         capture_output=True, text=True, timeout=180)
     logs = "\n".join(p.read_text()[-1500:] for p in (tmp_path / "run").glob("*.log"))
     assert proc.returncode == 0, proc.stdout + proc.stderr + logs
@@ -73,3 +75,14 @@ def test_simulated_network_calibrates_to_scale_within_a_minute(tmp_path, n_camer
     assert abs(comparison.scale_rel) < 0.005, proc.stdout
     assert max(abs(e.focal_rel) for e in comparison.cameras) < 0.01, proc.stdout
     assert "vs truth" in proc.stdout and "final calibration" in proc.stdout
+
+    # The run's Rerun recording: every camera, the cloud, the series, one entry per solve.
+    data = read_rrd(rrd)
+    solves = len(data["/series/network/rms_px"]["Scalars:scalars"])
+    assert solves >= 1
+    for cam in cal.cameras:
+        assert len(data[f"/world/cameras/{cam.id}"]["Pinhole:image_from_camera"]) == solves
+        assert len(data[f"/world/cameras/{cam.id}/image"]["EncodedImage:blob"]) >= 1
+        assert len(data[f"/series/focal_error_pct/{cam.id}"]["Scalars:scalars"]) == solves
+    assert len(data["/world/points"]["Points3D:positions"]) == solves
+    assert len(data["/series/network/scale_error_pct"]["Scalars:scalars"]) == solves

@@ -7,7 +7,7 @@ import os
 from pathlib import Path
 
 # services.calibrator.LIVE_FREE, spelled out so that building the parser imports no numpy.
-DEFAULT_FREE = "f,k1,k2,stereo_rotation,stereo_direction"
+DEFAULT_FREE = "f,stereo_rotation,stereo_direction"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -22,8 +22,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-state", action="store_true", help="neither resume nor persist")
     parser.add_argument("--free", default=DEFAULT_FREE,
                         help="intrinsics to estimate: a comma list of f, aspect, pp, k1, k2, stereo_rotation, "
-                             "stereo_direction, or 'auto' for the engine's rule (default: %(default)s; the "
-                             "principal points are held, see services/calibrator.py)")
+                             "stereo_direction, or 'auto' for the engine's rule (default: %(default)s; principal "
+                             "points and distortion are held as given, see services/calibrator.py)")
     parser.add_argument("--loss", choices=("cauchy", "huber", "soft_l1", "linear"), default="cauchy",
                         help="robust loss of the adjustment (default cauchy)")
     parser.add_argument("--max-rms-px", type=float, default=3.0,
