@@ -66,26 +66,39 @@ def test_every_camera_is_matched_to_the_stereo_pair(kitti_obs):
 def test_known_intrinsics_poses_and_scale_from_the_scene(solved):
     """All K and dist known, the stereo head's pose known: camnet finds the colour cameras' poses."""
     _, result = solved("all-K")
-    # Published K/dist fit these images to 0.2-0.6 px (README); moving-car timing adds a little.
-    assert result.rms_reprojection_px < 1.0
+    # Published K/dist fit these images to 0.2-0.6 px (README); measured 0.40 px.
+    assert result.rms_reprojection_px < 0.6
     # The pair is fully known, so camnet's points agree with the published stereo triangulation;
-    # measured -0.1 to -0.2 %. 0.5 % allows for points the adjustment moves with the colour views.
+    # measured -0.23 %. 0.5 % allows for points the adjustment moves with the colour views.
     assert abs(result.distance_rel) < 0.005
     for cam_id in ("2", "3"):
         cam = result.camera(cam_id)
-        # Measured 0.2-0.3 deg (0.05 deg once the engine refines these rotations, see below).
-        assert cam.rotation_deg < 0.5, cam
+        # Measured 0.04-0.06 deg; 0.2 deg is still 3 px at f = 960 px.
+        assert cam.rotation_deg < 0.2, cam
     cam3 = result.camera("3")
-    # 0.47 m from cam 0: measured 6 % and 8 deg; the car moves 3-5 cm while cam 3 is early,
-    # which alone turns its direction by ~5 deg (README).
-    assert abs(cam3.distance_rel) < 0.10 and cam3.direction_deg < 10.0, cam3
+    # 0.47 m from cam 0: measured +2.7 % (13 mm) and 1.1 deg. The car moves 3-5 cm while cam 3
+    # is early, which alone can turn its direction by ~5 deg (README): 6 deg and 5 % (24 mm) keep to that.
+    assert abs(cam3.distance_rel) < 0.05 and cam3.direction_deg < 6.0, cam3
+
+
+def test_colour_camera_centre_within_car_motion(solved):
+    """With every K known the colour cameras' centres are off by no more than the car moves between exposures."""
+    _, result = solved("all-K")
+    for cam_id in ("2", "3"):
+        # Measured 10 mm (cam 2) and 16 mm (cam 3); the colour cameras fire ~7 ms early on a car
+        # doing ~5 m/s, 3-5 cm of forward motion (README), so 30 mm is the rig's own limit.
+        assert result.camera(cam_id).centre_mm < 30.0, result.camera(cam_id)
 
 
 def test_factory_stereo_head_fixes_the_scale(solved):
     """Stereo K, dist and pose known (as from a factory-calibrated head): the scale is the published one."""
     _, result = solved("stereo-head")
-    # Measured -0.06 %: the scale comes from the fully known pair, whatever the colour cameras do.
+    # Measured +0.09 %: the scale comes from the fully known pair, whatever the colour cameras do.
     assert abs(result.distance_rel) < 0.005
+    for cam_id in ("2", "3"):
+        # Measured -0.15 % and -0.20 %, though the principal points are held 31 px from KITTI's
+        # (which turns the colour cameras by ~2 deg instead); 0.5 % is 5 px at the image edge.
+        assert abs(result.camera(cam_id).focal_rel) < 0.005, result.camera(cam_id)
 
 
 def test_nothing_known_is_refused_or_flagged(kitti_obs):
@@ -94,26 +107,42 @@ def test_nothing_known_is_refused_or_flagged(kitti_obs):
     try:
         cal = calibrate(obs, Options()).calibration
     except SolveError:
-        return  # an honest refusal
+        return  # an honest refusal; measured: the adjustment reaches its iteration limit
     warnings = cal.extra["diagnostics"]["warnings"]
-    # Measured: focal lengths +110-120 %, and the median point seen under 0.2 deg of parallax.
+    # Measured earlier: focal lengths +110-120 %, and the median point seen under 0.2 deg of parallax.
     assert any("parallax" in w for w in warnings), warnings
 
 
-@pytest.mark.xfail(reason="the stereo pair's 1.8 deg toe-in is held at parallel when its yaw is not determined, "
-                   "and the reported scale sigma leaves the held yaw out: measured -45 % with sigma under 0.1 %",
-                   strict=False)
+def test_stereo_intrinsics_alone_give_the_scale_or_say_it_is_uncertain(solved):
+    """Without the pair's pose the scale may be wrong, but then camnet must say so."""
+    _, result = solved("stereo-K")
+    if abs(result.distance_rel) < 0.02:
+        return
+    # Measured -14.8 % with a reported 1-sigma of 94 % and a warning that says so.
+    assert abs(result.distance_rel) < 3 * result.scale_sigma_rel, result
+    assert any("scale is uncertain" in w for w in result.warnings), result.warnings
+
+
+@pytest.mark.xfail(reason="the pair's yaw is freed (chi-square) but lands 0.37 deg off KITTI's toe-in with a reported "
+                   "sigma of 0.03 deg, about 6 px of disparity at the median 13 m depth; a third of the observations "
+                   "are rejected (RMS 0.69 px, a-posteriori sigma 3 px): measured -14.8 %", strict=False)
 def test_stereo_intrinsics_alone_give_the_scale(solved):
     _, result = solved("stereo-K")
-    assert abs(result.distance_rel) < max(0.02, 3 * result.scale_sigma_rel)
+    # With the stereo head also known the scale is within 0.1 %; 2 % is what the yaw's own
+    # uncertainty should allow on this scene.
+    assert abs(result.distance_rel) < 0.02
 
 
-@pytest.mark.xfail(reason="the adjustment holds non-stereo cameras' rotations at their start "
-                   "(measured 71 mm; 13 mm with them refined)", strict=False)
-def test_colour_camera_centre_within_car_motion(solved):
-    _, result = solved("all-K")
-    # 3-5 cm of forward motion between cam 0 and cam 3 exposures (README); 30 mm keeps to that.
-    assert result.camera("3").centre_mm < 30.0
+@pytest.mark.xfail(reason="the reported scale sigma is not zero when the pair's K, dist and pose are all fixed: "
+                   "measured 4.4 % (stereo-head) and 24271 % (all-K), with a 'scale is uncertain' warning",
+                   strict=False)
+@pytest.mark.parametrize("scenario", ["stereo-head", "all-K"])
+def test_fixed_stereo_head_reports_a_certain_scale(solved, scenario):
+    _, result = solved(scenario)
+    # The baseline is given and the pair rigid, so the scale has no freedom left; the point
+    # distances agree to 0.1-0.2 % (measured), which is all the sigma should say.
+    assert result.scale_sigma_rel < 0.01
+    assert not any("scale is uncertain" in w for w in result.warnings), result.warnings
 
 
 # ---------------------------------------------------------------- no data needed
