@@ -248,6 +248,7 @@ class CalibratorNode:
         self.tracker = Tracker(config)
         self.mailbox = LatestMessage()
         self.malformed: dict[str, int] = {}
+        self._unexpected: set[str] = set()
         self.latest_doc: bytes | None = None
         self._meter = RateMeter(window_s=30.0)
         self._lock = threading.Lock()
@@ -303,7 +304,15 @@ class CalibratorNode:
         if parsed is None:
             return None
         obs, doc = parsed
-        outcome = self.tracker.update(obs, source=doc.get("pool_id"))
+        try:
+            outcome = self.tracker.update(obs, source=doc.get("pool_id"))
+        except Exception as exc:  # noqa: BLE001 (a bug met by one message must not stop the node)
+            self.tracker.counts["failed"] += 1
+            if type(exc).__name__ not in self._unexpected:
+                self._unexpected.add(type(exc).__name__)
+                log.exception("solve %d: the solver failed unexpectedly; such failures are counted "
+                              "as failed solves from now on", self.tracker.solves)
+            return None
         self._meter.tick()
         if outcome.status == "good":
             self._publish(publisher, outcome.calibration, doc, outcome)
