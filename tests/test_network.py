@@ -11,7 +11,9 @@ import sys
 import numpy as np
 import pytest
 import yaml
+from mcap.reader import make_reader
 
+from camnet import keys
 from camnet.evaluate import compare_cameras
 from camnet.formats import parse_calibration
 from camnet.rig import load_rig
@@ -61,10 +63,12 @@ def test_simulated_network_calibrates_to_scale_within_a_minute(tmp_path, n_camer
     rig_path = rig_file(tmp_path, n_cameras)
     out = tmp_path / "calibration.json"
     rrd = tmp_path / "run.rrd"
+    session = tmp_path / "session.mcap"
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     proc = subprocess.run(
         [sys.executable, "-m", "camnet.cli", "up", rig_path, "--duration-s", "60", "--run-dir",
-         str(tmp_path / "run"), "-o", str(out), "--listen", endpoint, "--rerun", f"save={rrd}"],
+         str(tmp_path / "run"), "-o", str(out), "--listen", endpoint, "--rerun", f"save={rrd}",
+         "--record", str(session)],
         capture_output=True, text=True, timeout=180)
     logs = "\n".join(p.read_text()[-1500:] for p in (tmp_path / "run").glob("*.log"))
     assert proc.returncode == 0, proc.stdout + proc.stderr + logs
@@ -86,3 +90,10 @@ def test_simulated_network_calibrates_to_scale_within_a_minute(tmp_path, n_camer
         assert len(data[f"/series/focal_error_pct/{cam.id}"]["Scalars:scalars"]) == solves
     assert len(data["/world/points"]["Points3D:positions"]) == solves
     assert len(data["/series/network/scale_error_pct"]["Scalars:scalars"]) == solves
+
+    # The session recorded beside it: every camera's frames and the calibrations.
+    with open(session, "rb") as f:
+        topics = {channel.topic for channel in make_reader(f).get_summary().channels.values()}
+    rig_name = load_rig(rig_path).name
+    assert {keys.frame(rig_name, cam.id) for cam in cal.cameras} <= topics
+    assert keys.calibration(rig_name) in topics and keys.observations(rig_name) in topics

@@ -28,6 +28,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--run-dir", metavar="DIR",
                         help="where the nodes' logs and the calibration state go (default: a new temporary one)")
     parser.add_argument("-o", "--output", metavar="CALIBRATION.json", help="also write the final calibration here")
+    parser.add_argument("--record", metavar="SESSION.mcap",
+                        help="also run the recorder: everything the rig publishes goes into this MCAP file")
     parser.add_argument("--progress-jsonl", metavar="FILE",
                         help="also write one JSON line per calibration (what the progress lines show)")
     add_rerun_arguments(parser)
@@ -55,6 +57,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"{rig_path}: the rig has no stereo pair; camnet needs one with a known baseline")
     if not args.duration_s > 0:
         raise InputError(f"--duration-s: must be positive, got {args.duration_s}")
+    if args.record and Path(args.record).exists() and not Path(args.record).is_dir():
+        raise InputError(f"--record: {args.record} exists; camnet never overwrites a session")
     run_dir = Path(args.run_dir) if args.run_dir else Path(tempfile.mkdtemp(prefix=f"camnet-{rig.name}-"))
     run_dir.mkdir(parents=True, exist_ok=True)
     truth = rig.simulated_truth()
@@ -85,6 +89,8 @@ def run(args: argparse.Namespace) -> int:
         launch.start("matcher", ["matcher", "--rig", str(rig_path), "--detector", args.detector, *children_bus])
         launch.start("calibrator", ["calibrator", "--rig", str(rig_path), "--state",
                                     str(run_dir / "calibration.json"), *rerun_flags, *children_bus])
+        if args.record:
+            launch.start("recorder", ["record", "--rig", rig.name, "-o", args.record, *children_bus])
         start = time.monotonic()
         next_wait_note = start + 10.0
         try:
