@@ -5,8 +5,13 @@ session on its own loopback port; simulated time is the wall clock.
 """
 
 import json
+import os
+import signal
+import subprocess
+import sys
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 import yaml
@@ -94,3 +99,34 @@ def test_calibrator_restart_resumes_and_a_moved_camera_is_recalibrated(tmp_path)
             time.sleep(1.0)
         assert mono_b_error_mm() < 5.0, calibrator.log_tail()
         sub.undeclare()
+
+
+def processes_mentioning(text: str) -> list[int]:
+    """Pids of the processes whose command line holds `text`."""
+    pids = []
+    for proc in Path("/proc").iterdir():
+        try:
+            if proc.name.isdigit() and text in (proc / "cmdline").read_bytes().decode(errors="replace"):
+                pids.append(int(proc.name))
+        except OSError:
+            continue
+    return pids
+
+
+def test_sigterm_to_camnet_up_stops_every_node(tmp_path):
+    rig_path = rig_file(tmp_path, 4)
+    up = subprocess.Popen([sys.executable, "-m", "camnet.cli", "up", rig_path, "--duration-s", "300",
+                           "--run-dir", str(tmp_path / "run"), "--listen", f"tcp/127.0.0.1:{free_port()}"],
+                          stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        # Drivers, matcher and calibrator all carry the rig file on their command lines.
+        assert wait_for(lambda: len(processes_mentioning(rig_path)) >= 7, 60), processes_mentioning(rig_path)
+        up.send_signal(signal.SIGTERM)
+        up.wait(timeout=60)
+        assert wait_for(lambda: processes_mentioning(rig_path) == [], 20), processes_mentioning(rig_path)
+    finally:
+        if up.poll() is None:
+            up.kill()
+            up.wait()
+        for pid in processes_mentioning(rig_path):
+            os.kill(pid, signal.SIGKILL)

@@ -39,6 +39,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import contextlib
     import json
+    import signal
     import tempfile
     import threading
     import time
@@ -77,6 +78,9 @@ def run(args: argparse.Namespace) -> int:
             return
         arrived.set()
 
+    if threading.current_thread() is threading.main_thread():
+        # A process manager stops us with SIGTERM: leave as on Ctrl-C, so the nodes are stopped too.
+        signal.signal(signal.SIGTERM, _interrupt)
     print(f"camnet up: rig {rig.name!r}, {len(rig.cameras)} cameras, logs in {run_dir}", flush=True)
     with contextlib.ExitStack() as stack:
         progress_file = stack.enter_context(open(args.progress_jsonl, "w")) if args.progress_jsonl else None
@@ -119,6 +123,10 @@ def run(args: argparse.Namespace) -> int:
         write_json_atomic(args.output, doc)
     print(final_report(parse_calibration(doc), truth))
     return 0
+
+
+def _interrupt(*_) -> None:
+    raise KeyboardInterrupt
 
 
 def summarise(elapsed_s: float, doc: dict, truth) -> dict:
