@@ -97,3 +97,16 @@ def test_simulated_network_calibrates_to_scale_within_a_minute(tmp_path, n_camer
     rig_name = load_rig(rig_path).name
     assert {keys.frame(rig_name, cam.id) for cam in cal.cameras} <= topics
     assert keys.calibration(rig_name) in topics and keys.observations(rig_name) in topics
+
+
+@pytest.mark.parametrize(("flags", "fragment"), [
+    (["--duration-s", "0"], "--duration-s"),
+    (["--rerun", "bogus"], "--rerun"),
+    (["missing-rig.yaml"], "missing-rig.yaml"),
+])
+def test_up_refuses_bad_input_in_one_line_before_starting_nodes(tmp_path, flags, fragment):
+    proc = subprocess.run([sys.executable, "-m", "camnet.cli", "up", *flags, "--run-dir", str(tmp_path / "run")],
+                          capture_output=True, text=True, timeout=60, cwd=tmp_path)
+    lines = proc.stderr.strip().splitlines()
+    assert proc.returncode == 2 and len(lines) == 1 and fragment in lines[0], proc.stderr
+    assert not (tmp_path / "run").exists()

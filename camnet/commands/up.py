@@ -60,10 +60,10 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--duration-s: must be positive, got {args.duration_s}")
     if args.record and Path(args.record).exists() and not Path(args.record).is_dir():
         raise InputError(f"--record: {args.record} exists; camnet never overwrites a session")
+    sinks_from_args(args)  # refuse a bad --rerun here, before anything is written or started
     run_dir = Path(args.run_dir) if args.run_dir else Path(tempfile.mkdtemp(prefix=f"camnet-{rig.name}-"))
     run_dir.mkdir(parents=True, exist_ok=True)
     truth = rig.simulated_truth()
-    sinks_from_args(args)  # refuse a bad --rerun here, before any node starts
     rerun_flags = [flag for value in args.rerun for flag in ("--rerun", value)]
     children_bus = bus_flags(connect=args.connect, listen=args.listen, zenoh_config=args.zenoh_config,
                              scouting=args.scouting)
