@@ -82,13 +82,22 @@ def scale_gradient(points: np.ndarray) -> np.ndarray:
     return c / np.sum(c * c)
 
 
+FAR_FACTOR = 5.0
+
+
 def scale_sigma(cov: Covariance, points: np.ndarray, kept: np.ndarray | None = None) -> float:
     """Standard deviation of the network's scale (relative, 0.001 = 0.1%).
 
     kept: the points that make up the cloud (default all); rejected tracks
-    are left out of it.
+    are left out of it. So are points more than `FAR_FACTOR` times the median
+    distance from the cloud's median: tracks with almost no parallax land far
+    away with huge variances, and through their lever arm they would swamp
+    the scale of the cloud's body, which is what the scale is about.
     """
-    kept = np.ones(len(points), dtype=bool) if kept is None else kept
+    kept = np.ones(len(points), dtype=bool) if kept is None else kept.copy()
+    if kept.any():
+        distance = np.linalg.norm(points - np.median(points[kept], axis=0), axis=1)
+        kept &= distance <= FAR_FACTOR * np.median(distance[kept])
     g = np.zeros_like(points)
     g[kept] = scale_gradient(points[kept])
     return float(np.sqrt(cov.variance(None, g)))
