@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 import yaml
 
 from camnet import keys
@@ -113,7 +114,8 @@ def processes_mentioning(text: str) -> list[int]:
     return pids
 
 
-def test_sigterm_to_camnet_up_stops_every_node(tmp_path):
+@pytest.mark.parametrize("when", ["starting", "calibrating"])
+def test_sigterm_to_camnet_up_stops_every_node(tmp_path, when):
     rig_path = rig_file(tmp_path, 4)
     up = subprocess.Popen([sys.executable, "-m", "camnet.cli", "up", rig_path, "--duration-s", "300",
                            "--run-dir", str(tmp_path / "run"), "--listen", f"tcp/127.0.0.1:{free_port()}"],
@@ -121,9 +123,14 @@ def test_sigterm_to_camnet_up_stops_every_node(tmp_path):
     try:
         # Drivers, matcher and calibrator all carry the rig file on their command lines.
         assert wait_for(lambda: len(processes_mentioning(rig_path)) >= 7, 60), processes_mentioning(rig_path)
+        if when == "calibrating":
+            assert wait_for((tmp_path / "run" / "calibration.json").exists, 90), "no calibration"
         up.send_signal(signal.SIGTERM)
         up.wait(timeout=60)
-        assert wait_for(lambda: processes_mentioning(rig_path) == [], 20), processes_mentioning(rig_path)
+        left = [" ".join((Path("/proc") / str(pid) / "cmdline").read_text().split("\0")[2:6])
+                for pid in processes_mentioning(rig_path)] if not wait_for(
+            lambda: processes_mentioning(rig_path) == [], 20) else []
+        assert not left, f"still running: {left}\n{up.stdout.read()}"
     finally:
         if up.poll() is None:
             up.kill()

@@ -78,9 +78,13 @@ def run(args: argparse.Namespace) -> int:
             return
         arrived.set()
 
+    stop = threading.Event()
     if threading.current_thread() is threading.main_thread():
-        # A process manager stops us with SIGTERM: leave as on Ctrl-C, so the nodes are stopped too.
-        signal.signal(signal.SIGTERM, _interrupt)
+        # Ctrl-C and a process manager's SIGTERM only ask the loop below to end, so that no
+        # exception lands in the middle of starting a node (which would leave it orphaned)
+        # and every node is stopped on the way out.
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(signum, lambda *_: stop.set())
     print(f"camnet up: rig {rig.name!r}, {len(rig.cameras)} cameras, logs in {run_dir}", flush=True)
     with contextlib.ExitStack() as stack:
         progress_file = stack.enter_context(open(args.progress_jsonl, "w")) if args.progress_jsonl else None
@@ -97,36 +101,33 @@ def run(args: argparse.Namespace) -> int:
             launch.start("recorder", ["record", "--rig", rig.name, "-o", args.record, *children_bus])
         start = time.monotonic()
         next_wait_note = start + 10.0
-        try:
-            while args.forever or time.monotonic() - start < args.duration_s:
-                for child in launch.exited():
-                    raise CamnetError(f"node {child.name} exited with status {child.process.returncode}; "
-                                      f"the end of {child.log_path}:\n{child.log_tail()}")
-                if arrived.wait(timeout=0.5):
-                    arrived.clear()
-                    summary = summarise(time.monotonic() - start, latest["doc"], truth)
-                    print(progress_line(summary), flush=True)
-                    if progress_file is not None:
-                        progress_file.write(json.dumps(summary) + "\n")
-                        progress_file.flush()
-                elif "doc" not in latest and time.monotonic() >= next_wait_note:
-                    print(f"{time.monotonic() - start:7.1f} s  waiting for the first calibration "
-                          f"(see {run_dir}/*.log)", flush=True)
-                    next_wait_note = time.monotonic() + 10.0
-        except KeyboardInterrupt:
+        while (args.forever or time.monotonic() - start < args.duration_s) and not stop.is_set():
+            for child in launch.exited():
+                raise CamnetError(f"node {child.name} exited with status {child.process.returncode}; "
+                                  f"the end of {child.log_path}:\n{child.log_tail()}")
+            if arrived.wait(timeout=0.5):
+                arrived.clear()
+                summary = summarise(time.monotonic() - start, latest["doc"], truth)
+                print(progress_line(summary), flush=True)
+                if progress_file is not None:
+                    progress_file.write(json.dumps(summary) + "\n")
+                    progress_file.flush()
+            elif "doc" not in latest and time.monotonic() >= next_wait_note:
+                print(f"{time.monotonic() - start:7.1f} s  waiting for the first calibration "
+                      f"(see {run_dir}/*.log)", flush=True)
+                next_wait_note = time.monotonic() + 10.0
+        if stop.is_set():
             print("interrupted", flush=True)
         subscriber.undeclare()
     doc = latest.get("doc")
+    if doc is None and stop.is_set():
+        return 130
     if doc is None:
         raise CamnetError(f"no calibration in {args.duration_s:.0f} s; the nodes' logs are in {run_dir}")
     if args.output:
         write_json_atomic(args.output, doc)
     print(final_report(parse_calibration(doc), truth))
     return 0
-
-
-def _interrupt(*_) -> None:
-    raise KeyboardInterrupt
 
 
 def summarise(elapsed_s: float, doc: dict, truth) -> dict:
