@@ -11,8 +11,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -354,16 +352,6 @@ def parse_calibration(doc: Any) -> Calibration:
 
 def write_json_atomic(path: str | Path, doc: Any) -> None:
     """Write `doc` as JSON so that `path` holds either the old file or the whole new one."""
-    path = Path(path)
-    text = json.dumps(doc, indent=1, allow_nan=False)
-    fd, tmp = tempfile.mkstemp(dir=path.parent or Path("."), prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-            f.write("\n")
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    from camnet.atomic import write_text_atomic
+
+    write_text_atomic(path, json.dumps(doc, indent=1, allow_nan=False) + "\n")
