@@ -141,14 +141,28 @@ def _compress(image: np.ndarray, compression: Compression, encoding: str, qualit
     return buf.tobytes()
 
 
-def decode_frame(data: bytes | bytearray | memoryview) -> Frame:
-    """The Frame in `data`; raises FrameError (never anything else) if malformed.
+@dataclass(frozen=True)
+class FrameHeader:
+    """What the header of a wire frame says; `payload_size` bytes follow `header_size` ones."""
 
-    From immutable `bytes`, raw pixels are not copied: the image is a read-only
-    view that keeps `data` alive (copy it to modify). From a mutable buffer
-    the pixels are copied.
+    camera_id: str
+    seq: int
+    timestamp_ns: int
+    encoding: str
+    compression: Compression
+    width: int
+    height: int
+    header_size: int
+    payload_size: int
+
+
+def decode_header(data: bytes | bytearray | memoryview) -> FrameHeader:
+    """The header of the frame in `data`, without touching its pixels.
+
+    Checks the magic, version, header, sizes, encoding and compression, so a
+    frame that passes is complete; raises FrameError (never anything else)
+    otherwise.
     """
-    # Slicing a memoryview copies nothing; slicing bytes would copy the pixels.
     buf = memoryview(data).cast("B")
     if len(buf) < 5:
         raise FrameError("truncated", f"{len(buf)} bytes, shorter than any header")
@@ -179,11 +193,24 @@ def decode_frame(data: bytes | bytearray | memoryview) -> Frame:
         raise FrameError("bad-camera-id", "camera id is not utf-8") from None
     if width == 0 or height == 0:
         raise FrameError("bad-size", f"{width}x{height}")
-    payload = buf[header_size:header_size + payload_size]
-    image = _pixels(payload, compression, encoding, width, height,
+    return FrameHeader(camera_id, seq, timestamp_ns, encoding, compression, width, height, header_size,
+                       payload_size)
+
+
+def decode_frame(data: bytes | bytearray | memoryview) -> Frame:
+    """The Frame in `data`; raises FrameError (never anything else) if malformed.
+
+    From immutable `bytes`, raw pixels are not copied: the image is a read-only
+    view that keeps `data` alive (copy it to modify). From a mutable buffer
+    the pixels are copied.
+    """
+    header = decode_header(data)
+    # Slicing a memoryview copies nothing; slicing bytes would copy the pixels.
+    payload = memoryview(data).cast("B")[header.header_size:header.header_size + header.payload_size]
+    image = _pixels(payload, header.compression, header.encoding, header.width, header.height,
                     owned=isinstance(data, bytes))
-    return Frame(camera_id=camera_id, seq=seq, timestamp_ns=timestamp_ns, encoding=encoding,
-                 image=image)
+    return Frame(camera_id=header.camera_id, seq=header.seq, timestamp_ns=header.timestamp_ns,
+                 encoding=header.encoding, image=image)
 
 
 def _pixels(payload, compression: Compression, encoding: str, width: int,

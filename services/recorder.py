@@ -33,7 +33,7 @@ from mcap.writer import CompressionType, Writer
 from camnet import __version__, keys
 from camnet.bus import declare_liveliness
 from camnet.errors import CamnetError, InputError
-from camnet.frame import FrameError
+from camnet.frame import FrameError, FrameHeader
 from camnet.stats import NodeStats, RateMeter
 from services import session_file as sf
 
@@ -269,7 +269,7 @@ class Recorder:
             _, doc["kind"], doc["node_id"] = keys.parse_node(item.key)
         return json.dumps(doc).encode()
 
-    def _account(self, channels: _Channels, item: _Item, header: sf.FrameHeader, size: int) -> None:
+    def _account(self, channels: _Channels, item: _Item, header: FrameHeader, size: int) -> None:
         """Count the frame; write a gap or restart message if its seq does not follow."""
         camera = header.camera_id
         tally = self._tallies.get(camera, CameraTally())

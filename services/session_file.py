@@ -34,7 +34,13 @@ from mcap.writer import MCAP0_MAGIC
 
 from camnet import keys
 from camnet.errors import InputError
-from camnet.frame import ENCODINGS, FIXED_HEADER_SIZE, MAGIC, VERSION, Compression, FrameError
+from camnet.frame import (
+    ENCODINGS,
+    MAGIC,
+    VERSION,
+    Compression,
+    decode_header,
+)
 
 log = logging.getLogger(__name__)
 
@@ -54,7 +60,6 @@ SUMMARY_METADATA = "camnet.recording-summary"
 # make the reader allocate gigabytes).
 RECORD_SIZE_LIMIT_BYTES = 1 << 30
 _FOOTER = struct.Struct("<BQQQI")  # opcode, record length, summary_start, summary_offset_start, crc
-_SEQ_AND_TIME = struct.Struct("<QQ")  # seq and timestamp_ns at byte 20 of a frame
 
 
 def gaps_topic(rig: str) -> str:
@@ -62,39 +67,8 @@ def gaps_topic(rig: str) -> str:
     return f"{keys.rig_prefix(rig)}/recorder/gaps"
 
 
-@dataclass(frozen=True)
-class FrameHeader:
-    camera_id: str
-    seq: int
-    timestamp_ns: int
-
-
-def frame_header(data: bytes) -> FrameHeader:
-    """Camera id, seq and capture time of a wire frame, without touching its pixels.
-
-    Checks the magic, version, header and total size (docs/frame-format.md),
-    so a frame that passes is complete; raises FrameError otherwise.
-    """
-    if len(data) < FIXED_HEADER_SIZE:
-        raise FrameError("truncated", f"{len(data)} bytes, header needs {FIXED_HEADER_SIZE}")
-    if data[:4] != MAGIC:
-        raise FrameError("bad-magic", f"starts with {bytes(data[:4])!r}, expected {MAGIC!r}")
-    if data[4] != VERSION:
-        raise FrameError("unknown-version", f"version {data[4]}, this camnet reads {VERSION}")
-    header_size, id_len = struct.unpack_from("<HH", data, 8)
-    (payload_size,) = struct.unpack_from("<I", data, 36)
-    if header_size != FIXED_HEADER_SIZE + id_len or id_len == 0:
-        raise FrameError("bad-header", f"header_size {header_size} with id_len {id_len}")
-    if len(data) < header_size + payload_size:
-        raise FrameError("truncated", f"{len(data)} bytes, frame needs {header_size + payload_size}")
-    if len(data) > header_size + payload_size:
-        raise FrameError("trailing-bytes", f"{len(data) - header_size - payload_size} extra bytes")
-    seq, timestamp_ns = _SEQ_AND_TIME.unpack_from(data, 20)
-    try:
-        camera_id = bytes(data[FIXED_HEADER_SIZE:header_size]).decode("utf-8")
-    except UnicodeDecodeError:
-        raise FrameError("bad-camera-id", "camera id is not utf-8") from None
-    return FrameHeader(camera_id, seq, timestamp_ns)
+# Camera id, seq and capture time of a wire frame, checked whole, without touching its pixels.
+frame_header = decode_header
 
 
 def frame_schema() -> bytes:
