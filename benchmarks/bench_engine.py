@@ -20,10 +20,11 @@ import numpy as np
 
 from camnet.bundle import State
 from camnet.calibrate import Options, calibrate
+from camnet.evaluate import point_weights
 from camnet.metrics import scale_error, shape_rms_m
 from camnet.projection import intrinsics_from_K
 from camnet.simulate import make_rig, move_camera, observe
-from camnet.uncertainty import covariance, scale_sigma, shape_rms_bound_m
+from camnet.uncertainty import covariance, scale_sigma, scale_weights, shape_rms_bound_m
 
 SCENARIOS = [
     ("paper rig", dict(), dict(), frozenset({"f"})),
@@ -50,7 +51,8 @@ def bounds(rig, result, noise_px):
         rig.points[np.asarray(result.track_rows)],
     )
     cov = covariance(result.problem, truth, sigma_px=noise_px)
-    return scale_sigma(cov, truth.X, kept), shape_rms_bound_m(cov, X) if kept.all() else np.nan
+    scale = scale_sigma(cov, truth.X, scale_weights(cov, truth.X, kept))
+    return scale, shape_rms_bound_m(cov, X) if kept.all() else np.nan
 
 
 def accuracy(seeds: int, noise_px: float) -> None:
@@ -74,7 +76,8 @@ def accuracy(seeds: int, noise_px: float) -> None:
                     continue
                 cal = result.calibration
                 X_true = rig.points[cal.point_ids]
-                rows[method].append((abs(scale_error(cal.points, X_true)), shape_rms_m(cal.points, X_true)))
+                scale = scale_error(cal.points, X_true, point_weights(cal))
+                rows[method].append((abs(scale), shape_rms_m(cal.points, X_true)))
                 if method == "refined":
                     crb.append(bounds(rig, result, noise_px))
             print(".", end="", file=sys.stderr, flush=True)

@@ -56,8 +56,8 @@ from camnet.initialise import (
     paper_start,
     warm_start,
 )
-from camnet.projection import K_from_intrinsics
-from camnet.uncertainty import Covariance, covariance
+from camnet.projection import K_from_intrinsics, project_points
+from camnet.uncertainty import Covariance, covariance, residual_dof
 
 log = logging.getLogger(__name__)
 
@@ -231,8 +231,7 @@ def _choose_free(problem: Problem, state: State, options: Options, widths, heigh
     def restricted(trial: Problem):
         return bundle.restrict(ne, columns[trial.columns()[0] >= 0])
 
-    dof = 2 * len(problem.cam) - problem.columns()[1] - 3 * problem.n_points
-    variance = 2.0 * ne.cost / max(dof, 1)  # a posteriori pixel variance
+    variance = 2.0 * ne.cost / max(residual_dof(problem), 1)  # a posteriori pixel variance
 
     def significant(trial: Problem, base_decrease: float, k: int) -> tuple[bool, float]:
         """Whether freeing the trial's new block lowers the cost beyond chance (chi-square, k dof)."""
@@ -246,7 +245,10 @@ def _choose_free(problem: Problem, state: State, options: Options, widths, heigh
         base = bundle.gauss_newton_decrease(restricted(problem))
         movable = can_move.get(name, np.ones(M, bool))
         trial = _with_block(problem, name, movable)
-        effect = _pixel_effect(name, state, covariance(trial, state, normal=restricted(trial)), widths, heights)
+        try:
+            effect = _pixel_effect(name, state, covariance(trial, state, normal=restricted(trial)), widths, heights)
+        except np.linalg.LinAlgError:  # the block is not fixed at all by these observations
+            effect = np.inf if name.startswith("stereo") else np.full(M, np.inf)
         if name.startswith("stereo"):
             k = int(trial.columns()[1] - problem.columns()[1])
             wanted, statistic = significant(trial, base, k)
@@ -554,6 +556,35 @@ def _paper_result(obs, order, intr, rows, start: Start, timings) -> Result:
     )
 
 
+def reported_points(problem: Problem, state: State, cov: Covariance | None) -> tuple[np.ndarray, dict[str, int]]:
+    """(N,) mask of the points a calibration reports, and how many were left out, by reason.
+
+    A point is reported when at least two inlier views see it, it lies in
+    front of every camera that sees it (a false match along an epipolar
+    line fits two views just as well behind them), and, where the
+    uncertainty is known, its 1-sigma position error is smaller than its
+    distance from the nearest camera that sees it (tracks with no parallax
+    land anywhere along their rays, some at millions of metres).
+    """
+    views = np.bincount(problem.pt, minlength=problem.n_points)
+    _, xc = project_points(state.intr[problem.cam], state.R[problem.cam], state.C[problem.cam], state.X[problem.pt])
+    behind = np.zeros(problem.n_points, dtype=bool)
+    behind[problem.pt[xc[:, 2] <= 0]] = True
+    nearest = np.full(problem.n_points, np.inf)
+    np.minimum.at(nearest, problem.pt, np.linalg.norm(xc, axis=1))
+    undetermined = np.zeros(problem.n_points, dtype=bool)
+    if cov is not None:
+        undetermined = np.sqrt(3.0) * cov.point_sigmas_m() >= nearest
+    few = views < 2
+    kept = ~few & ~behind & ~undetermined
+    dropped = {
+        "fewer_than_two_views": int(few.sum()),
+        "behind_a_camera": int((~few & behind).sum()),
+        "undetermined": int((~few & ~behind & undetermined).sum()),
+    }
+    return kept, dropped
+
+
 def _result(
     obs, order, problem, state, track_rows, inliers, info, cov, decisions, options, timings, *, start: str = "cold"
 ) -> Result:
@@ -577,12 +608,11 @@ def _result(
     cameras = [None] * len(order)
     for m, i in enumerate(order):
         cameras[i] = cameras_by_m[m]
-    # Points kept: tracks with at least two inlier views.
-    views = np.bincount(problem.pt, minlength=problem.n_points)
-    kept = views >= 2
+    kept, dropped = reported_points(problem, state, cov)
     r = bundle.residuals(problem, state)
     rms = float(np.sqrt(np.mean(np.sum(r * r, axis=1)))) if len(r) else float("nan")
-    extra = describe(obs, order, problem, state, cov, inliers, info, decisions, options, timings)
+    extra = describe(obs, order, problem, state, cov, inliers, info, decisions, options, timings, kept)
+    extra["diagnostics"]["points_left_out"] = dropped
     extra["diagnostics"]["start"] = start
     calibration = Calibration(
         cameras=cameras,

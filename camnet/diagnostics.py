@@ -10,7 +10,7 @@ import numpy as np
 from camnet import bundle
 from camnet.bundle import CEN, CENTRE_FREE, CENTRE_ON_BASELINE, ROT, _tangent_basis
 from camnet.projection import INTRINSIC_NAMES
-from camnet.uncertainty import scale_sigma
+from camnet.uncertainty import scale_sigma, scale_weights
 
 MIN_CAMERA_OBSERVATIONS = 12
 MIN_PARALLAX_DEG = 2.0
@@ -101,7 +101,8 @@ def free_parameters(problem, cameras_ids: list[str]) -> dict:
     }
 
 
-def describe(obs, order, problem, state, cov, inliers, info, decisions, options, timings) -> dict:
+def describe(obs, order, problem, state, cov, inliers, info, decisions, options, timings, kept) -> dict:
+    """The further keys; `kept` (N,) marks the points the calibration reports."""
     ids = [obs.cameras[i].id for i in order]
     r = np.linalg.norm(bundle.residuals(problem, state), axis=1)
     warnings = []
@@ -115,14 +116,14 @@ def describe(obs, order, problem, state, cov, inliers, info, decisions, options,
         }
         if n_in < MIN_CAMERA_OBSERVATIONS:
             warnings.append(f"camera {cam_id}: only {n_in} inlier observations; its calibration is weak")
-    parallax = _parallax_deg(problem, state)
+    parallax = _parallax_deg(problem, state)[kept]
     if len(parallax) and np.median(parallax) < MIN_PARALLAX_DEG:
         warnings.append(
             f"little parallax: the median point is seen under {np.median(parallax):.2f} deg; "
             "depth and focal lengths are weakly determined"
         )
-    centred = state.X - state.X.mean(axis=0)
-    sv = np.linalg.svd(centred, compute_uv=False) if len(centred) >= 3 else np.ones(3)
+    body = state.X[kept]
+    sv = np.linalg.svd(body - body.mean(axis=0), compute_uv=False) if len(body) >= 3 else np.ones(3)
     if sv[2] < COPLANAR_RATIO * sv[0]:
         warnings.append("the points are nearly coplanar; focal lengths and poses trade off")
     warnings += _held_disparity_warning(obs, order, problem, state)
@@ -143,19 +144,22 @@ def describe(obs, order, problem, state, cov, inliers, info, decisions, options,
         "timings_s": {k: round(v, 6) for k, v in timings.items()},
     }
     if cov is not None:
-        kept = np.bincount(problem.pt, minlength=problem.n_points) >= 2
-        scale = scale_sigma(cov, state.X, kept)
+        weights = scale_weights(cov, state.X, kept)
+        scale = scale_sigma(cov, state.X, weights) if kept.any() else None
         per_cam = {cam_id: _camera_uncertainty(m, problem, state, cov) for m, cam_id in enumerate(ids)}
         for m, cam_id in enumerate(ids):
             if per_cam[cam_id]["f_px"] > POOR_FOCAL_REL * state.intr[m, 0]:
                 warnings.append(
                     f"camera {cam_id}: focal length poorly determined (sigma {per_cam[cam_id]['f_px']:.0f} px)"
                 )
-        if scale > POOR_SCALE_REL:
+        if scale is None:
+            warnings.append("no point is determined: the scale is unknown")
+        elif scale > POOR_SCALE_REL:
             warnings.append(f"the scale is uncertain by {100 * scale:.1f}% (1 sigma)")
         out["uncertainty"] = {
             "sigma_px": cov.sigma_px,
             "scale_rel": scale,
             "cameras": per_cam,
+            "point_weights": weights[kept].tolist(),
         }
     return out

@@ -54,12 +54,18 @@ def compare(cal: Calibration, truth_cameras: list[Camera], truth_points: np.ndar
         )
     X_true = truth_points[cal.point_ids]
     return Comparison(
-        scale_rel=scale_error(cal.points, X_true),
-        scale_sigma_rel=float(cal.extra.get("uncertainty", {}).get("scale_rel", np.nan)),
+        scale_rel=scale_error(cal.points, X_true, point_weights(cal)),
+        scale_sigma_rel=float(cal.extra.get("uncertainty", {}).get("scale_rel") or np.nan),
         shape_rms_mm=1e3 * shape_rms_m(cal.points, X_true),
         rms_reprojection_px=cal.rms_reprojection_px,
         cameras=cams,
     )
+
+
+def point_weights(cal: Calibration) -> np.ndarray | None:
+    """Weights of the calibration's points in its reported scale, None without uncertainty."""
+    w = cal.extra.get("uncertainty", {}).get("point_weights")
+    return None if w is None or len(w) != len(cal.points) else np.asarray(w, dtype=float)
 
 
 def per_camera_rms(calibration: Calibration, observations: Observations) -> dict[str, float]:

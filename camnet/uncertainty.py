@@ -17,13 +17,18 @@ import scipy.linalg
 
 from camnet.bundle import NormalEquations, Problem, State, normal_equations, times_block_diag
 
+# A point block whose smallest eigenvalue is below this fraction of its largest leaves
+# the point undetermined along that direction (in metres, so the ratio has meaning).
+POINT_RCOND = 1e-12
+
 
 @dataclass(frozen=True)
 class Covariance:
     sigma_px: float  # pixel noise sigma the covariance is scaled by
     S_inv: np.ndarray  # (Pc, Pc) inverse Schur complement (unscaled)
     W: np.ndarray  # (Pc, 3N)
-    V_inv: np.ndarray  # (N, 3, 3)
+    V_inv: np.ndarray  # (N, 3, 3) pseudo-inverses of the point blocks V
+    V: np.ndarray  # (N, 3, 3)
     columns: np.ndarray  # (M, 15) problem.columns()
 
     @property
@@ -42,12 +47,21 @@ class Covariance:
         xp = y - np.einsum("nij,nj->ni", self.V_inv, (self.W.T @ xc).reshape(-1, 3))
         return float(self.sigma_px**2 * (gc @ xc + np.sum(gp * xp)))
 
+    def point_covariances_m2(self) -> np.ndarray:
+        """(N, 3, 3) covariance of each point, m^2; infinite for a point not fixed in some direction."""
+        WV = times_block_diag(self.W, self.V_inv)  # (Pc, 3N)
+        N = len(self.V_inv)
+        SWV = (self.S_inv @ WV).reshape(-1, N, 3)
+        extra = np.einsum("pni,pnj->nij", WV.reshape(-1, N, 3), SWV)
+        eig = np.linalg.eigvalsh(self.V)
+        determined = eig[:, 0] > POINT_RCOND * np.maximum(eig[:, -1], 1e-300)
+        cov = self.sigma_px**2 * (self.V_inv + extra)
+        cov[~determined] = np.inf
+        return cov
+
     def point_sigmas_m(self) -> np.ndarray:
-        """(N,) RMS over axes of each point's standard deviation, metres."""
-        WV = times_block_diag(self.W, self.V_inv)
-        extra = np.sum((self.S_inv @ WV) * WV, axis=0).reshape(-1, 3).sum(axis=1)
-        total = np.einsum("nii->n", self.V_inv) + extra
-        return self.sigma_px * np.sqrt(np.maximum(total, 0.0) / 3.0)
+        """(N,) RMS over axes of each point's standard deviation, metres (infinite: not fixed)."""
+        return np.sqrt(np.maximum(np.einsum("nii->n", self.point_covariances_m2()), 0.0) / 3.0)
 
 
 def covariance(
@@ -58,49 +72,103 @@ def covariance(
     normal: the unweighted normal equations at `state` when the caller has them.
     """
     ne = normal_equations(problem, state) if normal is None else normal
-    # A point left without observations (all rejected), or seen along one ray only,
-    # carries no information in some directions: the pseudo-inverse gives it none.
-    V_inv = np.linalg.pinv(ne.V, hermitian=True)
+    # A point left without observations (all rejected), or seen along one ray only
+    # (no parallax), carries no information in some directions: the pseudo-inverse
+    # gives it no weight in the cameras' equations, and `point_sigmas_m` an
+    # infinite error.
+    V_inv = np.linalg.pinv(ne.V, rcond=POINT_RCOND, hermitian=True)
     S = ne.U - times_block_diag(ne.W, V_inv) @ ne.W.T
-    S_inv = scipy.linalg.pinvh(S) if len(S) else S
+    S_inv = inverse_spd(S)
     if sigma_px is None:
-        cols, n_cols = problem.columns()
-        dof = 2 * len(problem.cam) - n_cols - 3 * problem.n_points
-        sigma_px = float(np.sqrt(2.0 * ne.cost / max(dof, 1)))
-    return Covariance(sigma_px, S_inv, ne.W, V_inv, problem.columns()[0])
+        sigma_px = float(np.sqrt(2.0 * ne.cost / max(residual_dof(problem), 1)))
+    return Covariance(sigma_px, S_inv, ne.W, V_inv, ne.V, problem.columns()[0])
 
 
-def scale_gradient(points: np.ndarray) -> np.ndarray:
+def residual_dof(problem: Problem) -> int:
+    """Degrees of freedom of the residuals: observation coordinates minus the parameters they fix.
+
+    A point seen once fits its two coordinates exactly and uses two of its
+    three unknowns; a point left without observations uses none. Counting
+    three for every point would shrink the count (and inflate the a-posteriori
+    sigma) wherever outlier rejection leaves tracks with a single view.
+    """
+    views = np.bincount(problem.pt, minlength=problem.n_points)
+    return int(2 * len(problem.cam) - problem.columns()[1] - np.minimum(3, 2 * views).sum())
+
+
+def inverse_spd(S: np.ndarray) -> np.ndarray:
+    """Inverse of a symmetric positive semi-definite matrix of mixed units, keeping weak directions.
+
+    The camera parameters mix pixels, radians and metres, so the eigenvalues of
+    S span twenty orders of magnitude even when every direction is
+    determined. A pseudo-inverse with a cut-off relative to the largest
+    eigenvalue would drop the weakest directions, which are exactly the
+    nearly flat valleys (focal length against principal point and depth)
+    whose large variance must be reported. Scaling to a unit diagonal first
+    leaves only the true conditioning. Raises numpy's LinAlgError when a
+    direction is not fixed at all (its variance would be infinite).
+    """
+    if not len(S):
+        return S
+    diag = np.diag(S)
+    if not np.all(diag > 0):
+        raise np.linalg.LinAlgError("a camera parameter has no effect on any observation")
+    d = 1.0 / np.sqrt(diag)
+    scaled = S * d[:, None] * d[None, :]
+    inv = scipy.linalg.cho_solve(scipy.linalg.cho_factor(scaled), np.eye(len(S)))
+    return inv * d[:, None] * d[None, :]
+
+
+def scale_gradient(points: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
     """Gradient of the similarity scale of a point cloud with respect to its points.
 
-    The least-squares similarity that maps the true cloud onto the estimate
-    has, to first order, the scale ``1 + sum(c_j . e_j) / sum(|c_j|^2)``
-    (c_j the centred true points, e_j the errors); rotation and translation
-    errors do not enter it.
+    The weighted least-squares similarity that maps the true cloud onto the
+    estimate has, to first order, the scale ``1 + sum(w_j c_j . e_j) /
+    sum(w_j |c_j|^2)`` (c_j the true points centred on their weighted mean,
+    e_j the errors, w_j the weights, default equal); rotation and
+    translation errors do not enter it.
     """
-    c = points - points.mean(axis=0)
-    return c / np.sum(c * c)
+    w = np.ones(len(points)) if weights is None else weights
+    c = points - (w @ points) / w.sum()
+    return w[:, None] * c / np.sum(w[:, None] * c * c)
 
 
-FAR_FACTOR = 5.0
+def scale_weights(cov: Covariance, points: np.ndarray, kept: np.ndarray | None = None) -> np.ndarray:
+    """(N,) weights of the points in the network's scale, 0 for points left out.
+
+    What matters for the scale is a point's error along its lever arm (from
+    the cloud's median point): points as precise there as the cloud's median
+    point or better weigh 1, less precise ones their inverse variance
+    relative to it. Tracks with little parallax land far away with large
+    depth errors, right along their lever arm, and with equal weights they
+    would swamp the scale of the cloud's body, which is what the scale is
+    about (a fully known stereo pair leaves the scale no freedom, yet a few
+    far points would report percents). Capping the weight at 1 keeps a few
+    deceptively precise points (a false match close to the cameras) from
+    taking the scale over.
+    """
+    kept = np.ones(len(points), dtype=bool) if kept is None else kept
+    if not kept.any():
+        return np.zeros(len(points))
+    arm = points - np.median(points[kept], axis=0)
+    arm /= np.maximum(np.linalg.norm(arm, axis=1, keepdims=True), 1e-300)
+    with np.errstate(invalid="ignore"):  # inf * 0 for undetermined points: weight 0 below
+        along = np.sqrt(np.abs(np.einsum("ni,nij,nj->n", arm, cov.point_covariances_m2(), arm)))
+    along = np.where(np.isfinite(along), along, np.inf)
+    typical = np.median(along[kept])
+    w = np.minimum(1.0, typical / np.maximum(along, 1e-300)) ** 2
+    return np.where(kept, w, 0.0)
 
 
-def scale_sigma(cov: Covariance, points: np.ndarray, kept: np.ndarray | None = None) -> float:
+def scale_sigma(cov: Covariance, points: np.ndarray, weights: np.ndarray | None = None) -> float:
     """Standard deviation of the network's scale (relative, 0.001 = 0.1%).
 
-    kept: the points that make up the cloud (default all); rejected tracks
-    are left out of it. So are points more than `FAR_FACTOR` times the median
-    distance from the cloud's median: tracks with almost no parallax land far
-    away with huge variances, and through their lever arm they would swamp
-    the scale of the cloud's body, which is what the scale is about.
+    The scale is the similarity scale of the cloud with the given point
+    weights (default `scale_weights` of `cov`), the one
+    `camnet.metrics.scale_error` measures with the same weights.
     """
-    kept = np.ones(len(points), dtype=bool) if kept is None else kept.copy()
-    if kept.any():
-        distance = np.linalg.norm(points - np.median(points[kept], axis=0), axis=1)
-        kept &= distance <= FAR_FACTOR * np.median(distance[kept])
-    g = np.zeros_like(points)
-    g[kept] = scale_gradient(points[kept])
-    return float(np.sqrt(cov.variance(None, g)))
+    w = scale_weights(cov, points) if weights is None else weights
+    return float(np.sqrt(cov.variance(None, scale_gradient(points, w))))
 
 
 def shape_rms_bound_m(cov: Covariance, points: np.ndarray) -> float:

@@ -135,7 +135,7 @@ def compare(cal: Calibration, obs: Observations, published: dict[str, Camera]) -
         cameras=compare_cameras(cal, published),
         distance_rel=distance_rel,
         distance_points=n_points,
-        scale_sigma_rel=float(cal.extra.get("uncertainty", {}).get("scale_rel", np.nan)),
+        scale_sigma_rel=float(cal.extra.get("uncertainty", {}).get("scale_rel") or np.nan),
         rms_reprojection_px=cal.rms_reprojection_px,
         warnings=list(cal.extra.get("diagnostics", {}).get("warnings", [])),
     )

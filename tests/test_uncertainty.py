@@ -1,0 +1,80 @@
+"""The reported uncertainty: weak directions kept, undetermined points left out, the scale's weights."""
+
+from dataclasses import replace
+
+import numpy as np
+import scipy.linalg
+
+from camnet.calibrate import Options, calibrate, reported_points
+from camnet.simulate import make_rig, observe
+from camnet.uncertainty import covariance, inverse_spd, residual_dof, scale_sigma, scale_weights
+
+
+def test_inverse_keeps_the_weak_directions_of_a_badly_scaled_matrix():
+    rng = np.random.default_rng(0)
+    Q, _ = np.linalg.qr(rng.normal(size=(12, 12)))
+    A = Q @ np.diag(np.logspace(-8, 0, 12)) @ Q.T  # a flat valley, 1e8 conditioned
+    D = np.diag(np.logspace(-5, 5, 12))  # pixels, radians and metres side by side
+    S = D @ A @ D
+    # inv(S) = inv(D) inv(A) inv(D): compare in A's units, where the valley is 1e8 deep.
+    np.testing.assert_allclose(D @ inverse_spd(S) @ D, np.linalg.inv(A), rtol=1e-6, atol=1e-6)
+    # A pseudo-inverse cut off relative to the largest eigenvalue loses the valley.
+    assert not np.allclose(D @ scipy.linalg.pinvh(S) @ D, np.linalg.inv(A), rtol=1e-2)
+
+
+def test_freeing_the_principal_points_widens_the_focal_sigma():
+    """On a shallow scene the focal length slides against the principal points: the sigma must say so."""
+    rig = make_rig(seed=2, depth_range_m=(0.6, 0.65), n_points=200)
+    obs = observe(rig, noise_px=0.5, seed=2).observations
+    sigmas, errors = {}, {}
+    for name, free in (("f", {"f"}), ("f,pp", {"f", "pp"})):
+        cal = calibrate(obs, Options(free=frozenset(free))).calibration
+        unc = cal.extra["uncertainty"]["cameras"]
+        truth = {c.id: c.K[0, 0] for c in rig.cameras}
+        sigmas[name] = np.array([unc[c.id]["f_px"] for c in cal.cameras])
+        errors[name] = np.array([c.K[0, 0] - truth[c.id] for c in cal.cameras])
+    assert np.all(sigmas["f,pp"] > 2 * sigmas["f"]), sigmas
+    assert np.all(np.abs(errors["f,pp"]) < 4 * sigmas["f,pp"]), (errors, sigmas)
+
+
+def test_points_behind_a_camera_or_without_parallax_are_left_out():
+    rig = make_rig(seed=1, n_points=80)
+    result = calibrate(observe(rig, noise_px=0.5, seed=1).observations, Options(free=frozenset({"f"})))
+    problem, state = result.problem, result.state
+    kept, dropped = reported_points(problem, state, covariance(problem, state))
+    assert kept.all() and sum(dropped.values()) == 0
+    X = state.X.copy()
+    X[0] = -X[0]  # behind the left camera
+    X[1] = state.C[0] + 1e7 * (X[1] - state.C[0])  # far along its ray: no parallax left
+    moved = replace(state, X=X)
+    kept, dropped = reported_points(problem, moved, covariance(problem, moved, sigma_px=0.5))
+    assert not kept[0] and not kept[1] and kept[2:].all()
+    assert dropped == {"fewer_than_two_views": 0, "behind_a_camera": 1, "undetermined": 1}
+
+
+def test_far_points_do_not_swamp_the_scale():
+    rig = make_rig(seed=3, n_points=80)
+    result = calibrate(observe(rig, noise_px=0.5, seed=3).observations, Options(free=frozenset({"f"})))
+    problem, state = result.problem, result.state
+    body = scale_sigma(covariance(problem, state, sigma_px=0.5), state.X)
+    X = state.X.copy()
+    X[:3] = state.C[0] + 30.0 * (X[:3] - state.C[0])  # three points 20 m away, with little parallax
+    far = replace(state, X=X)
+    cov = covariance(problem, far, sigma_px=0.5)
+    w = scale_weights(cov, X)
+    assert np.all(w[:3] < 1e-3) and np.all(w[3:] > 0.1)
+    assert scale_sigma(cov, X) < 1.5 * body
+    # With equal weights the three far points' lever arm takes the scale over.
+    assert scale_sigma(cov, X, np.ones(len(X))) > 3 * body
+
+
+def test_a_point_seen_once_uses_two_degrees_of_freedom():
+    rig = make_rig(seed=4)
+    result = calibrate(observe(rig, noise_px=0.5, seed=4).observations, Options(free=frozenset({"f"})))
+    problem = result.problem
+    before = residual_dof(problem)
+    first = np.flatnonzero(problem.pt == 0)
+    keep = np.ones(len(problem.cam), dtype=bool)
+    keep[first[1:]] = False  # point 0 keeps one view
+    # Its lost views took 2 coordinates each; it now fixes 2 unknowns instead of 3.
+    assert residual_dof(problem.subset(keep)) == before - 2 * (len(first) - 1) + 1
