@@ -65,6 +65,9 @@ class ReplayOptions:
             raise InputError(f"rate: must be >= 0, got {self.rate}")
         if self.lockstep and self.rate != 0:
             raise InputError(f"rate: a lockstep replay goes as fast as the pipeline acknowledges, got {self.rate}")
+        if self.lockstep and self.include_results:
+            raise InputError("include_results: a lockstep replay feeds the live matcher and calibrator; "
+                             "recorded results on their keys would be solved as if they were theirs")
         if not self.step_tolerance_ms >= 0 or not self.ack_timeout_s > 0:
             raise InputError("step_tolerance_ms must be >= 0 and ack_timeout_s > 0")
         if self.rig is not None:

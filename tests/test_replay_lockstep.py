@@ -57,19 +57,26 @@ def write_session(path: Path, rig_path: str) -> int:
         if k:
             order.append(frames[k * n - 1])
     order.append(frames[-1])
+    write_frames(path, rig.name, order)
+    return len(order)
+
+
+def write_frames(path: Path, rig_name: str, frames: list[tuple[int, bytes, str]]) -> None:
+    """A session file of (capture time ns, frame bytes, camera id), in this order, received 1-4 ms after capture."""
     from mcap.writer import Writer
 
     with open(path, "wb") as stream:
         writer = Writer(stream)
         writer.start(profile=sf.PROFILE, library="camnet tests")
         schema = writer.register_schema(sf.FRAME_SCHEMA, sf.FRAME_SCHEMA_ENCODING, sf.frame_schema())
-        channels = {c.camera_id: writer.register_channel(keys.frame(rig.name, c.camera_id), sf.FRAME_ENCODING,
-                                                         schema) for c in cameras}
-        for k, (timestamp_ns, data, camera_id) in enumerate(order):
-            writer.add_message(channels[camera_id], log_time=timestamp_ns + 1_000_000 * (k % n + 1) + k,
+        channels = {}
+        for k, (timestamp_ns, data, camera_id) in enumerate(frames):
+            if camera_id not in channels:
+                channels[camera_id] = writer.register_channel(keys.frame(rig_name, camera_id), sf.FRAME_ENCODING,
+                                                              schema)
+            writer.add_message(channels[camera_id], log_time=timestamp_ns + 1_000_000 * (k % 4 + 1) + k,
                                data=data, publish_time=timestamp_ns)
         writer.finish()
-    return len(order)
 
 
 def run_pipeline(tmp_path: Path, rig_path: str, session: Path, name: str) -> dict:
@@ -187,4 +194,19 @@ def test_lockstep_messages_and_inbox():
 def test_lockstep_options_are_checked():
     with pytest.raises(Exception, match="lockstep"):
         ReplayOptions(rate=1.0, lockstep=True)
+    with pytest.raises(Exception, match="include_results"):
+        ReplayOptions(rate=0, lockstep=True, include_results=True)
     ReplayOptions(rate=0, lockstep=True)
+
+
+def test_lockstep_replay_without_the_nodes_fails_in_one_line(tmp_path):
+    session = tmp_path / "tiny.mcap"
+    image = np.zeros((8, 8), np.uint8)
+    write_frames(session, "tiny", [(t, encode_frame(Frame(c, t, t, "mono8", image)), c)
+                                   for t in (1, 2) for c in ("left", "right")])
+    result = subprocess.run([sys.executable, "-m", "camnet", "replay", str(session), "--lockstep", "--wait-s", "1",
+                             "--listen", f"tcp/127.0.0.1:{free_port()}"],
+                            cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2
+    error = result.stderr.strip().splitlines()[-1]
+    assert error.startswith("camnet replay: error: lockstep: no matcher and no calibrator in lockstep on rig tiny")

@@ -23,8 +23,8 @@ _NODE_FLAGS = (
     ("--stats-period-s", dict(type=float, metavar="S",
                               help="seconds between statistics messages (default: 1.0)")),
     ("--lockstep", dict(action="store_true",
-                        help="take the frames of `camnet replay --lockstep` one step at a time, on the replayed "
-                             "capture clock, and acknowledge each (default: False)")),
+                        help="match the frames of a lockstep replay (camnet replay) one step at a time, on the "
+                             "replayed capture clock, and acknowledge each step (default: False)")),
 )
 
 
