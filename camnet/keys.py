@@ -52,6 +52,20 @@ def groundtruth(rig: str) -> str:
     return f"{rig_prefix(rig)}/groundtruth"
 
 
+def lockstep_step(rig: str) -> str:
+    """A lockstep replay's step announcements (JSON, see camnet.lockstep)."""
+    return f"{rig_prefix(rig)}/lockstep/step"
+
+
+def lockstep_ack(rig: str, kind: str) -> str:
+    """Acknowledgements of a lockstep node of `kind` (JSON), and its liveliness token."""
+    return f"{rig_prefix(rig)}/lockstep/ack/{validate_id(kind, what='node kind')}"
+
+
+def all_lockstep_acks(rig: str) -> str:
+    return f"{rig_prefix(rig)}/lockstep/ack/*"
+
+
 def node(rig: str, kind: str, node_id: str) -> str:
     """Liveliness token of one node (e.g. kind 'driver', id the camera id)."""
     return (

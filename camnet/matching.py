@@ -361,6 +361,7 @@ def match_frame_set(
     config: MatcherConfig = MatcherConfig(),
     *,
     stereo: Stereo | None = None,
+    seed: int = 0,
 ) -> FrameSetMatches:
     """Detect in every image and match every pair of cameras.
 
@@ -369,7 +370,12 @@ def match_frame_set(
     (stereo.left, stereo.right) is matched under the near-epipolar prior; all
     other pairs (each camera against left, right and every other camera) are
     matched without it. The prior is optional: converging views need none.
+    OpenCV's RNG of the calling thread is seeded with `seed` first, so the
+    matches are a function of the images alone.
     """
+    # USAC keeps its own fixed state today, but OpenCV's other robust estimators draw from the
+    # thread's RNG, which the renderer and other callers in this thread also move.
+    cv2.setRNGSeed(seed)
     items = list(images.items()) if isinstance(images, Mapping) else list(images)
     camera_ids = tuple(cam_id for cam_id, _ in items)
     if len(set(camera_ids)) != len(camera_ids):

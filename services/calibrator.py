@@ -12,6 +12,10 @@ since the last solve; its older observations are then ignored (they
 describe the old pose) and its pose is solved afresh. If a stereo camera, or
 most of the rig, moved, the metric frame itself is gone: the calibrator
 starts over from the new tracks alone.
+
+With ``lockstep`` (`camnet.lockstep`) every observations message is
+acknowledged once it has been solved and its result published, so that a
+lockstep replay sends the next frame set only then.
 """
 
 from __future__ import annotations
@@ -25,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from camnet import keys
+from camnet import keys, lockstep
 from camnet.bus import declare_liveliness
 from camnet.calibrate import Options, calibrate
 from camnet.change import MoveRule, drop_before, moved_cameras, new_track_errors
@@ -240,8 +244,9 @@ class CalibratorNode:
     """Zenoh side of the calibrator: subscribe, solve on a worker, publish, persist, answer."""
 
     def __init__(self, session, rig_name: str, config: CalibratorConfig = CalibratorConfig(), *,
-                 viewer=None) -> None:
+                 viewer=None, lockstep: bool = False) -> None:
         self.session = session
+        self.lockstep = lockstep
         self.rig_name = keys.validate_id(rig_name, what="rig")
         self.config = config
         self.viewer = viewer
@@ -355,13 +360,23 @@ class CalibratorNode:
         subscriber = self.session.declare_subscriber(keys.observations(rig), self._on_observations)
         frames = (self.session.declare_subscriber(keys.all_frames(rig), self.viewer.on_frame)
                   if self.viewer is not None else None)
+        ack_publisher = ack_token = None
+        if self.lockstep:
+            import zenoh
+
+            ack_publisher = self.session.declare_publisher(keys.lockstep_ack(rig, NODE_KIND),
+                                                           congestion_control=zenoh.CongestionControl.BLOCK)
+            ack_token = declare_liveliness(self.session, keys.lockstep_ack(rig, NODE_KIND))
         token = declare_liveliness(self.session, keys.node(rig, NODE_KIND, NODE_KIND))
         next_stats = 0.0
         try:
             while not stop.is_set():
                 payload = self.mailbox.take(timeout_s=0.2)
                 if payload is not None:
-                    self.handle(payload, publisher)
+                    outcome = self.handle(payload, publisher)
+                    if ack_publisher is not None:
+                        status = outcome.status if outcome is not None else "not solved"
+                        ack_publisher.put(lockstep.Ack.for_observations(payload, status=status).to_json())
                 if time.monotonic() >= next_stats:
                     stats_publisher.put(self._stats().to_json())
                     next_stats = time.monotonic() + self.config.stats_period_s
@@ -371,6 +386,8 @@ class CalibratorNode:
             if frames is not None:
                 frames.undeclare()
             queryable.undeclare()
+            if ack_token is not None:
+                ack_token.undeclare()
             token.undeclare()
 
 

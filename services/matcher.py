@@ -16,6 +16,11 @@ publish period. The document carries, beside the contract's keys:
   from which a consumer measures capture-to-result latency;
 - ``published_ns``: when this document was published (Unix epoch, ns).
 
+With ``lockstep`` the node takes its frames from a lockstep replay
+(`camnet.lockstep`): each announced step's frames form at most one frame
+set, waiting for late cameras and the publish period follow the replayed
+capture times, not the wall clock, and every step is acknowledged.
+
 Cameras are listed with the sizes of their frames (or of the rig file before
 the first frame); no intrinsics are passed on, not even a simulated camera's
 ground truth. The latest document also answers queries on the same key.
@@ -28,12 +33,12 @@ import logging
 import threading
 import time
 import uuid
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
 
-from camnet import keys
+from camnet import keys, lockstep
 from camnet.bus import declare_liveliness
 from camnet.errors import InputError
 from camnet.formats import CameraInfo, Stereo, observations_to_doc
@@ -52,6 +57,7 @@ NODE_KIND = "matcher"
 NODE_ID = "matcher"
 WARNING_PERIOD_S = 30.0  # at most one warning of each kind per this many seconds
 NO_SET_WARNING_S = 10.0  # frames arrive but no frame set forms for this long: say why
+LOCKSTEP_FRAME_WAIT_S = 10.0  # a step's frames are on their way when it is announced
 
 
 @dataclass(frozen=True)
@@ -67,6 +73,7 @@ class MatcherNodeConfig:
     max_features: int = 4000  # per image
     max_image_side_px: int | None = None  # detect on a downscaled copy above this size
     stats_period_s: float = 1.0
+    lockstep: bool = False  # frames come from `camnet replay --lockstep`, one step at a time
 
     def __post_init__(self) -> None:
         if self.detector not in {d.value for d in Detector}:
@@ -156,6 +163,8 @@ class MatcherNode:
         self._last_set_s = time.monotonic()
         self._warned_s: dict[str, float] = {}
         self._dropped_at_warning = 0
+        self._next_publish_s = float("-inf")  # on the wall clock, or the capture clock in lockstep
+        self._inbox = lockstep.StepInbox() if config.lockstep else None
 
     # ------------------------------------------------------------ Zenoh's threads
 
@@ -167,6 +176,10 @@ class MatcherNode:
         kind = self._check(frame, str(sample.key_expr))
         if kind is not None:
             self._reject(kind, frame)
+        if self._inbox is not None:
+            self._inbox.add_frame(frame.camera_id, frame.seq, frame if kind is None else None)
+            return
+        if kind is not None:
             return
         with self._ready:
             self._sync.add(frame, now_s=time.monotonic())
@@ -190,6 +203,19 @@ class MatcherNode:
                         "this kind are only counted", frame.camera_id, kind, self.rig.name,
                         ", ".join(self.camera_ids))
 
+    def _on_step(self, sample) -> None:
+        try:
+            self._inbox.add_step(lockstep.Step.parse(sample.payload.to_bytes()))
+        except InputError as exc:
+            self._reject_step(str(exc))
+
+    def _reject_step(self, message: str) -> None:
+        with self._ready:
+            first = "bad-step" not in self._rejected
+            self._rejected["bad-step"] = self._rejected.get("bad-step", 0) + 1
+        if first:
+            log.warning("dropping a malformed lockstep step (%s); further ones are only counted", message)
+
     def _on_query(self, query) -> None:
         document = self._latest_document
         if document is not None:
@@ -209,6 +235,20 @@ class MatcherNode:
                 self._ready.wait(timeout_s)
                 frame_set = self._sync.pop(now_s=time.monotonic())
             return frame_set
+
+    def step_frame_set(self, step: lockstep.Step) -> FrameSet | None:
+        """The frame set of one lockstep step, formed on its capture clock: no wall-clock wait."""
+        frames, missing = self._inbox.take_frames(step, timeout_s=LOCKSTEP_FRAME_WAIT_S)
+        if missing:
+            log.warning("step %d: the frames of %s never came; matching without them", step.step,
+                        ", ".join(missing))
+        arrived_s = step.capture_ns / 1e9
+        with self._ready:
+            for camera_id in self.camera_ids:  # rig order, whatever the arrival order
+                if camera_id in frames:
+                    self._sync.add(frames[camera_id], now_s=arrived_s)
+            # Every frame of the step is here: waiting longer for a late camera changes nothing.
+            return self._sync.pop(now_s=arrived_s + self.config.max_wait_s)
 
     def _ensure_pool(self) -> TrackPool:
         cameras = [CameraInfo(c, *self._sizes[c]) for c in self.camera_ids if c in self._sizes]
@@ -301,6 +341,39 @@ class MatcherNode:
                         "with capture times within %.1f ms of each other", now_s - self._last_set_s,
                         received, self.config.sync_tolerance_ms)
 
+    def _publish_if_due(self, publisher, clock_s: float, *, force: bool = False) -> bool:
+        """Publish the pool if it changed and a publish period has passed on `clock_s` (or `force`)."""
+        if not self._dirty or (clock_s < self._next_publish_s and not force):
+            return False
+        self._latest_document = json.dumps(self.document()).encode()
+        publisher.put(self._latest_document)
+        self.published += 1
+        self._dirty = False
+        self._next_publish_s = clock_s + self.config.publish_period_s
+        return True
+
+    def _live_iteration(self, publisher) -> None:
+        frame_set = self.next_frame_set(timeout_s=0.05)
+        now_s = time.monotonic()
+        if frame_set is not None:
+            self._process_safely(frame_set)
+            # Waiting for the next set starts now: matching time is not a missing set.
+            now_s = self._last_set_s = time.monotonic()
+        self._publish_if_due(publisher, now_s)
+        self._check_health(now_s)
+
+    def _lockstep_iteration(self, publisher, ack_publisher) -> None:
+        step = self._inbox.next_step(timeout_s=0.05)
+        if step is None:
+            return
+        frame_set = self.step_frame_set(step)
+        if frame_set is not None:
+            self._process_safely(frame_set)
+        ack = lockstep.Ack(step=step.step, status="matched" if frame_set is not None else "no frame set")
+        if self._publish_if_due(publisher, step.capture_ns / 1e9, force=step.final):
+            ack = replace(ack, pool_id=self._pool_id, frame_sets=self.frame_sets_pooled)
+        ack_publisher.put(ack.to_json())
+
     def run(self, stop: threading.Event) -> int:
         """Subscribe, match and publish until `stop` is set (or Ctrl-C)."""
         import zenoh
@@ -311,33 +384,34 @@ class MatcherNode:
         stats_publisher = self.session.declare_publisher(keys.node_stats(rig, NODE_KIND, NODE_ID))
         subscriber = self.session.declare_subscriber(keys.all_frames(rig), self.on_sample)
         queryable = self.session.declare_queryable(keys.observations(rig), self._on_query)
+        step_subscriber = ack_publisher = ack_token = None
+        if self._inbox is not None:
+            step_subscriber = self.session.declare_subscriber(keys.lockstep_step(rig), self._on_step)
+            ack_publisher = self.session.declare_publisher(keys.lockstep_ack(rig, NODE_KIND),
+                                                           congestion_control=zenoh.CongestionControl.BLOCK)
+            ack_token = declare_liveliness(self.session, keys.lockstep_ack(rig, NODE_KIND))
         token = declare_liveliness(self.session, keys.node(rig, NODE_KIND, NODE_ID))
-        log.info("matching %s (stereo %s-%s), publishing %s", ", ".join(self.camera_ids), self.stereo.left,
-                 self.stereo.right, keys.observations(rig))
-        next_publish_s = next_stats_s = time.monotonic()
+        log.info("matching %s (stereo %s-%s), publishing %s%s", ", ".join(self.camera_ids), self.stereo.left,
+                 self.stereo.right, keys.observations(rig), " in lockstep" if self._inbox is not None else "")
+        next_stats_s = time.monotonic()
         try:
             while not stop.is_set():
-                frame_set = self.next_frame_set(timeout_s=0.05)
+                if self._inbox is None:
+                    self._live_iteration(publisher)
+                else:
+                    self._lockstep_iteration(publisher, ack_publisher)
                 now_s = time.monotonic()
-                if frame_set is not None:
-                    self._process_safely(frame_set)
-                    # Waiting for the next set starts now: matching time is not a missing set.
-                    now_s = self._last_set_s = time.monotonic()
-                if self._dirty and now_s >= next_publish_s:
-                    self._latest_document = json.dumps(self.document()).encode()
-                    publisher.put(self._latest_document)
-                    self.published += 1
-                    self._dirty = False
-                    next_publish_s = now_s + self.config.publish_period_s
                 if now_s >= next_stats_s:
                     stats_publisher.put(self.stats().to_json())
                     next_stats_s = now_s + self.config.stats_period_s
-                self._check_health(now_s)
         except KeyboardInterrupt:
             log.info("matcher: interrupted")
         finally:
             subscriber.undeclare()
             queryable.undeclare()
+            for declared in (step_subscriber, ack_token):
+                if declared is not None:
+                    declared.undeclare()
             stats_publisher.put(self.stats().to_json())
             token.undeclare()
         return 0

@@ -14,6 +14,11 @@ than `RESYNC_NS`, e.g. a driver restart); frames then go out with congestion
 control DROP, as a driver's. At rate 0 (as fast as possible) they go out with
 BLOCK: as fast as the subscribers take them, no frame dropped on the bus.
 
+With `lockstep` (camnet.lockstep) the frames are grouped into steps, one
+capture instant each (`StepGrouper`), and each step goes out only when the
+matcher and the calibrator have finished with the previous one: what they
+compute no longer depends on how fast they are.
+
 This is a service rather than a driver: one process replays every camera of
 the session in one global order, which a per-camera `drivers.base.Camera`
 cannot express, and it shares the session layout with the recorder.
@@ -28,10 +33,10 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from camnet import keys
+from camnet import keys, lockstep
 from camnet.bus import declare_liveliness
-from camnet.errors import InputError
-from camnet.frame import FrameError
+from camnet.errors import CamnetError, InputError
+from camnet.frame import FrameError, FrameHeader
 from camnet.stats import NodeStats, RateMeter
 from services import session_file as sf
 
@@ -39,6 +44,7 @@ log = logging.getLogger(__name__)
 
 NODE_KIND = "driver"  # to the rest of the rig, a replayed camera is a driver
 RESYNC_NS = 2_000_000_000
+LOCKSTEP_NODES = ("matcher", "calibrator")  # who acknowledges, in pipeline order
 
 
 @dataclass(frozen=True)
@@ -50,10 +56,20 @@ class ReplayOptions:
     include_results: bool = False  # also replay recorded observations and calibrations
     wait_s: float = 10.0  # how long to wait for subscribers of the frames before starting
     stats_period_s: float = 1.0
+    lockstep: bool = False  # one step at a time, each acknowledged by the matcher and the calibrator
+    step_tolerance_ms: float = 5.0  # lockstep: frames of one step have capture times this close
+    ack_timeout_s: float = 120.0  # lockstep: give up when a node has not acknowledged for this long
 
     def __post_init__(self) -> None:
         if not self.rate >= 0:
             raise InputError(f"rate: must be >= 0, got {self.rate}")
+        if self.lockstep and self.rate != 0:
+            raise InputError(f"rate: a lockstep replay goes as fast as the pipeline acknowledges, got {self.rate}")
+        if self.lockstep and self.include_results:
+            raise InputError("include_results: a lockstep replay feeds the live matcher and calibrator; "
+                             "recorded results on their keys would be solved as if they were theirs")
+        if not self.step_tolerance_ms >= 0 or not self.ack_timeout_s > 0:
+            raise InputError("step_tolerance_ms must be >= 0 and ack_timeout_s > 0")
         if self.rig is not None:
             keys.validate_id(self.rig, what="rig")
 
@@ -67,6 +83,7 @@ class ReplaySummary:
     duration_s: float
     damage: str | None
     malformed: dict[str, int] = field(default_factory=dict)
+    lockstep: dict[str, int] | None = None  # steps, observations, and the calibrator's statuses
 
     def lines(self) -> list[str]:
         frames = sum(self.frames.values())
@@ -76,6 +93,8 @@ class ReplaySummary:
         if self.malformed:
             rows.append("malformed frames (not published): " + ", ".join(
                 f"{kind} {n}" for kind, n in sorted(self.malformed.items())))
+        if self.lockstep is not None:
+            rows.append("lockstep: " + ", ".join(f"{k} {n}" for k, n in self.lockstep.items()))
         if self.damage:
             rows.append(f"stopped at damage: {self.damage}")
         return rows
@@ -105,6 +124,53 @@ class Pacer:
 
 
 @dataclass
+class FrameGroup:
+    """The frames of one capture instant, in log-time order: (topic, bytes, header)."""
+
+    capture_ns: int
+    frames: list[tuple[str, bytes, FrameHeader]] = field(default_factory=list)
+
+    def has(self, topic: str) -> bool:
+        return any(t == topic for t, _, _ in self.frames)
+
+
+class StepGrouper:
+    """Frames, fed in log-time order, grouped into lockstep steps: one capture instant each.
+
+    A frame joins the oldest open step whose capture time (its first frame's)
+    is within `tolerance_ns` of its own and that has no frame of its camera
+    (topic) yet; otherwise it opens a new step. Steps leave oldest first: once
+    the oldest holds every one of `n_cameras`, or when more than `window`
+    steps are open (a camera missed an instant). A pure function of the input:
+    the same file gives the same steps.
+    """
+
+    def __init__(self, n_cameras: int, *, tolerance_ns: int, window: int = 4) -> None:
+        self.n_cameras = n_cameras
+        self.tolerance_ns = tolerance_ns
+        self.window = window
+        self._open: list[FrameGroup] = []
+
+    def add(self, topic: str, data: bytes, header: FrameHeader) -> list[FrameGroup]:
+        """Add one frame; the steps now complete, oldest first."""
+        group = next((g for g in self._open if abs(header.timestamp_ns - g.capture_ns) <= self.tolerance_ns
+                      and not g.has(topic)), None)
+        if group is None:
+            group = FrameGroup(header.timestamp_ns)
+            self._open.append(group)
+        group.frames.append((topic, data, header))
+        done = []
+        while self._open and (len(self._open[0].frames) >= self.n_cameras or len(self._open) > self.window):
+            done.append(self._open.pop(0))
+        return done
+
+    def flush(self) -> list[FrameGroup]:
+        """The steps still open, at the end of the session."""
+        done, self._open = self._open, []
+        return done
+
+
+@dataclass
 class _Camera:
     publisher: object
     stats_publisher: object
@@ -124,6 +190,9 @@ class Replayer:
         self.rig = options.rig or self.recorded_rig
         self._malformed: dict[str, int] = {}
         self._groundtruth: bytes | None = None
+        self._acks = lockstep.AckBox()
+        self._last_capture_ns = 0
+        self._lockstep_counts: dict[str, int] | None = {"steps": 0, "observations": 0} if options.lockstep else None
 
     def _routes(self) -> dict[str, str]:
         """Recorded topic -> key to publish on, for what is replayed."""
@@ -139,7 +208,7 @@ class Replayer:
     def _declare_cameras(self) -> dict[str, _Camera]:
         import zenoh
 
-        congestion = (zenoh.CongestionControl.DROP if self.options.rate > 0
+        congestion = (zenoh.CongestionControl.DROP if self.options.rate > 0 and not self.options.lockstep
                       else zenoh.CongestionControl.BLOCK)
         cameras = {}
         for topic in self.file.frame_topics():
@@ -163,6 +232,61 @@ class Replayer:
         if waiting:
             log.warning("no subscriber for the frames of %s after %.1f s; replaying anyway",
                         ", ".join(waiting), self.options.wait_s)
+
+    def _wait_for_lockstep_nodes(self) -> None:
+        """Return once every lockstep node has declared its token; CamnetError after `wait_s`."""
+        deadline = time.monotonic() + self.options.wait_s
+        while True:
+            missing = [kind for kind in LOCKSTEP_NODES
+                       if not [r for r in self.session.liveliness().get(keys.lockstep_ack(self.rig, kind),
+                                                                         timeout=1.0) if r.ok]]
+            if not missing or self.stop.is_set():
+                return
+            if time.monotonic() >= deadline:
+                raise CamnetError(f"lockstep: no {' and no '.join(missing)} in lockstep on rig {self.rig} after "
+                                  f"{self.options.wait_s:.0f} s; start them with --lockstep (or raise --wait-s)")
+            time.sleep(0.1)
+
+    def _on_ack(self, sample) -> None:
+        kind = str(sample.key_expr).rsplit("/", 1)[-1]
+        try:
+            self._acks.add(kind, lockstep.Ack.parse(sample.payload.to_bytes()))
+        except InputError as exc:
+            log.warning("ignoring a malformed lockstep acknowledgement on %s: %s", sample.key_expr, exc)
+
+    def _await_ack(self, kind: str, wanted, what: str) -> lockstep.Ack | None:
+        ack = self._acks.wait(kind, wanted, timeout_s=self.options.ack_timeout_s, stop=self.stop)
+        if ack is None and not self.stop.is_set():
+            raise CamnetError(f"lockstep: the {kind} did not acknowledge {what} within "
+                              f"{self.options.ack_timeout_s:.0f} s (rig {self.rig}); is it still running?")
+        return ack
+
+    def _play_step(self, step_publisher, cameras: dict[str, _Camera], group: FrameGroup | None) -> None:
+        """Publish one step (None: the final, empty one) and wait until the pipeline is done with it."""
+        counts = self._lockstep_counts
+        frames = {}
+        for topic, data, header in group.frames if group is not None else ():
+            self._put_frame(cameras[topic], data)
+            frames[header.camera_id] = header.seq
+        capture_ns = group.capture_ns if group is not None else self._last_capture_ns
+        self._last_capture_ns = capture_ns
+        step = lockstep.Step(counts["steps"], capture_ns, frames, final=group is None)
+        step_publisher.put(step.to_json())
+        counts["steps"] += 1
+        matched = self._await_ack("matcher", lambda a: a.step == step.step, f"step {step.step}")
+        if matched is None or matched.pool_id is None:
+            return
+        counts["observations"] += 1
+        solved = self._await_ack("calibrator", lambda a: (a.pool_id, a.frame_sets) ==
+                                 (matched.pool_id, matched.frame_sets),
+                                 f"the observations of step {step.step}")
+        if solved is not None:
+            counts[solved.status] = counts.get(solved.status, 0) + 1
+
+    def _put_frame(self, camera: _Camera, data: bytes) -> None:
+        camera.publisher.put(data)
+        camera.frames += 1
+        camera.meter.tick()
 
     def _on_groundtruth_query(self, query) -> None:
         payload = self._groundtruth
@@ -197,11 +321,14 @@ class Replayer:
         return ReplaySummary(
             rig=self.rig, frames={keys.parse_frame(t)[1]: c.frames for t, c in cameras.items()},
             messages=messages, total_frames=total, duration_s=time.monotonic() - started_s,
-            damage=damage, malformed=dict(self._malformed))
+            damage=damage, malformed=dict(self._malformed),
+            lockstep=dict(self._lockstep_counts) if self._lockstep_counts is not None else None)
 
     def run(self, *, on_progress: Callable[[ReplaySummary], None] | None = None,
             progress_period_s: float = 1.0) -> ReplaySummary:
         """Replay the session once, or until stopped; the summary."""
+        import zenoh
+
         if threading.current_thread() is threading.main_thread():
             signal.signal(signal.SIGTERM, lambda *_: self.stop.set())
         routes = self._routes()
@@ -213,11 +340,20 @@ class Replayer:
         if groundtruth_key in routes:
             queryable = self.session.declare_queryable(keys.groundtruth(self.rig),
                                                        self._on_groundtruth_query)
+        grouper = step_publisher = ack_subscriber = None
+        if self.options.lockstep:
+            grouper = StepGrouper(len(cameras), tolerance_ns=round(self.options.step_tolerance_ms * 1e6))
+            step_publisher = self.session.declare_publisher(keys.lockstep_step(self.rig),
+                                                            congestion_control=zenoh.CongestionControl.BLOCK)
+            ack_subscriber = self.session.declare_subscriber(
+                keys.all_lockstep_acks(self.rig), self._on_ack)
         pacer = Pacer(self.options.rate)
         messages = 0
         started_s = time.monotonic()
         try:
             self._wait_for_subscribers(cameras)
+            if grouper is not None:
+                self._wait_for_lockstep_nodes()
             started_s = next_stats_s = time.monotonic()
             next_progress_s = started_s + progress_period_s
             for message in self.file.messages():
@@ -229,20 +365,24 @@ class Replayer:
                 camera = cameras.get(topic)
                 if camera is not None:
                     try:
-                        sf.frame_header(message.data)
+                        header = sf.frame_header(message.data)
                     except FrameError as exc:
                         self._count_malformed(exc, topic)
                         continue
-                self._sleep_until(pacer.due_s(topic, message.log_time_ns, message.publish_time_ns))
-                if camera is not None:
-                    camera.publisher.put(message.data)
-                    camera.frames += 1
-                    camera.meter.tick()
+                    if grouper is not None:
+                        for group in grouper.add(topic, message.data, header):
+                            self._play_step(step_publisher, cameras, group)
+                        messages += 1
+                    else:
+                        self._sleep_until(pacer.due_s(topic, message.log_time_ns, message.publish_time_ns))
+                        self._put_frame(camera, message.data)
+                        messages += 1
                 else:
+                    self._sleep_until(pacer.due_s(topic, message.log_time_ns, message.publish_time_ns))
                     if topic == groundtruth_key:
                         self._groundtruth = message.data
                     others[topic].put(message.data)
-                messages += 1
+                    messages += 1
                 now = time.monotonic()
                 if now >= next_stats_s:
                     self._publish_stats(cameras)
@@ -250,12 +390,16 @@ class Replayer:
                 if on_progress is not None and now >= next_progress_s:
                     on_progress(self.summary(cameras, messages, started_s))
                     next_progress_s = now + progress_period_s
+            if grouper is not None and not self.stop.is_set():
+                for group in [*grouper.flush(), None]:
+                    self._play_step(step_publisher, cameras, group)
         except KeyboardInterrupt:
             log.info("replay: interrupted")
         finally:
             self._publish_stats(cameras)
-            if queryable is not None:
-                queryable.undeclare()
+            for declared in (queryable, ack_subscriber):
+                if declared is not None:
+                    declared.undeclare()
             for camera in cameras.values():
                 camera.token.undeclare()
         return self.summary(cameras, messages, started_s)

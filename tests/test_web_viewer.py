@@ -1,5 +1,6 @@
-"""The serve sink watched from a browser: Rerun's web viewer in headless Chromium, driven over the
-DevTools protocol (websocket-client), shows the logged calibration without errors."""
+"""The serve sink watched from a browser: a simulated run (`camnet up` on a small rig, the calibrator
+serving Rerun's web viewer) opened in headless Chromium, driven over the DevTools protocol
+(websocket-client), shows the live calibration without errors."""
 
 from __future__ import annotations
 
@@ -18,56 +19,37 @@ import pytest
 
 from camnet.viz import web_viewer_url
 from tests.conftest import free_port
+from tests.test_network import rig_file
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 pytestmark = pytest.mark.skipif(CHROMIUM is None, reason="chromium is not installed (Debian package chromium)")
 LOCAL_HOSTS = ("127.0.0.1", "localhost")
 
-# A run with the serve sink: solve a simulated rig, log it twice with a frame, then serve until stdin closes.
-SERVE_RUN = """
-import sys
-import numpy as np
-from camnet import viz
-from camnet.calibrate import calibrate
-from camnet.simulate import make_rig, observe
-
-rig = make_rig(seed=2)
-obs = observe(rig, noise_px=0.5, seed=2).observations
-cal = calibrate(obs).calibration
-rec = viz.open_recording(rig="sim", sinks=[viz.parse_sink(sys.argv[1])])
-for k in range(2):
-    viz.log_calibration(rec, cal, time_ns=1_700_000_000_000_000_000 + k * 10**9, observations=obs)
-ramp = np.tile(np.linspace(0, 255, 1280).astype(np.uint8), (1024, 1))
-viz.log_frame(rec, "left", ramp, time_ns=1_700_000_000_000_000_000)
-rec.flush()
-print("ready", flush=True)
-sys.stdin.read()
-viz.close_recording(rec)
-"""
-
-
-def stop(process: subprocess.Popen | None) -> None:
+def stop(process: subprocess.Popen | None, *, grace_s: float = 10.0) -> None:
     if process is None or process.poll() is not None:
         return
     process.terminate()
     try:
-        process.wait(10)
+        process.wait(grace_s)
     except subprocess.TimeoutExpired:
         process.kill()
         process.wait(10)
 
 
-def wait_for_line(process: subprocess.Popen, expected: str, timeout_s: float) -> None:
+def wait_for_line(process: subprocess.Popen, expected: str, timeout_s: float) -> str:
+    """The first line of the process's output that contains `expected`."""
     deadline = time.monotonic() + timeout_s
+    seen = []
     while time.monotonic() < deadline:
         ready, _, _ = select.select([process.stdout], [], [], 0.5)
         if ready:
             line = process.stdout.readline()
-            if line.strip() == expected:
-                return
+            if expected in line:
+                return line
             if not line:
                 break
-    raise AssertionError(f"the run did not print {expected!r} (exit status {process.poll()})")
+            seen.append(line)
+    raise AssertionError(f"the run did not print {expected!r} (exit status {process.poll()}):\n{''.join(seen)}")
 
 
 class DevTools:
@@ -160,7 +142,7 @@ def problems(events: list[dict], page_host: str) -> list[str]:
     return found
 
 
-def test_web_viewer_shows_the_served_calibration(tmp_path):
+def test_web_viewer_shows_a_simulated_run(tmp_path):
     import cv2
 
     web_port, grpc_port, debug_port = free_port(), free_port(), free_port()
@@ -168,9 +150,13 @@ def test_web_viewer_shows_the_served_calibration(tmp_path):
     url = web_viewer_url(host=host, web_port=web_port, grpc_port=grpc_port)
     run = browser = devtools = None
     try:
-        run = subprocess.Popen([sys.executable, "-c", SERVE_RUN, f"serve={web_port},{grpc_port}"],
-                               stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
-        wait_for_line(run, "ready", timeout_s=120)
+        # The whole network on its own loopback port: sim drivers, matcher, calibrator serving the viewer.
+        run = subprocess.Popen(
+            [sys.executable, "-m", "camnet.cli", "up", rig_file(tmp_path, 4), "--forever", "--run-dir",
+             str(tmp_path / "run"), "--listen", f"tcp/127.0.0.1:{free_port()}",
+             "--rerun", f"serve={web_port},{grpc_port}"],
+            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        wait_for_line(run, " solve ", timeout_s=180)  # the first calibration is out
         browser = subprocess.Popen(
             [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
              "--disable-background-networking", "--disable-component-update", "--disable-sync",
@@ -203,4 +189,4 @@ def test_web_viewer_shows_the_served_calibration(tmp_path):
         if devtools is not None:
             devtools.close()
         stop(browser)
-        stop(run)
+        stop(run, grace_s=30)  # camnet up stops its nodes first

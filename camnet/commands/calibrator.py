@@ -31,6 +31,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-scale-rel", type=float, default=0.05,
                         help="a solution whose scale is less certain (1 sigma, relative) is not trusted "
                              "(default 0.05)")
+    parser.add_argument("--lockstep", action="store_true",
+                        help="acknowledge every observations message once solved, for `camnet replay --lockstep`")
     add_rerun_arguments(parser)
     add_bus_arguments(parser)
 
@@ -84,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
         truth = (rig.simulated_truth() if rig is not None else []) or None
         viewer = RerunView(rec, truth=truth) if rec is not None else None
         with open_session(options_from_args(args)) as session:
-            CalibratorNode(session, name, config, viewer=viewer).run(stop)
+            CalibratorNode(session, name, config, viewer=viewer, lockstep=args.lockstep).run(stop)
     finally:
         close_recording(rec)
     return 0

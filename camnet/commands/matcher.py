@@ -22,6 +22,9 @@ _NODE_FLAGS = (
                                  help="detect on a downscaled copy of larger images (default: None, full size)")),
     ("--stats-period-s", dict(type=float, metavar="S",
                               help="seconds between statistics messages (default: 1.0)")),
+    ("--lockstep", dict(action="store_true",
+                        help="match the frames of a lockstep replay (camnet replay) one step at a time, on the "
+                             "replayed capture clock, and acknowledge each step (default: False)")),
 )
 
 

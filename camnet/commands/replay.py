@@ -15,12 +15,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                       help="speed relative to the recorded pace (default: 1.0)")
     pace.add_argument("--as-fast-as-possible", action="store_true",
                       help="no pacing: publish as fast as the subscribers take the frames")
+    pace.add_argument("--lockstep", action="store_true",
+                      help="one capture instant at a time: publish its frames, then wait until the matcher and "
+                           "the calibrator (both run with --lockstep) are done with them; two replays then give "
+                           "the same calibrations to the last digit (docs/session-format.md)")
     parser.add_argument("--rig", metavar="NAME",
                         help="publish under this rig name (default: the recorded rig)")
     parser.add_argument("--include-results", action="store_true",
                         help="also replay the recorded observations and calibrations")
     parser.add_argument("--wait-s", type=float, default=10.0, metavar="S",
                         help="wait up to S seconds for subscribers of every camera (default: 10)")
+    parser.add_argument("--step-tolerance-ms", type=float, default=5.0, metavar="MS",
+                        help="lockstep: frames whose capture times are this close are one step (default: 5)")
+    parser.add_argument("--ack-timeout-s", type=float, default=120.0, metavar="S",
+                        help="lockstep: fail when the matcher or calibrator is silent this long (default: 120)")
     add_bus_arguments(parser)
 
 
@@ -32,8 +40,14 @@ def run(args: argparse.Namespace) -> int:
 
     if not args.as_fast_as_possible and not args.rate > 0:
         raise InputError(f"--rate: must be > 0, got {args.rate} (or use --as-fast-as-possible)")
-    options = ReplayOptions(rate=0.0 if args.as_fast_as_possible else args.rate, rig=args.rig,
-                            include_results=args.include_results, wait_s=args.wait_s)
+    if not args.step_tolerance_ms >= 0:
+        raise InputError(f"--step-tolerance-ms: must be >= 0, got {args.step_tolerance_ms}")
+    if not args.ack_timeout_s > 0:
+        raise InputError(f"--ack-timeout-s: must be positive, got {args.ack_timeout_s}")
+    unpaced = args.as_fast_as_possible or args.lockstep
+    options = ReplayOptions(rate=0.0 if unpaced else args.rate, rig=args.rig,
+                            include_results=args.include_results, wait_s=args.wait_s, lockstep=args.lockstep,
+                            step_tolerance_ms=args.step_tolerance_ms, ack_timeout_s=args.ack_timeout_s)
     session_file = open_session_file(args.session)
     tty = sys.stderr.isatty()
 
