@@ -7,7 +7,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from camnet.camera import Camera
-from camnet.formats import Calibration, Observations
+from camnet.formats import Calibration
 from camnet.metrics import scale_error, shape_rms_m
 
 
@@ -66,33 +66,6 @@ def point_weights(cal: Calibration) -> np.ndarray | None:
     """Weights of the calibration's points in its reported scale, None without uncertainty."""
     w = cal.extra.get("uncertainty", {}).get("point_weights")
     return None if w is None or len(w) != len(cal.points) else np.asarray(w, dtype=float)
-
-
-def per_camera_rms(calibration: Calibration, observations: Observations) -> dict[str, float]:
-    """Reprojection RMS (px, over both axes' |residual|) of each camera's observations under `calibration`.
-
-    Only observations of tracks the calibration has a point for count;
-    tracks it does not know (new or rejected) and points behind the camera
-    are left out. Cameras of `observations` that the calibration lacks are
-    left out of the result; a camera with no countable observation gets NaN.
-    A camera that moved since the calibration shows as a jump in its value
-    while the others stay at the noise level.
-    """
-    point_of = {int(pid): j for j, pid in enumerate(calibration.point_ids)}
-    known = np.array([point_of.get(int(t), -1) for t in observations.track_ids], dtype=int)
-    cams = {c.id: c for c in calibration.cameras}
-    out: dict[str, float] = {}
-    for i, info in enumerate(observations.cameras):
-        cam = cams.get(info.id)
-        if cam is None:
-            continue
-        rows = np.flatnonzero(observations.cam_index == i)
-        pts = known[observations.track_index[rows]]
-        rows, pts = rows[pts >= 0], pts[pts >= 0]
-        err = np.linalg.norm(cam.project(calibration.points[pts]) - observations.uv[rows], axis=1)
-        err = err[np.isfinite(err)]
-        out[info.id] = float(np.sqrt(np.mean(err**2))) if len(err) else float("nan")
-    return out
 
 
 def format_comparison(c: Comparison) -> str:
