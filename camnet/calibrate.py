@@ -78,6 +78,9 @@ class Options:
     outlier_sigmas: float = 4.0  # reject residuals beyond this many robust sigmas
     min_outlier_px: float = 1.5  # never reject residuals below this
     max_iterations: int = 300  # LM stops on the Gauss-Newton decrement long before this in most solves
+    # 1 sigma of a guessed principal point about the image centre, as a fraction of the image size,
+    # in the reported uncertainty (see `_uncertainty`); 0 reports sigmas conditional on the guess.
+    pp_prior_rel: float = 0.01
     seed: int = 0
 
 
@@ -402,7 +405,10 @@ def _calibrate(
             "solution; the tracks look wrong or the camera moved (re-solve with it reset)"
         )
     t4 = time.perf_counter()
-    cov = None if unconstrained else covariance(problem, state, normal=info.normal)
+    guessed_pp = np.array([obs.cameras[i].K is None for i in order])
+    sizes = np.array([(obs.cameras[i].width, obs.cameras[i].height) for i in order], dtype=float)
+    guessed_pp &= ~held_K & (options.pp_prior_rel > 0)
+    cov = None if unconstrained else _uncertainty(problem, state, info.normal, guessed_pp, options.pp_prior_rel * sizes)
     timings["uncertainty"] = time.perf_counter() - t4
     timings["total"] = time.perf_counter() - t0
     if not info.converged:
@@ -410,6 +416,36 @@ def _calibrate(
     return _result(
         obs, order, problem, state, track_rows, inliers, info, cov, decisions, options, timings, start=start_kind
     )
+
+
+def _uncertainty(problem: Problem, state: State, normal, guessed_pp: np.ndarray, prior_px: np.ndarray) -> Covariance:
+    """Covariance at the solution, not conditional on principal points that are only guessed.
+
+    A principal point held at the image centre because nobody gave one is
+    not known exactly: a real lens's sits a percent or so of the image size
+    away (`Options.pp_prior_rel`). Held but unknown, it biases focal lengths
+    and scale by amounts the conditional covariance does not show (the data
+    of a small object cannot tell a 10 px offset from a focal length or a
+    rotation, and a column difference in the stereo pair shifts every
+    disparity). Its uncertainty enters as a prior on the held columns, so
+    the reported sigmas include what the guess may cost.
+    guessed_pp (M,): cameras whose principal point was guessed, not given;
+    prior_px (M, 2): 1 sigma of the guess in x and y, pixels.
+    """
+    sigma_px = float(np.sqrt(2.0 * normal.cost / max(residual_dof(problem), 1)))
+    consider = guessed_pp & ~problem.intr_free[:, 2]
+    if not consider.any():
+        return covariance(problem, state, sigma_px=sigma_px, normal=normal)
+    intr_free = problem.intr_free.copy()
+    intr_free[consider, 2:4] = True
+    wider = replace(problem, intr_free=intr_free)
+    ne = bundle.normal_equations(wider, state)
+    cols = wider.columns()[0]
+    U = ne.U.copy()
+    for m in np.flatnonzero(consider):
+        for slot, prior in ((2, prior_px[m, 0]), (3, prior_px[m, 1])):
+            U[cols[m, slot], cols[m, slot]] += (sigma_px / prior) ** 2
+    return covariance(wider, state, sigma_px=sigma_px, normal=replace(ne, U=U))
 
 
 def _reset_indices(obs: Observations, order: list[int], reset_cameras: Collection[str]) -> set[int]:

@@ -36,6 +36,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="warm start from a previous calibration of the same rig",
     )
     parser.add_argument("--seed", type=int, default=0, help="seed of the RANSAC sampling")
+    parser.add_argument(
+        "--pp-prior-rel",
+        type=float,
+        default=0.01,
+        help="1 sigma of a principal point nobody gave, about the image centre, as a fraction of the image size, "
+        "in the reported uncertainty (0: sigmas conditional on the centre being right)",
+    )
 
 
 def parse_free(value: str) -> str | frozenset[str]:
@@ -56,10 +63,13 @@ def run(args: argparse.Namespace) -> int:
 
     if not args.loss_scale_px > 0:
         raise InputError(f"--loss-scale-px: must be positive, got {args.loss_scale_px}")
+    if not 0 <= args.pp_prior_rel < 1:
+        raise InputError(f"--pp-prior-rel: must be in [0, 1), got {args.pp_prior_rel}")
     free = parse_free(args.free)
     obs = parse_observations(load_json(args.observations))
     initial = parse_calibration(load_json(args.initial)) if args.initial else None
-    options = Options(method=args.method, loss=args.loss, loss_scale_px=args.loss_scale_px, free=free, seed=args.seed)
+    options = Options(method=args.method, loss=args.loss, loss_scale_px=args.loss_scale_px, free=free, seed=args.seed,
+                      pp_prior_rel=args.pp_prior_rel)
     result = calibrate(obs, options, initial=initial)
     write_json_atomic(args.output, calibration_to_doc(result.calibration))
     cal = result.calibration
