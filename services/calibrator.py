@@ -51,13 +51,14 @@ NODE_KIND = "calibrator"
 
 # What a live rig estimates by default: focal lengths, poses and the pair's
 # small misalignment. Principal points and distortion stay as given (image
-# centre and none when nothing is given). On the simulated rigs' live tracks
-# (thousands of points, 0.25-0.3 px RMS) freeing the principal points let the
-# focal lengths slide 10% along a nearly flat valley while the linear
-# uncertainty claimed 0.1%, and freeing k1, k2 beside the pair's yaw biased
-# every focal length alike by 0.2-0.9% (up to 6 sigma); with this set the
-# focal errors stay within 0.15%. Lenses with visible distortion need their
-# dist given, or `--free f,k1,k2,stereo_rotation,stereo_direction`.
+# centre and none when nothing is given; the reported sigmas include what a
+# guessed principal point may cost). On the simulated rigs' live tracks
+# (thousands of points, 0.25 px RMS) the principal points are not determined
+# (sigmas of thousands of pixels) and freeing k1, k2 beside the pair's yaw
+# costs a factor of 5 in focal sigma and biased every focal length alike by
+# 0.25%; with this set the focal errors stay within 0.15%. Lenses with
+# visible distortion need their dist given, or
+# `--free f,k1,k2,stereo_rotation,stereo_direction`.
 LIVE_FREE = frozenset({"f", "stereo_rotation", "stereo_direction"})
 
 
