@@ -65,7 +65,7 @@ def test_live_network_calibrates_every_camera_like_the_offline_pipeline(kitti, o
     # The published intrinsics reached the solver through the rig file and the matcher.
     for cam in obs.cameras:
         assert cam.fixed == frozenset({"K", "dist"}) and np.allclose(cam.K, kitti.cameras[cam.id].K)
-    # Measured: 18 s on this machine (11 s of pass at 0.15x the recorded pace, 2 s waits, SIFT, solves).
+    # Measured: 15-18 s on this machine (11 s of pass at 0.15x the recorded pace, 2 s waits, SIFT, solves).
     assert elapsed_s < 90.0
 
     # Against the published calibration: measured -0.19 % (offline -0.23 %), colour rotations 0.03-0.04 deg,
@@ -80,7 +80,7 @@ def test_live_network_calibrates_every_camera_like_the_offline_pipeline(kitti, o
     # Against the offline pipeline: the same engine on the same frames. The pools differ a little (the
     # matcher sees the frame sets in its own order, drops some while busy and meets them again on the
     # next pass, so its 3000 kept tracks are not the offline ones), hence not equal, but close: measured
-    # 0.04 % of scale apart, centres within 1 mm, rotations within 0.03 deg.
+    # 0.01-0.04 % of scale apart, centres within 3 mm, rotations within 0.03 deg over two runs.
     assert abs(live.distance_rel - offline.distance_rel) < 0.003
     for cam_id in ("1", "2", "3"):
         a, b = live.camera(cam_id), offline.camera(cam_id)
