@@ -94,7 +94,11 @@ class V4l2Config:
     """A V4L2 device path, a video file, or an image-sequence glob pattern, via OpenCV.
 
     `fps` paces files and sequences (and is requested from devices); `loop`
-    restarts a file or sequence at its end.
+    restarts a file or sequence at its end. An image sequence with a
+    `timestamps` file (KITTI's format, one line per frame index) is stamped
+    with the recorded capture times and, without `fps`, published at the
+    recorded pace times `speed`; `frame_range` (first, last frame index) is
+    one pass of it (see drivers/v4l2.py).
     """
 
     source: str
@@ -104,6 +108,30 @@ class V4l2Config:
     fourcc: str | None
     encoding: str
     loop: bool
+    timestamps: str | None = None
+    speed: float = 1.0
+    frame_range: tuple[int, int] | None = None
+
+
+@dataclass(frozen=True)
+class KnownIntrinsics:
+    """What is known of a camera's intrinsics before calibrating (the observations' K, dist, fixed).
+
+    K in pixels (pixel origin at the centre of the top-left pixel), dist in
+    OpenCV's order [k1, k2, p1, p2, k3]; `fixed` names what the solver holds.
+    """
+
+    K: np.ndarray | None
+    dist: np.ndarray | None
+    fixed: frozenset[str]
+
+
+@dataclass(frozen=True)
+class SyncSettings:
+    """How the matcher forms frame sets of this rig (its flags override these)."""
+
+    tolerance_ms: float | None
+    max_wait_s: float | None
 
 
 @dataclass(frozen=True)
@@ -111,6 +139,7 @@ class CameraEntry:
     id: str
     driver: str
     config: SimConfig | AravisConfig | V4l2Config
+    intrinsics: KnownIntrinsics | None = None
 
 
 @dataclass(frozen=True)
@@ -139,6 +168,7 @@ class Rig:
     stereo: StereoPair | None
     scene: SceneConfig
     source: str = "<memory>"
+    sync: SyncSettings | None = None
 
     def camera(self, camera_id: str) -> CameraEntry:
         for entry in self.cameras:
@@ -320,9 +350,76 @@ def _v4l2(s: _Section) -> V4l2Config:
         fourcc=fourcc,
         encoding=s.string("encoding", "bgr8", choices=V4L2_ENCODINGS),
         loop=s.boolean("loop", False),
+        timestamps=s.string("timestamps", None),
+        speed=s.number("speed", 1.0, positive=True),
+        frame_range=_frame_range(s),
     )
+    if config.timestamps is None:
+        for key in ("speed", "frame_range"):
+            if key in s.data:
+                raise InputError(f"{s.field(key)}: only for an image sequence with a 'timestamps' file")
+    elif not is_image_pattern(config.source):
+        raise InputError(f"{s.field('timestamps')}: only for an image sequence (a glob 'source'), "
+                         f"not {config.source!r}")
+    if config.fps is not None and "speed" in s.data:
+        raise InputError(f"{s.field('speed')}: scales the recorded pace; with 'fps' the pace is fixed "
+                         "(give one of them)")
     s.finish()
     return config
+
+
+def is_image_pattern(source: str) -> bool:
+    """Whether a v4l2 `source` is a glob of image files (else a device or a video file)."""
+    return any(ch in source for ch in "*?[")
+
+
+def _frame_range(s: _Section) -> tuple[int, int] | None:
+    value = s.raw("frame_range", None)
+    if value is None:
+        return None
+    ok = isinstance(value, list) and len(value) == 2 and all(
+        isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in value)
+    if not ok or value[0] > value[1]:
+        raise InputError(f"{s.field('frame_range')}: expected [first, last] frame indices with "
+                         f"0 <= first <= last, got {value!r}")
+    return int(value[0]), int(value[1])
+
+
+def _intrinsics(s: _Section) -> KnownIntrinsics:
+    K = s.raw("K", None)
+    if K is not None:
+        ok = isinstance(K, list) and len(K) == 3 and all(
+            isinstance(row, list) and len(row) == 3 and all(
+                isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) for v in row)
+            for row in K)
+        if not ok:
+            raise InputError(f"{s.field('K')}: expected a 3x3 matrix of finite numbers, got {K!r}")
+        K = np.array(K, dtype=float)
+        if not (K[0, 0] > 0 and K[1, 1] > 0 and np.array_equal(K[2], [0.0, 0.0, 1.0]) and K[1, 0] == 0):
+            raise InputError(f"{s.field('K')}: expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with "
+                             f"fx, fy > 0, got {K.tolist()}")
+    dist = s.raw("dist", None)
+    if dist is not None:
+        if not isinstance(dist, list) or len(dist) > 5 or not all(
+                isinstance(d, int | float) and not isinstance(d, bool) and math.isfinite(d) for d in dist):
+            raise InputError(f"{s.field('dist')}: expected up to 5 finite numbers "
+                             f"[k1, k2, p1, p2, k3], got {dist!r}")
+        dist = np.pad(np.array(dist, dtype=float), (0, 5 - len(dist)))
+    given = [name for name, value in (("K", K), ("dist", dist)) if value is not None]
+    if not given:
+        raise InputError(f"{s.path}: give K, dist or both")
+    fixed = s.raw("fixed", given)
+    if not isinstance(fixed, list) or not all(name in given for name in fixed):
+        raise InputError(f"{s.field('fixed')}: expected a list drawn from the given {given}, got {fixed!r}")
+    s.finish()
+    return KnownIntrinsics(K=K, dist=dist, fixed=frozenset(fixed))
+
+
+def _sync(s: _Section) -> SyncSettings:
+    settings = SyncSettings(tolerance_ms=s.number("tolerance_ms", None, minimum=0.0),
+                            max_wait_s=s.number("max_wait_s", None, minimum=0.0))
+    s.finish()
+    return settings
 
 
 _DRIVER_PARSERS = {"sim": _sim, "aravis": _aravis, "v4l2": _v4l2}
@@ -338,8 +435,10 @@ def _camera(s: _Section) -> CameraEntry:
         raise InputError(f"{s.field('driver')}: unknown driver {driver!r} "
                          f"(expected {', '.join(DRIVERS)})")
     config = _DRIVER_PARSERS[driver](s.section(driver))
+    intrinsics = _intrinsics(s.section("intrinsics")) if s.data.get("intrinsics") is not None else None
+    s.used.add("intrinsics")
     s.finish()
-    return CameraEntry(id=camera_id, driver=driver, config=config)
+    return CameraEntry(id=camera_id, driver=driver, config=config, intrinsics=intrinsics)
 
 
 def _range(s: _Section, key: str, default: tuple[float, float]) -> tuple[float, float]:
@@ -406,8 +505,10 @@ def _parse_rig(data: Any, source: str) -> Rig:
                             baseline_m=st.number("baseline_m", positive=True))
         st.finish()
     scene = _scene(top.section("scene", required=False))
+    sync = _sync(top.section("sync")) if top.data.get("sync") is not None else None
+    top.used.add("sync")
     top.finish()
-    return Rig(name=name, cameras=cameras, stereo=stereo, scene=scene, source=source)
+    return Rig(name=name, cameras=cameras, stereo=stereo, scene=scene, source=source, sync=sync)
 
 
 def load_rig(path: str | Path) -> Rig:

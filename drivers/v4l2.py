@@ -4,33 +4,126 @@
 pattern of image files (sorted by name). Files and sequences are paced at the
 configured fps (else the file's own, else 30) and stamped with the host clock
 at the frame's due time; devices are stamped when the frame is grabbed.
+
+A recorded image sequence with a `timestamps` file keeps its capture times,
+so that frames of several cameras recorded together form the same frame
+sets when replayed by separate drivers. The file has one line
+``YYYY-MM-DD HH:MM:SS.fffffffff`` (UTC, KITTI's format) per frame index,
+line n for frame n; an image's frame index is the last number in its file
+name. Frames are stamped with those times (the recorded clock, not the
+host's: drivers started at different instants still agree) and published at
+the recorded pace times `speed` (or at a fixed `fps`), measured from the
+first frame index of the pass (`frame_range`, by default the first image's),
+so that cameras holding different frames of one recording stay in step. A
+looping sequence adds one pass length to every stamp per pass: the pass's
+frame-index span plus one, times the frame period (the median interval of
+the timestamps file). Cameras that loop together need the same
+`frame_range`.
 """
 
 from __future__ import annotations
 
 import glob
 import logging
+import re
 import time
+from dataclasses import dataclass
+from datetime import UTC, datetime
 from pathlib import Path
 
 import cv2
 import numpy as np
 
 from camnet.frame import Frame
-from camnet.rig import CameraEntry, Rig, V4l2Config
+from camnet.rig import CameraEntry, Rig, V4l2Config, is_image_pattern
 from drivers.base import CameraInfo, DeviceError, EndOfStream, ReadTimeout
 
 log = logging.getLogger(__name__)
 
 _DEFAULT_FILE_FPS = 30.0
+_STAMP = re.compile(r"(\d{4}-\d{2}-\d{2} \d{2}:\d{2}:\d{2})(?:\.(\d{1,9}))?")
 
 
 def create(entry: CameraEntry, rig: Rig) -> V4l2Camera:
     return V4l2Camera(entry.id, entry.config)
 
 
-def _is_pattern(source: str) -> bool:
-    return any(ch in source for ch in "*?[")
+def parse_timestamps(text: str, *, source: str) -> np.ndarray:
+    """Capture times (int64 ns since the Unix epoch, read as UTC) of a KITTI timestamps file, by line.
+
+    Trailing blank lines are ignored; any other line that is not
+    ``YYYY-MM-DD HH:MM:SS[.fffffffff]`` is a ValueError naming `source` and the line.
+    """
+    lines = text.splitlines()
+    while lines and not lines[-1].strip():
+        lines.pop()
+    stamps = np.empty(len(lines), dtype=np.int64)
+    for n, line in enumerate(lines):
+        match = _STAMP.fullmatch(line.strip())
+        try:
+            if match is None:
+                raise ValueError
+            whole = datetime.fromisoformat(match[1]).replace(tzinfo=UTC)
+        except ValueError:
+            raise ValueError(f"{source}:{n + 1}: expected 'YYYY-MM-DD HH:MM:SS.fffffffff', got {line[:40]!r}") \
+                from None
+        stamps[n] = int(whole.timestamp()) * 1_000_000_000 + int((match[2] or "0").ljust(9, "0"))
+    return stamps
+
+
+def frame_index(path: str) -> int:
+    """The frame index an image file's name gives: the last number in it (``0000000013.png`` -> 13)."""
+    numbers = re.findall(r"\d+", Path(path).stem)
+    if not numbers:
+        raise ValueError(f"{path}: no frame number in the file name")
+    return int(numbers[-1])
+
+
+@dataclass(frozen=True)
+class StampedSequence:
+    """Image files with their recorded capture times (ns), in frame-index order."""
+
+    files: tuple[str, ...]
+    stamps_ns: tuple[int, ...]
+    origin_ns: int  # recorded time of the pass's first frame index: the pace is measured from it
+    period_ns: int  # the recording's frame period: the median interval of the timestamps file
+    pass_ns: int  # added to every stamp per pass of a looping sequence
+
+
+def stamped_sequence(files: list[str], stamps_ns: np.ndarray, *, frame_range: tuple[int, int] | None,
+                     source: str) -> StampedSequence:
+    """The images of `files` within `frame_range` (all: None) stamped from `stamps_ns` (line n = frame n).
+
+    ValueError, naming `source`, when an image has no stamp, two images share
+    a frame index, the stamps do not increase with the index, or none is left.
+    """
+    if len(stamps_ns) < 2:
+        raise ValueError(f"{source}: needs at least 2 lines to know the frame period")
+    by_index: dict[int, str] = {}
+    for path in files:
+        index = frame_index(path)
+        if index in by_index:
+            raise ValueError(f"{path}: frame {index} again (also {by_index[index]})")
+        by_index[index] = path
+    indices = sorted(by_index)
+    first, last = frame_range if frame_range is not None else (indices[0], indices[-1])
+    kept = [i for i in indices if first <= i <= last]
+    if not kept:
+        raise ValueError(f"no image within frame_range [{first}, {last}] (frames {indices[0]}-{indices[-1]})")
+    if last >= len(stamps_ns):
+        raise ValueError(f"{source}: has {len(stamps_ns)} lines, no stamp for frame {last}")
+    if len(kept) < len(indices):
+        log.info("%d images outside frame_range [%d, %d] skipped", len(indices) - len(kept), first, last)
+    stamps = stamps_ns[kept]
+    if np.any(np.diff(stamps_ns[first:last + 1]) <= 0):
+        raise ValueError(f"{source}: the stamps of frames {first}-{last} do not increase with the frame index")
+    period_ns = int(np.median(np.diff(stamps_ns)))
+    pass_ns = (last - first + 1) * period_ns
+    if pass_ns <= stamps_ns[last] - stamps_ns[first]:
+        raise ValueError(f"{source}: frames {first}-{last} span more than {last - first + 1} median frame "
+                         "periods; a looping sequence would go back in time")
+    return StampedSequence(files=tuple(by_index[i] for i in kept), stamps_ns=tuple(int(t) for t in stamps),
+                           origin_ns=int(stamps_ns[first]), period_ns=period_ns, pass_ns=pass_ns)
 
 
 def _to_encoding(image: np.ndarray, encoding: str) -> np.ndarray:
@@ -50,8 +143,8 @@ class V4l2Camera:
         self.camera_id = camera_id
         self.config = config
         self._capture = None
-        self._files: list[str] = []
-        self._index = 0
+        self._files: tuple[str, ...] = ()
+        self._stamped: StampedSequence | None = None
         self._seq = 0
         self._dropped = 0
         self._is_device = False
@@ -74,12 +167,14 @@ class V4l2Camera:
 
     def __enter__(self) -> V4l2Camera:
         source = self.config.source
-        if _is_pattern(source):
-            self._files = sorted(glob.glob(source))
+        if is_image_pattern(source):
+            self._files = tuple(sorted(glob.glob(source)))
             if not self._files:
                 raise DeviceError(f"camera {self.camera_id!r}: no image matches {source!r}")
-            first = self._read_file(self._files[0])
             self._fps = self.config.fps or _DEFAULT_FILE_FPS
+            if self.config.timestamps is not None:
+                self._open_stamps()
+            first = self._read_file(self._files[0])
             description = f"image sequence {source} ({len(self._files)} images)"
         else:
             first = self._open_capture(source)
@@ -90,6 +185,23 @@ class V4l2Camera:
                                 height=first.shape[0], encoding=self.config.encoding,
                                 fps=self._fps, description=description)
         return self
+
+    def _open_stamps(self) -> None:
+        path = self.config.timestamps
+        try:
+            text = Path(path).read_text()
+        except OSError as exc:
+            raise DeviceError(f"camera {self.camera_id!r}: cannot read timestamps {path!r} "
+                              f"({exc.strerror})") from None
+        try:
+            stamps = parse_timestamps(text, source=path)
+            self._stamped = stamped_sequence(list(self._files), stamps, frame_range=self.config.frame_range,
+                                             source=path)
+        except ValueError as exc:
+            raise DeviceError(f"camera {self.camera_id!r}: {exc}") from None
+        self._files = self._stamped.files
+        if self.config.fps is None:
+            self._fps = self.config.speed * 1e9 / self._stamped.period_ns
 
     def _open_capture(self, source: str) -> np.ndarray:
         self._is_device = source.startswith("/dev/") or source.isdigit()
@@ -135,13 +247,7 @@ class V4l2Camera:
 
     def _next_image(self) -> np.ndarray:
         if self._files:
-            if self._index >= len(self._files):
-                if not self.config.loop:
-                    raise EndOfStream(f"end of image sequence {self.config.source}")
-                self._index = 0
-            image = self._read_file(self._files[self._index])
-            self._index += 1
-            return image
+            return self._read_file(self._files[self._seq % len(self._files)])
         pending, self._pending = self._pending, None
         if pending is not None:
             return pending
@@ -165,18 +271,29 @@ class V4l2Camera:
             image = self._next_image()
             timestamp_ns = time.time_ns()
         else:
-            period_ns = 1e9 / self._fps
-            due_ns = self._start_mono_ns + int(self._seq * period_ns)
-            wait_s = (due_ns - time.monotonic_ns()) / 1e9
+            due_ns, timestamp_ns = self._schedule(self._seq)
+            wait_s = (self._start_mono_ns + due_ns - time.monotonic_ns()) / 1e9
             if wait_s > timeout_s:
                 time.sleep(timeout_s)
                 raise ReadTimeout("next file frame not due yet")
             if wait_s > 0:
                 time.sleep(wait_s)
             image = self._next_image()
-            timestamp_ns = self._start_wall_ns + int(self._seq * period_ns)
         frame = Frame(camera_id=self.camera_id, seq=self._seq, timestamp_ns=timestamp_ns,
                       encoding=self.config.encoding,
                       image=np.ascontiguousarray(_to_encoding(image, self.config.encoding)))
         self._seq += 1
         return frame
+
+    def _schedule(self, seq: int) -> tuple[int, int]:
+        """(when frame `seq` is due, ns after the start; its capture timestamp, ns) for a file or sequence."""
+        passes, position = divmod(seq, len(self._files)) if self._files else (0, seq)
+        if passes and self._files and not self.config.loop:
+            raise EndOfStream(f"end of image sequence {self.config.source}")
+        fixed_due_ns = int(seq * 1e9 / self._fps)
+        if self._stamped is None:
+            return fixed_due_ns, self._start_wall_ns + fixed_due_ns
+        stamp_ns = self._stamped.stamps_ns[position] + passes * self._stamped.pass_ns
+        if self.config.fps is not None:
+            return fixed_due_ns, stamp_ns
+        return int((stamp_ns - self._stamped.origin_ns) / self.config.speed), stamp_ns

@@ -22,7 +22,8 @@ set, waiting for late cameras and the publish period follow the replayed
 capture times, not the wall clock, and every step is acknowledged.
 
 Cameras are listed with the sizes of their frames (or of the rig file before
-the first frame); no intrinsics are passed on, not even a simulated camera's
+the first frame) and what the rig file's `intrinsics` section knows of them
+(K, dist, fixed); nothing else is passed on, not even a simulated camera's
 ground truth. The latest document also answers queries on the same key.
 """
 
@@ -104,6 +105,22 @@ def rig_stereo(rig: Rig) -> Stereo:
         raise InputError(f"{rig.source}: rig {rig.name!r} has no stereo pair; the matcher needs one "
                          "(add a 'stereo:' section with left, right and baseline_m)")
     return Stereo(rig.stereo.left, rig.stereo.right, rig.stereo.baseline_m)
+
+
+def rig_options(rig: Rig) -> dict:
+    """The MatcherNodeConfig fields the rig file sets (its `sync` section); the node's flags override them."""
+    if rig.sync is None:
+        return {}
+    given = {"sync_tolerance_ms": rig.sync.tolerance_ms, "max_wait_s": rig.sync.max_wait_s}
+    return {name: value for name, value in given.items() if value is not None}
+
+
+def camera_info(rig: Rig, camera_id: str, width: int, height: int) -> CameraInfo:
+    """What the observations say of a camera: its size and the intrinsics the rig file knows."""
+    known = rig.camera(camera_id).intrinsics
+    if known is None:
+        return CameraInfo(camera_id, width, height)
+    return CameraInfo(camera_id, width, height, K=known.K, dist=known.dist, fixed=known.fixed)
 
 
 def _configured_size(rig: Rig, camera_id: str) -> tuple[int, int] | None:
@@ -251,8 +268,9 @@ class MatcherNode:
             return self._sync.pop(now_s=arrived_s + self.config.max_wait_s)
 
     def _ensure_pool(self) -> TrackPool:
-        cameras = [CameraInfo(c, *self._sizes[c]) for c in self.camera_ids if c in self._sizes]
-        if self._pool is None or list(self._pool.cameras) != cameras:
+        cameras = [camera_info(self.rig, c, *self._sizes[c]) for c in self.camera_ids if c in self._sizes]
+        sizes = [(c.id, c.width, c.height) for c in cameras]
+        if self._pool is None or [(c.id, c.width, c.height) for c in self._pool.cameras] != sizes:
             if self._pool is not None:
                 log.info("cameras now %s: re-pooling %d tracks", ", ".join(f"{c.id} {c.width}x{c.height}"
                                                                        for c in cameras), len(self._pool))

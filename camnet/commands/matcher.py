@@ -38,12 +38,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_bus_arguments(parser)
 
 
-def node_config_from_args(args: argparse.Namespace):
-    """The MatcherNodeConfig of the flags given; the rest keep their defaults."""
-    from services.matcher import MatcherNodeConfig
+def node_config_from_args(args: argparse.Namespace, rig=None):
+    """The MatcherNodeConfig of the flags given, then of the rig file; the rest keep their defaults."""
+    from services.matcher import MatcherNodeConfig, rig_options
 
     given = {flag[2:].replace("-", "_") for flag, _ in _NODE_FLAGS}
-    return MatcherNodeConfig(**{name: getattr(args, name) for name in given if hasattr(args, name)})
+    from_rig = rig_options(rig) if rig is not None else {}
+    flags = {name: getattr(args, name) for name in given if hasattr(args, name)}
+    return MatcherNodeConfig(**{**from_rig, **flags})
 
 
 def run(args: argparse.Namespace) -> int:
@@ -56,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
 
     rig = load_rig(args.rig)
     rig_stereo(rig)  # refuse a rig without a stereo pair before joining the bus
-    config = node_config_from_args(args)
+    config = node_config_from_args(args, rig)
     stop = threading.Event()
     # docker stop / process managers send SIGTERM: leave cleanly as on Ctrl-C.
     signal.signal(signal.SIGTERM, lambda *_: stop.set())

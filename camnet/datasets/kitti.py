@@ -164,11 +164,111 @@ def prepare_scenario(
         obs = with_known_intrinsics(obs, {c: published[c] for c in others}, given=("dist",), fixed=())
     if scenario == "stereo-K":
         return obs, None
-    head = Calibration(
-        cameras=[published[c] for c in stereo_ids],
+    return obs, stereo_head(published)
+
+
+def stereo_head(published: dict[str, Camera]) -> Calibration:
+    """A calibration of the grey pair alone (K, dist, pose as published, no points): a factory stereo head.
+
+    Offline it is `calibrate(..., initial=)`; live, the calibrator resumes
+    from it as its state file and, with only the focal lengths free, holds
+    the pair's pose.
+    """
+    return Calibration(
+        cameras=[published[c] for c in (STEREO_LEFT, STEREO_RIGHT)],
         point_ids=np.empty(0, dtype=np.int64),
         points=np.empty((0, 3)),
         rms_reprojection_px=float("nan"),
         world_frame=STEREO_LEFT,
     )
-    return obs, head
+
+
+def run_live(
+    rig_path: str | Path,
+    published: dict[str, Camera],
+    *,
+    run_dir: Path,
+    endpoint: str,
+    max_tracks: int = 3000,
+    min_frame_sets: int = 4,
+    timeout_s: float = 120.0,
+) -> tuple[Calibration, Observations, float]:
+    """The rig's drivers, matcher and calibrator as processes on the bus, until they calibrate every camera.
+
+    The nodes connect to `endpoint` (tcp on loopback), where this process
+    listens; their logs and the calibrator's state go to `run_dir`. The
+    calibrator resumes from the published stereo head (`stereo_head`) with
+    only the focal lengths free, so the pair's pose is held; the matcher
+    pools at most `max_tracks` tracks. Returns the first calibration of every
+    camera in the rig from at least `min_frame_sets` pooled frame sets, the
+    observations it was solved from, and the seconds since the nodes started.
+    Raises CamnetError when a node exits or nothing comes within `timeout_s`.
+    """
+    import json
+    import logging
+    import threading
+    import time
+
+    from camnet import keys
+    from camnet.bus import BusOptions, open_session
+    from camnet.errors import CamnetError
+    from camnet.formats import calibration_to_doc, parse_calibration, parse_observations, write_json_atomic
+    from camnet.launch import Launch
+    from camnet.rig import load_rig
+
+    log = logging.getLogger(__name__)
+    rig = load_rig(rig_path)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    state = run_dir / "calibration.json"
+    head = calibration_to_doc(stereo_head(published))
+    # A factory head has no reprojection RMS, but the calibrator publishes what it resumes from as JSON,
+    # which has no NaN.
+    head["rms_reprojection_px"] = 0.0
+    write_json_atomic(state, head)
+    observed: dict[tuple[int, int], dict] = {}
+    calibrations: list[dict] = []
+    lock = threading.Lock()
+    arrived = threading.Event()
+
+    def on_observations(sample) -> None:
+        doc = json.loads(sample.payload.to_bytes())
+        with lock:
+            observed[doc["frame_sets"], doc["latest_capture_ns"]] = doc
+
+    def on_calibration(sample) -> None:
+        with lock:
+            calibrations.append(json.loads(sample.payload.to_bytes()))
+        arrived.set()
+
+    bus = ["--connect", endpoint]
+    want = {entry.id for entry in rig.cameras}
+    with open_session(BusOptions(listen=(endpoint,))) as session, Launch(run_dir) as launch:
+        session.declare_subscriber(keys.observations(rig.name), on_observations)
+        session.declare_subscriber(keys.calibration(rig.name), on_calibration)
+        for entry in rig.cameras:
+            launch.start(f"driver-{entry.id}", ["driver", entry.driver, "--rig", str(rig_path), "--camera",
+                                                entry.id, *bus])
+        launch.start("matcher", ["matcher", "--rig", str(rig_path), "--max-tracks", str(max_tracks), *bus])
+        launch.start("calibrator", ["calibrator", "--rig", str(rig_path), "--state", str(state), "--free", "f",
+                                    *bus])
+        start_s = time.monotonic()
+        while time.monotonic() - start_s < timeout_s:
+            for child in launch.exited():
+                raise CamnetError(f"node {child.name} exited with status {child.process.returncode}; "
+                                  f"the end of {child.log_path}:\n{child.log_tail()}")
+            if not arrived.wait(timeout=0.5):
+                continue
+            arrived.clear()
+            with lock:
+                pending = calibrations[:]
+                calibrations.clear()
+            for doc in pending:
+                cameras = {c["id"] for c in doc["cameras"]}
+                log.info("calibration %s: cameras %s, %s frame sets, %.1f s", doc.get("solve"),
+                         ",".join(sorted(cameras)), doc.get("frame_sets"), time.monotonic() - start_s)
+                with lock:
+                    source = observed.get((doc.get("frame_sets"), doc.get("latest_capture_ns")))
+                if cameras == want and doc.get("frame_sets", 0) >= min_frame_sets and source is not None:
+                    return parse_calibration(doc), parse_observations(source), time.monotonic() - start_s
+    raise CamnetError(f"no calibration of cameras {sorted(want)} from {min_frame_sets} frame sets in "
+                      f"{timeout_s:.0f} s; the nodes' logs are in {run_dir}")
