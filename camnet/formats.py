@@ -293,7 +293,8 @@ def calibration_to_doc(cal: Calibration) -> dict:
         "points": [
             {"id": int(i), "xyz": [float(x) for x in p]} for i, p in zip(cal.point_ids, cal.points, strict=True)
         ],
-        "rms_reprojection_px": float(cal.rms_reprojection_px),
+        # A calibration that no observation went into (a factory stereo head) has no RMS; JSON has no NaN.
+        "rms_reprojection_px": float(cal.rms_reprojection_px) if np.isfinite(cal.rms_reprojection_px) else None,
     }
     doc.update(cal.extra)
     return doc

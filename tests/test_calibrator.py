@@ -116,3 +116,20 @@ def test_the_command_default_is_the_live_default():
     from services.calibrator import LIVE_FREE
 
     assert parse_free(DEFAULT_FREE) == LIVE_FREE == CalibratorConfig().options.free
+
+
+def test_a_factory_head_without_points_or_rms_is_a_state_to_resume_from(tmp_path):
+    import json
+
+    from camnet.formats import Calibration, calibration_to_doc, write_json_atomic
+    from services.calibrator import load_state
+
+    rig = make_rig(seed=1)
+    head = Calibration(cameras=list(rig.cameras[:2]), point_ids=np.empty(0, dtype=np.int64), points=np.empty((0, 3)),
+                       rms_reprojection_px=float("nan"), world_frame=rig.cameras[0].id)
+    path = tmp_path / "state.json"
+    write_json_atomic(path, calibration_to_doc(head))
+    resumed = load_state(path)
+    assert resumed is not None and len(resumed.cameras) == 2 and np.isnan(resumed.rms_reprojection_px)
+    # The node publishes what it resumes from; JSON has no NaN.
+    assert json.loads(json.dumps(calibration_to_doc(resumed), allow_nan=False))["rms_reprojection_px"] is None

@@ -220,11 +220,7 @@ def run_live(
     rig = load_rig(rig_path)
     run_dir.mkdir(parents=True, exist_ok=True)
     state = run_dir / "calibration.json"
-    head = calibration_to_doc(stereo_head(published))
-    # A factory head has no reprojection RMS, but the calibrator publishes what it resumes from as JSON,
-    # which has no NaN.
-    head["rms_reprojection_px"] = 0.0
-    write_json_atomic(state, head)
+    write_json_atomic(state, calibration_to_doc(stereo_head(published)))
     observed: dict[tuple[int, int], dict] = {}
     calibrations: list[dict] = []
     lock = threading.Lock()
