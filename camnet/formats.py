@@ -103,7 +103,8 @@ def _require(obj: dict, key: str, path: str) -> Any:
     return obj[key]
 
 
-def _matrix(value: Any, rows: int, cols: int, path: str) -> np.ndarray:
+def parse_matrix(value: Any, rows: int, cols: int, path: str) -> np.ndarray:
+    """A rows x cols list of lists of finite numbers; InputError naming `path` otherwise."""
     if not isinstance(value, list) or len(value) != rows:
         raise _fail(path, f"expected a {rows}x{cols} array")
     out = np.empty((rows, cols))
@@ -162,7 +163,7 @@ def _parse_camera(value: Any, path: str) -> CameraInfo:
     cam_id = _string(_require(value, "id", path), f"{path}.id")
     width = _positive_int(_require(value, "width", path), f"{path}.width")
     height = _positive_int(_require(value, "height", path), f"{path}.height")
-    K = _matrix(value["K"], 3, 3, f"{path}.K") if "K" in value else None
+    K = parse_matrix(value["K"], 3, 3, f"{path}.K") if "K" in value else None
     if K is not None and (K[0, 0] <= 0 or K[1, 1] <= 0):
         raise _fail(f"{path}.K", "focal lengths must be positive")
     dist = full_dist(_vector(value["dist"], f"{path}.dist", max_size=5)) if "dist" in value else None
@@ -309,7 +310,7 @@ def parse_calibration(doc: Any) -> Calibration:
     cameras = []
     for i, c in enumerate(cams_raw):
         path = f"cameras[{i}]"
-        R = _matrix(_require(c, "R", path), 3, 3, f"{path}.R")
+        R = parse_matrix(_require(c, "R", path), 3, 3, f"{path}.R")
         if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) <= 0:
             raise _fail(f"{path}.R", "not a rotation matrix")
         t = _vector(_require(c, "t", path), f"{path}.t", max_size=3)
@@ -320,7 +321,7 @@ def parse_calibration(doc: Any) -> Calibration:
                 id=_string(_require(c, "id", path), f"{path}.id"),
                 width=_positive_int(_require(c, "width", path), f"{path}.width"),
                 height=_positive_int(_require(c, "height", path), f"{path}.height"),
-                K=_matrix(_require(c, "K", path), 3, 3, f"{path}.K"),
+                K=parse_matrix(_require(c, "K", path), 3, 3, f"{path}.K"),
                 dist=full_dist(_vector(c.get("dist", []), f"{path}.dist", max_size=5)),
                 R=R,
                 t=t,

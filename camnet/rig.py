@@ -18,6 +18,7 @@ import numpy as np
 
 from camnet.camera import Camera, look_at
 from camnet.errors import InputError
+from camnet.formats import parse_matrix
 from camnet.keys import validate_id
 
 DRIVERS = ("sim", "aravis", "v4l2")
@@ -27,9 +28,16 @@ V4L2_ENCODINGS = ("bgr8", "mono8")
 
 @dataclass(frozen=True)
 class StereoPair:
+    """The stereo pair; R, t (when known, a factory-calibrated head) the right camera's pose in the left's frame.
+
+    x_right = R x_left + t, t in metres, |t| = baseline_m.
+    """
+
     left: str
     right: str
     baseline_m: float
+    R: np.ndarray | None = None
+    t: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -261,6 +269,12 @@ class _Section:
             raise InputError(f"{self.field(key)}: expected true or false, got {value!r}")
         return value
 
+    def matrix(self, key: str, rows: int, cols: int, default: Any = ...) -> np.ndarray:
+        value = self.raw(key, default)
+        if value is default and default is not ...:
+            return value
+        return parse_matrix(value, rows, cols, self.field(key))
+
     def vector(self, key: str, size: int, default: Any = ...) -> tuple[float, ...]:
         value = self.raw(key, default)
         if value is default and default is not ...:
@@ -386,18 +400,11 @@ def _frame_range(s: _Section) -> tuple[int, int] | None:
 
 
 def _intrinsics(s: _Section) -> KnownIntrinsics:
-    K = s.raw("K", None)
-    if K is not None:
-        ok = isinstance(K, list) and len(K) == 3 and all(
-            isinstance(row, list) and len(row) == 3 and all(
-                isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) for v in row)
-            for row in K)
-        if not ok:
-            raise InputError(f"{s.field('K')}: expected a 3x3 matrix of finite numbers, got {K!r}")
-        K = np.array(K, dtype=float)
-        if not (K[0, 0] > 0 and K[1, 1] > 0 and np.array_equal(K[2], [0.0, 0.0, 1.0]) and K[1, 0] == 0):
-            raise InputError(f"{s.field('K')}: expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with "
-                             f"fx, fy > 0, got {K.tolist()}")
+    K = s.matrix("K", 3, 3, None)
+    upper_triangular = K is None or (K[0, 0] > 0 and K[1, 1] > 0 and K[1, 0] == 0 and np.array_equal(K[2], [0, 0, 1]))
+    if not upper_triangular:
+        raise InputError(f"{s.field('K')}: expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with "
+                         f"fx, fy > 0, got {K.tolist()}")
     dist = s.raw("dist", None)
     if dist is not None:
         if not isinstance(dist, list) or len(dist) > 5 or not all(
@@ -501,14 +508,34 @@ def _parse_rig(data: Any, source: str) -> Rig:
                                  f"(have {', '.join(seen)})")
         if left == right:
             raise InputError(f"{st.field('right')}: must differ from stereo.left")
-        stereo = StereoPair(left=left, right=right,
-                            baseline_m=st.number("baseline_m", positive=True))
+        stereo = _stereo_pose(st, StereoPair(left=left, right=right,
+                                             baseline_m=st.number("baseline_m", positive=True)), cameras)
         st.finish()
     scene = _scene(top.section("scene", required=False))
     sync = _sync(top.section("sync")) if top.data.get("sync") is not None else None
     top.used.add("sync")
     top.finish()
     return Rig(name=name, cameras=cameras, stereo=stereo, scene=scene, source=source, sync=sync)
+
+
+def _stereo_pose(st: _Section, pair: StereoPair, cameras: tuple[CameraEntry, ...]) -> StereoPair:
+    """The pair with its known pose (stereo.R, stereo.t), checked, when the rig file gives one."""
+    R, t = st.matrix("R", 3, 3, None), st.vector("t", 3, None)
+    if R is None and t is None:
+        return pair
+    if R is None or t is None:
+        raise InputError(f"{st.field('R' if R is None else 't')}: missing; a known stereo pose needs both R and t "
+                         "(the right camera's pose in the left's frame, x_right = R x_left + t)")
+    if not (np.allclose(R @ R.T, np.eye(3), atol=1e-5) and np.linalg.det(R) > 0):
+        raise InputError(f"{st.field('R')}: not a rotation matrix (R R^T = I, det R = 1)")
+    t = np.array(t)
+    if abs(np.linalg.norm(t) - pair.baseline_m) > 1e-3 * pair.baseline_m:
+        raise InputError(f"{st.field('t')}: its length {np.linalg.norm(t):.6g} m differs from "
+                         f"stereo.baseline_m {pair.baseline_m:.6g} m")
+    for cam in cameras:
+        if cam.id in (pair.left, pair.right) and (cam.intrinsics is None or cam.intrinsics.K is None):
+            raise InputError(f"{st.field('R')}: a known stereo pose needs intrinsics.K of camera {cam.id!r}")
+    return replace(pair, R=R, t=t)
 
 
 def load_rig(path: str | Path) -> Rig:

@@ -32,6 +32,7 @@ import numpy as np
 from camnet import keys, lockstep
 from camnet.bus import declare_liveliness
 from camnet.calibrate import Options, calibrate
+from camnet.camera import Camera
 from camnet.change import MoveRule, drop_before, moved_cameras, new_track_errors
 from camnet.errors import CamnetError, InputError
 from camnet.formats import (
@@ -77,6 +78,10 @@ class CalibratorConfig:
     max_rms_px: float = 3.0
     max_scale_rel: float = 0.05
     stats_period_s: float = 1.0
+    # A factory-calibrated stereo head (the rig file's stereo.R, stereo.t): the right camera's
+    # pose in the left's frame, x_right = R x_left + t. Every solve without a good calibration
+    # to start from starts from it, so that a free set without the pair's axes holds it.
+    stereo_pose: tuple[np.ndarray, np.ndarray] | None = None
 
 
 @dataclass(frozen=True)
@@ -188,7 +193,8 @@ class Tracker:
 
     def _solve(self, obs: Observations, moved: tuple[str, ...]) -> Outcome:
         initial = self._initial()
-        attempts = [initial, None] if initial is not None else [None]
+        cold = None if self.config.stereo_pose is None else stereo_head(obs, *self.config.stereo_pose)
+        attempts = [initial, cold] if initial is not None else [cold]
         reason = ""
         for start in attempts:
             try:
@@ -203,6 +209,23 @@ class Tracker:
                 return Outcome("good", "", cal, moved, warm=start is not None)
             status = "rejected"
         return Outcome(status, reason, None, moved, warm=False)
+
+
+def stereo_head(obs: Observations, R: np.ndarray, t: np.ndarray) -> Calibration | None:
+    """The stereo pair alone, with its known pose and the observations' K and dist: a solve's start.
+
+    None when the observations carry no K for a stereo camera (the rig file
+    requires one wherever it gives the pose).
+    """
+    cameras = []
+    for cam_id, (R_cam, t_cam) in ((obs.stereo.left, (np.eye(3), np.zeros(3))), (obs.stereo.right, (R, t))):
+        info = obs.cameras[obs.index_of(cam_id)]
+        if info.K is None:
+            return None
+        dist = np.zeros(5) if info.dist is None else info.dist
+        cameras.append(Camera(cam_id, info.width, info.height, info.K, dist, R_cam, t_cam))
+    return Calibration(cameras=cameras, point_ids=np.empty(0, dtype=np.int64), points=np.empty((0, 3)),
+                       rms_reprojection_px=float("nan"), world_frame=obs.stereo.left)
 
 
 class LatestMessage:

@@ -133,3 +133,24 @@ def test_a_factory_head_without_points_or_rms_is_a_state_to_resume_from(tmp_path
     assert resumed is not None and len(resumed.cameras) == 2 and np.isnan(resumed.rms_reprojection_px)
     # The node publishes what it resumes from; JSON has no NaN.
     assert json.loads(json.dumps(calibration_to_doc(resumed), allow_nan=False))["rms_reprojection_px"] is None
+
+
+def test_a_known_stereo_head_is_held():
+    """A rig file's stereo pose (a factory head): every solve starts from it and, its axes held, keeps it."""
+    from camnet.evaluate import rotation_angle_deg
+    from camnet.pipeline import with_known_intrinsics
+
+    rig = make_rig(n_points=200, seed=5, stereo_rotation_deg=0.5)
+    obs = with_known_intrinsics(observe(rig, seed=5).observations, {c.id: c for c in rig.cameras[:2]})
+    right = rig.cameras[1]
+    head = Tracker(CalibratorConfig(options=replace(CalibratorConfig().options, free=frozenset({"f"})),
+                                    stereo_pose=(right.R, right.t)))
+    ideal = Tracker(CalibratorConfig(options=replace(CalibratorConfig().options, free=frozenset({"f"}))))
+    for tracker in (head, ideal):
+        assert tracker.update(obs).status == "good"
+    held = next(c for c in head.good.cameras if c.id == right.id)
+    np.testing.assert_allclose(held.R, right.R, atol=1e-12)
+    np.testing.assert_allclose(held.t, right.t, atol=1e-12)
+    # Without the head the pair is held parallel: 0.5 degrees off.
+    parallel = next(c for c in ideal.good.cameras if c.id == right.id)
+    assert rotation_angle_deg(parallel.R @ right.R.T) > 0.4

@@ -3,8 +3,8 @@
 config/kitti.yaml replays the four cameras with their recorded capture times
 (cam 3 is stamped 6.6-6.8 ms before cam 0; every frame set holds the grey
 pair plus one colour camera) and KITTI's published intrinsics; the
-calibrator resumes from the published stereo head with only the focal
-lengths free. That is the offline `all-K` scenario (benchmarks/bench_kitti.py),
+calibrator holds the stereo pair's published pose, which the rig file
+gives. That is the offline `all-K` scenario (benchmarks/bench_kitti.py),
 so the live result must agree with the offline one on the same frames, and
 both with the published calibration within what this rig permits (see
 tests/test_kitti_calibration.py and the data set's README).
@@ -51,7 +51,7 @@ def offline(kitti):
 
 def test_live_network_calibrates_every_camera_like_the_offline_pipeline(kitti, offline, tmp_path, monkeypatch):
     monkeypatch.chdir(ROOT)  # the rig file's paths are relative to the project root
-    cal, obs, elapsed_s = run_live(RIG, kitti.cameras, run_dir=tmp_path / "run",
+    cal, obs, elapsed_s = run_live(RIG, run_dir=tmp_path / "run",
                                    endpoint=f"tcp/127.0.0.1:{free_port()}", timeout_s=120.0)
     live = compare(cal, obs, kitti.cameras)
     # Every camera, from frame sets of the pair plus one colour camera; a few hundred tracks tie each

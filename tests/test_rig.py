@@ -107,3 +107,25 @@ def test_error_names_the_file(tmp_path):
     path.write_text("rig: [unclosed")
     with pytest.raises(InputError, match="not valid YAML"):
         load_rig(path)
+
+
+def with_head(d: dict, **stereo) -> None:
+    K = [[50.0, 0.0, 31.5], [0.0, 50.0, 23.5], [0.0, 0.0, 1.0]]
+    for cam in d["cameras"][:2]:
+        cam["intrinsics"] = {"K": K}
+    d["stereo"].update(R=np.eye(3).tolist(), t=[-0.1, 0.0, 0.0])
+    d["stereo"].update(stereo)
+
+
+def test_a_known_stereo_pose_is_read_and_checked():
+    data = copy.deepcopy(base())
+    with_head(data)
+    rig = parse_rig(data, source="rig.yaml")
+    assert np.array_equal(rig.stereo.R, np.eye(3)) and np.allclose(rig.stereo.t, [-0.1, 0, 0])
+    assert parse_rig(base(), source="rig.yaml").stereo.R is None
+    refused(lambda d: with_head(d, t=[-0.2, 0.0, 0.0]), r"stereo\.t: its length 0\.2 m differs from stereo\.baseline_m")
+    refused(lambda d: with_head(d, R=[[1, 0, 0], [0, 1, 0], [0, 0, -1]]), r"stereo\.R: not a rotation matrix")
+    refused(lambda d: with_head(d, R=[[1, 0], [0, 1]]), r"stereo\.R: expected a 3x3 array")
+    refused(lambda d: (with_head(d), d["stereo"].pop("t")), r"stereo\.t: missing; a known stereo pose needs both")
+    refused(lambda d: (with_head(d), d["cameras"][1].pop("intrinsics")),
+            r"stereo\.R: a known stereo pose needs intrinsics\.K of camera 'b'")

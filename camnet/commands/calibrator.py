@@ -23,7 +23,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--free", default=DEFAULT_FREE,
                         help="intrinsics to estimate: a comma list of f, aspect, pp, k1, k2, stereo_rotation, "
                              "stereo_direction, or 'auto' for the engine's rule (default: %(default)s; principal "
-                             "points and distortion are held as given, see services/calibrator.py)")
+                             "points and distortion are held as given, see services/calibrator.py; a rig file "
+                             "with the pair's pose, stereo.R and stereo.t, holds the pair: default f)")
     parser.add_argument("--loss", choices=("cauchy", "huber", "soft_l1", "linear"), default="cauchy",
                         help="robust loss of the adjustment (default cauchy)")
     parser.add_argument("--max-rms-px", type=float, default=3.0,
@@ -74,7 +75,12 @@ def run(args: argparse.Namespace) -> int:
     if not args.no_state:
         state = Path(args.state) if args.state else default_state_path(name)
         state.parent.mkdir(parents=True, exist_ok=True)
-    config = CalibratorConfig(options=Options(free=parse_free(args.free), loss=args.loss), state_path=state,
+    free, stereo_pose = parse_free(args.free), None
+    if rig is not None and rig.stereo is not None and rig.stereo.R is not None:
+        stereo_pose = (rig.stereo.R, rig.stereo.t)
+        if args.free == DEFAULT_FREE:  # a factory head: its pose is known, only the scene's cameras move
+            free = frozenset({"f"})
+    config = CalibratorConfig(options=Options(free=free, loss=args.loss), state_path=state, stereo_pose=stereo_pose,
                               max_rms_px=args.max_rms_px, max_scale_rel=args.max_scale_rel)
     stop = threading.Event()
     if threading.current_thread() is threading.main_thread():

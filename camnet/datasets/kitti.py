@@ -185,7 +185,6 @@ def stereo_head(published: dict[str, Camera]) -> Calibration:
 
 def run_live(
     rig_path: str | Path,
-    published: dict[str, Camera],
     *,
     run_dir: Path,
     endpoint: str,
@@ -197,8 +196,8 @@ def run_live(
 
     The nodes connect to `endpoint` (tcp on loopback), where this process
     listens; their logs and the calibrator's state go to `run_dir`. The
-    calibrator resumes from the published stereo head (`stereo_head`) with
-    only the focal lengths free, so the pair's pose is held; the matcher
+    calibrator holds the stereo pair's pose when the rig file gives it (as
+    config/kitti.yaml does: a factory head); the matcher
     pools at most `max_tracks` tracks. Returns the first calibration of every
     camera in the rig from at least `min_frame_sets` pooled frame sets, the
     observations it was solved from, and the seconds since the nodes started.
@@ -212,15 +211,13 @@ def run_live(
     from camnet import keys
     from camnet.bus import BusOptions, open_session
     from camnet.errors import CamnetError
-    from camnet.formats import calibration_to_doc, parse_calibration, parse_observations, write_json_atomic
+    from camnet.formats import parse_calibration, parse_observations
     from camnet.launch import Launch
     from camnet.rig import load_rig
 
     log = logging.getLogger(__name__)
     rig = load_rig(rig_path)
     run_dir.mkdir(parents=True, exist_ok=True)
-    state = run_dir / "calibration.json"
-    write_json_atomic(state, calibration_to_doc(stereo_head(published)))
     observed: dict[tuple[int, int], dict] = {}
     calibrations: list[dict] = []
     lock = threading.Lock()
@@ -245,8 +242,7 @@ def run_live(
             launch.start(f"driver-{entry.id}", ["driver", entry.driver, "--rig", str(rig_path), "--camera",
                                                 entry.id, *bus])
         launch.start("matcher", ["matcher", "--rig", str(rig_path), "--max-tracks", str(max_tracks), *bus])
-        launch.start("calibrator", ["calibrator", "--rig", str(rig_path), "--state", str(state), "--free", "f",
-                                    *bus])
+        launch.start("calibrator", ["calibrator", "--rig", str(rig_path), "--no-state", *bus])
         start_s = time.monotonic()
         while time.monotonic() - start_s < timeout_s:
             for child in launch.exited():
