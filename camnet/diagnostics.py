@@ -10,7 +10,7 @@ import numpy as np
 from camnet import bundle
 from camnet.bundle import CEN, CENTRE_FREE, CENTRE_ON_BASELINE, ROT, _tangent_basis
 from camnet.projection import INTRINSIC_NAMES
-from camnet.uncertainty import scale_sigma, scale_weights
+from camnet.uncertainty import covariance, scale_sigma, scale_weights
 
 MIN_CAMERA_OBSERVATIONS = 12
 MIN_PARALLAX_DEG = 2.0
@@ -152,13 +152,24 @@ def describe(obs, order, problem, state, cov, inliers, info, decisions, options,
                 warnings.append(
                     f"camera {cam_id}: focal length poorly determined (sigma {per_cam[cam_id]['f_px']:.0f} px)"
                 )
+        # The covariance has more columns than the problem where guessed principal points entered
+        # as a prior (calibrate._uncertainty): what the scale would be known to were they exact.
+        scale_if_pp = None
+        if scale is not None and cov.S_inv.shape[0] > problem.columns()[1] and info.normal is not None:
+            exact = covariance(problem, state, sigma_px=cov.sigma_px, normal=info.normal)
+            scale_if_pp = scale_sigma(exact, state.X, weights)
         if scale is None:
             warnings.append("no point is determined: the scale is unknown")
         elif scale > POOR_SCALE_REL:
-            warnings.append(f"the scale is uncertain by {100 * scale:.1f}% (1 sigma)")
+            why = ""
+            if scale_if_pp is not None and scale_if_pp < scale / 2:
+                why = (f", {100 * scale_if_pp:.2g}% were the principal points exactly at the image centres: "
+                       "give the stereo cameras' K")
+            warnings.append(f"the scale is uncertain by {100 * scale:.1f}% (1 sigma){why}")
         out["uncertainty"] = {
             "sigma_px": cov.sigma_px,
             "scale_rel": scale,
+            "scale_rel_if_pp_exact": scale_if_pp,
             "cameras": per_cam,
             "point_weights": weights[kept].tolist(),
         }
