@@ -120,8 +120,7 @@ class AravisCamera:
 
     def __exit__(self, *exc_info: object) -> None:
         self._disconnect(reachable=True)
-        self._wait_for_release(RELEASE_WAIT_S)
-        if self._release is not None:
+        if not self._wait_for_release(RELEASE_WAIT_S):
             log.warning("camera %s: Aravis is still releasing the lost camera after %.0f s",
                         self.camera_id, RELEASE_WAIT_S)
 
@@ -135,7 +134,7 @@ class AravisCamera:
                 f"{device or '(first found)'!r}: {exc.message}; check that it is powered and "
                 "reachable (arv-tool-0.8 lists cameras), that its id matches, and for GigE that "
                 "it is on this host's subnet") from exc
-        stream = None
+        stream, failure = None, None
         try:
             self._configure(camera)
             stream = camera.create_stream(None, None)
@@ -144,13 +143,15 @@ class AravisCamera:
                 stream.push_buffer(Aravis.Buffer.new_allocate(payload))
             camera.start_acquisition()
         except GLib.Error as exc:
+            # Only the message is kept: the traceback would hold the camera in its frames.
+            failure = exc.message
+        if failure is not None:
             # The camera may have gone mid-way: release what was made like a lost camera.
             self._release_later([stream, camera])
             del camera, stream
             raise DeviceError(f"camera {self.camera_id!r}: Aravis device "
                               f"{device or '(first found)'!r} refused its configuration: "
-                              f"{exc.message}; check pixel_format, size and fps in the rig "
-                              "file") from exc
+                              f"{failure}; check pixel_format, size and fps in the rig file")
         gv_device = camera.get_device()
         self._camera, self._stream = camera, stream
         self._gv_device = gv_device if isinstance(gv_device, Aravis.GvDevice) else None

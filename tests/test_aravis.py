@@ -266,3 +266,14 @@ def test_in_process_fake_interface():
     assert frames[0].encoding == "mono8" and frames[0].image.shape == (cam.info.height,
                                                                         cam.info.width)
     assert frames[2].seq > frames[0].seq
+
+
+def test_refused_configuration_names_camera_and_setting():
+    from drivers.aravis import AravisCamera
+    from drivers.base import DeviceError
+
+    cfg = config(device_id="Fake_1", enable_fake_interface=True, packet_size=None, fps=None,
+                 pixel_format="Mono9000")
+    with pytest.raises(DeviceError, match="camera 'fake'.*refused its configuration.*Mono9000"
+                                          ".*check pixel_format"):
+        AravisCamera("fake", cfg).__enter__()
