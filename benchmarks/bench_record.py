@@ -2,9 +2,10 @@
 """Recording benchmark: simulated cameras -> `services.recorder.Recorder` -> MCAP, then replay.
 
 Each camera is its own process running the real driver node on frames
-pre-rendered by the sim renderer (as in bench_bus.py). The recorder runs in
-this process with its own Zenoh session; its CPU is this process's CPU time
-(Zenoh's receive threads included) over wall time. Then the file is replayed
+pre-rendered by the sim renderer (benchmarks/sim_publishers.py, as in
+bench_bus.py). The recorder runs in this process with its own Zenoh session;
+its CPU is this process's CPU time (Zenoh's receive threads included) over
+wall time. Then the file is replayed
 as fast as possible (`services.replayer.Replayer`, congestion control BLOCK)
 to a subscriber in another session that counts the frames.
 
@@ -15,8 +16,6 @@ to a subscriber in another session that counts the frames.
 from __future__ import annotations
 
 import argparse
-import multiprocessing as mp
-import queue
 import sys
 import tempfile
 import threading
@@ -26,7 +25,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_bus import free_port, publisher  # noqa: E402  (the same camera processes)
+from sim_publishers import free_port, run_publishers  # noqa: E402  (the same camera processes)
 
 
 def record(compression: str, *, cameras: int, fps: float, seconds: float, size, directory: Path):
@@ -35,38 +34,22 @@ def record(compression: str, *, cameras: int, fps: float, seconds: float, size, 
 
     path = directory / f"bench-{compression}.mcap"
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    n_frames = int(round(fps * seconds))
-    ctx = mp.get_context("spawn")
-    start, results = ctx.Event(), ctx.Queue()
     with open_session(BusOptions(listen=(endpoint,))) as session:
         recorder = Recorder(session, RecorderConfig(rig="sim", path=path, compression=compression))
         out = {}
         thread = threading.Thread(target=lambda: out.setdefault("summary", recorder.run()))
         thread.start()
-        procs = [ctx.Process(target=publisher, args=("camnet", i, endpoint, fps, n_frames, size,
-                                                     start, results)) for i in range(cameras)]
-        for p in procs:
-            p.start()
-        deadline = time.monotonic() + 60
-        while len(list(session.info.peers_zid())) < cameras and time.monotonic() < deadline:
-            time.sleep(0.05)
-        time.sleep(1.0)
-        cpu0, wall0 = time.process_time(), time.monotonic()
-        start.set()
-        sent = {}
-        while len(sent) < cameras:
-            try:
-                index, n, _, _ = results.get(timeout=5)
-                sent[index] = n
-            except queue.Empty:
-                print(f"  [{compression}] {time.monotonic() - wall0:5.1f}/{seconds:.0f} s",
-                      file=sys.stderr, flush=True)
-        time.sleep(0.5)
-        recorder.stop.set()
-        thread.join()
-        cpu = (time.process_time() - cpu0) / (time.monotonic() - wall0)
-    for p in procs:
-        p.join(timeout=10)
+        try:
+            results, cpu = run_publishers(
+                session, endpoint, mode="camnet", cameras=cameras, fps=fps, seconds=seconds,
+                size=size, progress=lambda elapsed_s: print(
+                    f"  [{compression}] {elapsed_s:5.1f}/{seconds:.0f} s", file=sys.stderr,
+                    flush=True))
+            time.sleep(0.5)
+        finally:
+            recorder.stop.set()
+            thread.join()
+    sent = {index: r.sent for index, r in results.items()}
     return path, out["summary"], sum(sent.values()), cpu
 
 

@@ -4,10 +4,24 @@ Acquisition uses Aravis's stream buffer pool: `n_buffers` buffers are pushed
 once, each `read()` pops one (with a timeout), copies the pixels out and pushes
 the buffer straight back, so no allocation happens per frame.
 
-When the camera disappears (control lost, or no buffer for `lost_after_s`),
-the driver drops it and reconnects by itself with exponential back-off
-(0.5 s doubling to 4 s). Waiting for a reconnection sleeps; it never spins.
-Timestamps are the camera's own (ns) when it gives them, else the host's.
+When the camera disappears (GigE control lost, or no buffer for
+`lost_after_s`), the driver drops it and reconnects by itself with
+exponential back-off (0.5 s doubling to 4 s). Waiting for a reconnection
+sleeps; it never spins. Timestamps are the camera's own (ns) when it gives
+them, else the host's.
+
+Threads: every Aravis call is made from the thread that calls `read()`,
+except the release of a lost camera. Releasing a lost GigE device blocks for
+several seconds in Aravis's finalizers (stream reset and control release are
+retried until they time out), so it runs in a release thread, and nothing
+else touches Aravis until it is done: the next connection waits for it, and
+the old device never talks to the camera that came back. Control loss is
+read from the device's controller flag (`is_controller()`, which Aravis's
+heartbeat thread clears when it emits "control-lost"), not from a Python
+handler of that signal: a handler makes the heartbeat thread hold a
+reference to the device, and if it holds the last one, Aravis finalizes the
+device in its own heartbeat thread, which then joins itself and GLib aborts
+the process (g_error, SIGTRAP).
 """
 
 from __future__ import annotations
@@ -42,11 +56,23 @@ PIXEL_FORMATS = {
 _CHANNELS = {"rgb8": 3, "bgr8": 3}
 BACKOFF_START_S = 0.5
 BACKOFF_MAX_S = 4.0
+# How long closing waits for the release of a lost camera (Aravis needs ~8 s).
+RELEASE_WAIT_S = 15.0
 _FRAME_ID_MODULO = 1 << 16  # GigE Vision 1.x block ids are 16-bit
 
 
 def create(entry: CameraEntry, rig: Rig) -> AravisCamera:
     return AravisCamera(entry.id, entry.config)
+
+
+def _release_in_order(held: list) -> None:
+    """Drop the last references to [stream, camera, device], in that order.
+
+    The stream goes first: its finalizer stops its receiving thread and still
+    talks to the device. The caller must keep no other reference.
+    """
+    while held:
+        del held[0]
 
 
 class AravisCamera:
@@ -56,8 +82,9 @@ class AravisCamera:
         self.lost_after_s = lost_after_s
         self._camera = None
         self._stream = None
+        self._gv_device = None  # the GigE device, whose controller flag tells control loss
+        self._release: threading.Thread | None = None
         self._info: CameraInfo | None = None
-        self._control_lost = threading.Event()
         self._seq = 0
         self._dropped = 0
         self._reconnects = 0
@@ -92,7 +119,10 @@ class AravisCamera:
         return self
 
     def __exit__(self, *exc_info: object) -> None:
-        self._disconnect()
+        self._disconnect(reachable=True)
+        if not self._wait_for_release(RELEASE_WAIT_S):
+            log.warning("camera %s: Aravis is still releasing the lost camera after %.0f s",
+                        self.camera_id, RELEASE_WAIT_S)
 
     def _connect(self) -> None:
         device = self.config.device_id
@@ -104,6 +134,7 @@ class AravisCamera:
                 f"{device or '(first found)'!r}: {exc.message}; check that it is powered and "
                 "reachable (arv-tool-0.8 lists cameras), that its id matches, and for GigE that "
                 "it is on this host's subnet") from exc
+        stream, failure = None, None
         try:
             self._configure(camera)
             stream = camera.create_stream(None, None)
@@ -112,16 +143,18 @@ class AravisCamera:
                 stream.push_buffer(Aravis.Buffer.new_allocate(payload))
             camera.start_acquisition()
         except GLib.Error as exc:
+            # Only the message is kept: the traceback would hold the camera in its frames.
+            failure = exc.message
+        if failure is not None:
+            # The camera may have gone mid-way: release what was made like a lost camera.
+            self._release_later([stream, camera])
+            del camera, stream
             raise DeviceError(f"camera {self.camera_id!r}: Aravis device "
                               f"{device or '(first found)'!r} refused its configuration: "
-                              f"{exc.message}; check pixel_format, size and fps in the rig "
-                              "file") from exc
-        self._control_lost.clear()
-        try:
-            camera.get_device().connect("control-lost", self._on_control_lost)
-        except TypeError:
-            log.debug("device of %s has no control-lost signal", self.camera_id)
+                              f"{failure}; check pixel_format, size and fps in the rig file")
+        gv_device = camera.get_device()
         self._camera, self._stream = camera, stream
+        self._gv_device = gv_device if isinstance(gv_device, Aravis.GvDevice) else None
         self._last_frame_id = None
         self._last_buffer_mono = time.monotonic()
         self._backoff_s = BACKOFF_START_S
@@ -134,10 +167,6 @@ class AravisCamera:
             description=f"{camera.get_vendor_name()} {camera.get_model_name()} "
                         f"({camera.get_device_id()})")
         log.info("camera %s: opened %s", self.camera_id, self._info.description)
-
-    def _on_control_lost(self, *args) -> None:
-        # Called from Aravis's heartbeat thread: only set a flag.
-        self._control_lost.set()
 
     def _configure(self, camera) -> None:
         cfg = self.config
@@ -154,23 +183,34 @@ class AravisCamera:
         if cfg.packet_size and camera.is_gv_device():
             camera.gv_set_packet_size(cfg.packet_size)
 
-    def _disconnect(self, *, reachable: bool = True) -> None:
-        held = [self._stream, self._camera]
-        self._camera, self._stream = None, None
+    def _disconnect(self, *, reachable: bool) -> None:
+        held = [self._stream, self._camera, self._gv_device]
+        self._camera, self._stream, self._gv_device = None, None, None
         if held[1] is None:
             return
-        if not reachable:
-            # Releasing a lost GigE device blocks for ~10 s in Aravis's finalizers (control
-            # release retries): drop the last references in a reaper thread so that
-            # read() keeps its timeout. The camera's own heartbeat timeout ends its stream.
-            threading.Thread(target=held.clear, name=f"aravis-release-{self.camera_id}",
-                             daemon=True).start()
-            return
-        try:
-            held[1].stop_acquisition()
-        except GLib.Error as exc:
-            log.debug("camera %s: stop_acquisition failed: %s", self.camera_id, exc.message)
-        held.clear()
+        if reachable:
+            try:
+                held[1].stop_acquisition()
+            except GLib.Error as exc:
+                log.debug("camera %s: stop_acquisition failed: %s", self.camera_id, exc.message)
+            _release_in_order(held)
+        else:
+            self._release_later(held)
+
+    def _release_later(self, held: list) -> None:
+        """Release [stream, camera, ...] in a thread; `held` must hold the last references."""
+        self._release = threading.Thread(target=_release_in_order, args=(held,),
+                                         name=f"aravis-release-{self.camera_id}", daemon=True)
+        self._release.start()
+
+    def _wait_for_release(self, timeout_s: float) -> bool:
+        """Wait up to `timeout_s` for a pending release; True when none is left."""
+        if self._release is not None:
+            self._release.join(max(0.0, timeout_s))
+            if self._release.is_alive():
+                return False
+            self._release = None
+        return True
 
     def _lose(self, why: str) -> None:
         log.warning("camera %s: lost (%s); reconnecting with back-off", self.camera_id, why)
@@ -178,6 +218,8 @@ class AravisCamera:
         self._next_attempt_mono = time.monotonic() + self._backoff_s
 
     def _try_reconnect(self, deadline: float) -> None:
+        if not self._wait_for_release(deadline - time.monotonic()):
+            raise ReadTimeout(f"camera {self.camera_id!r} is gone; still releasing it")
         now = time.monotonic()
         if now < self._next_attempt_mono:
             time.sleep(max(0.0, min(self._next_attempt_mono, deadline) - now))
@@ -199,7 +241,7 @@ class AravisCamera:
         while True:
             if self._camera is None:
                 self._try_reconnect(deadline)
-            if self._control_lost.is_set():
+            if self._gv_device is not None and not self._gv_device.is_controller():
                 self._lose("control lost")
                 continue
             remaining_s = deadline - time.monotonic()

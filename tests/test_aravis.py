@@ -1,14 +1,37 @@
-"""The Aravis driver against Aravis's own GigE Vision camera emulator, and its Fake interface."""
+"""The Aravis driver against Aravis's own GigE Vision camera emulator, and its Fake interface.
+
+The emulator tests run the driver as a real `camnet driver aravis` process
+and watch it through Zenoh, so that a crash in Aravis or GLib fails one test,
+naming the signal and showing the driver's log, instead of killing pytest.
+The emulator listens on the fixed GigE Vision control port of 127.0.0.1, so
+one test run at a time may use it: a lock file serializes test runs, and
+the tests skip when another process already holds the port.
+"""
 
 from __future__ import annotations
 
+import contextlib
+import errno
+import fcntl
+import os
 import shutil
+import signal
+import socket
 import subprocess
+import sys
+import tempfile
 import time
+from pathlib import Path
 
 import pytest
 
+from tests.conftest import free_port, wait_for
+
 EMULATOR = "arv-fake-gv-camera-0.8"
+GVCP_PORT = 3956  # GigE Vision control, fixed by the standard
+LOCK_FILE = Path(tempfile.gettempdir()) / "camnet-gige-emulator.lock"
+ROOT = Path(__file__).resolve().parent.parent
+RIG = "gvtest"
 
 
 def _aravis_missing() -> str | None:
@@ -26,10 +49,26 @@ _MISSING = _aravis_missing()
 pytestmark = pytest.mark.skipif(_MISSING is not None, reason=_MISSING or "")
 
 
+def gvcp_port_taken() -> bool:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        try:
+            s.bind(("127.0.0.1", GVCP_PORT))
+        except OSError as exc:
+            if exc.errno == errno.EADDRINUSE:
+                return True
+            raise
+    return False
+
+
 def start_emulator() -> subprocess.Popen:
+    """The emulator on 127.0.0.1, once it holds the control port."""
     process = subprocess.Popen([EMULATOR, "-i", "127.0.0.1"], stdout=subprocess.DEVNULL,
                                stderr=subprocess.DEVNULL)
-    time.sleep(0.3)  # lets it bind its GVCP port
+    if not wait_for(lambda: process.poll() is not None or gvcp_port_taken(), 5.0):
+        stop(process)
+        raise AssertionError(f"{EMULATOR} did not open UDP 127.0.0.1:{GVCP_PORT} within 5 s")
+    if process.poll() is not None:
+        raise AssertionError(f"{EMULATOR} exited with code {process.returncode} on start")
     return process
 
 
@@ -39,16 +78,165 @@ def stop(process: subprocess.Popen) -> None:
     process.wait(timeout=10)
 
 
+@contextlib.contextmanager
+def emulator_lock(timeout_s: float = 120.0):
+    """Exclusive use of the emulator's port among camnet test runs on this host."""
+    with open(LOCK_FILE, "a") as lock:
+        deadline = time.monotonic() + timeout_s
+        while True:
+            try:
+                fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                break
+            except BlockingIOError:
+                if time.monotonic() > deadline:
+                    pytest.skip(f"another test run held {LOCK_FILE} for {timeout_s:.0f} s")
+                time.sleep(0.2)
+        try:
+            yield
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
+
+
 @pytest.fixture
 def emulator():
     if shutil.which(EMULATOR) is None:
         pytest.skip(f"{EMULATOR} not installed (Debian package aravis-tools)")
-    holder = {"process": start_emulator()}
+    with emulator_lock():
+        if not wait_for(lambda: not gvcp_port_taken(), 10.0, 0.2):
+            pytest.skip(f"UDP 127.0.0.1:{GVCP_PORT} (GigE Vision control) is held by another "
+                        f"process, e.g. a leftover {EMULATOR}; the emulator tests need it")
+        holder = {"process": start_emulator()}
+        try:
+            yield holder
+        finally:
+            # Always stopped, whatever the test did (it may have restarted it).
+            stop(holder["process"])
+
+
+def write_rig(directory: Path) -> Path:
+    path = directory / "gv.yaml"
+    path.write_text(f"rig: {RIG}\n"
+                    "cameras:\n"
+                    "  - id: gv\n"
+                    "    driver: aravis\n"
+                    "    aravis: {device_id: 127.0.0.1, pixel_format: Mono8, width: 320, "
+                    "height: 240, fps: 50, packet_size: 1400, n_buffers: 8}\n")
+    return path
+
+
+class DriverProcess:
+    """`camnet driver aravis` in a child process, its frames received here through Zenoh."""
+
+    def __init__(self, rig_path: Path, log_path: Path) -> None:
+        from camnet import keys
+        from camnet.bus import BusOptions, open_session
+        from camnet.receiver import FrameReceiver
+
+        endpoint = f"tcp/127.0.0.1:{free_port()}"
+        self.log_path = log_path
+        with open(log_path, "w") as log:  # the child keeps its own descriptor
+            self.process = subprocess.Popen(
+                [sys.executable, "-X", "faulthandler", "-m", "camnet", "-v", "driver", "aravis",
+                 "--rig", str(rig_path), "--camera", "gv", "--listen", endpoint,
+                 "--stats-period-s", "0.5"],
+                cwd=ROOT, stdout=log, stderr=subprocess.STDOUT)
+        self.receiver = FrameReceiver()
+        self.frames = []
+        self.session = open_session(BusOptions(connect=(endpoint,)))
+        self.session.declare_subscriber(keys.frame(RIG, "gv"), self._on_frame)
+
+    def _on_frame(self, sample) -> None:
+        frame = self.receiver.accept(sample.payload.to_bytes())
+        if frame is not None:
+            self.frames.append(frame)
+
+    def log(self) -> str:
+        return self.log_path.read_text(errors="replace")
+
+    def check_alive(self) -> None:
+        code = self.process.poll()
+        if code is not None:
+            how = f"signal {signal.Signals(-code).name}" if code < 0 else f"exit code {code}"
+            raise AssertionError(f"the driver process died ({how}); its log ends:\n"
+                                 f"{self.log()[-3000:]}")
+
+    def wait_for_frames(self, count: int, within_s: float) -> None:
+        def enough() -> bool:
+            self.check_alive()
+            return len(self.frames) >= count
+
+        assert wait_for(enough, within_s, 0.05), (
+            f"{len(self.frames)} of {count} frames within {within_s} s; driver log:\n"
+            f"{self.log()[-3000:]}")
+
+    def cpu_s(self) -> float:
+        """CPU time (user + system) the driver process has used so far."""
+        fields = Path(f"/proc/{self.process.pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+    def stop(self) -> int:
+        """Stop it as `docker stop` would (SIGTERM), killing it if it hangs; its exit code."""
+        self.session.close()
+        if self.process.poll() is None:
+            self.process.terminate()
+            try:
+                self.process.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait(timeout=10)
+        return self.process.returncode
+
+
+@pytest.fixture
+def driver_process(tmp_path):
+    """A factory of driver processes; every one is stopped at the end, even on failure."""
+    started = []
+
+    def start() -> DriverProcess:
+        driver = DriverProcess(write_rig(tmp_path), tmp_path / f"driver{len(started)}.log")
+        started.append(driver)
+        return driver
+
     try:
-        yield holder
+        yield start
     finally:
-        # Always stopped, whatever the test did (it may have restarted it).
-        stop(holder["process"])
+        for driver in started:
+            driver.stop()
+
+
+def test_streams_from_emulator(emulator, driver_process):
+    driver = driver_process()
+    driver.wait_for_frames(10, 30.0)
+    frames = list(driver.frames)
+    assert all(f.image.shape == (240, 320) and f.encoding == "mono8" for f in frames)
+    assert [f.seq for f in frames] == sorted(f.seq for f in frames)
+    assert all(f.timestamp_ns > 0 for f in frames)
+    assert frames[-1].timestamp_ns > frames[0].timestamp_ns
+    # The emulator's test pattern is not blank.
+    assert frames[-1].image.std() > 1
+    assert driver.receiver.malformed_total == 0
+    assert driver.stop() == 0, driver.log()
+
+
+def test_survives_emulator_kill_and_restart(emulator, driver_process):
+    driver = driver_process()
+    driver.wait_for_frames(5, 30.0)
+    stop(emulator["process"])
+    cpu_start_s, wall_start_s = driver.cpu_s(), time.monotonic()
+    time.sleep(4.0)  # the driver notices the loss (no buffer for 2 s) and waits to reconnect
+    driver.check_alive()
+    cpu_fraction = (driver.cpu_s() - cpu_start_s) / (time.monotonic() - wall_start_s)
+    assert cpu_fraction < 0.2, f"waiting for the camera used {cpu_fraction:.0%} CPU"
+    assert "camera gv: lost" in driver.log()
+    before = len(driver.frames)
+    emulator["process"] = start_emulator()
+    driver.wait_for_frames(before + 5, 30.0)
+    log = driver.log()
+    assert log.count("camera gv: reconnected") == 1, log
+    counts = driver.receiver.counts()["gv"]
+    assert counts.restarts == 0, "sequence numbers went back after reconnecting"
+    assert driver.frames[-1].image.shape == (240, 320)
+    assert driver.stop() == 0, driver.log()
 
 
 def config(**overrides):
@@ -59,55 +247,6 @@ def config(**overrides):
                   enable_fake_interface=False)
     values.update(overrides)
     return AravisConfig(**values)
-
-
-def read_until_frame(cam, within_s: float):
-    from drivers.base import ReadTimeout
-
-    deadline = time.monotonic() + within_s
-    while time.monotonic() < deadline:
-        try:
-            return cam.read(timeout_s=0.5)
-        except ReadTimeout:
-            continue
-    raise AssertionError(f"no frame within {within_s} s")
-
-
-def test_streams_from_emulator(emulator):
-    from drivers.aravis import AravisCamera
-
-    with AravisCamera("gv", config(width=320, height=240)) as cam:
-        frames = [cam.read(timeout_s=2.0) for _ in range(10)]
-        assert cam.info.encoding == "mono8"
-    assert all(f.image.shape == (240, 320) and f.encoding == "mono8" for f in frames)
-    assert [f.seq for f in frames] == sorted(f.seq for f in frames)
-    assert all(f.timestamp_ns > 0 for f in frames)
-    assert frames[-1].timestamp_ns > frames[0].timestamp_ns
-    # The emulator's test pattern is not blank.
-    assert frames[-1].image.std() > 1
-
-
-def test_survives_emulator_kill_and_restart(emulator):
-    from drivers.aravis import AravisCamera
-    from drivers.base import ReadTimeout
-
-    with AravisCamera("gv", config(), lost_after_s=1.0) as cam:
-        read_until_frame(cam, 5.0)
-        stop(emulator["process"])
-        cpu_start_s, wall_start_s = time.process_time(), time.monotonic()
-        timeouts = 0
-        while time.monotonic() - wall_start_s < 3.0:
-            try:
-                cam.read(timeout_s=0.3)
-            except ReadTimeout:
-                timeouts += 1
-        cpu_fraction = (time.process_time() - cpu_start_s) / (time.monotonic() - wall_start_s)
-        assert timeouts > 0 and not cam.connected
-        assert cpu_fraction < 0.2, f"waiting for the camera used {cpu_fraction:.0%} CPU"
-        emulator["process"] = start_emulator()
-        frame = read_until_frame(cam, 20.0)
-        assert cam.reconnects == 1 and cam.connected
-        assert frame.image.shape == (cam.info.height, cam.info.width)
 
 
 def test_unknown_device_error_names_camera_and_hint():
@@ -127,3 +266,14 @@ def test_in_process_fake_interface():
     assert frames[0].encoding == "mono8" and frames[0].image.shape == (cam.info.height,
                                                                         cam.info.width)
     assert frames[2].seq > frames[0].seq
+
+
+def test_refused_configuration_names_camera_and_setting():
+    from drivers.aravis import AravisCamera
+    from drivers.base import DeviceError
+
+    cfg = config(device_id="Fake_1", enable_fake_interface=True, packet_size=None, fps=None,
+                 pixel_format="Mono9000")
+    with pytest.raises(DeviceError, match="camera 'fake'.*refused its configuration.*Mono9000"
+                                          ".*check pixel_format"):
+        AravisCamera("fake", cfg).__enter__()

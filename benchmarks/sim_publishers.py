@@ -1,0 +1,250 @@
+"""Simulated camera processes publishing frames on a loopback Zenoh bus (for the benchmarks).
+
+Each camera is its own process. In "camnet" mode it runs the real driver
+node (drivers.node.DriverNode: frame encoding, publish with congestion
+control DROP, liveliness, statistics) on a camera that cycles through frames
+pre-rendered by the sim renderer, so that rendering cost does not hide the
+bus cost. In "bare" mode it puts the same encoded bytes with a bare Zenoh
+publisher (also DROP), stamping only the sequence number into the header.
+
+Both modes record, per frame, the host CLOCK_REALTIME just before `put`
+(and, for camnet, the capture time from the frame header), and send them
+back when done, so a subscriber can time publish-to-receipt the same way for
+both without any change to the wire format.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import queue
+import socket
+import struct
+import sys
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+RIG_FILE = ROOT / "config" / "sim.yaml"
+POOL_FRAMES = 4
+# Offsets of seq and timestamp_ns in the frame header (docs/frame-format.md).
+SEQ_AND_TIMESTAMP = struct.Struct("<QQ")
+SEQ_OFFSET = 20
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def camera_id(index: int) -> str:
+    return f"cam{index}"
+
+
+def render_pool(camera_index: int, width: int, height: int) -> list[np.ndarray]:
+    """A few frames of the sim rig's camera (cycled through by the publisher)."""
+    from camnet.render import Renderer
+    from camnet.rig import load_rig
+    from camnet.scene import Scene
+
+    rig = load_rig(RIG_FILE)
+    entry = rig.cameras[camera_index % len(rig.cameras)]
+    cam = entry.config.camera(entry.id)
+    if (width, height) != (cam.width, cam.height):
+        cam = replace(cam, width=width, height=height)
+    renderer = Renderer(cam)
+    scene = Scene(rig.scene)
+    rng = np.random.default_rng(camera_index)
+    return [renderer.render(scene.quads(k / 30), noise_sigma_dn=2.0, rng=rng)
+            for k in range(POOL_FRAMES)]
+
+
+class PooledCamera:
+    """A Camera (drivers.base protocol) replaying pre-rendered frames at `fps`."""
+
+    def __init__(self, camera_id: str, pool: list[np.ndarray], fps: float) -> None:
+        from drivers.base import CameraInfo
+
+        self.camera_id = camera_id
+        self.pool = pool
+        self.fps = fps
+        self.seq = 0
+        self.t0_ns = 0
+        h, w = pool[0].shape
+        self.info = CameraInfo(camera_id, "sim", w, h, "mono8", fps, "pooled sim frames")
+        self.dropped = 0
+
+    def __enter__(self):
+        self.t0_ns = time.monotonic_ns()
+        return self
+
+    def __exit__(self, *exc):
+        return None
+
+    def read(self, *, timeout_s: float = 1.0):
+        from camnet.frame import Frame
+
+        sleep_until(self.t0_ns, self.seq, self.fps)
+        frame = Frame(self.camera_id, self.seq, time.time_ns(), "mono8",
+                      self.pool[self.seq % len(self.pool)])
+        self.seq += 1
+        return frame
+
+
+def sleep_until(t0_ns: int, seq: int, fps: float) -> None:
+    """Sleep until frame `seq` of a stream started at monotonic `t0_ns` is due."""
+    wait_s = (t0_ns + int(seq * 1e9 / fps) - time.monotonic_ns()) / 1e9
+    if wait_s > 0:
+        time.sleep(wait_s)
+
+
+class PutLog:
+    """Per frame: seq, capture timestamp_ns, put timestamp_ns, ns spent in put; preallocated."""
+
+    def __init__(self, n_frames: int) -> None:
+        self.rows = np.zeros((n_frames, 4), dtype=np.int64)
+        self.n = 0
+
+    def add(self, payload, put_ns: int, put_duration_ns: int) -> None:
+        if self.n < len(self.rows):
+            seq, capture_ns = SEQ_AND_TIMESTAMP.unpack_from(payload, SEQ_OFFSET)
+            self.rows[self.n] = (seq, capture_ns, put_ns, put_duration_ns)
+            self.n += 1
+
+
+class TimedPublisher:
+    """A Zenoh publisher that logs the time just before each put."""
+
+    def __init__(self, publisher, log: PutLog) -> None:
+        self._publisher = publisher
+        self._log = log
+
+    def put(self, payload, **kwargs) -> None:
+        put_ns, t0_ns = time.time_ns(), time.perf_counter_ns()
+        self._publisher.put(payload, **kwargs)
+        self._log.add(payload, put_ns, time.perf_counter_ns() - t0_ns)
+
+    def __getattr__(self, name):
+        return getattr(self._publisher, name)
+
+
+class TimedSession:
+    """A Zenoh session whose frame publishers are TimedPublishers; the rest passes through."""
+
+    def __init__(self, session, log: PutLog) -> None:
+        self._session = session
+        self._log = log
+
+    def declare_publisher(self, key_expr, **kwargs):
+        publisher = self._session.declare_publisher(key_expr, **kwargs)
+        return TimedPublisher(publisher, self._log) if str(key_expr).endswith("/frame") else publisher
+
+    def __getattr__(self, name):
+        return getattr(self._session, name)
+
+
+@dataclass
+class PublisherResult:
+    index: int
+    sent: int
+    cpu_s: float
+    wall_s: float
+    puts: np.ndarray  # (sent, 4): seq, capture timestamp_ns, put timestamp_ns, put duration ns
+
+
+def publisher(mode: str, index: int, endpoint: str, fps: float, n_frames: int, size, start,
+              results) -> None:
+    """Process body: publish `n_frames` at `fps` once `start` is set; report a PublisherResult."""
+    import zenoh
+
+    from camnet import keys
+    from camnet.bus import BusOptions, open_session
+    from camnet.frame import Frame, encode_frame
+    from camnet.rig import load_rig
+
+    pool = render_pool(index, *size)
+    cam_id = camera_id(index)
+    log = PutLog(n_frames)
+    with open_session(BusOptions(connect=(endpoint,))) as session:
+        if mode == "camnet":
+            from drivers.node import DriverNode
+
+            node = DriverNode(TimedSession(session, log), load_rig(RIG_FILE),
+                              PooledCamera(cam_id, pool, fps))
+            start.wait()
+            cpu0, wall0 = time.process_time(), time.monotonic()
+            node.run(max_frames=n_frames)
+            sent = node.frames_sent
+        else:
+            # The same bytes as camnet would send; only seq and timestamp change per frame.
+            payloads = [bytearray(encode_frame(Frame(cam_id, 0, 0, "mono8", img))) for img in pool]
+            pub = TimedPublisher(session.declare_publisher(
+                keys.frame("bench", cam_id), congestion_control=zenoh.CongestionControl.DROP), log)
+            start.wait()
+            cpu0, wall0 = time.process_time(), time.monotonic()
+            t0_ns = time.monotonic_ns()
+            for seq in range(n_frames):
+                sleep_until(t0_ns, seq, fps)
+                payload = payloads[seq % len(payloads)]
+                SEQ_AND_TIMESTAMP.pack_into(payload, SEQ_OFFSET, seq, time.time_ns())
+                pub.put(payload)
+            sent = n_frames
+        cpu_s, wall_s = time.process_time() - cpu0, time.monotonic() - wall0
+        time.sleep(0.5)  # let the last frames drain before the session closes
+    results.put(PublisherResult(index, sent, cpu_s, wall_s, log.rows[:log.n].copy()))
+
+
+def rig_name(mode: str) -> str:
+    """The rig the frames of `mode` are published under (DriverNode uses the sim rig's)."""
+    return "sim" if mode == "camnet" else "bench"
+
+
+def run_publishers(session, endpoint: str, *, mode: str, cameras: int, fps: float,
+                   seconds: float, size=(1280, 1024), progress=None,
+                   progress_period_s: float = 5.0) -> tuple[dict[int, PublisherResult], float]:
+    """Run `cameras` publisher processes connecting to `session` at `endpoint` until done.
+
+    Returns their results by camera index and this process's CPU fraction
+    (CPU time over wall time, 1.0 = one core) while they published.
+    `progress(elapsed_s)` is called every `progress_period_s`.
+    """
+    n_frames = int(round(fps * seconds))
+    ctx = mp.get_context("spawn")
+    start, results = ctx.Event(), ctx.Queue()
+    procs = [ctx.Process(target=publisher, args=(mode, i, endpoint, fps, n_frames, size, start,
+                                                 results)) for i in range(cameras)]
+    for p in procs:
+        p.start()
+    try:
+        deadline = time.monotonic() + 60
+        while len(list(session.info.peers_zid())) < cameras and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(1.0)  # subscriptions propagate to the new peers
+        cpu0, wall0 = time.process_time(), time.monotonic()
+        start.set()
+        done: dict[int, PublisherResult] = {}
+        next_report = wall0 + progress_period_s
+        while len(done) < cameras:
+            try:
+                result = results.get(timeout=0.5)
+                done[result.index] = result
+            except queue.Empty:
+                if any(p.exitcode not in (None, 0) for p in procs):
+                    raise RuntimeError(f"a {mode} publisher process failed") from None
+            if progress is not None and time.monotonic() >= next_report:
+                progress(time.monotonic() - wall0)
+                next_report += progress_period_s
+            if time.monotonic() > wall0 + seconds + 120:
+                raise RuntimeError(f"{mode} publishers did not finish")
+        cpu = (time.process_time() - cpu0) / (time.monotonic() - wall0)
+    finally:
+        for p in procs:
+            p.join(timeout=10)
+            if p.is_alive():
+                p.kill()
+    return done, cpu
