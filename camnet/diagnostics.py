@@ -10,7 +10,7 @@ import numpy as np
 from camnet import bundle
 from camnet.bundle import CEN, CENTRE_FREE, CENTRE_ON_BASELINE, ROT, _tangent_basis
 from camnet.projection import INTRINSIC_NAMES
-from camnet.uncertainty import covariance, scale_sigma, scale_weights
+from camnet.uncertainty import scale_sigma, scale_weights
 
 MIN_CAMERA_OBSERVATIONS = 12
 MIN_PARALLAX_DEG = 2.0
@@ -155,9 +155,9 @@ def describe(obs, order, problem, state, cov, inliers, info, decisions, options,
         # The covariance has more columns than the problem where guessed principal points entered
         # as a prior (calibrate._uncertainty): what the scale would be known to were they exact.
         scale_if_pp = None
-        if scale is not None and cov.S_inv.shape[0] > problem.columns()[1] and info.normal is not None:
-            exact = covariance(problem, state, sigma_px=cov.sigma_px, normal=info.normal)
-            scale_if_pp = scale_sigma(exact, state.X, weights)
+        prior_columns = cov.columns[:, 2:4][(cov.columns[:, 2:4] >= 0) & ~problem.intr_free[:, 2:4]]
+        if scale is not None and len(prior_columns):
+            scale_if_pp = scale_sigma(cov, state.X, weights, given=prior_columns)
         if scale is None:
             warnings.append("no point is determined: the scale is unknown")
         elif scale > POOR_SCALE_REL:

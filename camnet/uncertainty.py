@@ -11,6 +11,7 @@ noise sigma, the same quantities are the Cramer-Rao bound.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import scipy.linalg
@@ -36,8 +37,12 @@ class Covariance:
         """(Pc, Pc) covariance of the camera parameters."""
         return self.sigma_px**2 * self.S_inv
 
-    def variance(self, g_cam: np.ndarray | None, g_pts: np.ndarray | None) -> float:
-        """Variance of a linear function with gradient (g_cam (Pc,), g_pts (N, 3))."""
+    def variance(self, g_cam: np.ndarray | None, g_pts: np.ndarray | None, *, given: np.ndarray = ()) -> float:
+        """Variance of a linear function with gradient (g_cam (Pc,), g_pts (N, 3)).
+
+        given: camera columns whose values are taken as exactly known (the
+        Gaussian conditional: what a prior on them no longer matters to).
+        """
         Pc, N = self.S_inv.shape[0], len(self.V_inv)
         gc = np.zeros(Pc) if g_cam is None else g_cam
         gp = np.zeros((N, 3)) if g_pts is None else g_pts
@@ -45,8 +50,13 @@ class Covariance:
         y = np.einsum("nij,nj->ni", self.V_inv, gp)
         xc = self.S_inv @ (gc - self.W @ y.reshape(-1))
         xp = y - np.einsum("nij,nj->ni", self.V_inv, (self.W.T @ xc).reshape(-1, 3))
-        return float(self.sigma_px**2 * (gc @ xc + np.sum(gp * xp)))
+        var = gc @ xc + np.sum(gp * xp)
+        if len(given):  # var(g | c) = var(g) - cov(g, c) var(c)^-1 cov(c, g); cov(c, g) = x_c
+            c = np.asarray(given)
+            var -= xc[c] @ np.linalg.solve(self.S_inv[np.ix_(c, c)], xc[c])
+        return float(self.sigma_px**2 * var)
 
+    @cached_property  # the points' dense products cost more than the rest of the covariance
     def point_covariances_m2(self) -> np.ndarray:
         """(N, 3, 3) covariance of each point, m^2; infinite for a point not fixed in some direction."""
         WV = times_block_diag(self.W, self.V_inv)  # (Pc, 3N)
@@ -61,7 +71,7 @@ class Covariance:
 
     def point_sigmas_m(self) -> np.ndarray:
         """(N,) RMS over axes of each point's standard deviation, metres (infinite: not fixed)."""
-        return np.sqrt(np.maximum(np.einsum("nii->n", self.point_covariances_m2()), 0.0) / 3.0)
+        return np.sqrt(np.maximum(np.einsum("nii->n", self.point_covariances_m2), 0.0) / 3.0)
 
 
 def covariance(
@@ -153,22 +163,24 @@ def scale_weights(cov: Covariance, points: np.ndarray, kept: np.ndarray | None =
     arm = points - np.median(points[kept], axis=0)
     arm /= np.maximum(np.linalg.norm(arm, axis=1, keepdims=True), 1e-300)
     with np.errstate(invalid="ignore"):  # inf * 0 for undetermined points: weight 0 below
-        along = np.sqrt(np.abs(np.einsum("ni,nij,nj->n", arm, cov.point_covariances_m2(), arm)))
+        along = np.sqrt(np.abs(np.einsum("ni,nij,nj->n", arm, cov.point_covariances_m2, arm)))
     along = np.where(np.isfinite(along), along, np.inf)
     typical = np.median(along[kept])
     w = np.minimum(1.0, typical / np.maximum(along, 1e-300)) ** 2
     return np.where(kept, w, 0.0)
 
 
-def scale_sigma(cov: Covariance, points: np.ndarray, weights: np.ndarray | None = None) -> float:
+def scale_sigma(cov: Covariance, points: np.ndarray, weights: np.ndarray | None = None, *,
+                given: np.ndarray = ()) -> float:
     """Standard deviation of the network's scale (relative, 0.001 = 0.1%).
 
     The scale is the similarity scale of the cloud with the given point
     weights (default `scale_weights` of `cov`), the one
-    `camnet.metrics.scale_error` measures with the same weights.
+    `camnet.metrics.scale_error` measures with the same weights. given: as
+    in `Covariance.variance`.
     """
     w = scale_weights(cov, points) if weights is None else weights
-    return float(np.sqrt(cov.variance(None, scale_gradient(points, w))))
+    return float(np.sqrt(max(cov.variance(None, scale_gradient(points, w), given=given), 0.0)))
 
 
 def shape_rms_bound_m(cov: Covariance, points: np.ndarray) -> float:

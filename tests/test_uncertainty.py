@@ -93,3 +93,18 @@ def test_a_point_seen_once_uses_two_degrees_of_freedom():
     keep[first[1:]] = False  # point 0 keeps one view
     # Its lost views took 2 coordinates each; it now fixes 2 unknowns instead of 3.
     assert residual_dof(problem.subset(keep)) == before - 2 * (len(first) - 1) + 1
+
+
+def test_the_scale_given_exact_principal_points_is_the_conditional_sigma():
+    obs = observe(make_rig(seed=6, n_points=120), noise_px=0.5, seed=6).observations
+    result = calibrate(obs)  # principal points guessed: a prior on them in the covariance
+    wide, problem, X = result.covariance, result.problem, result.state.X
+    prior_columns = wide.columns[:, 2:4][~problem.intr_free[:, 2:4]]
+    assert len(prior_columns) == 8
+    held = covariance(problem, result.state, sigma_px=wide.sigma_px)
+    w = scale_weights(wide, X)
+    given = scale_sigma(wide, X, w, given=prior_columns)
+    assert scale_sigma(wide, X, w) > 3 * given
+    assert np.isclose(given, scale_sigma(held, X, w), rtol=1e-6)
+    unc = result.calibration.extra["uncertainty"]
+    assert unc["scale_rel_if_pp_exact"] < unc["scale_rel"] / 3
