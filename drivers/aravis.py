@@ -288,9 +288,9 @@ class AravisCamera:
             self._dropped += 1
             self._seq += 1
             return None
-        # Copy out: the buffer goes back to the pool right after.
-        image = np.frombuffer(data, dtype=dtype, count=needed // dtype.itemsize).reshape(
-            shape).copy()
+        # get_data() already copied the pixels out of the buffer (PyGObject turns the C array
+        # into bytes), so the buffer can go back to the pool and the image is a view of them.
+        image = np.frombuffer(data, dtype=dtype, count=needed // dtype.itemsize).reshape(shape)
         timestamp_ns = buffer.get_timestamp() or buffer.get_system_timestamp() or time.time_ns()
         frame = Frame(camera_id=self.camera_id, seq=self._seq, timestamp_ns=int(timestamp_ns),
                       encoding=encoding, image=image)

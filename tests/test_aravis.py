@@ -23,6 +23,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from tests.conftest import free_port, wait_for
@@ -262,10 +263,16 @@ def test_in_process_fake_interface():
 
     cfg = config(device_id="Fake_1", enable_fake_interface=True, packet_size=None, fps=None)
     with AravisCamera("fake", cfg) as cam:
-        frames = [cam.read(timeout_s=2.0) for _ in range(3)]
+        frames, copies = [], []
+        for _ in range(3 * cfg.n_buffers):  # every buffer of the pool goes round more than once
+            frames.append(cam.read(timeout_s=2.0))
+            copies.append(frames[-1].image.copy())
     assert frames[0].encoding == "mono8" and frames[0].image.shape == (cam.info.height,
                                                                         cam.info.width)
     assert frames[2].seq > frames[0].seq
+    # A frame's pixels are its own: the Aravis buffer they came from is reused.
+    assert all(np.array_equal(f.image, c) for f, c in zip(frames, copies, strict=True))
+    assert not np.array_equal(frames[0].image, frames[1].image)  # the fake pattern moves
 
 
 def test_refused_configuration_names_camera_and_setting():
