@@ -124,7 +124,7 @@ class SolveInfo:
     iterations: int
     initial_cost: float
     final_cost: float
-    normal: NormalEquations | None = None  # at the final state, weighted by the loss
+    normal: NormalEquations | None = None  # at the final state, weighted by the loss (solve's `report`)
 
 
 # ---------------------------------------------------------------- robust losses
@@ -252,6 +252,18 @@ def normal_equations(problem: Problem, state: State, *, loss: str = "linear", sc
     )
 
 
+def columns_within(problem: Problem, wider: Problem) -> np.ndarray:
+    """The column of `wider` that holds each of `problem`'s free camera parameters."""
+    own, _ = problem.columns()
+    theirs, _ = wider.columns()
+    free = own >= 0
+    if np.any(theirs[free] < 0):
+        raise ValueError("the wider problem holds a parameter the problem frees")
+    within = np.empty(int(free.sum()), dtype=int)
+    within[own[free]] = theirs[free]
+    return within
+
+
 def restrict(ne: NormalEquations, columns: np.ndarray) -> NormalEquations:
     """The normal equations with only the camera parameters at `columns` free."""
     return NormalEquations(ne.U[np.ix_(columns, columns)], ne.W[columns], ne.V, ne.gc[columns], ne.gp, ne.cost)
@@ -323,6 +335,7 @@ def solve(
     scale_px: float = 1.0,
     max_iterations: int = 100,
     ftol: float = 1e-6,
+    report: Problem | None = None,
 ) -> tuple[State, SolveInfo]:
     """Minimise the (robust) reprojection cost by Levenberg-Marquardt from `state`.
 
@@ -331,8 +344,24 @@ def solve(
     rounding, or when an undamped Gauss-Newton step promises to lower it by
     less than ``ftol`` relative: near the minimum that promise is kept to
     rounding, and a small decrease under heavy damping is no minimum.
+
+    report: the same observations with more camera parameters free than
+    `problem` (a superset); SolveInfo.normal is then its normal equations at
+    the solution, for a covariance over parameters the solve held. They are
+    built in place of the solve's own after each step, which they contain,
+    so a solve of one or two steps gets them almost free.
     """
     lam, nu = GAUSS_NEWTON_LAMBDA, 2.0
+    within = None if report is None else columns_within(problem, report)
+    wide = None  # report's normal equations at `state`, once built
+
+    def equations(at: State) -> NormalEquations:
+        nonlocal wide
+        if within is None:
+            return normal_equations(problem, at, loss=loss, scale_px=scale_px)
+        wide = normal_equations(report, at, loss=loss, scale_px=scale_px)
+        return restrict(wide, within)
+
     ne = normal_equations(problem, state, loss=loss, scale_px=scale_px)
     initial = ne.cost
     if not np.isfinite(initial):
@@ -362,7 +391,7 @@ def solve(
         if decrease > 0:
             gain = decrease / max(_predicted_decrease(ne, step_lam, *step), 1e-300)
             state = trial
-            ne = normal_equations(problem, state, loss=loss, scale_px=scale_px)
+            ne = equations(state)
             lam, nu = max(lam * max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3), 1e-12), 2.0
             gauss_newton_step = _solve_damped(ne, GAUSS_NEWTON_LAMBDA)
             remaining = _gauss_newton_decrease(ne, gauss_newton_step)
@@ -381,6 +410,8 @@ def solve(
             if lam > 1e10:
                 reason, converged = "no step decreases the cost further", True
                 break
+    if report is not None:
+        ne = wide if wide is not None else normal_equations(report, state, loss=loss, scale_px=scale_px)
     return state, SolveInfo(converged, reason, iterations, initial, ne.cost, ne)
 
 

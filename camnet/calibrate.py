@@ -35,6 +35,7 @@ bumped cameras again (see `calibrate`).
 
 from __future__ import annotations
 
+import functools
 import logging
 import time
 from collections.abc import Collection
@@ -276,6 +277,14 @@ def _choose_free(problem: Problem, state: State, options: Options, widths, heigh
     return problem, decisions
 
 
+@functools.cache
+def _blas_controller():
+    """The BLAS libraries loaded (numpy's, scipy's), found once: a search costs milliseconds."""
+    from threadpoolctl import ThreadpoolController
+
+    return ThreadpoolController()
+
+
 def calibrate(
     obs: Observations,
     options: Options = Options(),
@@ -296,12 +305,10 @@ def calibrate(
     camera moves the frame and the scale of every point, so it falls back
     to a cold solve. Ignored without `initial`.
     """
-    from threadpoolctl import threadpool_limits
-
     try:
         # The dense products here have a few hundred rows: BLAS threads gain little on
         # them, and on a machine shared with drivers and the matcher they stall each other.
-        with threadpool_limits(limits=1, user_api="blas"):
+        with _blas_controller().limit(limits=1, user_api="blas"):
             return _calibrate(obs, options, initial, reset_cameras)
     except np.linalg.LinAlgError:
         raise SolveError("the observations do not determine the calibration (singular equations)") from None
@@ -388,14 +395,22 @@ def _calibrate(
         timings["choose_free"] = time.perf_counter() - t2
 
     t3 = time.perf_counter()
-    state, info = bundle.solve(problem, state, max_iterations=options.max_iterations)
+    guessed_pp = np.array([obs.cameras[i].K is None for i in order]) & ~held_K & (options.pp_prior_rel > 0)
+
+    def adjust(problem: Problem, state: State) -> tuple[State, bundle.SolveInfo, Problem | None]:
+        # The covariance's normal equations (guessed principal points freed for their
+        # prior) come with the solve's last step.
+        wider = None if unconstrained else _with_guessed_pp(problem, guessed_pp)
+        return *bundle.solve(problem, state, max_iterations=options.max_iterations, report=wider), wider
+
+    state, info, wider = adjust(problem, state)
     for _ in range(3):  # least squares on the inliers until the inlier set settles
         new_inliers = _reject_outliers(full, state, options)
         if np.array_equal(new_inliers, inliers):
             break
         inliers = new_inliers
         problem = full.subset(inliers)
-        state, info = bundle.solve(problem, state, max_iterations=options.max_iterations)
+        state, info, wider = adjust(problem, state)
     timings["adjustment"] = time.perf_counter() - t3
     per_camera = np.bincount(problem.cam, minlength=M)
     if per_camera.min() < MIN_CAMERA_INLIERS:
@@ -405,10 +420,8 @@ def _calibrate(
             "solution; the tracks look wrong or the camera moved (re-solve with it reset)"
         )
     t4 = time.perf_counter()
-    guessed_pp = np.array([obs.cameras[i].K is None for i in order])
     sizes = np.array([(obs.cameras[i].width, obs.cameras[i].height) for i in order], dtype=float)
-    guessed_pp &= ~held_K & (options.pp_prior_rel > 0)
-    cov = None if unconstrained else _uncertainty(problem, state, info.normal, guessed_pp, options.pp_prior_rel * sizes)
+    cov = None if unconstrained else _uncertainty(problem, wider, state, info.normal, options.pp_prior_rel * sizes)
     timings["uncertainty"] = time.perf_counter() - t4
     timings["total"] = time.perf_counter() - t0
     if not info.converged:
@@ -418,7 +431,21 @@ def _calibrate(
     )
 
 
-def _uncertainty(problem: Problem, state: State, normal, guessed_pp: np.ndarray, prior_px: np.ndarray) -> Covariance:
+def _with_guessed_pp(problem: Problem, guessed_pp: np.ndarray) -> Problem | None:
+    """`problem` with the guessed principal points it holds freed, or None if it holds none.
+
+    guessed_pp (M,): cameras whose principal point was guessed (the image
+    centre), not given.
+    """
+    consider = guessed_pp & ~problem.intr_free[:, 2]
+    if not consider.any():
+        return None
+    intr_free = problem.intr_free.copy()
+    intr_free[consider, 2:4] = True
+    return replace(problem, intr_free=intr_free)
+
+
+def _uncertainty(problem: Problem, wider: Problem | None, state: State, normal, prior_px: np.ndarray) -> Covariance:
     """Covariance at the solution, not conditional on principal points that are only guessed.
 
     A principal point held at the image centre because nobody gave one is
@@ -429,23 +456,19 @@ def _uncertainty(problem: Problem, state: State, normal, guessed_pp: np.ndarray,
     rotation, and a column difference in the stereo pair shifts every
     disparity). Its uncertainty enters as a prior on the held columns, so
     the reported sigmas include what the guess may cost.
-    guessed_pp (M,): cameras whose principal point was guessed, not given;
-    prior_px (M, 2): 1 sigma of the guess in x and y, pixels.
+    wider: `problem` with those principal points freed (`_with_guessed_pp`),
+    or None; normal: the normal equations of `wider` (else of `problem`) at
+    `state`; prior_px (M, 2): 1 sigma of the guess in x and y, pixels.
     """
     sigma_px = float(np.sqrt(2.0 * normal.cost / max(residual_dof(problem), 1)))
-    consider = guessed_pp & ~problem.intr_free[:, 2]
-    if not consider.any():
+    if wider is None:
         return covariance(problem, state, sigma_px=sigma_px, normal=normal)
-    intr_free = problem.intr_free.copy()
-    intr_free[consider, 2:4] = True
-    wider = replace(problem, intr_free=intr_free)
-    ne = bundle.normal_equations(wider, state)
     cols = wider.columns()[0]
-    U = ne.U.copy()
-    for m in np.flatnonzero(consider):
+    U = normal.U.copy()
+    for m in np.flatnonzero(wider.intr_free[:, 2] & ~problem.intr_free[:, 2]):
         for slot, prior in ((2, prior_px[m, 0]), (3, prior_px[m, 1])):
             U[cols[m, slot], cols[m, slot]] += (sigma_px / prior) ** 2
-    return covariance(wider, state, sigma_px=sigma_px, normal=replace(ne, U=U))
+    return covariance(wider, state, sigma_px=sigma_px, normal=replace(normal, U=U))
 
 
 def _reset_indices(obs: Observations, order: list[int], reset_cameras: Collection[str]) -> set[int]:

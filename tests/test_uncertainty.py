@@ -108,3 +108,26 @@ def test_the_scale_given_exact_principal_points_is_the_conditional_sigma():
     assert np.isclose(given, scale_sigma(held, X, w), rtol=1e-6)
     unc = result.calibration.extra["uncertainty"]
     assert unc["scale_rel_if_pp_exact"] < unc["scale_rel"] / 3
+
+
+def test_a_solve_reports_the_normal_equations_of_a_wider_problem():
+    """The covariance over held principal points comes with the solve's last step: it must be exact."""
+    from camnet import bundle
+
+    rig = make_rig(n_cameras=5, n_points=80, seed=4)
+    obs = observe(rig, noise_px=0.5, seed=4).observations
+    result = calibrate(obs, Options(free=frozenset({"f"}), pp_prior_rel=0))
+    problem, state = result.problem, result.state
+    intr_free = problem.intr_free.copy()
+    intr_free[:, 2:4] = True  # the principal points, held in the solve
+    wider = replace(problem, intr_free=intr_free)
+    nudged = state.intr.copy()
+    nudged[2:, 0] *= 1.01
+    for start in (state, replace(state, intr=nudged)):  # converged already, then steps to take
+        solved, info = bundle.solve(problem, start, report=wider)
+        direct = bundle.normal_equations(wider, solved)
+        assert info.normal.U.shape == direct.U.shape != bundle.normal_equations(problem, solved).U.shape
+        for name in ("U", "W", "V", "gc", "gp"):
+            np.testing.assert_allclose(getattr(info.normal, name), getattr(direct, name), rtol=1e-12, atol=1e-9)
+        own = bundle.restrict(info.normal, bundle.columns_within(problem, wider))
+        np.testing.assert_allclose(own.U, bundle.normal_equations(problem, solved).U, rtol=1e-12)
