@@ -107,6 +107,11 @@ class Problem:
         return groups
 
     @cached_property
+    def pairs_unique(self) -> bool:
+        """Whether no camera observes a point twice."""
+        return len(np.unique(self.cam * self.n_points + self.pt)) == len(self.cam)
+
+    @cached_property
     def point_sum(self) -> sp.csr_matrix:
         """(N, n) incidence matrix: summing per-observation terms into their points."""
         n = len(self.pt)
@@ -216,7 +221,7 @@ def normal_equations(problem: Problem, state: State, *, loss: str = "linear", sc
     cols, n_cols = problem.columns()
     U = np.zeros((n_cols, n_cols))
     gc = np.zeros(n_cols)
-    w_index, w_value = [], []
+    W = np.zeros((n_cols, N, 3))
     # An observation touches one camera only: U is block diagonal, one block per camera.
     # Cameras with the same free slots are handled together.
     for slots, cams, rows, starts in problem.camera_groups:
@@ -227,15 +232,14 @@ def normal_equations(problem: Problem, state: State, *, loss: str = "linear", sc
             U[np.ix_(c_m, c_m)] = flat.T @ flat
         g = np.add.reduceat(Jg[:, 0] * r[rows, :1] + Jg[:, 1] * r[rows, 1:], starts, axis=0)
         gc[cm] = g
-        # W[column, point, axis], flattened; bincount adds (a track seen twice by one camera adds up).
+        # W[column, point, axis]: one term per observation, so an assignment unless a camera
+        # sees a track twice (then the terms add up).
         obs_cols = np.repeat(cm, np.diff(np.append(starts, len(rows))), axis=0)  # (n_g, k)
-        w_index.append(((obs_cols[:, :, None] * N + p[rows][:, None, None]) * 3 + np.arange(3)).ravel())
-        w_value.append(_row_products(Jg, J_pt[rows]).ravel())
-    W = np.bincount(
-        np.concatenate(w_index) if w_index else np.zeros(0, int),
-        np.concatenate(w_value) if w_value else None,
-        minlength=n_cols * N * 3,
-    )
+        terms = _row_products(Jg, J_pt[rows])  # (n_g, k, 3)
+        if problem.pairs_unique:
+            W[obs_cols, p[rows][:, None]] = terms
+        else:
+            np.add.at(W, (obs_cols, p[rows][:, None]), terms)
 
     point_terms = np.concatenate(
         [_row_products(J_pt, J_pt).reshape(n, 9), J_pt[:, 0] * r[:, :1] + J_pt[:, 1] * r[:, 1:]], axis=1

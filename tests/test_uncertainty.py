@@ -131,3 +131,22 @@ def test_a_solve_reports_the_normal_equations_of_a_wider_problem():
             np.testing.assert_allclose(getattr(info.normal, name), getattr(direct, name), rtol=1e-12, atol=1e-9)
         own = bundle.restrict(info.normal, bundle.columns_within(problem, wider))
         np.testing.assert_allclose(own.U, bundle.normal_equations(problem, solved).U, rtol=1e-12)
+
+
+def test_a_track_seen_twice_by_one_camera_adds_to_the_normal_equations():
+    """Observations are terms of a sum: a repeated one counts twice, not once."""
+    from camnet import bundle
+
+    rig = make_rig(n_cameras=4, n_points=40, seed=5)
+    obs = observe(rig, noise_px=0.5, seed=5).observations
+    result = calibrate(obs, Options(free=frozenset({"f"})))
+    problem, state = result.problem, result.state
+    row = np.zeros(len(problem.cam), dtype=bool)
+    row[len(row) // 2] = True
+    twice = replace(problem, cam=np.append(problem.cam, problem.cam[row]), pt=np.append(problem.pt, problem.pt[row]),
+                    uv=np.vstack([problem.uv, problem.uv[row]]))
+    assert problem.pairs_unique and not twice.pairs_unique
+    parts = [bundle.normal_equations(p, state) for p in (problem, problem.subset(row), twice)]
+    for name in ("U", "W", "V", "gc", "gp"):
+        np.testing.assert_allclose(getattr(parts[0], name) + getattr(parts[1], name), getattr(parts[2], name),
+                                   rtol=1e-10, atol=1e-6)
