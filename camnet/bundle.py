@@ -109,7 +109,7 @@ class Problem:
     @cached_property
     def pairs_unique(self) -> bool:
         """Whether no camera observes a point twice."""
-        return len(np.unique(self.cam * self.n_points + self.pt)) == len(self.cam)
+        return len(self.cam) == 0 or np.bincount(self.cam * self.n_points + self.pt).max() == 1
 
     @cached_property
     def point_sum(self) -> sp.csr_matrix:

@@ -511,22 +511,28 @@ def _fit_points(full: Problem, state: State, which: np.ndarray, options: Options
     rows = which[full.pt]
     if not rows.any():
         return state
+    # Only these points and their observations: with the cameras held, the rest take no part.
+    points = np.flatnonzero(which)
     points_only = replace(
         full.subset(rows),
+        pt=np.searchsorted(points, full.pt[rows]),
+        n_points=len(points),
         intr_free=np.zeros_like(full.intr_free),
         rot_free=np.zeros_like(full.rot_free),
         centre_mode=np.full_like(full.centre_mode, CENTRE_FIXED),
     )
     # A start for the joint adjustment, which refines these points again: loose tolerance.
-    state, _ = bundle.solve(
+    fitted, _ = bundle.solve(
         points_only,
-        state,
+        replace(state, X=state.X[points]),
         loss=options.loss,
         scale_px=options.loss_scale_px,
         max_iterations=options.max_iterations,
         ftol=1e-6,
     )
-    return state
+    X = state.X.copy()
+    X[points] = fitted.X
+    return replace(state, X=X)
 
 
 def _near_solution(problem: Problem, state: State, options: Options) -> bool:
@@ -670,7 +676,7 @@ def _result(
     kept, dropped = reported_points(problem, state, cov)
     r = bundle.residuals(problem, state)
     rms = float(np.sqrt(np.mean(np.sum(r * r, axis=1)))) if len(r) else float("nan")
-    extra = describe(obs, order, problem, state, cov, inliers, info, decisions, options, timings, kept)
+    extra = describe(obs, order, problem, state, cov, inliers, info, decisions, options, timings, kept, r)
     extra["diagnostics"]["points_left_out"] = dropped
     extra["diagnostics"]["start"] = start
     calibration = Calibration(

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from camnet import bundle
 from camnet.bundle import CEN, CENTRE_FREE, CENTRE_ON_BASELINE, ROT, _tangent_basis
 from camnet.projection import INTRINSIC_NAMES
 from camnet.uncertainty import scale_sigma, scale_weights
@@ -101,10 +100,11 @@ def free_parameters(problem, cameras_ids: list[str]) -> dict:
     }
 
 
-def describe(obs, order, problem, state, cov, inliers, info, decisions, options, timings, kept) -> dict:
-    """The further keys; `kept` (N,) marks the points the calibration reports."""
+def describe(obs, order, problem, state, cov, inliers, info, decisions, options, timings, kept, residuals_px) -> dict:
+    """The further keys; `kept` (N,) marks the points the calibration reports, `residuals_px` (n, 2) are the
+    problem's reprojection residuals at `state`."""
     ids = [obs.cameras[i].id for i in order]
-    r = np.linalg.norm(bundle.residuals(problem, state), axis=1)
+    r = np.linalg.norm(residuals_px, axis=1)
     warnings = []
     cameras = {}
     for m, cam_id in enumerate(ids):
