@@ -621,7 +621,9 @@ def _paper_result(obs, order, intr, rows, start: Start, timings) -> Result:
     )
 
 
-def reported_points(problem: Problem, state: State, cov: Covariance | None) -> tuple[np.ndarray, dict[str, int]]:
+def reported_points(
+    problem: Problem, state: State, cov: Covariance | None, *, camera_points: np.ndarray | None = None
+) -> tuple[np.ndarray, dict[str, int]]:
     """(N,) mask of the points a calibration reports, and how many were left out, by reason.
 
     A point is reported when at least two inlier views see it, it lies in
@@ -630,9 +632,13 @@ def reported_points(problem: Problem, state: State, cov: Covariance | None) -> t
     uncertainty is known, its 1-sigma position error is smaller than its
     distance from the nearest camera that sees it (tracks with no parallax
     land anywhere along their rays, some at millions of metres).
+    camera_points (n, 3): each observation's point in its camera's frame at
+    `state`, metres, where the caller has them.
     """
     views = np.bincount(problem.pt, minlength=problem.n_points)
-    _, xc = project_points(state.intr[problem.cam], state.R[problem.cam], state.C[problem.cam], state.X[problem.pt])
+    xc = camera_points
+    if xc is None:
+        _, xc = project_points(state.intr[problem.cam], state.R[problem.cam], state.C[problem.cam], state.X[problem.pt])
     behind = np.zeros(problem.n_points, dtype=bool)
     behind[problem.pt[xc[:, 2] <= 0]] = True
     nearest = np.full(problem.n_points, np.inf)
@@ -673,8 +679,10 @@ def _result(
     cameras = [None] * len(order)
     for m, i in enumerate(order):
         cameras[i] = cameras_by_m[m]
-    kept, dropped = reported_points(problem, state, cov)
-    r = bundle.residuals(problem, state)
+    c = problem.cam
+    uv, xc = project_points(state.intr[c], state.R[c], state.C[c], state.X[problem.pt])
+    r = uv - problem.uv
+    kept, dropped = reported_points(problem, state, cov, camera_points=xc)
     rms = float(np.sqrt(np.mean(np.sum(r * r, axis=1)))) if len(r) else float("nan")
     extra = describe(obs, order, problem, state, cov, inliers, info, decisions, options, timings, kept, r)
     extra["diagnostics"]["points_left_out"] = dropped
