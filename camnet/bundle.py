@@ -195,7 +195,10 @@ class NormalEquations:
 
 
 def _row_products(A: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """A_k^T B_k for stacks of two-row matrices A (n, 2, i), B (n, 2, j): (n, i, j)."""
+    """A_k^T B_k for stacks of two-row matrices A (n, 2, i), B (n, 2, j): (n, i, j).
+
+    Faster than a batched matmul for 3x3 results, slower for wider ones.
+    """
     return A[:, 0, :, None] * B[:, 0, None, :] + A[:, 1, :, None] * B[:, 1, None, :]
 
 
@@ -235,7 +238,7 @@ def normal_equations(problem: Problem, state: State, *, loss: str = "linear", sc
         # W[column, point, axis]: one term per observation, so an assignment unless a camera
         # sees a track twice (then the terms add up).
         obs_cols = np.repeat(cm, np.diff(np.append(starts, len(rows))), axis=0)  # (n_g, k)
-        terms = _row_products(Jg, J_pt[rows])  # (n_g, k, 3)
+        terms = Jg.transpose(0, 2, 1) @ J_pt[rows]  # (n_g, k, 3); a batched matmul beats _row_products here
         if problem.pairs_unique:
             W[obs_cols, p[rows][:, None]] = terms
         else:
