@@ -204,7 +204,7 @@ def frame_costs(size=(1280, 1024), repeats: int = 200) -> dict[str, float]:
             "decode_frame": median_ms(lambda: decode_frame(data))}
 
 
-SWEEP = ((4, (30, 60, 90, 120, 150, 180, 240, 300)), (8, (30, 60)), (12, (30,)))
+SWEEP = ((4, (30, 60, 90, 120, 150, 180, 240, 300, 360, 480)), (8, (30, 60)), (12, (30,)))
 
 
 def sweep(seconds: float) -> None:

@@ -101,8 +101,11 @@ def free_parameters(problem, cameras_ids: list[str]) -> dict:
 
 
 def describe(obs, order, problem, state, cov, inliers, info, decisions, options, timings, kept, residuals_px) -> dict:
-    """The further keys; `kept` (N,) marks the points the calibration reports, `residuals_px` (n, 2) are the
-    problem's reprojection residuals at `state`."""
+    """The further keys.
+
+    kept (N,): the points the calibration reports; residuals_px (n, 2): the
+    problem's reprojection residuals at `state`, pixels.
+    """
     ids = [obs.cameras[i].id for i in order]
     r = np.linalg.norm(residuals_px, axis=1)
     warnings = []
