@@ -4,7 +4,7 @@
 The camera processes (benchmarks/sim_publishers.py) run either the real
 driver node ("camnet") or a bare Zenoh publisher of the same bytes ("bare"),
 at the same rate. One subscriber process (this one) receives every frame:
-camnet's through `camnet.receiver.FrameReceiver` (copied out of Zenoh,
+camnet's through `camnet.bus.receiver.FrameReceiver` (copied out of Zenoh,
 decoded, sequence checked), bare's copied out of Zenoh as bytes.
 
 Latency is timed the same way for both, on the host's CLOCK_REALTIME, from
@@ -78,9 +78,9 @@ class PhaseResult:
 def run_phase(mode: str, *, cameras: int, fps: float, seconds: float, size=(1280, 1024),
               progress: bool = True) -> PhaseResult:
     """One phase: `cameras` publishers of `mode` at `fps` for `seconds`, one subscriber here."""
-    from camnet import keys
-    from camnet.bus import BusOptions, open_session
-    from camnet.receiver import FrameReceiver
+    from camnet.bus import keys
+    from camnet.bus.receiver import FrameReceiver
+    from camnet.bus.session import BusOptions, open_session
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     receiver = FrameReceiver()
@@ -184,7 +184,7 @@ def frame_costs(size=(1280, 1024), repeats: int = 200) -> dict[str, float]:
     """Median ms per call of camnet's per-frame work, measured in this process alone."""
     import zenoh
 
-    from camnet.frame import Frame, decode_frame, encode_frame
+    from camnet.bus.frame import Frame, decode_frame, encode_frame
 
     frame = Frame("cam0", 0, time.time_ns(), "mono8", render_pool(0, *size)[0])
     data = encode_frame(frame)

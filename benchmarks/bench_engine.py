@@ -18,13 +18,13 @@ from dataclasses import replace
 
 import numpy as np
 
-from camnet.bundle import State
-from camnet.calibrate import Options, calibrate
-from camnet.evaluate import point_weights
-from camnet.metrics import scale_error, shape_rms_m
-from camnet.projection import intrinsics_from_K
-from camnet.simulate import make_rig, move_camera, observe
-from camnet.uncertainty import covariance, scale_sigma, scale_weights, shape_rms_bound_m
+from camnet.geometry.bundle import State
+from camnet.geometry.calibrate import Options, calibrate
+from camnet.geometry.evaluate import point_weights
+from camnet.geometry.metrics import scale_error, shape_rms_m
+from camnet.geometry.projection import intrinsics_from_K
+from camnet.geometry.uncertainty import covariance, scale_sigma, scale_weights, shape_rms_bound_m
+from camnet.sim.simulate import make_rig, move_camera, observe
 
 SCENARIOS = [
     ("paper rig", dict(), dict(), frozenset({"f"})),

@@ -25,13 +25,13 @@ import tempfile
 import time
 from pathlib import Path
 
-from camnet.calibrate import Options, calibrate
 from camnet.datasets.kitti import SCENARIOS, KittiExtract, prepare_scenario, read_image, run_live
 from camnet.datasets.published import VsPublished, compare
 from camnet.errors import CamnetError
-from camnet.formats import CameraInfo
-from camnet.pipeline import observations_from_frame_sets
-from camnet.track_pool import PoolConfig
+from camnet.geometry.calibrate import Options, calibrate
+from camnet.io.formats import CameraInfo
+from camnet.matching.pipeline import observations_from_frame_sets
+from camnet.matching.pool import PoolConfig
 
 ROOT = Path(__file__).resolve().parents[1]
 KITTI = ROOT.parent / "shared" / "data" / "kitti_raw_2011_09_26_extract_3cam"

@@ -18,9 +18,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from camnet.formats import Stereo
-from camnet.matching import Detector, MatcherConfig, detect, match_frame_set
-from camnet.tracks import build_tracks
+from camnet.io.formats import Stereo
+from camnet.matching.features import Detector, MatcherConfig, detect, match_frame_set
+from camnet.matching.tracks import build_tracks
 
 WIDTH, HEIGHT = 1280, 1024
 STRECHA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "strecha_fountain_p11"

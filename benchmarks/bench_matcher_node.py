@@ -24,11 +24,11 @@ import time
 from pathlib import Path
 
 import numpy as np
+from camnet.services.matcher import MatcherNode, MatcherNodeConfig
 
-from camnet import keys
-from camnet.bus import BusOptions, open_session
-from camnet.rig import load_rig
-from services.matcher import MatcherNode, MatcherNodeConfig
+from camnet.bus import keys
+from camnet.bus.session import BusOptions, open_session
+from camnet.io.rig import load_rig
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -1,12 +1,12 @@
 #!/usr/bin/env python3
-"""Recording benchmark: simulated cameras -> `services.recorder.Recorder` -> MCAP, then replay.
+"""Recording benchmark: simulated cameras -> `camnet.services.recorder.Recorder` -> MCAP, then replay.
 
 Each camera is its own process running the real driver node on frames
 pre-rendered by the sim renderer (benchmarks/sim_publishers.py, as in
 bench_bus.py). The recorder runs in this process with its own Zenoh session;
 its CPU is this process's CPU time (Zenoh's receive threads included) over
 wall time. Then the file is replayed
-as fast as possible (`services.replayer.Replayer`, congestion control BLOCK)
+as fast as possible (`camnet.services.replayer.Replayer`, congestion control BLOCK)
 to a subscriber in another session that counts the frames.
 
     python benchmarks/bench_record.py --seconds 20                # 4 x 1280x1024 @ 30 fps
@@ -29,8 +29,9 @@ from sim_publishers import free_port, run_publishers  # noqa: E402  (the same ca
 
 
 def record(compression: str, *, cameras: int, fps: float, seconds: float, size, directory: Path):
-    from camnet.bus import BusOptions, open_session
-    from services.recorder import Recorder, RecorderConfig
+    from camnet.services.recorder import Recorder, RecorderConfig
+
+    from camnet.bus.session import BusOptions, open_session
 
     path = directory / f"bench-{compression}.mcap"
     endpoint = f"tcp/127.0.0.1:{free_port()}"
@@ -55,10 +56,11 @@ def record(compression: str, *, cameras: int, fps: float, seconds: float, size, 
 
 def replay_fast(path: Path) -> tuple[int, float]:
     """(frames received, seconds) replaying `path` as fast as possible to one subscriber."""
-    from camnet import keys
-    from camnet.bus import BusOptions, open_session
-    from services.replayer import Replayer, ReplayOptions
-    from services.session_file import open_session_file
+    from camnet.services.replayer import Replayer, ReplayOptions
+
+    from camnet.bus import keys
+    from camnet.bus.session import BusOptions, open_session
+    from camnet.io.session_file import open_session_file
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     count = [0]

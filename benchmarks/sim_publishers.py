@@ -1,7 +1,7 @@
 """Simulated camera processes publishing frames on a loopback Zenoh bus (for the benchmarks).
 
 Each camera is its own process. In "camnet" mode it runs the real driver
-node (drivers.node.DriverNode: frame encoding, publish with congestion
+node (camnet.drivers.node.DriverNode: frame encoding, publish with congestion
 control DROP, liveliness, statistics) on a camera that cycles through frames
 pre-rendered by the sim renderer, so that rendering cost does not hide the
 bus cost. In "bare" mode it puts the same encoded bytes with a bare Zenoh
@@ -48,9 +48,9 @@ def camera_id(index: int) -> str:
 
 def render_pool(camera_index: int, width: int, height: int) -> list[np.ndarray]:
     """A few frames of the sim rig's camera (cycled through by the publisher)."""
-    from camnet.render import Renderer
-    from camnet.rig import load_rig
-    from camnet.scene import Scene
+    from camnet.io.rig import load_rig
+    from camnet.sim.render import Renderer
+    from camnet.sim.scene import Scene
 
     rig = load_rig(RIG_FILE)
     entry = rig.cameras[camera_index % len(rig.cameras)]
@@ -65,10 +65,10 @@ def render_pool(camera_index: int, width: int, height: int) -> list[np.ndarray]:
 
 
 class PooledCamera:
-    """A Camera (drivers.base protocol) replaying pre-rendered frames at `fps`."""
+    """A Camera (camnet.drivers.base protocol) replaying pre-rendered frames at `fps`."""
 
     def __init__(self, camera_id: str, pool: list[np.ndarray], fps: float) -> None:
-        from drivers.base import CameraInfo
+        from camnet.drivers.base import CameraInfo
 
         self.camera_id = camera_id
         self.pool = pool
@@ -87,7 +87,7 @@ class PooledCamera:
         return None
 
     def read(self, *, timeout_s: float = 1.0):
-        from camnet.frame import Frame
+        from camnet.bus.frame import Frame
 
         sleep_until(self.t0_ns, self.seq, self.fps)
         frame = Frame(self.camera_id, self.seq, time.time_ns(), "mono8",
@@ -162,17 +162,17 @@ def publisher(mode: str, index: int, endpoint: str, fps: float, n_frames: int, s
     """Process body: publish `n_frames` at `fps` once `start` is set; report a PublisherResult."""
     import zenoh
 
-    from camnet import keys
-    from camnet.bus import BusOptions, open_session
-    from camnet.frame import Frame, encode_frame
-    from camnet.rig import load_rig
+    from camnet.bus import keys
+    from camnet.bus.frame import Frame, encode_frame
+    from camnet.bus.session import BusOptions, open_session
+    from camnet.io.rig import load_rig
 
     pool = render_pool(index, *size)
     cam_id = camera_id(index)
     log = PutLog(n_frames)
     with open_session(BusOptions(connect=(endpoint,))) as session:
         if mode == "camnet":
-            from drivers.node import DriverNode
+            from camnet.drivers.node import DriverNode
 
             node = DriverNode(TimedSession(session, log), load_rig(RIG_FILE),
                               PooledCamera(cam_id, pool, fps))

@@ -53,9 +53,9 @@ from urllib.parse import quote
 
 import numpy as np
 
-from camnet.camera import Camera
 from camnet.errors import CamnetError, InputError
-from camnet.formats import Calibration, Observations
+from camnet.geometry.camera import Camera
+from camnet.io.formats import Calibration, Observations
 
 if TYPE_CHECKING:
     import rerun as rr
@@ -300,8 +300,8 @@ class ReprojectionErrors:
 
 
 def reprojection_errors(calibration: Calibration, observations: Observations) -> ReprojectionErrors:
-    """Per observation and per point, from `camnet.residuals.reprojection_residuals` (pixels)."""
-    from camnet.residuals import reprojection_residuals
+    """Per observation and per point, from `camnet.geometry.residuals.reprojection_residuals` (pixels)."""
+    from camnet.geometry.residuals import reprojection_residuals
 
     residuals = reprojection_residuals(calibration, observations)
     obs_error = np.full(len(observations.uv), np.nan)
@@ -403,7 +403,7 @@ def _scalar(rec: rr.RecordingStream, value: float, *parts: str) -> None:
 
 
 def _log_series(rec: rr.RecordingStream, calibration: Calibration, truth) -> None:
-    from camnet.evaluate import compare, compare_cameras
+    from camnet.geometry.evaluate import compare, compare_cameras
 
     extra = calibration.extra
     uncertainty = extra.get("uncertainty", {})
@@ -497,7 +497,7 @@ def log_frame(
 ) -> None:
     """Log a camera's latest image at `world/cameras/<id>/image`.
 
-    encoding: mono8, mono16, bgr8, rgb8 or bayer_*8 (camnet.frame names);
+    encoding: mono8, mono16, bgr8, rgb8 or bayer_*8 (camnet.bus.frame names);
     None infers mono8/mono16 from a 2-D array and bgr8 (OpenCV's order) from
     a 3-channel one. The image is sent as a JPEG (quality `JPEG_QUALITY`) at
     full resolution: 10-25x smaller than raw pixels, so a few Hz per camera

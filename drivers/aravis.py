@@ -34,11 +34,11 @@ import gi
 import numpy as np
 
 gi.require_version("Aravis", "0.8")
+from camnet.drivers.base import CameraInfo, DeviceError, ReadTimeout  # noqa: E402
 from gi.repository import Aravis, GLib  # noqa: E402  (require_version must come first)
 
-from camnet.frame import Frame  # noqa: E402
-from camnet.rig import AravisConfig, CameraEntry, Rig  # noqa: E402
-from drivers.base import CameraInfo, DeviceError, ReadTimeout  # noqa: E402
+from camnet.bus.frame import Frame  # noqa: E402
+from camnet.io.rig import AravisConfig, CameraEntry, Rig  # noqa: E402
 
 log = logging.getLogger(__name__)
 

@@ -1,7 +1,7 @@
 """The Camera protocol every driver implements, and the lazy driver registry.
 
 A camera is a context manager: entering opens it, leaving closes it. Inside,
-`read()` returns the next `camnet.frame.Frame` (blocking at most `timeout_s`)
+`read()` returns the next `camnet.bus.frame.Frame` (blocking at most `timeout_s`)
 and `dropped` counts frames the camera produced but the driver lost. Driver
 modules are imported only when chosen, so a missing SDK (Aravis, say) breaks
 only that driver.
@@ -13,15 +13,15 @@ import importlib
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
+from camnet.bus.frame import Frame
 from camnet.errors import CamnetError
-from camnet.frame import Frame
-from camnet.rig import CameraEntry, Rig
+from camnet.io.rig import CameraEntry, Rig
 
 # driver name -> module implementing `create(entry, rig) -> Camera`
 DRIVER_MODULES = {
-    "sim": "drivers.sim",
-    "aravis": "drivers.aravis",
-    "v4l2": "drivers.v4l2",
+    "sim": "camnet.drivers.sim",
+    "aravis": "camnet.drivers.aravis",
+    "v4l2": "camnet.drivers.v4l2",
 }
 
 # What to install when a driver's module cannot be imported.

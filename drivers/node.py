@@ -14,12 +14,13 @@ import signal
 import threading
 import time
 
-from camnet import keys
-from camnet.bus import declare_liveliness
-from camnet.frame import Compression, encode_frame
-from camnet.rig import Rig
-from camnet.stats import NodeStats, RateMeter
-from drivers.base import Camera, EndOfStream, ReadTimeout
+from camnet.drivers.base import Camera, EndOfStream, ReadTimeout
+
+from camnet.bus import keys
+from camnet.bus.frame import Compression, encode_frame
+from camnet.bus.session import declare_liveliness
+from camnet.bus.stats import NodeStats, RateMeter
+from camnet.io.rig import Rig
 
 log = logging.getLogger(__name__)
 
@@ -45,7 +46,7 @@ class DriverNode:
             signal.signal(signal.SIGTERM, lambda *_: self.stop.set())
 
     def _publish_groundtruth(self):
-        from drivers.sim import SimCamera, groundtruth_document
+        from camnet.drivers.sim import SimCamera, groundtruth_document
 
         if not isinstance(self.camera, SimCamera):
             return None

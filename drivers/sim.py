@@ -23,12 +23,12 @@ import zlib
 from fractions import Fraction
 
 import numpy as np
+from camnet.drivers.base import CameraInfo, ReadTimeout
 
-from camnet.frame import Frame
-from camnet.render import Renderer
-from camnet.rig import CameraEntry, Rig, SimConfig
-from camnet.scene import Scene
-from drivers.base import CameraInfo, ReadTimeout
+from camnet.bus.frame import Frame
+from camnet.io.rig import CameraEntry, Rig, SimConfig
+from camnet.sim.render import Renderer
+from camnet.sim.scene import Scene
 
 
 def create(entry: CameraEntry, rig: Rig) -> SimCamera:
@@ -55,7 +55,7 @@ class SimCamera:
         self._noise_seed = (seed, scene.config.seed, zlib.crc32(camera_id.encode()))
         self._info = CameraInfo(camera_id=camera_id, driver="sim", width=config.width,
                                 height=config.height, encoding=config.encoding, fps=config.fps,
-                                description="simulated camera (camnet.render)")
+                                description="simulated camera (camnet.sim.render)")
         # fps as an exact fraction, so that every camera computes the same integer timestamps.
         self._fps = Fraction(config.fps)
         self._dropped = 0

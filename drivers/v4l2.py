@@ -33,10 +33,10 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from camnet.drivers.base import CameraInfo, DeviceError, EndOfStream, ReadTimeout
 
-from camnet.frame import Frame
-from camnet.rig import CameraEntry, Rig, V4l2Config, is_image_pattern
-from drivers.base import CameraInfo, DeviceError, EndOfStream, ReadTimeout
+from camnet.bus.frame import Frame
+from camnet.io.rig import CameraEntry, Rig, V4l2Config, is_image_pattern
 
 log = logging.getLogger(__name__)
 

@@ -1,10 +1,10 @@
 """The matcher node: a rig's frames in, pooled multi-view tracks out (camnet.observations/1).
 
 Zenoh's callback threads only decode frames and hand them to a
-`camnet.sync.FrameSynchronizer` (under a lock), which keeps the latest few
+`camnet.bus.sync.FrameSynchronizer` (under a lock), which keeps the latest few
 frames per camera and counts what it drops. `MatcherNode.run` is the worker:
-it takes the newest ready frame set, matches it (`camnet.matching`), chains
-tracks (`camnet.tracks`) and pools them (`camnet.track_pool`); when the pool
+it takes the newest ready frame set, matches it (`camnet.matching.features`), chains
+tracks (`camnet.matching.tracks`) and pools them (`camnet.matching.pool`); when the pool
 changed it publishes the pool on ``keys.observations(rig)``, at most once per
 publish period. The document carries, beside the contract's keys:
 
@@ -17,7 +17,7 @@ publish period. The document carries, beside the contract's keys:
 - ``published_ns``: when this document was published (Unix epoch, ns).
 
 With ``lockstep`` the node takes its frames from a lockstep replay
-(`camnet.lockstep`): each announced step's frames form at most one frame
+(`camnet.bus.lockstep`): each announced step's frames form at most one frame
 set, waiting for late cameras and the publish period follow the replayed
 capture times, not the wall clock, and every step is acknowledged.
 
@@ -39,18 +39,18 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 
-from camnet import keys, lockstep
-from camnet.bus import declare_liveliness
+from camnet.bus import keys, lockstep
+from camnet.bus.frame import Frame
+from camnet.bus.receiver import FrameReceiver
+from camnet.bus.session import declare_liveliness
+from camnet.bus.stats import NodeStats, RateMeter
+from camnet.bus.sync import FrameSet, FrameSynchronizer, SyncCounts
 from camnet.errors import InputError
-from camnet.formats import CameraInfo, Stereo, observations_to_doc
-from camnet.frame import Frame
-from camnet.matching import Detector, MatcherConfig, match_frame_set, to_grey
-from camnet.receiver import FrameReceiver
-from camnet.rig import Rig
-from camnet.stats import NodeStats, RateMeter
-from camnet.sync import FrameSet, FrameSynchronizer, SyncCounts
-from camnet.track_pool import PoolConfig, PoolUpdate, TrackPool
-from camnet.tracks import FrameTracks, build_tracks
+from camnet.io.formats import CameraInfo, Stereo, observations_to_doc
+from camnet.io.rig import Rig
+from camnet.matching.features import Detector, MatcherConfig, match_frame_set, to_grey
+from camnet.matching.pool import PoolConfig, PoolUpdate, TrackPool
+from camnet.matching.tracks import FrameTracks, build_tracks
 
 log = logging.getLogger(__name__)
 

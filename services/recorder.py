@@ -10,7 +10,7 @@ Every frame is accounted for: per camera, frames written plus the missing
 ones reported on the gaps channel equal the span of sequence numbers seen
 (a driver restart starts a new span and is reported too). Chunks are flushed
 at least every `flush_period_s`, so a recorder killed outright leaves a file
-that mcap's stream reader (and `services.session_file`) reads up to the last
+that mcap's stream reader (and `camnet.io.session_file`) reads up to the last
 flush; a stopped recorder (SIGTERM, Ctrl-C, duration) writes the summary and
 footer. Layout: docs/session-format.md.
 """
@@ -30,12 +30,13 @@ from pathlib import Path
 
 from mcap.writer import CompressionType, Writer
 
-from camnet import __version__, keys
-from camnet.bus import declare_liveliness
+from camnet import __version__
+from camnet.bus import keys
+from camnet.bus.frame import FrameError, FrameHeader
+from camnet.bus.session import declare_liveliness
+from camnet.bus.stats import NodeStats, RateMeter
 from camnet.errors import CamnetError, InputError
-from camnet.frame import FrameError, FrameHeader
-from camnet.stats import NodeStats, RateMeter
-from services import session_file as sf
+from camnet.io import session_file as sf
 
 log = logging.getLogger(__name__)
 

@@ -14,13 +14,13 @@ than `RESYNC_NS`, e.g. a driver restart); frames then go out with congestion
 control DROP, as a driver's. At rate 0 (as fast as possible) they go out with
 BLOCK: as fast as the subscribers take them, no frame dropped on the bus.
 
-With `lockstep` (camnet.lockstep) the frames are grouped into steps, one
+With `lockstep` (camnet.bus.lockstep) the frames are grouped into steps, one
 capture instant each (`StepGrouper`), and each step goes out only when the
 matcher and the calibrator have finished with the previous one: what they
 compute no longer depends on how fast they are.
 
 This is a service rather than a driver: one process replays every camera of
-the session in one global order, which a per-camera `drivers.base.Camera`
+the session in one global order, which a per-camera `camnet.drivers.base.Camera`
 cannot express, and it shares the session layout with the recorder.
 """
 
@@ -33,12 +33,12 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from camnet import keys, lockstep
-from camnet.bus import declare_liveliness
+from camnet.bus import keys, lockstep
+from camnet.bus.frame import FrameError, FrameHeader
+from camnet.bus.session import declare_liveliness
+from camnet.bus.stats import NodeStats, RateMeter
 from camnet.errors import CamnetError, InputError
-from camnet.frame import FrameError, FrameHeader
-from camnet.stats import NodeStats, RateMeter
-from services import session_file as sf
+from camnet.io import session_file as sf
 
 log = logging.getLogger(__name__)
 

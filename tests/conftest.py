@@ -27,7 +27,7 @@ def wait_for(predicate, timeout_s: float = 10.0, period_s: float = 0.02) -> bool
 @pytest.fixture
 def zenoh_pair():
     """(listener, connector): two peer sessions joined over tcp loopback, no scouting."""
-    from camnet.bus import BusOptions, open_session
+    from camnet.bus.session import BusOptions, open_session
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     a = open_session(BusOptions(listen=(endpoint,)))

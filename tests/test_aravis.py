@@ -129,9 +129,9 @@ class DriverProcess:
     """`camnet driver aravis` in a child process, its frames received here through Zenoh."""
 
     def __init__(self, rig_path: Path, log_path: Path) -> None:
-        from camnet import keys
-        from camnet.bus import BusOptions, open_session
-        from camnet.receiver import FrameReceiver
+        from camnet.bus import keys
+        from camnet.bus.receiver import FrameReceiver
+        from camnet.bus.session import BusOptions, open_session
 
         endpoint = f"tcp/127.0.0.1:{free_port()}"
         self.log_path = log_path
@@ -241,7 +241,7 @@ def test_survives_emulator_kill_and_restart(emulator, driver_process):
 
 
 def config(**overrides):
-    from camnet.rig import AravisConfig
+    from camnet.io.rig import AravisConfig
 
     values = dict(device_id="127.0.0.1", pixel_format="Mono8", width=None, height=None,
                   fps=50.0, exposure_us=None, gain_db=None, packet_size=1400, n_buffers=8,
@@ -251,15 +251,15 @@ def config(**overrides):
 
 
 def test_unknown_device_error_names_camera_and_hint():
-    from drivers.aravis import AravisCamera
-    from drivers.base import DeviceError
+    from camnet.drivers.aravis import AravisCamera
+    from camnet.drivers.base import DeviceError
 
     with pytest.raises(DeviceError, match="camera 'ghost'.*Nope-0000.*check"):
         AravisCamera("ghost", config(device_id="Nope-0000")).__enter__()
 
 
 def test_in_process_fake_interface():
-    from drivers.aravis import AravisCamera
+    from camnet.drivers.aravis import AravisCamera
 
     cfg = config(device_id="Fake_1", enable_fake_interface=True, packet_size=None, fps=None)
     with AravisCamera("fake", cfg) as cam:
@@ -276,8 +276,8 @@ def test_in_process_fake_interface():
 
 
 def test_refused_configuration_names_camera_and_setting():
-    from drivers.aravis import AravisCamera
-    from drivers.base import DeviceError
+    from camnet.drivers.aravis import AravisCamera
+    from camnet.drivers.base import DeviceError
 
     cfg = config(device_id="Fake_1", enable_fake_interface=True, packet_size=None, fps=None,
                  pixel_format="Mono9000")

@@ -2,10 +2,10 @@
 
 import numpy as np
 
-from camnet import keys
-from camnet.bus import declare_liveliness
-from camnet.frame import ENCODINGS, encode_frame
-from camnet.receiver import FrameReceiver
+from camnet.bus import keys
+from camnet.bus.frame import ENCODINGS, encode_frame
+from camnet.bus.receiver import FrameReceiver
+from camnet.bus.session import declare_liveliness
 from tests.conftest import matched_publisher, wait_for
 from tests.test_frame import _malformed, make_frame
 
@@ -68,7 +68,7 @@ def test_liveliness_token_is_seen_and_goes_away(zenoh_pair):
 
 
 def test_frame_queue_keeps_the_latest_and_counts_overflow(zenoh_pair):
-    from camnet.receiver import subscribe_frames
+    from camnet.bus.receiver import subscribe_frames
 
     a, b = zenoh_pair
     sub, queue = subscribe_frames(b, keys.frame("t", "c3"), capacity=2)

@@ -8,7 +8,7 @@ import sys
 import numpy as np
 import pytest
 
-from camnet.bus import BusOptions, add_bus_arguments, make_config, options_from_args
+from camnet.bus.session import BusOptions, add_bus_arguments, make_config, options_from_args
 from camnet.errors import InputError
 from tests.test_rig import CONFIG
 
@@ -51,7 +51,8 @@ def test_zenoh_config_file_and_its_errors(tmp_path):
 
 
 def test_package_imports_no_camera_sdk():
-    code = ("import sys, camnet.cli, drivers.base, drivers.sim, drivers.v4l2, drivers.node; "
+    code = ("import sys, camnet.cli, camnet.drivers.base, camnet.drivers.sim, camnet.drivers.v4l2, "
+            "camnet.drivers.node; "
             "camnet.cli.build_parser(); "
             "assert 'gi' not in sys.modules, 'Aravis imported eagerly'")
     subprocess.run([sys.executable, "-c", code], check=True, timeout=60)
@@ -61,8 +62,9 @@ def test_package_imports_no_camera_sdk():
 def test_sim_camera_encodings_and_protocol(encoding):
     from dataclasses import replace
 
-    from camnet.rig import load_rig
-    from drivers.base import Camera, create_camera
+    from camnet.drivers.base import Camera, create_camera
+
+    from camnet.io.rig import load_rig
 
     rig = load_rig(CONFIG / "sim.yaml")
     entry = rig.camera("right")

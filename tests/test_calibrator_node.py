@@ -7,11 +7,11 @@ import threading
 from contextlib import contextmanager
 
 import numpy as np
+from camnet.services.calibrator import CalibratorConfig, CalibratorNode
 
-from camnet import keys
-from camnet.formats import observations_to_doc, parse_calibration
-from camnet.simulate import make_rig, observe
-from services.calibrator import CalibratorConfig, CalibratorNode
+from camnet.bus import keys
+from camnet.io.formats import observations_to_doc, parse_calibration
+from camnet.sim.simulate import make_rig, observe
 from tests.conftest import matched_publisher, wait_for
 
 RIG = "calnode"

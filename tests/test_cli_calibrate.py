@@ -8,8 +8,8 @@ import sys
 import numpy as np
 import pytest
 
-from camnet.formats import observations_to_doc, parse_calibration
-from camnet.simulate import make_rig, observe
+from camnet.io.formats import observations_to_doc, parse_calibration
+from camnet.sim.simulate import make_rig, observe
 
 
 def run_camnet(*args: str, cwd=None) -> subprocess.CompletedProcess:

@@ -20,7 +20,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from camnet.bus import BusOptions, make_config, open_session
+from camnet.bus.session import BusOptions, make_config, open_session
 from tests.conftest import free_port, matched_publisher, wait_for
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -83,7 +83,7 @@ def test_compose_settings_all_have_defaults():
 
 
 def test_compose_has_every_node_of_the_rig():
-    from camnet.rig import load_rig
+    from camnet.io.rig import load_rig
 
     compose = load_compose()
     services = compose["services"]

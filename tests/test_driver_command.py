@@ -10,9 +10,9 @@ from pathlib import Path
 
 import numpy as np
 
-from camnet import keys
-from camnet.bus import BusOptions, open_session
-from camnet.receiver import FrameReceiver
+from camnet.bus import keys
+from camnet.bus.receiver import FrameReceiver
+from camnet.bus.session import BusOptions, open_session
 from tests.conftest import free_port, wait_for
 
 ROOT = Path(__file__).resolve().parent.parent

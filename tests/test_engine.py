@@ -5,13 +5,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from camnet.bundle import State
-from camnet.calibrate import Options, calibrate
 from camnet.errors import SolveError
-from camnet.evaluate import compare, rotation_angle_deg
-from camnet.projection import intrinsics_from_K, project_with_jacobians, rotation_exp
-from camnet.simulate import make_rig, move_camera, observe
-from camnet.uncertainty import covariance, scale_sigma
+from camnet.geometry.bundle import State
+from camnet.geometry.calibrate import Options, calibrate
+from camnet.geometry.evaluate import compare, rotation_angle_deg
+from camnet.geometry.projection import intrinsics_from_K, project_with_jacobians, rotation_exp
+from camnet.geometry.uncertainty import covariance, scale_sigma
+from camnet.sim.simulate import make_rig, move_camera, observe
 
 
 def truth_state(rig, result) -> State:

@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 import yaml
 
-from camnet.camera import Camera
 from camnet.errors import InputError
-from camnet.export import colmap_model, export, kalibr_camchain, opencv_yaml, ros_camera_info
-from camnet.formats import Calibration, calibration_to_doc, observations_to_doc
-from camnet.simulate import make_rig, observe
+from camnet.geometry.camera import Camera
+from camnet.io.export import colmap_model, export, kalibr_camchain, opencv_yaml, ros_camera_info
+from camnet.io.formats import Calibration, calibration_to_doc, observations_to_doc
+from camnet.sim.simulate import make_rig, observe
 
 # Per camera [k1, k2, p1, p2, k3]: none, OpenCV's four, and all five (COLMAP's three models).
 DISTORTIONS = [
@@ -44,7 +44,7 @@ def rig_calibration(*, k3: bool = True, seed: int = 4) -> tuple[Calibration, obj
 
 
 def cv2_project(cam: Camera, X: np.ndarray) -> np.ndarray:
-    """OpenCV's own projection, independent of camnet.camera.project."""
+    """OpenCV's own projection, independent of camnet.geometry.camera.project."""
     rvec, _ = cv2.Rodrigues(cam.R)
     uv, _ = cv2.projectPoints(X.reshape(-1, 1, 3), rvec, cam.t.reshape(3, 1), cam.K, cam.dist)
     return uv.reshape(-1, 2)

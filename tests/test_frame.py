@@ -3,7 +3,7 @@ import struct
 import numpy as np
 import pytest
 
-from camnet.frame import (
+from camnet.bus.frame import (
     ENCODINGS,
     FIXED_HEADER_SIZE,
     Frame,
@@ -11,7 +11,7 @@ from camnet.frame import (
     decode_frame,
     encode_frame,
 )
-from camnet.receiver import FrameReceiver
+from camnet.bus.receiver import FrameReceiver
 
 
 def make_frame(encoding: str, *, seq: int = 7, camera_id: str = "cam_é", h: int = 37,

@@ -1,6 +1,6 @@
 import pytest
 
-from camnet import keys
+from camnet.bus import keys
 from camnet.errors import InputError
 
 

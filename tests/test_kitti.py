@@ -7,10 +7,10 @@ import pytest
 
 from camnet.datasets.kitti import KittiExtract, parse_calib_cam_to_cam, read_image
 from camnet.errors import InputError
-from camnet.formats import CameraInfo, observations_to_doc, parse_observations
-from camnet.matching import MatcherConfig, match_frame_set
-from camnet.track_pool import PoolConfig, TrackPool
-from camnet.tracks import build_tracks
+from camnet.io.formats import CameraInfo, observations_to_doc, parse_observations
+from camnet.matching.features import MatcherConfig, match_frame_set
+from camnet.matching.pool import PoolConfig, TrackPool
+from camnet.matching.tracks import build_tracks
 from tests._groundtruth import KITTI_ROOT, pairwise_epipolar_fractions, require
 
 

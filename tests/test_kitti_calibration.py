@@ -15,14 +15,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from camnet.calibrate import Options, calibrate
-from camnet.camera import Camera
 from camnet.datasets.kitti import SCENARIOS, KittiExtract, prepare_scenario, read_image
 from camnet.datasets.published import compare, compare_cameras, distance_scale
 from camnet.errors import InputError, SolveError
-from camnet.formats import Calibration, CameraInfo, Observations, Stereo
-from camnet.pipeline import observations_from_frame_sets, with_known_intrinsics
-from camnet.track_pool import PoolConfig
+from camnet.geometry.calibrate import Options, calibrate
+from camnet.geometry.camera import Camera
+from camnet.io.formats import Calibration, CameraInfo, Observations, Stereo
+from camnet.matching.pipeline import observations_from_frame_sets, with_known_intrinsics
+from camnet.matching.pool import PoolConfig
 from tests._groundtruth import KITTI_ROOT, require
 
 
@@ -185,9 +185,10 @@ def test_distance_scale_and_camera_errors_on_a_known_distortion():
 @pytest.mark.parametrize(("rig_file", "colour", "frames"), [("kitti-cam3.yaml", "3", (1, 4)),
                                                             ("kitti-cam2.yaml", "2", (13, 16))])
 def test_rig_files_replay_the_frames_each_colour_camera_has(rig_file, colour, frames, monkeypatch):
-    from camnet.rig import load_rig
-    from drivers.base import EndOfStream
-    from drivers.v4l2 import V4l2Camera
+    from camnet.drivers.base import EndOfStream
+    from camnet.drivers.v4l2 import V4l2Camera
+
+    from camnet.io.rig import load_rig
 
     kitti = KittiExtract.open(require(KITTI_ROOT))
     root = Path(__file__).resolve().parents[1]

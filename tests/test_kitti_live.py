@@ -18,13 +18,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from camnet.calibrate import Options, calibrate
 from camnet.datasets.kitti import KittiExtract, prepare_scenario, read_image, run_live
 from camnet.datasets.published import compare
-from camnet.formats import CameraInfo
-from camnet.pipeline import observations_from_frame_sets
-from camnet.rig import load_rig
-from camnet.track_pool import PoolConfig
+from camnet.geometry.calibrate import Options, calibrate
+from camnet.io.formats import CameraInfo
+from camnet.io.rig import load_rig
+from camnet.matching.pipeline import observations_from_frame_sets
+from camnet.matching.pool import PoolConfig
 from tests._groundtruth import KITTI_ROOT, require
 from tests.conftest import free_port
 
@@ -105,8 +105,9 @@ def test_the_kitti_rig_file_holds_what_the_live_run_needs():
 
 
 def test_the_rig_files_sync_settings_and_intrinsics_reach_the_matcher():
+    from camnet.services.matcher import camera_info
+
     from camnet.commands.matcher import node_config_from_args
-    from services.matcher import camera_info
 
     rig = load_rig(RIG)
     config = node_config_from_args(argparse.Namespace(), rig)

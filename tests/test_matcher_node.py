@@ -11,16 +11,16 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from camnet.services.matcher import MatcherNode, MatcherNodeConfig
 
-from camnet import keys
-from camnet.bus import BusOptions, open_session
-from camnet.formats import parse_observations
-from camnet.frame import Frame, encode_frame
-from camnet.matching import to_grey
-from camnet.rig import parse_rig
-from camnet.stats import NodeStats
-from camnet.sync import FrameSet
-from services.matcher import MatcherNode, MatcherNodeConfig
+from camnet.bus import keys
+from camnet.bus.frame import Frame, encode_frame
+from camnet.bus.session import BusOptions, open_session
+from camnet.bus.stats import NodeStats
+from camnet.bus.sync import FrameSet
+from camnet.io.formats import parse_observations
+from camnet.io.rig import parse_rig
+from camnet.matching.features import to_grey
 from tests._groundtruth import epipolar_distance_px
 from tests.conftest import free_port, wait_for
 
@@ -75,8 +75,8 @@ class Network:
             self.documents.append(json.loads(sample.payload.to_bytes()))
 
     def start_driver(self, camera_id: str) -> None:
-        from drivers.base import create_camera
-        from drivers.node import DriverNode
+        from camnet.drivers.base import create_camera
+        from camnet.drivers.node import DriverNode
 
         driver = DriverNode(self.drivers_session, self.rig, create_camera(self.rig.camera(camera_id), self.rig))
         thread = threading.Thread(target=driver.run, daemon=True)
@@ -192,7 +192,7 @@ def test_live_network_tracks_match_the_ground_truth(network):
 
 
 def render_set(rig, timestamp_ns: int, camera_ids) -> FrameSet:
-    from drivers.base import create_camera
+    from camnet.drivers.base import create_camera
 
     slot = timestamp_ns * int(FPS) // 1_000_000_000
     frames = {c: Frame(c, slot, timestamp_ns, "mono8", create_camera(rig.camera(c), rig).render(slot))

@@ -6,8 +6,8 @@ import cv2
 import numpy as np
 import pytest
 
-from camnet.formats import Stereo
-from camnet.matching import (
+from camnet.io.formats import Stereo
+from camnet.matching.features import (
     Detector,
     Features,
     MatcherConfig,

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from camnet.datasets.kitti import KittiExtract, read_image
-from camnet.matching import MatcherConfig, match_frame_set
-from camnet.tracks import build_tracks
+from camnet.matching.features import MatcherConfig, match_frame_set
+from camnet.matching.tracks import build_tracks
 from tests._groundtruth import (
     KITTI_ROOT,
     TEMPLE_ROOT,

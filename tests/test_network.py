@@ -13,10 +13,10 @@ import pytest
 import yaml
 from mcap.reader import make_reader
 
-from camnet import keys
-from camnet.evaluate import compare_cameras
-from camnet.formats import parse_calibration
-from camnet.rig import load_rig
+from camnet.bus import keys
+from camnet.geometry.evaluate import compare_cameras
+from camnet.io.formats import parse_calibration
+from camnet.io.rig import load_rig
 from tests.conftest import free_port
 from tests.test_viz import read_rrd
 

@@ -1,6 +1,6 @@
 """Live events on a whole simulated network: the calibrator killed and restarted, a camera moved.
 
-Nodes run as processes (camnet.launch) connected to this test's Zenoh
+Nodes run as processes (camnet.bus.launch) connected to this test's Zenoh
 session on its own loopback port; simulated time is the wall clock.
 """
 
@@ -17,11 +17,11 @@ import numpy as np
 import pytest
 import yaml
 
-from camnet import keys
-from camnet.bus import BusOptions, open_session
-from camnet.formats import parse_calibration
-from camnet.launch import Launch
-from camnet.rig import load_rig
+from camnet.bus import keys
+from camnet.bus.launch import Launch
+from camnet.bus.session import BusOptions, open_session
+from camnet.io.formats import parse_calibration
+from camnet.io.rig import load_rig
 from tests.conftest import free_port, wait_for
 from tests.test_network import rig_file
 

@@ -18,17 +18,17 @@ import time
 from pathlib import Path
 
 import pytest
+from camnet.services.recorder import Recorder, RecorderConfig, _ByteBoundedQueue
+from camnet.services.replayer import Replayer, ReplayOptions
 from mcap.reader import make_reader
 from mcap.stream_reader import StreamReader
 
-from camnet import keys
-from camnet.bus import BusOptions, open_session
+from camnet.bus import keys
+from camnet.bus.frame import FrameError, encode_frame
+from camnet.bus.session import BusOptions, open_session
 from camnet.errors import InputError
-from camnet.frame import FrameError, encode_frame
-from camnet.rig import parse_rig
-from services.recorder import Recorder, RecorderConfig, _ByteBoundedQueue
-from services.replayer import Replayer, ReplayOptions
-from services.session_file import (
+from camnet.io.rig import parse_rig
+from camnet.io.session_file import (
     FRAME_SCHEMA,
     GAP_FORMAT,
     frame_header,
@@ -68,8 +68,8 @@ def run_in_thread(target) -> threading.Thread:
 @pytest.fixture(scope="module")
 def recorded(tmp_path_factory):
     """(path, recorder summary, injected frame payloads): ~2.5 s of a 3-camera sim rig."""
-    from drivers.node import DriverNode
-    from drivers.sim import create
+    from camnet.drivers.node import DriverNode
+    from camnet.drivers.sim import create
 
     path = tmp_path_factory.mktemp("session") / "session.mcap"
     rig = small_rig()

@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from camnet.camera import Camera, look_at
-from camnet.render import Quad, Renderer
-from camnet.rig import load_rig
-from camnet.scene import Scene
+from camnet.geometry.camera import Camera, look_at
+from camnet.io.rig import load_rig
+from camnet.sim.render import Quad, Renderer
+from camnet.sim.scene import Scene
 from tests.test_rig import CONFIG
 
 BLOB_SIGMA_TEXELS = 1.6

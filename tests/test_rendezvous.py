@@ -8,7 +8,7 @@ import socket
 
 import pytest
 
-from camnet.bus import BusOptions, open_session
+from camnet.bus.session import BusOptions, open_session
 from tests.conftest import wait_for
 
 

@@ -16,15 +16,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from camnet.services.replayer import ReplayOptions, StepGrouper
 
-from camnet import keys
-from camnet.bus import BusOptions, open_session
-from camnet.frame import Frame, encode_frame
-from camnet.launch import Launch
-from camnet.lockstep import Ack, Step, StepInbox
-from camnet.rig import load_rig
-from services import session_file as sf
-from services.replayer import ReplayOptions, StepGrouper
+from camnet.bus import keys
+from camnet.bus.frame import Frame, encode_frame
+from camnet.bus.launch import Launch
+from camnet.bus.lockstep import Ack, Step, StepInbox
+from camnet.bus.session import BusOptions, open_session
+from camnet.io import session_file as sf
+from camnet.io.rig import load_rig
 from tests.conftest import free_port, wait_for
 from tests.test_network import rig_file
 
@@ -39,7 +39,7 @@ WALL_CLOCK_KEYS = {
 
 def write_session(path: Path, rig_path: str) -> int:
     """A session of the rig's sim cameras at `SLOTS`; the number of frames written."""
-    from drivers.sim import create
+    from camnet.drivers.sim import create
 
     rig = load_rig(rig_path)
     cameras = [create(entry, rig) for entry in rig.cameras]

@@ -17,12 +17,12 @@ import cv2
 import numpy as np
 import pytest
 
-from camnet.calibrate import Options, calibrate
 from camnet.errors import InputError
-from camnet.formats import CameraInfo, calibration_to_doc, observations_to_doc
-from camnet.report import SECTIONS, bounding_box, frustum_xz, further_keys, render_report
-from camnet.residuals import reprojection_residuals
-from camnet.simulate import make_rig, observe
+from camnet.geometry.calibrate import Options, calibrate
+from camnet.geometry.residuals import reprojection_residuals
+from camnet.io.formats import CameraInfo, calibration_to_doc, observations_to_doc
+from camnet.io.report import SECTIONS, bounding_box, frustum_xz, further_keys, render_report
+from camnet.sim.simulate import make_rig, observe
 
 # matplotlib's tab10 colours of cameras 0..3 (BGR, as cv2 reads the screenshot).
 CAMERA_BGR = [(0xB4, 0x77, 0x1F), (0x0E, 0x7F, 0xFF), (0x2C, 0xA0, 0x2C), (0x28, 0x27, 0xD6)]

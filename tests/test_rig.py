@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 import yaml
 
-from camnet.camera import look_at
 from camnet.errors import InputError
-from camnet.rig import AravisConfig, SimConfig, V4l2Config, load_rig, parse_rig
+from camnet.geometry.camera import look_at
+from camnet.io.rig import AravisConfig, SimConfig, V4l2Config, load_rig, parse_rig
 
 CONFIG = Path(__file__).resolve().parent.parent / "config"
 

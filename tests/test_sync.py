@@ -7,9 +7,9 @@ import time
 import numpy as np
 import pytest
 
-from camnet.frame import Frame
-from camnet.rig import parse_rig
-from camnet.sync import FrameSynchronizer
+from camnet.bus.frame import Frame
+from camnet.bus.sync import FrameSynchronizer
+from camnet.io.rig import parse_rig
 
 CAMERAS = ("left", "right", "mono_a", "mono_b")
 PERIOD_NS = 100_000_000  # 10 fps
@@ -159,7 +159,7 @@ SMALL_RIG = {
 
 
 def test_sim_cameras_started_apart_share_instants_and_scene():
-    from drivers.base import create_camera
+    from camnet.drivers.base import create_camera
 
     rig = parse_rig(SMALL_RIG)
     first = create_camera(rig.camera("a"), rig)

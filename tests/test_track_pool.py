@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from camnet.formats import CameraInfo, Stereo, observations_to_doc, parse_observations
-from camnet.track_pool import PoolConfig, TrackPool, crowding, dedupe_frame_tracks
-from camnet.tracks import FrameTracks
+from camnet.io.formats import CameraInfo, Stereo, observations_to_doc, parse_observations
+from camnet.matching.pool import PoolConfig, TrackPool, crowding, dedupe_frame_tracks
+from camnet.matching.tracks import FrameTracks
 
 CAMS = (CameraInfo("L", 640, 480), CameraInfo("R", 640, 480), CameraInfo("M", 640, 480))
 STEREO = Stereo("L", "R", 0.12)

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from camnet.matching import Detector, Features, FrameSetMatches, PairMatches
-from camnet.tracks import build_tracks
+from camnet.matching.features import Detector, Features, FrameSetMatches, PairMatches
+from camnet.matching.tracks import build_tracks
 
 
 def _features(n: int, cam: int) -> Features:

@@ -5,10 +5,10 @@ from dataclasses import replace
 import numpy as np
 import scipy.linalg
 
-from camnet.calibrate import Options, calibrate, reported_points
-from camnet.evaluate import compare
-from camnet.simulate import make_rig, observe
-from camnet.uncertainty import covariance, inverse_spd, residual_dof, scale_sigma, scale_weights
+from camnet.geometry.calibrate import Options, calibrate, reported_points
+from camnet.geometry.evaluate import compare
+from camnet.geometry.uncertainty import covariance, inverse_spd, residual_dof, scale_sigma, scale_weights
+from camnet.sim.simulate import make_rig, observe
 
 
 def test_inverse_keeps_the_weak_directions_of_a_badly_scaled_matrix():
@@ -112,7 +112,7 @@ def test_the_scale_given_exact_principal_points_is_the_conditional_sigma():
 
 def test_a_solve_reports_the_normal_equations_of_a_wider_problem():
     """The covariance over held principal points comes with the solve's last step: it must be exact."""
-    from camnet import bundle
+    from camnet.geometry import bundle
 
     rig = make_rig(n_cameras=5, n_points=80, seed=4)
     obs = observe(rig, noise_px=0.5, seed=4).observations
@@ -135,7 +135,7 @@ def test_a_solve_reports_the_normal_equations_of_a_wider_problem():
 
 def test_a_track_seen_twice_by_one_camera_adds_to_the_normal_equations():
     """Observations are terms of a sum: a repeated one counts twice, not once."""
-    from camnet import bundle
+    from camnet.geometry import bundle
 
     rig = make_rig(n_cameras=4, n_points=40, seed=5)
     obs = observe(rig, noise_px=0.5, seed=5).observations

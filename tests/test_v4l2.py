@@ -3,10 +3,10 @@
 import cv2
 import numpy as np
 import pytest
+from camnet.drivers.base import DeviceError, EndOfStream
+from camnet.drivers.v4l2 import V4l2Camera
 
-from camnet.rig import V4l2Config
-from drivers.base import DeviceError, EndOfStream
-from drivers.v4l2 import V4l2Camera
+from camnet.io.rig import V4l2Config
 
 
 def config(source: str, **overrides) -> V4l2Config:

@@ -5,11 +5,11 @@ import time
 import cv2
 import numpy as np
 import pytest
+from camnet.drivers.base import DeviceError, EndOfStream
+from camnet.drivers.v4l2 import V4l2Camera, frame_index, parse_timestamps, stamped_sequence
 
 from camnet.errors import InputError
-from camnet.rig import V4l2Config, parse_rig
-from drivers.base import DeviceError, EndOfStream
-from drivers.v4l2 import V4l2Camera, frame_index, parse_timestamps, stamped_sequence
+from camnet.io.rig import V4l2Config, parse_rig
 
 # 2011-09-26 14:05:35 UTC
 BASE_NS = 1317045935 * 1_000_000_000

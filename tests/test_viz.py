@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 from camnet import viz
-from camnet.calibrate import calibrate
-from camnet.camera import Camera
 from camnet.errors import InputError
-from camnet.formats import Calibration
-from camnet.simulate import make_rig, observe
+from camnet.geometry.calibrate import calibrate
+from camnet.geometry.camera import Camera
+from camnet.io.formats import Calibration
+from camnet.sim.simulate import make_rig, observe
 
 T0_NS = 1_700_000_000_000_000_000
 

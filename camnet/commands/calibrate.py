@@ -51,9 +51,9 @@ def parse_free(value: str) -> str | frozenset[str]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from camnet.calibrate import Options, calibrate
     from camnet.errors import InputError
-    from camnet.formats import (
+    from camnet.geometry.calibrate import Options, calibrate
+    from camnet.io.formats import (
         calibration_to_doc,
         load_json,
         parse_calibration,

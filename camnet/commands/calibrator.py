@@ -6,12 +6,12 @@ import argparse
 import os
 from pathlib import Path
 
-# services.calibrator.LIVE_FREE, spelled out so that building the parser imports no numpy.
+# camnet.geometry.live.LIVE_FREE, spelled out so that building the parser imports no numpy.
 DEFAULT_FREE = "f,stereo_rotation,stereo_direction"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from camnet.bus import add_bus_arguments
+    from camnet.bus.session import add_bus_arguments
     from camnet.viz import add_rerun_arguments
 
     parser.add_argument("--rig", required=True, metavar="RIG.yaml|NAME",
@@ -40,8 +40,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def load_rig_arg(value: str):
     """(name, Rig or None) of `--rig`: a rig file, or just a rig's name."""
-    from camnet.keys import validate_id
-    from camnet.rig import load_rig
+    from camnet.bus.keys import validate_id
+    from camnet.io.rig import load_rig
 
     if value.endswith((".yaml", ".yml")) or os.path.sep in value:
         rig = load_rig(value)
@@ -59,12 +59,13 @@ def run(args: argparse.Namespace) -> int:
     import socket
     import threading
 
-    from camnet.bus import open_session, options_from_args
-    from camnet.calibrate import Options
+    from camnet.bus.session import open_session, options_from_args
     from camnet.commands.calibrate import parse_free
     from camnet.errors import InputError
+    from camnet.geometry.calibrate import Options
+    from camnet.geometry.live import LiveConfig
+    from camnet.services.calibrator import CalibratorConfig, CalibratorNode, RerunView
     from camnet.viz import close_recording, open_recording, sinks_from_args
-    from services.calibrator import CalibratorConfig, CalibratorNode, RerunView
 
     name, rig = load_rig_arg(args.rig)
     sinks = sinks_from_args(args)
@@ -80,8 +81,9 @@ def run(args: argparse.Namespace) -> int:
         stereo_pose = (rig.stereo.R, rig.stereo.t)
         if args.free == DEFAULT_FREE:  # a factory head: its pose is known, only the scene's cameras move
             free = frozenset({"f"})
-    config = CalibratorConfig(options=Options(free=free, loss=args.loss), state_path=state, stereo_pose=stereo_pose,
-                              max_rms_px=args.max_rms_px, max_scale_rel=args.max_scale_rel)
+    live = LiveConfig(options=Options(free=free, loss=args.loss), stereo_pose=stereo_pose,
+                      max_rms_px=args.max_rms_px, max_scale_rel=args.max_scale_rel)
+    config = CalibratorConfig(live=live, state_path=state)
     stop = threading.Event()
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGTERM, lambda *_: stop.set())

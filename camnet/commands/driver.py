@@ -11,7 +11,7 @@ DRIVER_CHOICES = ("sim", "aravis", "v4l2")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from camnet.bus import add_bus_arguments
+    from camnet.bus.session import add_bus_arguments
 
     parser.add_argument("driver", choices=DRIVER_CHOICES, help="camera driver")
     parser.add_argument("--rig", required=True, metavar="RIG.yaml", help="rig file")
@@ -26,10 +26,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from camnet.bus import open_session, options_from_args
+    from camnet.bus.session import open_session, options_from_args
+    from camnet.drivers.base import create_camera
     from camnet.errors import InputError
-    from camnet.rig import load_rig
-    from drivers.base import create_camera
+    from camnet.io.rig import load_rig
 
     rig = load_rig(args.rig)
     entry = rig.camera(args.camera)
@@ -38,7 +38,7 @@ def run(args: argparse.Namespace) -> int:
                          f"not {args.driver!r}")
     camera = create_camera(entry, rig)
     with open_session(options_from_args(args)) as session:
-        from drivers.node import DriverNode
+        from camnet.drivers.node import DriverNode
 
         node = DriverNode(session, rig, camera, compression=args.compression,
                           stats_period_s=args.stats_period_s)

@@ -37,10 +37,10 @@ def run(args: argparse.Namespace) -> int:
     import json
     import sys
 
-    from camnet.atomic import write_directory_atomic, write_text_atomic
     from camnet.errors import InputError
-    from camnet.export import export, is_multi_file
-    from camnet.formats import load_json, parse_calibration, parse_observations
+    from camnet.io.atomic import write_directory_atomic, write_text_atomic
+    from camnet.io.export import export, is_multi_file
+    from camnet.io.formats import load_json, parse_calibration, parse_observations
 
     if args.max_error_px is not None and (args.to != "colmap" or args.observations is None):
         raise InputError("--max-error-px: only the colmap export with --observations uses it")

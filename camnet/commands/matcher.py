@@ -29,7 +29,7 @@ _NODE_FLAGS = (
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from camnet.bus import add_bus_arguments
+    from camnet.bus.session import add_bus_arguments
 
     parser.add_argument("--rig", required=True, metavar="RIG.yaml", help="rig file (needs a stereo pair)")
     for flag, options in _NODE_FLAGS:
@@ -40,7 +40,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def node_config_from_args(args: argparse.Namespace, rig=None):
     """The MatcherNodeConfig of the flags given, then of the rig file; the rest keep their defaults."""
-    from services.matcher import MatcherNodeConfig, rig_options
+    from camnet.services.matcher import MatcherNodeConfig, rig_options
 
     given = {flag[2:].replace("-", "_") for flag, _ in _NODE_FLAGS}
     from_rig = rig_options(rig) if rig is not None else {}
@@ -52,9 +52,9 @@ def run(args: argparse.Namespace) -> int:
     import signal
     import threading
 
-    from camnet.bus import open_session, options_from_args
-    from camnet.rig import load_rig
-    from services.matcher import MatcherNode, rig_stereo
+    from camnet.bus.session import open_session, options_from_args
+    from camnet.io.rig import load_rig
+    from camnet.services.matcher import MatcherNode, rig_stereo
 
     rig = load_rig(args.rig)
     rig_stereo(rig)  # refuse a rig without a stereo pair before joining the bus

@@ -7,7 +7,7 @@ import sys
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from camnet.bus import add_bus_arguments
+    from camnet.bus.session import add_bus_arguments
 
     parser.add_argument("--rig", required=True, metavar="NAME", help="rig name (as in its file)")
     parser.add_argument("-o", "--output", required=True, metavar="SESSION.mcap",
@@ -34,8 +34,8 @@ def run(args: argparse.Namespace) -> int:
     import time
     from pathlib import Path
 
-    from camnet.bus import open_session, options_from_args
-    from services.recorder import Recorder, RecorderConfig
+    from camnet.bus.session import open_session, options_from_args
+    from camnet.services.recorder import Recorder, RecorderConfig
 
     output = Path(args.output)
     if output.is_dir():

@@ -7,7 +7,7 @@ import sys
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from camnet.bus import add_bus_arguments
+    from camnet.bus.session import add_bus_arguments
 
     parser.add_argument("session", metavar="SESSION.mcap", help="session recorded by camnet record")
     pace = parser.add_mutually_exclusive_group()
@@ -33,10 +33,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from camnet.bus import open_session, options_from_args
+    from camnet.bus.session import open_session, options_from_args
     from camnet.errors import InputError
-    from services.replayer import Replayer, ReplayOptions
-    from services.session_file import open_session_file
+    from camnet.io.session_file import open_session_file
+    from camnet.services.replayer import Replayer, ReplayOptions
 
     if not args.as_fast_as_possible and not args.rate > 0:
         raise InputError(f"--rate: must be > 0, got {args.rate} (or use --as-fast-as-possible)")

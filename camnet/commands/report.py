@@ -22,9 +22,9 @@ def run(args: argparse.Namespace) -> int:
     import sys
     from pathlib import Path
 
-    from camnet.atomic import write_text_atomic
-    from camnet.formats import load_json, parse_calibration, parse_observations
-    from camnet.report import render_report
+    from camnet.io.atomic import write_text_atomic
+    from camnet.io.formats import load_json, parse_calibration, parse_observations
+    from camnet.io.report import render_report
 
     cal = parse_calibration(load_json(args.calibration))
     obs = parse_observations(load_json(args.observations)) if args.observations else None

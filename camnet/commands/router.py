@@ -11,13 +11,13 @@ log = logging.getLogger(__name__)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from camnet.bus import add_bus_arguments
+    from camnet.bus.session import add_bus_arguments
 
     add_bus_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
-    from camnet.bus import open_session, options_from_args
+    from camnet.bus.session import open_session, options_from_args
 
     options = options_from_args(args, mode="router")
     stop = threading.Event()

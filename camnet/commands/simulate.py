@@ -22,7 +22,7 @@ def add_simulation_arguments(parser: argparse.ArgumentParser) -> None:
 
 def simulate_from_args(args: argparse.Namespace):
     from camnet.errors import InputError
-    from camnet.simulate import make_rig, observe
+    from camnet.sim.simulate import make_rig, observe
 
     if args.cameras < 3:
         raise InputError(f"--cameras: a metric solve needs at least 3, got {args.cameras}")
@@ -50,7 +50,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from camnet.formats import (
+    from camnet.io.formats import (
         Calibration,
         calibration_to_doc,
         observations_to_doc,

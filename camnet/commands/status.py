@@ -9,7 +9,7 @@ log = logging.getLogger(__name__)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from camnet.bus import add_bus_arguments
+    from camnet.bus.session import add_bus_arguments
 
     parser.add_argument("--rig", required=True, metavar="NAME", help="rig name (as in its file)")
     parser.add_argument("--wait-s", type=float, default=2.0, metavar="S",
@@ -35,10 +35,10 @@ def run(args: argparse.Namespace) -> int:
     import threading
     import time
 
-    from camnet import keys
-    from camnet.bus import open_session, options_from_args
+    from camnet.bus import keys
+    from camnet.bus.session import open_session, options_from_args
+    from camnet.bus.stats import NodeStats
     from camnet.errors import InputError
-    from camnet.stats import NodeStats
 
     stats: dict[tuple[str, str], NodeStats] = {}
     lock = threading.Lock()

@@ -17,7 +17,7 @@ RECORDED_CLOCK_S = 3600.0  # a capture this far from the host clock was stamped 
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from camnet.bus import add_bus_arguments
+    from camnet.bus.session import add_bus_arguments
     from camnet.viz import add_rerun_arguments
 
     parser.add_argument("rig_file", nargs="?", metavar="RIG.yaml",
@@ -45,12 +45,12 @@ def run(args: argparse.Namespace) -> int:
     import threading
     import time
 
-    from camnet import keys
-    from camnet.bus import open_session, options_from_args
+    from camnet.bus import keys
+    from camnet.bus.launch import Launch, bus_flags
+    from camnet.bus.session import open_session, options_from_args
     from camnet.errors import CamnetError, InputError
-    from camnet.formats import parse_calibration, write_json_atomic
-    from camnet.launch import Launch, bus_flags
-    from camnet.rig import load_rig
+    from camnet.io.formats import parse_calibration, write_json_atomic
+    from camnet.io.rig import load_rig
     from camnet.viz import sinks_from_args
 
     rig_path = Path(args.rig_file) if args.rig_file else DEFAULT_RIG
@@ -148,8 +148,8 @@ def summarise(elapsed_s: float, doc: dict, truth) -> dict:
         if abs(latency_s) < RECORDED_CLOCK_S:
             summary["capture_to_solution_s"] = latency_s
     if truth:
-        from camnet.evaluate import compare_cameras
-        from camnet.formats import parse_calibration
+        from camnet.geometry.evaluate import compare_cameras
+        from camnet.io.formats import parse_calibration
 
         c = compare_cameras(parse_calibration(doc), truth)
         summary["scale_error_rel"] = c.scale_rel
@@ -173,7 +173,7 @@ def progress_line(s: dict) -> str:
 
 
 def final_report(cal, truth) -> str:
-    from camnet.evaluate import compare_cameras, format_comparison
+    from camnet.geometry.evaluate import compare_cameras, format_comparison
 
     lines = ["", "final calibration:"]
     if truth:

@@ -1,6 +1,6 @@
 """The KITTI raw "extract" (unrectified) layout: calibration and frames.
 
-Reads ``calib_cam_to_cam.txt`` into `camnet.camera.Camera` objects in the
+Reads ``calib_cam_to_cam.txt`` into `camnet.geometry.camera.Camera` objects in the
 frame of camera 0 (``x_cam = R @ X + t``, X in cam-0 coordinates, metres;
 KITTI's ``R_xx``/``T_xx`` already map cam-0 coordinates into camera xx), and
 lists which cameras have an image for each frame in ``image_0X/data/``.
@@ -17,9 +17,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from camnet.camera import Camera
 from camnet.errors import InputError
-from camnet.formats import Calibration, Observations, Stereo
+from camnet.geometry.camera import Camera
+from camnet.io.formats import Calibration, Observations, Stereo
 
 CALIB_FILE = "calib_cam_to_cam.txt"
 STEREO_LEFT, STEREO_RIGHT = "0", "1"
@@ -147,7 +147,7 @@ def prepare_scenario(
     obs: Observations, published: dict[str, Camera], scenario: str
 ) -> tuple[Observations, Calibration | None]:
     """(observations carrying what `scenario` knows, initial calibration or None); see SCENARIOS."""
-    from camnet.pipeline import with_known_intrinsics
+    from camnet.matching.pipeline import with_known_intrinsics
 
     if scenario not in SCENARIOS:
         raise InputError(f"scenario: unknown {scenario!r}; expected one of {sorted(SCENARIOS)}")
@@ -208,12 +208,12 @@ def run_live(
     import threading
     import time
 
-    from camnet import keys
-    from camnet.bus import BusOptions, open_session
+    from camnet.bus import keys
+    from camnet.bus.launch import Launch
+    from camnet.bus.session import BusOptions, open_session
     from camnet.errors import CamnetError
-    from camnet.formats import parse_calibration, parse_observations
-    from camnet.launch import Launch
-    from camnet.rig import load_rig
+    from camnet.io.formats import parse_calibration, parse_observations
+    from camnet.io.rig import load_rig
 
     log = logging.getLogger(__name__)
     rig = load_rig(rig_path)

@@ -15,9 +15,9 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from camnet.camera import Camera
-from camnet.evaluate import rotation_angle_deg
-from camnet.formats import Calibration, Observations
+from camnet.geometry.camera import Camera
+from camnet.geometry.evaluate import rotation_angle_deg
+from camnet.io.formats import Calibration, Observations
 
 
 @dataclass(frozen=True)

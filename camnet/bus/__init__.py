@@ -1,0 +1,1 @@
+"""The wire: frame messages, key expressions, Zenoh sessions, frame-set sync, lockstep, node statistics, launching."""

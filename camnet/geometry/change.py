@@ -1,0 +1,124 @@
+"""Detecting that a camera moved since the last calibration.
+
+A live rig is calibrated once and then re-solved warm as tracks come in. When
+somebody bumps a camera, the new tracks no longer fit that camera's
+calibrated pose while they still fit the others. The test here: triangulate
+each new track with the calibrated stereo pair alone (the pair fixes the
+metric point without the camera under test), reproject it into every camera
+that sees it, and compare each camera's median error with its reprojection
+RMS at the last calibration.
+
+Conventions: pixels with the origin at the centre of the top-left pixel,
+``x_cam = R X + t``, metres.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from camnet.geometry.camera import Camera
+from camnet.io.formats import Calibration, Observations
+
+
+@dataclass(frozen=True)
+class MoveRule:
+    """When a camera counts as moved.
+
+    Its median error on new tracks must exceed both `min_px` and `factor`
+    times its RMS at the last calibration, over at least `min_observations`
+    observations.
+    """
+
+    factor: float = 4.0
+    min_px: float = 2.0
+    min_observations: int = 12
+
+
+def _normalised(camera: Camera, uv: np.ndarray) -> np.ndarray:
+    """Undistorted normalised image coordinates (n, 2) of pixels (n, 2)."""
+    return cv2.undistortPoints(uv.reshape(-1, 1, 2), camera.K, camera.dist).reshape(-1, 2)
+
+
+def stereo_points(calibration: Calibration, obs: Observations, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Points of the tracks at `rows` (indices into obs.track_ids) seen by both stereo cameras.
+
+    Returns (rows kept, X (n, 3) in metres, world frame), triangulated linearly
+    from the calibrated pair's undistorted rays.
+    """
+    by_id = {c.id: c for c in calibration.cameras}
+    left, right = by_id[obs.stereo.left], by_id[obs.stereo.right]
+    uv = {}
+    for cam in (left, right):
+        c = obs.index_of(cam.id)
+        pix = np.full((len(obs.track_ids), 2), np.nan)
+        mine = obs.cam_index == c
+        pix[obs.track_index[mine]] = obs.uv[mine]
+        uv[cam.id] = pix[rows]
+    both = np.isfinite(uv[left.id][:, 0]) & np.isfinite(uv[right.id][:, 0])
+    rows = np.asarray(rows)[both]
+    if not len(rows):
+        return rows, np.empty((0, 3))
+    P = [np.hstack([cam.R, cam.t[:, None]]) for cam in (left, right)]
+    xl, xr = (_normalised(cam, uv[cam.id][both]) for cam in (left, right))
+    Xh = cv2.triangulatePoints(P[0], P[1], xl.T, xr.T)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        X = (Xh[:3] / Xh[3]).T
+    return rows, X
+
+
+def new_track_errors(calibration: Calibration, obs: Observations, rows: np.ndarray) -> dict[str, np.ndarray]:
+    """Per camera id, the reprojection errors (px) of its observations of the tracks at `rows`.
+
+    Each point is triangulated by the stereo pair alone (`stereo_points`);
+    tracks the pair does not both see, and points behind a camera, are left
+    out. Cameras missing from `calibration` get no entry.
+    """
+    rows, X = stereo_points(calibration, obs, rows)
+    point_of_row = np.full(len(obs.track_ids), -1)
+    point_of_row[rows] = np.arange(len(rows))
+    errors = {}
+    for cam in calibration.cameras:
+        if cam.id not in obs.camera_ids:
+            continue
+        mine = (obs.cam_index == obs.index_of(cam.id)) & (point_of_row[obs.track_index] >= 0)
+        pixels = cam.project(X[point_of_row[obs.track_index[mine]]])
+        err = np.linalg.norm(pixels - obs.uv[mine], axis=1)
+        errors[cam.id] = err[np.isfinite(err)]
+    return errors
+
+
+def moved_cameras(errors: dict[str, np.ndarray], reference_rms_px: dict[str, float],
+                  rule: MoveRule = MoveRule()) -> list[str]:
+    """Ids of the cameras whose errors on new tracks say they moved (see MoveRule)."""
+    moved = []
+    for cam_id, err in errors.items():
+        if len(err) < rule.min_observations:
+            continue
+        reference = reference_rms_px.get(cam_id) or 0.0
+        if np.median(err) > max(rule.min_px, rule.factor * reference):
+            moved.append(cam_id)
+    return sorted(moved)
+
+
+def drop_before(obs: Observations, cutoffs: dict[str, int]) -> Observations:
+    """`obs` without each camera's observations of tracks older than its cutoff.
+
+    ``cutoffs[camera_id]`` is the first track id recorded after that camera
+    moved: its earlier observations describe the old pose. Tracks left with
+    fewer than two observations go too.
+    """
+    keep = np.ones(len(obs.uv), dtype=bool)
+    for cam_id, first_id in cutoffs.items():
+        if cam_id in obs.camera_ids:
+            keep &= ~((obs.cam_index == obs.index_of(cam_id)) & (obs.track_ids[obs.track_index] < first_id))
+    views = np.bincount(obs.track_index[keep], minlength=len(obs.track_ids))
+    keep &= views[obs.track_index] >= 2
+    rows = np.flatnonzero(views >= 2)
+    new_row = np.full(len(obs.track_ids), -1)
+    new_row[rows] = np.arange(len(rows))
+    return Observations(cameras=obs.cameras, stereo=obs.stereo, track_ids=obs.track_ids[rows],
+                        cam_index=obs.cam_index[keep], track_index=new_row[obs.track_index[keep]],
+                        uv=obs.uv[keep])

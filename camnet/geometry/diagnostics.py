@@ -1,0 +1,179 @@
+"""The further keys of a calibration: uncertainty, per-camera statistics, warnings.
+
+Documented in docs/calibration-keys.md.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from camnet.geometry.bundle import CEN, CENTRE_FREE, CENTRE_ON_BASELINE, ROT, _tangent_basis
+from camnet.geometry.projection import INTRINSIC_NAMES
+from camnet.geometry.uncertainty import scale_sigma, scale_weights
+
+MIN_CAMERA_OBSERVATIONS = 12
+MIN_PARALLAX_DEG = 2.0
+COPLANAR_RATIO = 0.02
+POOR_FOCAL_REL = 0.05
+POOR_SCALE_REL = 0.01
+
+
+def _camera_uncertainty(m: int, problem, state, cov) -> dict:
+    cols = cov.columns[m]
+    Sigma = cov.cameras
+
+    def block(slots: list[int]) -> np.ndarray:
+        c = cols[slots]
+        out = np.zeros((len(slots), len(slots)))
+        ok = c >= 0
+        out[np.ix_(ok, ok)] = Sigma[np.ix_(c[ok], c[ok])]
+        return out
+
+    sd = {}
+    for slot, name in enumerate(INTRINSIC_NAMES):
+        if cols[slot] >= 0:
+            sd[name] = float(np.sqrt(max(Sigma[cols[slot], cols[slot]], 0.0)))
+    entry = {
+        "f_px": sd.get("f", 0.0),
+        "cx_px": sd.get("cx", 0.0),
+        "cy_px": sd.get("cy", 0.0),
+        "k1": sd.get("k1", 0.0),
+        "k2": sd.get("k2", 0.0),
+    }
+    rot = block(list(range(ROT.start, ROT.stop)))
+    entry["rotation_deg"] = np.degrees(np.sqrt(np.maximum(np.diag(rot), 0.0))).tolist()
+    mode = problem.centre_mode[m]
+    if mode == CENTRE_FREE:
+        cen = block(list(range(CEN.start, CEN.stop)))
+    elif mode == CENTRE_ON_BASELINE:
+        B = problem.baseline_m * _tangent_basis(state.C[m] / np.linalg.norm(state.C[m]))
+        cen = B @ block([CEN.start, CEN.start + 1]) @ B.T
+    else:
+        cen = np.zeros((3, 3))
+    entry["centre_m"] = np.sqrt(np.maximum(np.diag(cen), 0.0)).tolist()
+    return entry
+
+
+def _parallax_deg(problem, state) -> np.ndarray:
+    """Per point, the widest angle between two of its viewing rays."""
+    rays = state.X[problem.pt] - state.C[problem.cam]
+    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    # The angle to the mean ray, doubled, is a cheap stand-in for the widest pair.
+    mean = np.zeros((problem.n_points, 3))
+    np.add.at(mean, problem.pt, rays)
+    mean /= np.maximum(np.linalg.norm(mean, axis=1, keepdims=True), 1e-12)
+    cosang = np.clip(np.sum(rays * mean[problem.pt], axis=1), -1.0, 1.0)
+    widest = np.zeros(problem.n_points)
+    np.maximum.at(widest, problem.pt, np.degrees(np.arccos(cosang)))
+    return 2.0 * widest
+
+
+def _held_disparity_warning(obs, order, problem, state) -> list[str]:
+    """The scale's sensitivity to the difference of the stereo pair's principal-point columns, when held.
+
+    A column difference shifts every disparity by as much; with the right
+    camera's yaw and principal point held, the uncertainty cannot show it.
+    """
+    right = obs.cameras[order[1]]
+    known = right.K is not None and "K" in right.fixed
+    if known or problem.rot_free[1, 1] or problem.intr_free[1, 2]:
+        return []
+    depth_m = float(np.median(state.X[:, 2])) if len(state.X) else np.nan
+    disparity_px = state.intr[0, 0] * np.linalg.norm(state.C[1]) / depth_m
+    if not np.isfinite(disparity_px) or disparity_px <= 0:
+        return []
+    return [
+        f"the scale assumes the stereo cameras' principal points in the same column: each pixel of "
+        f"difference moves it by {100 / disparity_px:.2f}% (give the pair's K, or free stereo_rotation)"
+    ]
+
+
+def free_parameters(problem, cameras_ids: list[str]) -> dict:
+    """Which intrinsics and stereo rotation axes moved: reused by warm starts."""
+    return {
+        "intrinsics": {
+            cam_id: [n for n, free in zip(INTRINSIC_NAMES, problem.intr_free[m], strict=True) if free]
+            for m, cam_id in enumerate(cameras_ids)
+        },
+        "stereo_rotation_axes": [ax for ax, free in zip("xyz", problem.rot_free[1], strict=True) if free],
+        "stereo_direction": bool(problem.centre_mode[1] == CENTRE_ON_BASELINE),
+    }
+
+
+def describe(obs, order, problem, state, cov, inliers, info, decisions, options, timings, kept, residuals_px) -> dict:
+    """The further keys.
+
+    kept (N,): the points the calibration reports; residuals_px (n, 2): the
+    problem's reprojection residuals at `state`, pixels.
+    """
+    ids = [obs.cameras[i].id for i in order]
+    r = np.linalg.norm(residuals_px, axis=1)
+    warnings = []
+    cameras = {}
+    for m, cam_id in enumerate(ids):
+        mine = problem.cam == m
+        n_in = int(mine.sum())
+        cameras[cam_id] = {
+            "rms_px": float(np.sqrt(np.mean(r[mine] ** 2))) if n_in else None,
+            "inliers": n_in,
+        }
+        if n_in < MIN_CAMERA_OBSERVATIONS:
+            warnings.append(f"camera {cam_id}: only {n_in} inlier observations; its calibration is weak")
+    parallax = _parallax_deg(problem, state)[kept]
+    if len(parallax) and np.median(parallax) < MIN_PARALLAX_DEG:
+        warnings.append(
+            f"little parallax: the median point is seen under {np.median(parallax):.2f} deg; "
+            "depth and focal lengths are weakly determined"
+        )
+    body = state.X[kept]
+    sv = np.linalg.svd(body - body.mean(axis=0), compute_uv=False) if len(body) >= 3 else np.ones(3)
+    if sv[2] < COPLANAR_RATIO * sv[0]:
+        warnings.append("the points are nearly coplanar; focal lengths and poses trade off")
+    warnings += _held_disparity_warning(obs, order, problem, state)
+    out = {
+        "method": options.method,
+        "diagnostics": {
+            "converged": bool(info.converged),
+            "reason": info.reason,
+            "iterations": int(info.iterations),
+            "observations": int(len(inliers)),
+            "inliers": int(np.sum(inliers)),
+            "cameras": cameras,
+            "median_parallax_deg": float(np.median(parallax)) if len(parallax) else None,
+            "free": free_parameters(problem, ids),
+            "free_rule": decisions,
+            "warnings": warnings,
+        },
+        "timings_s": {k: round(v, 6) for k, v in timings.items()},
+    }
+    if cov is not None:
+        weights = scale_weights(cov, state.X, kept)
+        scale = scale_sigma(cov, state.X, weights) if kept.any() else None
+        per_cam = {cam_id: _camera_uncertainty(m, problem, state, cov) for m, cam_id in enumerate(ids)}
+        for m, cam_id in enumerate(ids):
+            if per_cam[cam_id]["f_px"] > POOR_FOCAL_REL * state.intr[m, 0]:
+                warnings.append(
+                    f"camera {cam_id}: focal length poorly determined (sigma {per_cam[cam_id]['f_px']:.0f} px)"
+                )
+        # The covariance has more columns than the problem where guessed principal points entered
+        # as a prior (calibrate._uncertainty): what the scale would be known to were they exact.
+        scale_if_pp = None
+        prior_columns = cov.columns[:, 2:4][(cov.columns[:, 2:4] >= 0) & ~problem.intr_free[:, 2:4]]
+        if scale is not None and len(prior_columns):
+            scale_if_pp = scale_sigma(cov, state.X, weights, given=prior_columns)
+        if scale is None:
+            warnings.append("no point is determined: the scale is unknown")
+        elif scale > POOR_SCALE_REL:
+            why = ""
+            if scale_if_pp is not None and scale_if_pp < scale / 2:
+                why = (f", {100 * scale_if_pp:.2g}% were the principal points exactly at the image centres: "
+                       "give the stereo cameras' K")
+            warnings.append(f"the scale is uncertain by {100 * scale:.1f}% (1 sigma){why}")
+        out["uncertainty"] = {
+            "sigma_px": cov.sigma_px,
+            "scale_rel": scale,
+            "scale_rel_if_pp_exact": scale_if_pp,
+            "cameras": per_cam,
+            "point_weights": weights[kept].tolist(),
+        }
+    return out

@@ -1,0 +1,97 @@
+"""A calibration beside its ground truth (per-camera and whole-network errors) or beside new observations."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from camnet.geometry.camera import Camera
+from camnet.geometry.metrics import scale_error, shape_rms_m
+from camnet.io.formats import Calibration
+
+
+@dataclass(frozen=True)
+class CameraError:
+    id: str
+    focal_rel: float  # (f - f_true) / f_true
+    focal_sigma_rel: float  # reported 1-sigma, relative (NaN if none)
+    centre_mm: float  # |C - C_true|
+    centre_sigma_mm: float  # reported, RMS over axes times sqrt(3) (NaN if none)
+    rotation_deg: float  # angle of R R_true^T
+
+
+@dataclass(frozen=True)
+class Comparison:
+    scale_rel: float  # similarity scale of the cloud minus 1
+    scale_sigma_rel: float
+    shape_rms_mm: float
+    rms_reprojection_px: float
+    cameras: list[CameraError]
+
+
+def rotation_angle_deg(R: np.ndarray) -> float:
+    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
+
+
+def compare(cal: Calibration, truth_cameras: list[Camera], truth_points: np.ndarray) -> Comparison:
+    """Errors of `cal` against the truth; truth_points are indexed by track id."""
+    truth = {c.id: c for c in truth_cameras}
+    unc = cal.extra.get("uncertainty", {}).get("cameras", {})
+    cams = []
+    for cam in cal.cameras:
+        t = truth[cam.id]
+        u = unc.get(cam.id, {})
+        cams.append(
+            CameraError(
+                id=cam.id,
+                focal_rel=float(cam.K[0, 0] / t.K[0, 0] - 1.0),
+                focal_sigma_rel=float(u.get("f_px", np.nan)) / t.K[0, 0],
+                centre_mm=1e3 * float(np.linalg.norm(cam.centre - t.centre)),
+                centre_sigma_mm=1e3 * float(np.linalg.norm(u["centre_m"])) if "centre_m" in u else np.nan,
+                rotation_deg=rotation_angle_deg(cam.R @ t.R.T),
+            )
+        )
+    X_true = truth_points[cal.point_ids]
+    return Comparison(
+        scale_rel=scale_error(cal.points, X_true, point_weights(cal)),
+        scale_sigma_rel=float(cal.extra.get("uncertainty", {}).get("scale_rel") or np.nan),
+        shape_rms_mm=1e3 * shape_rms_m(cal.points, X_true),
+        rms_reprojection_px=cal.rms_reprojection_px,
+        cameras=cams,
+    )
+
+
+def point_weights(cal: Calibration) -> np.ndarray | None:
+    """Weights of the calibration's points in its reported scale, None without uncertainty."""
+    w = cal.extra.get("uncertainty", {}).get("point_weights")
+    return None if w is None or len(w) != len(cal.points) else np.asarray(w, dtype=float)
+
+
+def format_comparison(c: Comparison) -> str:
+    lines = [
+        f"{'camera':<10} {'focal err %':>12} {'(1 sigma)':>10} "
+        f"{'centre err mm':>14} {'(1 sigma)':>10} {'rot err deg':>12}",
+    ]
+    for e in c.cameras:
+        lines.append(
+            f"{e.id:<10} {100 * e.focal_rel:>12.3f} {100 * e.focal_sigma_rel:>10.3f} "
+            f"{e.centre_mm:>14.3f} {e.centre_sigma_mm:>10.3f} {e.rotation_deg:>12.4f}"
+        )
+    lines.append(
+        f"scale error {100 * c.scale_rel:+.4f}% (1 sigma {100 * c.scale_sigma_rel:.4f}%), "
+        f"shape RMS {c.shape_rms_mm:.3f} mm, reprojection RMS {c.rms_reprojection_px:.3f} px"
+    )
+    return "\n".join(lines)
+
+
+def compare_cameras(cal: Calibration, truth_cameras: list[Camera]) -> Comparison:
+    """As `compare`, for a calibration whose points have no ground truth (a live rig).
+
+    The scale and shape are those of the camera centres: the similarity
+    that best maps the calibrated centres onto the true ones.
+    """
+    truth = {c.id: c for c in truth_cameras}
+    centres = np.array([c.centre for c in cal.cameras])
+    as_points = replace(cal, point_ids=np.arange(len(centres)), points=centres)
+    return compare(as_points, truth_cameras, np.array([truth[c.id].centre for c in cal.cameras]))

@@ -1,0 +1,209 @@
+"""Covariance of a bundle adjustment solution, and the Cramer-Rao bound.
+
+At a least-squares solution the covariance of the parameters is
+``sigma^2 (J^T J)^-1``. With the points eliminated, the camera block is
+``sigma^2 S^-1`` (S the Schur complement) and any scalar function g of the
+parameters has variance ``sigma^2 grad(g)^T H^-1 grad(g)``, evaluated here
+without forming the dense inverse. With the true parameters and the true
+noise sigma, the same quantities are the Cramer-Rao bound.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+import scipy.linalg
+
+from camnet.geometry.bundle import NormalEquations, Problem, State, normal_equations, times_block_diag
+
+# A point block whose smallest eigenvalue is below this fraction of its largest leaves
+# the point undetermined along that direction (in metres, so the ratio has meaning).
+POINT_RCOND = 1e-12
+
+
+@dataclass(frozen=True)
+class Covariance:
+    sigma_px: float  # pixel noise sigma the covariance is scaled by
+    S_inv: np.ndarray  # (Pc, Pc) inverse Schur complement (unscaled)
+    W: np.ndarray  # (Pc, 3N)
+    V_inv: np.ndarray  # (N, 3, 3) pseudo-inverses of the point blocks V
+    V: np.ndarray  # (N, 3, 3)
+    columns: np.ndarray  # (M, 15) problem.columns()
+
+    @property
+    def cameras(self) -> np.ndarray:
+        """(Pc, Pc) covariance of the camera parameters."""
+        return self.sigma_px**2 * self.S_inv
+
+    def variance(self, g_cam: np.ndarray | None, g_pts: np.ndarray | None, *, given: np.ndarray = ()) -> float:
+        """Variance of a linear function with gradient (g_cam (Pc,), g_pts (N, 3)).
+
+        given: camera columns whose values are taken as exactly known (the
+        Gaussian conditional: what a prior on them no longer matters to).
+        """
+        Pc, N = self.S_inv.shape[0], len(self.V_inv)
+        gc = np.zeros(Pc) if g_cam is None else g_cam
+        gp = np.zeros((N, 3)) if g_pts is None else g_pts
+        # Solve H x = g by the Schur complement, then g^T x.
+        y = np.einsum("nij,nj->ni", self.V_inv, gp)
+        xc = self.S_inv @ (gc - self.W @ y.reshape(-1))
+        xp = y - np.einsum("nij,nj->ni", self.V_inv, (self.W.T @ xc).reshape(-1, 3))
+        var = gc @ xc + np.sum(gp * xp)
+        if len(given):  # var(g | c) = var(g) - cov(g, c) var(c)^-1 cov(c, g); cov(c, g) = x_c
+            c = np.asarray(given)
+            var -= xc[c] @ np.linalg.solve(self.S_inv[np.ix_(c, c)], xc[c])
+        return float(self.sigma_px**2 * var)
+
+    @cached_property  # the points' dense products cost more than the rest of the covariance
+    def point_covariances_m2(self) -> np.ndarray:
+        """(N, 3, 3) covariance of each point, m^2; infinite for a point not fixed in some direction."""
+        WV = times_block_diag(self.W, self.V_inv)  # (Pc, 3N)
+        N = len(self.V_inv)
+        SWV = (self.S_inv @ WV).reshape(-1, N, 3)
+        # extra[n] = WV_n^T S_inv WV_n, one 3x3 per point: a batched matmul (plain einsum takes 6x as long).
+        extra = WV.reshape(-1, N, 3).transpose(1, 2, 0) @ SWV.transpose(1, 0, 2)
+        eig = np.linalg.eigvalsh(self.V)
+        determined = eig[:, 0] > POINT_RCOND * np.maximum(eig[:, -1], 1e-300)
+        cov = self.sigma_px**2 * (self.V_inv + extra)
+        cov[~determined] = np.inf
+        return cov
+
+    def point_sigmas_m(self) -> np.ndarray:
+        """(N,) RMS over axes of each point's standard deviation, metres (infinite: not fixed)."""
+        return np.sqrt(np.maximum(np.einsum("nii->n", self.point_covariances_m2), 0.0) / 3.0)
+
+
+def covariance(
+    problem: Problem, state: State, *, sigma_px: float | None = None, normal: NormalEquations | None = None
+) -> Covariance:
+    """Covariance at `state`; sigma_px None estimates it from the residuals (a posteriori).
+
+    normal: the unweighted normal equations at `state` when the caller has them.
+    """
+    ne = normal_equations(problem, state) if normal is None else normal
+    # A point left without observations (all rejected), or seen along one ray only
+    # (no parallax), carries no information in some directions: the pseudo-inverse
+    # gives it no weight in the cameras' equations, and `point_sigmas_m` an
+    # infinite error.
+    V_inv = np.linalg.pinv(ne.V, rcond=POINT_RCOND, hermitian=True)
+    S = ne.U - times_block_diag(ne.W, V_inv) @ ne.W.T
+    S_inv = inverse_spd(S)
+    if sigma_px is None:
+        sigma_px = float(np.sqrt(2.0 * ne.cost / max(residual_dof(problem), 1)))
+    return Covariance(sigma_px, S_inv, ne.W, V_inv, ne.V, problem.columns()[0])
+
+
+def residual_dof(problem: Problem) -> int:
+    """Degrees of freedom of the residuals: observation coordinates minus the parameters they fix.
+
+    A point seen once fits its two coordinates exactly and uses two of its
+    three unknowns; a point left without observations uses none. Counting
+    three for every point would shrink the count (and inflate the a-posteriori
+    sigma) wherever outlier rejection leaves tracks with a single view.
+    """
+    views = np.bincount(problem.pt, minlength=problem.n_points)
+    return int(2 * len(problem.cam) - problem.columns()[1] - np.minimum(3, 2 * views).sum())
+
+
+def inverse_spd(S: np.ndarray) -> np.ndarray:
+    """Inverse of a symmetric positive semi-definite matrix of mixed units, keeping weak directions.
+
+    The camera parameters mix pixels, radians and metres, so the eigenvalues of
+    S span twenty orders of magnitude even when every direction is
+    determined. A pseudo-inverse with a cut-off relative to the largest
+    eigenvalue would drop the weakest directions, which are exactly the
+    nearly flat valleys (focal length against principal point and depth)
+    whose large variance must be reported. Scaling to a unit diagonal first
+    leaves only the true conditioning. Raises numpy's LinAlgError when a
+    direction is not fixed at all (its variance would be infinite).
+    """
+    if not len(S):
+        return S
+    diag = np.diag(S)
+    if not np.all(diag > 0):
+        raise np.linalg.LinAlgError("a camera parameter has no effect on any observation")
+    d = 1.0 / np.sqrt(diag)
+    scaled = S * d[:, None] * d[None, :]
+    inv = scipy.linalg.cho_solve(scipy.linalg.cho_factor(scaled), np.eye(len(S)))
+    return inv * d[:, None] * d[None, :]
+
+
+def scale_gradient(points: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
+    """Gradient of the similarity scale of a point cloud with respect to its points.
+
+    The weighted least-squares similarity that maps the true cloud onto the
+    estimate has, to first order, the scale ``1 + sum(w_j c_j . e_j) /
+    sum(w_j |c_j|^2)`` (c_j the true points centred on their weighted mean,
+    e_j the errors, w_j the weights, default equal); rotation and
+    translation errors do not enter it.
+    """
+    w = np.ones(len(points)) if weights is None else weights
+    c = points - (w @ points) / w.sum()
+    return w[:, None] * c / np.sum(w[:, None] * c * c)
+
+
+def scale_weights(cov: Covariance, points: np.ndarray, kept: np.ndarray | None = None) -> np.ndarray:
+    """(N,) weights of the points in the network's scale, 0 for points left out.
+
+    What matters for the scale is a point's error along its lever arm (from
+    the cloud's median point): points as precise there as the cloud's median
+    point or better weigh 1, less precise ones their inverse variance
+    relative to it. Tracks with little parallax land far away with large
+    depth errors, right along their lever arm, and with equal weights they
+    would swamp the scale of the cloud's body, which is what the scale is
+    about (a fully known stereo pair leaves the scale no freedom, yet a few
+    far points would report percents). Capping the weight at 1 keeps a few
+    deceptively precise points (a false match close to the cameras) from
+    taking the scale over.
+    """
+    kept = np.ones(len(points), dtype=bool) if kept is None else kept
+    if not kept.any():
+        return np.zeros(len(points))
+    arm = points - np.median(points[kept], axis=0)
+    arm /= np.maximum(np.linalg.norm(arm, axis=1, keepdims=True), 1e-300)
+    with np.errstate(invalid="ignore"):  # inf * 0 for undetermined points: weight 0 below
+        along = np.sqrt(np.abs(np.einsum("ni,nij,nj->n", arm, cov.point_covariances_m2, arm)))
+    along = np.where(np.isfinite(along), along, np.inf)
+    typical = np.median(along[kept])
+    w = np.minimum(1.0, typical / np.maximum(along, 1e-300)) ** 2
+    return np.where(kept, w, 0.0)
+
+
+def scale_sigma(cov: Covariance, points: np.ndarray, weights: np.ndarray | None = None, *,
+                given: np.ndarray = ()) -> float:
+    """Standard deviation of the network's scale (relative, 0.001 = 0.1%).
+
+    The scale is the similarity scale of the cloud with the given point
+    weights (default `scale_weights` of `cov`), the one
+    `camnet.geometry.metrics.scale_error` measures with the same weights. given: as
+    in `Covariance.variance`.
+    """
+    w = scale_weights(cov, points) if weights is None else weights
+    return float(np.sqrt(max(cov.variance(None, scale_gradient(points, w), given=given), 0.0)))
+
+
+def shape_rms_bound_m(cov: Covariance, points: np.ndarray) -> float:
+    """Expected RMS point error (m) after similarity alignment, ``sqrt(tr(P Sigma P) / N)``.
+
+    P removes the 7 similarity directions (translation, rotation, scale).
+    """
+    N = len(points)
+    c = points - points.mean(axis=0)
+    basis = []
+    for k in range(3):
+        e = np.zeros((N, 3))
+        e[:, k] = 1.0
+        basis.append(e)
+        w = np.zeros(3)
+        w[k] = 1.0
+        basis.append(np.cross(w, c))
+    basis.append(c)
+    Q, _ = np.linalg.qr(np.stack([b.reshape(-1) for b in basis], axis=1))
+    WV = times_block_diag(cov.W, cov.V_inv)
+    trace_total = float(np.einsum("nii->", cov.V_inv)) + float(np.sum(cov.S_inv * (WV @ WV.T)))
+    VQ = np.einsum("nij,njk->nik", cov.V_inv, Q.reshape(N, 3, -1)).reshape(3 * N, -1)
+    WVQ = WV @ Q
+    trace_sim = float(np.trace(Q.T @ VQ) + np.trace(WVQ.T @ cov.S_inv @ WVQ))
+    return cov.sigma_px * float(np.sqrt(max(trace_total - trace_sim, 0.0) / N))

@@ -1,0 +1,419 @@
+"""A calibration as one self-contained HTML page.
+
+Sections: a summary, the solver's warnings, a table per camera, the
+reprojection error of every point in every camera (the paper's Fig. 5) and
+the residual histograms (both need the observations), the uncertainty of
+each parameter, the point cloud's bounding box in millimetres (the paper's
+Sec. IV) and the cameras seen from above. Plots are inline SVG drawn with
+matplotlib (imported only here, without pyplot, so no global backend is set).
+"""
+
+from __future__ import annotations
+
+import html
+import io
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from camnet.errors import InputError
+from camnet.geometry.residuals import Residuals, outlier_limit_px, reprojection_residuals
+from camnet.io.formats import Calibration, Observations
+
+SECTIONS = {
+    "summary": "Summary",
+    "warnings": "Warnings",
+    "cameras": "Cameras",
+    "reprojection": "Reprojection error per point",
+    "residuals": "Residual histograms",
+    "uncertainty": "Uncertainty per parameter",
+    "bounding-box": "Point cloud bounding box",
+    "layout": "Camera layout from above",
+}
+NEEDS_OBSERVATIONS = "Needs the observations: run <code>camnet report CALIBRATION.json --observations OBS.json</code>."
+CSS = """
+body { font-family: sans-serif; margin: 24px; color: #222; max-width: 1200px; }
+h1 { font-size: 22px; } h2 { font-size: 18px; border-bottom: 1px solid #ccc; padding-bottom: 4px; }
+table { border-collapse: collapse; font-size: 13px; margin: 8px 0; }
+td, th { border: 1px solid #ccc; padding: 3px 8px; text-align: right; }
+th { background: #f0f0f0; } td:first-child, th:first-child { text-align: left; }
+svg { max-width: 100%; height: auto; }
+.note { color: #666; } .warning { color: #a40000; }
+"""
+
+
+@dataclass(frozen=True)
+class BoundingBox:
+    """Axis-aligned box of a point cloud in the world frame (the left stereo camera's), metres."""
+
+    min_m: np.ndarray  # (3,)
+    max_m: np.ndarray  # (3,)
+
+    @property
+    def size_mm(self) -> np.ndarray:
+        """Extent along X, Y, Z in millimetres (the paper's "98mm x 168mm x 75mm")."""
+        return 1e3 * (self.max_m - self.min_m)
+
+
+def bounding_box(points_m: np.ndarray) -> BoundingBox | None:
+    """The cloud's axis-aligned bounding box; None for no points."""
+    points_m = np.asarray(points_m, dtype=float).reshape(-1, 3)
+    if not len(points_m):
+        return None
+    return BoundingBox(points_m.min(axis=0), points_m.max(axis=0))
+
+
+def camera_colour(m: int) -> str:
+    """The colour of camera `m` in every plot (matplotlib's tab10 cycle)."""
+    return f"C{m % 10}"
+
+
+UNCERTAINTY_SCALARS = ("f_px", "cx_px", "cy_px", "k1", "k2")
+UNCERTAINTY_AXES = ("centre_m", "rotation_deg")
+
+
+@dataclass(frozen=True)
+class FurtherKeys:
+    """The further keys of a calibration that the report shows (docs/calibration-keys.md), checked.
+
+    Absent keys are None or empty. `diagnostics` and `camera_stats` are only
+    shown as text; `uncertainty[camera id]` maps UNCERTAINTY_SCALARS to a
+    number or None and UNCERTAINTY_AXES to 3 numbers or None.
+    """
+
+    method: str
+    sigma_px: float | None
+    scale_rel: float | None
+    diagnostics: dict[str, Any]
+    camera_stats: dict[str, dict[str, Any]]
+    uncertainty: dict[str, dict[str, Any]]
+    warnings: list[str]
+
+
+def _object(value: Any, path: str) -> dict:
+    if value is None:
+        return {}
+    if not isinstance(value, dict):
+        raise InputError(f"{path}: expected an object")
+    return value
+
+
+def _number(value: Any, path: str) -> float | None:
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise InputError(f"{path}: expected a number")
+    return float(value)
+
+
+def _camera_uncertainty(value: Any, path: str) -> dict[str, Any]:
+    u = _object(value, path)
+    out: dict[str, Any] = {k: _number(u.get(k), f"{path}.{k}") for k in UNCERTAINTY_SCALARS}
+    for key in UNCERTAINTY_AXES:
+        axes = u.get(key)
+        if axes is not None and (not isinstance(axes, list) or len(axes) != 3):
+            raise InputError(f"{path}.{key}: expected 3 numbers")
+        out[key] = None if axes is None else [_number(x, f"{path}.{key}[{i}]") or 0.0 for i, x in enumerate(axes)]
+    return out
+
+
+def further_keys(cal: Calibration) -> FurtherKeys:
+    """The report's view of `cal.extra`; a key of the wrong type is an `InputError` naming it."""
+    unc = _object(cal.extra.get("uncertainty"), "uncertainty")
+    diag = _object(cal.extra.get("diagnostics"), "diagnostics")
+    warnings = diag.get("warnings", [])
+    if not isinstance(warnings, list):
+        raise InputError("diagnostics.warnings: expected a list")
+    stats = _object(diag.get("cameras"), "diagnostics.cameras")
+    per_camera = _object(unc.get("cameras"), "uncertainty.cameras")
+    return FurtherKeys(
+        method=str(cal.extra.get("method", "unknown")),
+        sigma_px=_number(unc.get("sigma_px"), "uncertainty.sigma_px"),
+        scale_rel=_number(unc.get("scale_rel"), "uncertainty.scale_rel"),
+        diagnostics=diag,
+        camera_stats={k: _object(v, f"diagnostics.cameras.{k}") for k, v in stats.items()},
+        uncertainty={k: _camera_uncertainty(v, f"uncertainty.cameras.{k}") for k, v in per_camera.items()},
+        warnings=[str(w) for w in warnings],
+    )
+
+
+# ---------------------------------------------------------------- plots
+
+
+def _svg(fig) -> str:
+    import matplotlib
+
+    buf = io.StringIO()
+    # A fixed salt and no metadata (date, creator) keep the page the same for the same calibration;
+    # text stays text (searchable, small) rather than glyph outlines.
+    with matplotlib.rc_context({"svg.hashsalt": "camnet", "svg.fonttype": "none"}):
+        fig.savefig(buf, format="svg", metadata=dict.fromkeys(("Date", "Creator", "Format", "Type")))
+    text = buf.getvalue()
+    return text[text.index("<svg") :]
+
+
+def _figure(n_panels: int, *, columns: int, panel_in: tuple[float, float]):
+    from matplotlib.figure import Figure
+
+    rows = max(1, math.ceil(n_panels / columns))
+    cols = min(columns, max(1, n_panels))
+    fig = Figure(figsize=(panel_in[0] * cols, panel_in[1] * rows), layout="constrained")
+    axes = fig.subplots(rows, cols, squeeze=False).ravel()
+    for ax in axes[n_panels:]:
+        ax.set_visible(False)
+    return fig, axes
+
+
+def plot_per_point_errors(cal: Calibration, res: Residuals, limit_px: float) -> str:
+    """The paper's Fig. 5: per camera, the reprojection error (px) of each point against its track id.
+
+    The axis stops at twice the outlier limit (dashed); errors beyond it are
+    drawn as triangles on the top edge, so that outliers do not flatten the rest.
+    """
+    fig, axes = _figure(len(cal.cameras), columns=2, panel_in=(5.8, 2.6))
+    error = res.error_px
+    inside = error[error <= limit_px]
+    top = max(2.0 * limit_px if math.isfinite(limit_px) else 0.0, 1.1 * float(np.max(inside, initial=0.0)), 1e-3)
+    for m, (cam, ax) in enumerate(zip(cal.cameras, axes, strict=False)):
+        mine = res.cam_index == m
+        track, e = cal.point_ids[res.point_index[mine]], error[mine]
+        beyond = ~(e <= top)
+        ax.vlines(track, 0.0, np.minimum(e, top), color=camera_colour(m), linewidth=1.0)
+        ax.plot(track[~beyond], e[~beyond], "o", color=camera_colour(m), markersize=2.5)
+        ax.plot(track[beyond], np.full(beyond.sum(), 0.96 * top), "^", color="C3", markersize=6)
+        if math.isfinite(limit_px):
+            ax.axhline(limit_px, color="0.4", linestyle="--", linewidth=0.8)
+        ax.set_title(f"{cam.id}: {int(mine.sum())} observations, {int(beyond.sum())} off scale", fontsize=10)
+        ax.set_xlabel("point (track id)")
+        ax.set_ylabel("error (px)")
+        ax.set_ylim(0.0, top)
+        ax.grid(alpha=0.3)
+    return _svg(fig)
+
+
+def plot_residual_histograms(cal: Calibration, res: Residuals, limit_px: float, sigma_px: float | None) -> str:
+    """Per camera, histograms of the u and v residuals (px) within +-limit_px (outliers pile up at the
+    edges), with the normal density of sigma_px for comparison."""
+    fig, axes = _figure(len(cal.cameras), columns=4, panel_in=(2.9, 2.4))
+    if not math.isfinite(limit_px):
+        finite = np.abs(res.residual_px[np.all(np.isfinite(res.residual_px), axis=1)])
+        limit_px = float(np.max(finite, initial=1.0))
+    bins = np.linspace(-limit_px, limit_px, 31)
+    for m, (cam, ax) in enumerate(zip(cal.cameras, axes, strict=False)):
+        r = np.clip(res.residual_px[res.cam_index == m], -limit_px, limit_px)
+        ax.hist(r[:, 0], bins=bins, color=camera_colour(m), alpha=0.75, label="u")
+        ax.hist(r[:, 1], bins=bins, histtype="step", color="k", label="v")
+        if sigma_px and len(r):
+            x = np.linspace(-limit_px, limit_px, 200)
+            density = np.exp(-0.5 * (x / sigma_px) ** 2) / (sigma_px * math.sqrt(2 * math.pi))
+            ax.plot(x, len(r) * (bins[1] - bins[0]) * density, "--", color="0.4", label=f"N(0, {sigma_px:.2f})")
+        ax.set_title(cam.id, fontsize=10)
+        ax.set_xlabel("residual (px)")
+        ax.legend(fontsize=7)
+    return _svg(fig)
+
+
+def plot_uncertainty(cal: Calibration, per_camera: dict[str, dict]) -> str:
+    """Per camera, 1-sigma of the intrinsics (px), the centre (mm) and the rotation (deg); held is 0."""
+    panels = [
+        ("intrinsics (px)", ["f", "cx", "cy"], lambda u: [u["f_px"], u["cx_px"], u["cy_px"]]),
+        ("centre (mm)", ["x", "y", "z"], lambda u: [1e3 * v for v in u["centre_m"] or [0.0] * 3]),
+        ("rotation (deg)", ["x", "y", "z"], lambda u: u["rotation_deg"] or [0.0] * 3),
+    ]
+    fig, axes = _figure(len(panels), columns=3, panel_in=(3.9, 2.9))
+    width = 0.8 / max(1, len(cal.cameras))
+    for ax, (title, labels, values) in zip(axes, panels, strict=True):
+        for m, cam in enumerate(cal.cameras):
+            if cam.id not in per_camera:
+                continue
+            heights = [v or 0.0 for v in values(per_camera[cam.id])]
+            x = np.arange(len(labels)) + (m + 0.5) * width - 0.4
+            ax.bar(x, heights, width=width, color=camera_colour(m), label=cam.id)
+        ax.set_xticks(np.arange(len(labels)), labels)
+        ax.set_title(f"1 sigma: {title}", fontsize=10)
+        ax.grid(axis="y", alpha=0.3)
+    axes[0].legend(fontsize=7)
+    return _svg(fig)
+
+
+def plot_bounding_box(cal: Calibration, box: BoundingBox) -> str:
+    """The cloud seen from the front (X-Y) and the side (Z-Y), in mm, with its bounding box."""
+    from matplotlib.patches import Rectangle
+
+    fig, axes = _figure(2, columns=2, panel_in=(4.6, 4.2))
+    P = 1e3 * cal.points
+    lo, hi = 1e3 * box.min_m, 1e3 * box.max_m
+    for ax, (i, j), name in zip(axes, [(0, 1), (2, 1)], ["front (X-Y)", "side (Z-Y)"], strict=True):
+        ax.add_patch(Rectangle((lo[i], lo[j]), hi[i] - lo[i], hi[j] - lo[j], fill=False, color="C3", linewidth=1.5))
+        ax.plot(P[:, i], P[:, j], ".", color="0.2", markersize=3)
+        ax.set_xlabel(f"{'XYZ'[i]} (mm)")
+        ax.set_ylabel(f"{'XYZ'[j]} (mm, down)")
+        ax.set_title(f"{name}: {hi[i] - lo[i]:.1f} x {hi[j] - lo[j]:.1f} mm", fontsize=10)
+        ax.invert_yaxis()  # camera y points down
+        ax.set_aspect("equal", adjustable="datalim")
+    return _svg(fig)
+
+
+def frustum_xz(cam, depth_m: float) -> np.ndarray:
+    """World (x, z) of the camera centre and its horizontal field of view's edges at `depth_m`.
+
+    Rays through the left and right image borders (u = -0.5 and width - 0.5
+    at the principal point's row), undistorted, go from the camera frame
+    to the world by ``X = R.T @ (x_cam - t)``. Returns (3, 2): centre, left
+    edge, right edge.
+    """
+    import cv2
+
+    cy = cam.K[1, 2]
+    border = np.array([[[-0.5, cy]], [[cam.width - 0.5, cy]]])
+    xn = cv2.undistortPoints(border, cam.K, cam.dist).reshape(-1, 2)
+    rays = np.hstack([xn, np.ones((2, 1))]) * depth_m
+    world = (rays - cam.t) @ cam.R
+    return np.vstack([cam.centre, world])[:, [0, 2]]
+
+
+def plot_layout(cal: Calibration) -> str:
+    """Cameras (frusta) and points in the world X-Z plane, seen from above (X right, Z forward)."""
+    fig, axes = _figure(1, columns=1, panel_in=(7.0, 6.0))
+    ax = axes[0]
+    centres = np.array([cam.centre for cam in cal.cameras])
+    span = np.vstack([centres, cal.points]) if len(cal.points) else centres
+    depth = 0.25 * max(float(np.ptp(span[:, [0, 2]], axis=0).max()), 1e-3)
+    if len(cal.points):
+        ax.plot(cal.points[:, 0], cal.points[:, 2], ".", color="0.4", markersize=3, label="points")
+    for m, cam in enumerate(cal.cameras):
+        c, left, right = frustum_xz(cam, depth)
+        ax.fill([c[0], left[0], right[0]], [c[1], left[1], right[1]], color=camera_colour(m), alpha=0.25)
+        ax.plot([left[0], c[0], right[0]], [left[1], c[1], right[1]], color=camera_colour(m), linewidth=1.5)
+        ax.annotate(cam.id, c, textcoords="offset points", xytext=(4, -12), fontsize=9, color=camera_colour(m))
+    ax.set_xlabel("X (m)")
+    ax.set_ylabel("Z (m)")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.grid(alpha=0.3)
+    ax.set_title(f"world frame: camera {cal.world_frame}", fontsize=10)
+    return _svg(fig)
+
+
+# ---------------------------------------------------------------- tables
+
+
+def _esc(value: Any) -> str:
+    return html.escape(str(value))
+
+
+def _fmt(x: Any, digits: int) -> str:
+    if isinstance(x, bool) or x is None:
+        return _esc(x)
+    if isinstance(x, int | float | np.floating) and math.isfinite(x):
+        return f"{x:.{digits}f}"
+    return _esc(x)
+
+
+def _table(header: list[str], rows: list[list[str]]) -> str:
+    head = "".join(f"<th>{_esc(h)}</th>" for h in header)
+    body = "".join("<tr>" + "".join(f"<td>{c}</td>" for c in row) + "</tr>" for row in rows)
+    return f"<table><tr>{head}</tr>{body}</table>"
+
+
+def _summary(cal: Calibration, fk: FurtherKeys, res: Residuals | None) -> str:
+    diag = fk.diagnostics
+    rows = [
+        ["world frame", _esc(cal.world_frame)],
+        ["method", _esc(fk.method)],
+        ["cameras", str(len(cal.cameras))],
+        ["points", str(len(cal.points))],
+        ["reprojection RMS (px)", _fmt(cal.rms_reprojection_px, 3)],
+        ["pixel noise sigma (px)", _fmt(fk.sigma_px, 3)],
+        ["scale uncertainty (1 sigma, %)", _fmt(100 * fk.scale_rel, 4) if fk.scale_rel is not None else "n/a"],
+        ["converged", f"{_esc(diag.get('converged', 'n/a'))} ({_esc(diag.get('reason', 'no reason given'))})"],
+        ["observations / inliers", f"{_esc(diag.get('observations', 'n/a'))} / {_esc(diag.get('inliers', 'n/a'))}"],
+        ["median parallax (deg)", _fmt(diag.get("median_parallax_deg"), 2)],
+    ]
+    if res is not None:
+        rows.append(["observations of dropped tracks", str(res.dropped_observations)])
+    return _table(["quantity", "value"], rows)
+
+
+def _camera_table(cal: Calibration, fk: FurtherKeys) -> str:
+    rows = []
+    for cam in cal.cameras:
+        d, u = fk.camera_stats.get(cam.id, {}), fk.uncertainty.get(cam.id, {})
+        rows.append(
+            [
+                _esc(cam.id),
+                f"{cam.width}x{cam.height}",
+                *(_fmt(x, 1) for x in (cam.K[0, 0], cam.K[1, 1], cam.K[0, 2], cam.K[1, 2])),
+                " ".join(f"{x:.4g}" for x in cam.dist),
+                " ".join(_fmt(1e3 * x, 1) for x in cam.centre),
+                _fmt(u.get("f_px"), 2),
+                f"{_fmt(u.get('cx_px'), 2)} / {_fmt(u.get('cy_px'), 2)}",
+                _fmt(d.get("rms_px"), 3),
+                _esc(d.get("inliers", "n/a")),
+            ]
+        )
+    header = ["camera", "size", "fx", "fy", "cx", "cy", "k1 k2 p1 p2 k3", "centre X Y Z (mm)", "sigma f (px)"]
+    return _table([*header, "sigma cx / cy (px)", "RMS (px)", "inliers"], rows)
+
+
+def _uncertainty_table(cal: Calibration, per_camera: dict[str, dict]) -> str:
+    rows = []
+    for cam in cal.cameras:
+        u = per_camera.get(cam.id)
+        if u is None:
+            continue
+        rows.append(
+            [
+                _esc(cam.id),
+                *(_fmt(u[k], 3) for k in ("f_px", "cx_px", "cy_px")),
+                *(f"{u[k]:.3g}" if u[k] is not None else "n/a" for k in ("k1", "k2")),
+                " ".join(_fmt(1e3 * x, 3) for x in u["centre_m"]) if u["centre_m"] else "n/a",
+                " ".join(_fmt(x, 4) for x in u["rotation_deg"]) if u["rotation_deg"] else "n/a",
+            ]
+        )
+    header = ["camera", "f (px)", "cx (px)", "cy (px)", "k1", "k2", "centre X Y Z (mm)", "rotation x y z (deg)"]
+    return _table(header, rows)
+
+
+def _bounding_box_text(box: BoundingBox) -> str:
+    sx, sy, sz = box.size_mm
+    lo, hi = 1e3 * box.min_m, 1e3 * box.max_m
+    rows = [[axis, _fmt(lo[i], 1), _fmt(hi[i], 1), _fmt(box.size_mm[i], 1)] for i, axis in enumerate("XYZ")]
+    return (
+        f"<p>The cloud fits inside a box of <b>{sx:.1f} mm x {sy:.1f} mm x {sz:.1f} mm</b> (X x Y x Z), "
+        "axes of the world frame.</p>" + _table(["axis", "min (mm)", "max (mm)", "size (mm)"], rows)
+    )
+
+
+# ---------------------------------------------------------------- the page
+
+
+def render_report(cal: Calibration, obs: Observations | None = None, *, title: str = "camnet calibration") -> str:
+    """The whole HTML page of `cal`; with `obs`, also the per-point errors and histograms."""
+    fk = further_keys(cal)
+    res = reprojection_residuals(cal, obs) if obs is not None else None
+    limit_px = outlier_limit_px(cal)
+    box = bounding_box(cal.points)
+    needs_observations = f'<p class="note">{NEEDS_OBSERVATIONS}</p>'
+    body = {
+        "summary": _summary(cal, fk, res),
+        "warnings": "".join(f'<p class="warning">{_esc(w)}</p>' for w in fk.warnings) or '<p class="note">None.</p>',
+        "cameras": _camera_table(cal, fk),
+        "reprojection": plot_per_point_errors(cal, res, limit_px) if res is not None else needs_observations,
+        "residuals": plot_residual_histograms(cal, res, limit_px, fk.sigma_px)
+        if res is not None
+        else needs_observations,
+        "uncertainty": _uncertainty_table(cal, fk.uncertainty) + plot_uncertainty(cal, fk.uncertainty)
+        if fk.uncertainty
+        else '<p class="note">The calibration holds no uncertainty.</p>',
+        "bounding-box": _bounding_box_text(box) + plot_bounding_box(cal, box)
+        if box is not None
+        else '<p class="note">The calibration holds no points.</p>',
+        "layout": plot_layout(cal),
+    }
+    sections = "".join(f'<section id="{key}"><h2>{SECTIONS[key]}</h2>{body[key]}</section>\n' for key in SECTIONS)
+    return (
+        f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"><title>{_esc(title)}</title>'
+        f"<style>{CSS}</style></head>\n<body><h1>{_esc(title)}</h1>\n{sections}</body></html>\n"
+    )

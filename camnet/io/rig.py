@@ -1,0 +1,554 @@
+"""The rig file (YAML): which cameras a rig has, how to drive each, and the stereo pair.
+
+Parsed into frozen, validated dataclasses; one config dataclass per driver.
+Every error is an InputError naming the field, e.g.
+``cameras[2].driver: unknown driver 'foo' (expected sim, aravis, v4l2)``.
+Unknown keys are refused too, so that a typo never silently falls back to a
+default. The format is documented in config/README.md.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from camnet.bus.keys import validate_id
+from camnet.errors import InputError
+from camnet.geometry.camera import Camera, look_at
+from camnet.io.formats import parse_matrix
+
+DRIVERS = ("sim", "aravis", "v4l2")
+SIM_ENCODINGS = ("mono8", "mono16", "bgr8", "rgb8")
+V4L2_ENCODINGS = ("bgr8", "mono8")
+
+
+@dataclass(frozen=True)
+class StereoPair:
+    """The stereo pair; R, t (when known, a factory-calibrated head) the right camera's pose in the left's frame.
+
+    x_right = R x_left + t, t in metres, |t| = baseline_m.
+    """
+
+    left: str
+    right: str
+    baseline_m: float
+    R: np.ndarray | None = None
+    t: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """A simulated camera: ideal pinhole + OpenCV distortion, pose from its centre and target.
+
+    With `look_at_m` absent the camera has R = I (axes along the world's).
+    `noise_sigma_dn` is the std of additive Gaussian sensor noise in digital numbers.
+    """
+
+    width: int
+    height: int
+    encoding: str
+    fps: float
+    fx_px: float
+    fy_px: float
+    cx_px: float
+    cy_px: float
+    dist: tuple[float, ...]
+    centre_m: tuple[float, float, float]
+    look_at_m: tuple[float, float, float] | None
+    up: tuple[float, float, float]
+    noise_sigma_dn: float
+
+    def camera(self, camera_id: str) -> Camera:
+        """The ground-truth camnet.geometry.camera.Camera of this simulated camera."""
+        K = np.array([[self.fx_px, 0.0, self.cx_px], [0.0, self.fy_px, self.cy_px], [0, 0, 1.0]])
+        centre = np.array(self.centre_m, dtype=float)
+        if self.look_at_m is None:
+            R = np.eye(3)
+            t = -centre
+        else:
+            R, t = look_at(centre, np.array(self.look_at_m), np.array(self.up))
+        dist = np.zeros(5)
+        dist[: len(self.dist)] = self.dist
+        return Camera(id=camera_id, width=self.width, height=self.height, K=K, dist=dist, R=R, t=t)
+
+
+@dataclass(frozen=True)
+class AravisConfig:
+    """A GigE Vision / USB3 Vision camera through Aravis.
+
+    `device_id`: Aravis device id ("<vendor>-<serial>"), serial, or IP address; None
+    picks the first camera found. Optional features are set only when given and
+    when the camera has them.
+    """
+
+    device_id: str | None
+    pixel_format: str
+    width: int | None
+    height: int | None
+    fps: float | None
+    exposure_us: float | None
+    gain_db: float | None
+    packet_size: int | None
+    n_buffers: int
+    enable_fake_interface: bool
+
+
+@dataclass(frozen=True)
+class V4l2Config:
+    """A V4L2 device path, a video file, or an image-sequence glob pattern, via OpenCV.
+
+    `fps` paces files and sequences (and is requested from devices); `loop`
+    restarts a file or sequence at its end. An image sequence with a
+    `timestamps` file (KITTI's format, one line per frame index) is stamped
+    with the recorded capture times and, without `fps`, published at the
+    recorded pace times `speed`; `frame_range` (first, last frame index) is
+    one pass of it (see drivers/v4l2.py).
+    """
+
+    source: str
+    width: int | None
+    height: int | None
+    fps: float | None
+    fourcc: str | None
+    encoding: str
+    loop: bool
+    timestamps: str | None = None
+    speed: float = 1.0
+    frame_range: tuple[int, int] | None = None
+
+
+@dataclass(frozen=True)
+class KnownIntrinsics:
+    """What is known of a camera's intrinsics before calibrating (the observations' K, dist, fixed).
+
+    K in pixels (pixel origin at the centre of the top-left pixel), dist in
+    OpenCV's order [k1, k2, p1, p2, k3]; `fixed` names what the solver holds.
+    """
+
+    K: np.ndarray | None
+    dist: np.ndarray | None
+    fixed: frozenset[str]
+
+
+@dataclass(frozen=True)
+class SyncSettings:
+    """How the matcher forms frame sets of this rig (its flags override these)."""
+
+    tolerance_ms: float | None
+    max_wait_s: float | None
+
+
+@dataclass(frozen=True)
+class CameraEntry:
+    id: str
+    driver: str
+    config: SimConfig | AravisConfig | V4l2Config
+    intrinsics: KnownIntrinsics | None = None
+
+
+@dataclass(frozen=True)
+class SceneConfig:
+    """The simulated scene: a textured box on a floor before a textured wall (metres).
+
+    World frame = the left camera's: x right, y down, z forward. The box
+    turns about the vertical axis through its centre at `box_rotation_deg_per_s`.
+    """
+
+    seed: int
+    box_centre_m: tuple[float, float, float]
+    box_size_m: tuple[float, float, float]
+    box_rotation_deg_per_s: float
+    wall_z_m: float
+    wall_x_range_m: tuple[float, float]
+    wall_y_range_m: tuple[float, float]
+    floor_y_m: float
+    floor_z_range_m: tuple[float, float]
+
+
+@dataclass(frozen=True)
+class Rig:
+    name: str
+    cameras: tuple[CameraEntry, ...]
+    stereo: StereoPair | None
+    scene: SceneConfig
+    source: str = "<memory>"
+    sync: SyncSettings | None = None
+
+    def camera(self, camera_id: str) -> CameraEntry:
+        for entry in self.cameras:
+            if entry.id == camera_id:
+                return entry
+        known = ", ".join(c.id for c in self.cameras)
+        raise InputError(f"{self.source}: no camera {camera_id!r} in rig {self.name!r} "
+                         f"(cameras: {known})")
+
+    def simulated_truth(self) -> list[Camera]:
+        """The simulated cameras' ground truth in the left stereo camera's frame (a calibration's world).
+
+        Empty unless every camera is simulated and the rig has a stereo pair.
+        """
+        if self.stereo is None or any(entry.driver != "sim" for entry in self.cameras):
+            return []
+        cameras = [entry.config.camera(entry.id) for entry in self.cameras]
+        left = next(c for c in cameras if c.id == self.stereo.left)
+        # x_left = R_l X + t_l, so X = R_l^T (x_left - t_l) and x_cam = R R_l^T x_left + (t - R R_l^T t_l).
+        out = []
+        for cam in cameras:
+            R = cam.R @ left.R.T
+            out.append(replace(cam, R=R, t=cam.t - R @ left.t))
+        return out
+
+
+class _Section:
+    """Typed reads of one mapping of the rig file, with errors naming the field path."""
+
+    def __init__(self, data: Any, path: str) -> None:
+        if not isinstance(data, dict):
+            raise InputError(f"{path or 'rig file'}: expected a mapping, got {_kind(data)}")
+        self.data = data
+        self.path = path
+        self.used: set[str] = set()
+
+    def field(self, key: str) -> str:
+        return f"{self.path}.{key}" if self.path else key
+
+    def raw(self, key: str, default: Any = ..., *, required: bool = False) -> Any:
+        self.used.add(key)
+        if key not in self.data or self.data[key] is None:
+            if required or default is ...:
+                raise InputError(f"{self.field(key)}: missing")
+            return default
+        return self.data[key]
+
+    def section(self, key: str, *, required: bool = True) -> _Section:
+        value = self.raw(key, {} if not required else ..., required=required)
+        return _Section(value, self.field(key))
+
+    def number(self, key: str, default: Any = ..., *, positive: bool = False,
+               minimum: float | None = None) -> float:
+        value = self.raw(key, default)
+        if value is default and default is not ...:
+            return value
+        if isinstance(value, bool) or not isinstance(value, int | float) or \
+                not math.isfinite(value):
+            raise InputError(f"{self.field(key)}: expected a finite number, got {value!r}")
+        if positive and value <= 0:
+            raise InputError(f"{self.field(key)}: must be positive, got {value!r}")
+        if minimum is not None and value < minimum:
+            raise InputError(f"{self.field(key)}: must be at least {minimum}, got {value!r}")
+        return float(value)
+
+    def integer(self, key: str, default: Any = ..., *, positive: bool = False) -> int:
+        value = self.raw(key, default)
+        if value is default and default is not ...:
+            return value
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise InputError(f"{self.field(key)}: expected an integer, got {value!r}")
+        if positive and value <= 0:
+            raise InputError(f"{self.field(key)}: must be positive, got {value!r}")
+        return int(value)
+
+    def string(self, key: str, default: Any = ..., *, choices: tuple[str, ...] = ()) -> str:
+        value = self.raw(key, default)
+        if value is default and default is not ...:
+            return value
+        if not isinstance(value, str) or not value:
+            raise InputError(f"{self.field(key)}: expected a non-empty string, got {value!r}")
+        if choices and value not in choices:
+            raise InputError(f"{self.field(key)}: unknown value {value!r} "
+                             f"(expected {', '.join(choices)})")
+        return value
+
+    def boolean(self, key: str, default: bool) -> bool:
+        value = self.raw(key, default)
+        if not isinstance(value, bool):
+            raise InputError(f"{self.field(key)}: expected true or false, got {value!r}")
+        return value
+
+    def matrix(self, key: str, rows: int, cols: int, default: Any = ...) -> np.ndarray:
+        value = self.raw(key, default)
+        if value is default and default is not ...:
+            return value
+        return parse_matrix(value, rows, cols, self.field(key))
+
+    def vector(self, key: str, size: int, default: Any = ...) -> tuple[float, ...]:
+        value = self.raw(key, default)
+        if value is default and default is not ...:
+            return value
+        ok = isinstance(value, list | tuple) and len(value) == size and all(
+            not isinstance(v, bool) and isinstance(v, int | float) and math.isfinite(v)
+            for v in value)
+        if not ok:
+            raise InputError(f"{self.field(key)}: expected {size} finite numbers, got {value!r}")
+        return tuple(float(v) for v in value)
+
+    def finish(self) -> None:
+        """Refuse keys that were never read: they are typos or unsupported options."""
+        unknown = sorted(set(self.data) - self.used, key=str)
+        if unknown:
+            raise InputError(f"{self.field(str(unknown[0]))}: unknown key "
+                             f"(known: {', '.join(sorted(self.used))})")
+
+
+def _kind(value: Any) -> str:
+    return "nothing" if value is None else type(value).__name__
+
+
+def _sim(s: _Section) -> SimConfig:
+    if "f_px" in s.data:
+        fx = fy = s.number("f_px", positive=True)
+    else:
+        fx, fy = s.number("fx_px", positive=True), s.number("fy_px", positive=True)
+    width, height = s.integer("width", positive=True), s.integer("height", positive=True)
+    dist = s.raw("dist", [])
+    if not isinstance(dist, list) or len(dist) > 5 or not all(
+            isinstance(d, int | float) and not isinstance(d, bool) and math.isfinite(d)
+            for d in dist):
+        raise InputError(f"{s.field('dist')}: expected up to 5 finite numbers "
+                         f"[k1, k2, p1, p2, k3], got {dist!r}")
+    config = SimConfig(
+        width=width, height=height,
+        encoding=s.string("encoding", "mono8", choices=SIM_ENCODINGS),
+        fps=s.number("fps", 30.0, positive=True),
+        fx_px=fx, fy_px=fy,
+        cx_px=s.number("cx_px", (width - 1) / 2.0),
+        cy_px=s.number("cy_px", (height - 1) / 2.0),
+        dist=tuple(float(d) for d in dist),
+        centre_m=s.vector("centre_m", 3, (0.0, 0.0, 0.0)),
+        look_at_m=s.vector("look_at_m", 3, None),
+        up=s.vector("up", 3, (0.0, -1.0, 0.0)),
+        noise_sigma_dn=s.number("noise_sigma_dn", 2.0, minimum=0.0),
+    )
+    s.finish()
+    return config
+
+
+def _optional_positive(s: _Section, key: str, *, integer: bool = False):
+    return s.integer(key, None, positive=True) if integer else s.number(key, None, positive=True)
+
+
+def _aravis(s: _Section) -> AravisConfig:
+    device_id = s.raw("device_id", None)
+    if device_id is not None and not isinstance(device_id, str):
+        device_id = str(device_id)
+    config = AravisConfig(
+        device_id=device_id,
+        pixel_format=s.string("pixel_format", "Mono8"),
+        width=_optional_positive(s, "width", integer=True),
+        height=_optional_positive(s, "height", integer=True),
+        fps=_optional_positive(s, "fps"),
+        exposure_us=_optional_positive(s, "exposure_us"),
+        gain_db=s.number("gain_db", None, minimum=0.0),
+        packet_size=_optional_positive(s, "packet_size", integer=True),
+        n_buffers=s.integer("n_buffers", 8, positive=True),
+        enable_fake_interface=s.boolean("enable_fake_interface", False),
+    )
+    s.finish()
+    return config
+
+
+def _v4l2(s: _Section) -> V4l2Config:
+    fourcc = s.raw("fourcc", None)
+    if fourcc is not None and (not isinstance(fourcc, str) or len(fourcc) != 4):
+        raise InputError(f"{s.field('fourcc')}: expected 4 characters such as MJPG, "
+                         f"got {fourcc!r}")
+    config = V4l2Config(
+        source=s.string("source"),
+        width=_optional_positive(s, "width", integer=True),
+        height=_optional_positive(s, "height", integer=True),
+        fps=_optional_positive(s, "fps"),
+        fourcc=fourcc,
+        encoding=s.string("encoding", "bgr8", choices=V4L2_ENCODINGS),
+        loop=s.boolean("loop", False),
+        timestamps=s.string("timestamps", None),
+        speed=s.number("speed", 1.0, positive=True),
+        frame_range=_frame_range(s),
+    )
+    if config.timestamps is None:
+        for key in ("speed", "frame_range"):
+            if key in s.data:
+                raise InputError(f"{s.field(key)}: only for an image sequence with a 'timestamps' file")
+    elif not is_image_pattern(config.source):
+        raise InputError(f"{s.field('timestamps')}: only for an image sequence (a glob 'source'), "
+                         f"not {config.source!r}")
+    if config.fps is not None and "speed" in s.data:
+        raise InputError(f"{s.field('speed')}: scales the recorded pace; with 'fps' the pace is fixed "
+                         "(give one of them)")
+    s.finish()
+    return config
+
+
+def is_image_pattern(source: str) -> bool:
+    """Whether a v4l2 `source` is a glob of image files (else a device or a video file)."""
+    return any(ch in source for ch in "*?[")
+
+
+def _frame_range(s: _Section) -> tuple[int, int] | None:
+    value = s.raw("frame_range", None)
+    if value is None:
+        return None
+    ok = isinstance(value, list) and len(value) == 2 and all(
+        isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in value)
+    if not ok or value[0] > value[1]:
+        raise InputError(f"{s.field('frame_range')}: expected [first, last] frame indices with "
+                         f"0 <= first <= last, got {value!r}")
+    return int(value[0]), int(value[1])
+
+
+def _intrinsics(s: _Section) -> KnownIntrinsics:
+    K = s.matrix("K", 3, 3, None)
+    upper_triangular = K is None or (K[0, 0] > 0 and K[1, 1] > 0 and K[1, 0] == 0 and np.array_equal(K[2], [0, 0, 1]))
+    if not upper_triangular:
+        raise InputError(f"{s.field('K')}: expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with "
+                         f"fx, fy > 0, got {K.tolist()}")
+    dist = s.raw("dist", None)
+    if dist is not None:
+        if not isinstance(dist, list) or len(dist) > 5 or not all(
+                isinstance(d, int | float) and not isinstance(d, bool) and math.isfinite(d) for d in dist):
+            raise InputError(f"{s.field('dist')}: expected up to 5 finite numbers "
+                             f"[k1, k2, p1, p2, k3], got {dist!r}")
+        dist = np.pad(np.array(dist, dtype=float), (0, 5 - len(dist)))
+    given = [name for name, value in (("K", K), ("dist", dist)) if value is not None]
+    if not given:
+        raise InputError(f"{s.path}: give K, dist or both")
+    fixed = s.raw("fixed", given)
+    if not isinstance(fixed, list) or not all(name in given for name in fixed):
+        raise InputError(f"{s.field('fixed')}: expected a list drawn from the given {given}, got {fixed!r}")
+    s.finish()
+    return KnownIntrinsics(K=K, dist=dist, fixed=frozenset(fixed))
+
+
+def _sync(s: _Section) -> SyncSettings:
+    settings = SyncSettings(tolerance_ms=s.number("tolerance_ms", None, minimum=0.0),
+                            max_wait_s=s.number("max_wait_s", None, minimum=0.0))
+    s.finish()
+    return settings
+
+
+_DRIVER_PARSERS = {"sim": _sim, "aravis": _aravis, "v4l2": _v4l2}
+
+
+def _camera(s: _Section) -> CameraEntry:
+    camera_id = s.raw("id", required=True)
+    if not isinstance(camera_id, str):
+        raise InputError(f"{s.field('id')}: expected a string, got {camera_id!r}")
+    validate_id(camera_id, what=s.field("id"))
+    driver = s.raw("driver", required=True)
+    if driver not in DRIVERS:
+        raise InputError(f"{s.field('driver')}: unknown driver {driver!r} "
+                         f"(expected {', '.join(DRIVERS)})")
+    config = _DRIVER_PARSERS[driver](s.section(driver))
+    intrinsics = _intrinsics(s.section("intrinsics")) if s.data.get("intrinsics") is not None else None
+    s.used.add("intrinsics")
+    s.finish()
+    return CameraEntry(id=camera_id, driver=driver, config=config, intrinsics=intrinsics)
+
+
+def _range(s: _Section, key: str, default: tuple[float, float]) -> tuple[float, float]:
+    lo, hi = s.vector(key, 2, default)
+    if not lo < hi:
+        raise InputError(f"{s.field(key)}: expected [low, high] with low < high, got {[lo, hi]}")
+    return lo, hi
+
+
+def _scene(s: _Section) -> SceneConfig:
+    size = s.vector("box_size_m", 3, (0.10, 0.17, 0.08))
+    if min(size) <= 0:
+        raise InputError(f"{s.field('box_size_m')}: sizes must be positive, got {list(size)}")
+    scene = SceneConfig(
+        seed=s.integer("seed", 7),
+        box_centre_m=s.vector("box_centre_m", 3, (0.0625, 0.0, 0.65)),
+        box_size_m=size,
+        box_rotation_deg_per_s=s.number("box_rotation_deg_per_s", 5.0),
+        wall_z_m=s.number("wall_z_m", 1.2, positive=True),
+        wall_x_range_m=_range(s, "wall_x_range_m", (-1.5, 1.6)),
+        wall_y_range_m=_range(s, "wall_y_range_m", (-0.8, 0.25)),
+        floor_y_m=s.number("floor_y_m", 0.25),
+        floor_z_range_m=_range(s, "floor_z_range_m", (0.2, 1.2)),
+    )
+    s.finish()
+    return scene
+
+
+def parse_rig(data: Any, *, source: str = "<memory>") -> Rig:
+    """The Rig described by `data` (the YAML document as Python objects)."""
+    try:
+        return _parse_rig(data, source)
+    except InputError as exc:
+        raise InputError(f"{source}: {exc}") from None
+
+
+def _parse_rig(data: Any, source: str) -> Rig:
+    top = _Section(data, "")
+    name = top.raw("rig", required=True)
+    if not isinstance(name, str):
+        raise InputError(f"rig: expected a string, got {name!r}")
+    validate_id(name, what="rig")
+    raw_cameras = top.raw("cameras", required=True)
+    if not isinstance(raw_cameras, list) or not raw_cameras:
+        raise InputError(f"cameras: expected a non-empty list, got {raw_cameras!r}")
+    cameras = tuple(_camera(_Section(c, f"cameras[{i}]")) for i, c in enumerate(raw_cameras))
+    seen: dict[str, int] = {}
+    for i, cam in enumerate(cameras):
+        if cam.id in seen:
+            raise InputError(f"cameras[{i}].id: duplicate id {cam.id!r} "
+                             f"(also cameras[{seen[cam.id]}])")
+        seen[cam.id] = i
+    stereo = None
+    if top.raw("stereo", None) is not None:
+        st = top.section("stereo")
+        left, right = st.string("left"), st.string("right")
+        for key, cid in (("left", left), ("right", right)):
+            if cid not in seen:
+                raise InputError(f"{st.field(key)}: no camera {cid!r} in cameras "
+                                 f"(have {', '.join(seen)})")
+        if left == right:
+            raise InputError(f"{st.field('right')}: must differ from stereo.left")
+        stereo = _stereo_pose(st, StereoPair(left=left, right=right,
+                                             baseline_m=st.number("baseline_m", positive=True)), cameras)
+        st.finish()
+    scene = _scene(top.section("scene", required=False))
+    sync = _sync(top.section("sync")) if top.data.get("sync") is not None else None
+    top.used.add("sync")
+    top.finish()
+    return Rig(name=name, cameras=cameras, stereo=stereo, scene=scene, source=source, sync=sync)
+
+
+def _stereo_pose(st: _Section, pair: StereoPair, cameras: tuple[CameraEntry, ...]) -> StereoPair:
+    """The pair with its known pose (stereo.R, stereo.t), checked, when the rig file gives one."""
+    R, t = st.matrix("R", 3, 3, None), st.vector("t", 3, None)
+    if R is None and t is None:
+        return pair
+    if R is None or t is None:
+        raise InputError(f"{st.field('R' if R is None else 't')}: missing; a known stereo pose needs both R and t "
+                         "(the right camera's pose in the left's frame, x_right = R x_left + t)")
+    if not (np.allclose(R @ R.T, np.eye(3), atol=1e-5) and np.linalg.det(R) > 0):
+        raise InputError(f"{st.field('R')}: not a rotation matrix (R R^T = I, det R = 1)")
+    t = np.array(t)
+    if abs(np.linalg.norm(t) - pair.baseline_m) > 1e-3 * pair.baseline_m:
+        raise InputError(f"{st.field('t')}: its length {np.linalg.norm(t):.6g} m differs from "
+                         f"stereo.baseline_m {pair.baseline_m:.6g} m")
+    for cam in cameras:
+        if cam.id in (pair.left, pair.right) and (cam.intrinsics is None or cam.intrinsics.K is None):
+            raise InputError(f"{st.field('R')}: a known stereo pose needs intrinsics.K of camera {cam.id!r}")
+    return replace(pair, R=R, t=t)
+
+
+def load_rig(path: str | Path) -> Rig:
+    """Read and validate a rig file."""
+    import yaml
+
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read rig file: {exc.strerror}") from exc
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise InputError(f"{path}: not valid YAML: {exc}") from exc
+    return parse_rig(data, source=str(path))

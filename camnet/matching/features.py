@@ -1,0 +1,396 @@
+"""Features and pairwise matching for one synchronized frame set.
+
+Pure functions on numpy arrays: no I/O, no bus. The matcher node calls
+`match_frame_set` once per frame set and hands the result to
+`camnet.matching.tracks.build_tracks`.
+
+Conventions: pixels ``(u, v)``, ``u`` to the right, ``v`` down, origin at the
+centre of the top-left pixel (OpenCV's keypoint convention, so keypoints are
+used as they come). Images are ``(H, W)`` grey or ``(H, W, 3)`` BGR, uint8.
+"""
+
+from __future__ import annotations
+
+import enum
+import logging
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from camnet.io.formats import Stereo
+
+log = logging.getLogger(__name__)
+
+# Rows of the descriptor-distance matrix computed at once: bounds memory at
+# ROW_BLOCK x n_b float32 whatever the feature count.
+ROW_BLOCK = 2048
+
+
+class Detector(enum.StrEnum):
+    SIFT = "sift"  # default: accurate, scale and rotation invariant
+    ORB = "orb"  # fast option: binary descriptors, Hamming distance
+
+
+@dataclass(frozen=True)
+class MatcherConfig:
+    """How features are detected and matched.
+
+    Stereo prior: for the stereo pair (left, right), a candidate match must
+    lie within `row_tolerance_px` of the same image row and have disparity
+    ``u_left - u_right >= min_disparity_px``. Real pairs are only nearly
+    parallel and distorted, so the band is generous; a small negative
+    `min_disparity_px` lets distant points through when the principal points
+    or a slight toe-in shift the zero of disparity.
+    """
+
+    detector: Detector = Detector.SIFT
+    max_features: int = 4000
+    ratio: float = 0.8  # Lowe's ratio: best distance < ratio * second best
+    cross_check: bool = True  # keep only mutual nearest neighbours
+    ransac_threshold_px: float = 1.0  # max distance to the epipolar line for an inlier
+    ransac_confidence: float = 0.999
+    ransac_max_iters: int = 10_000
+    min_matches: int = 15  # a pair with fewer RANSAC inliers contributes nothing
+    use_stereo_prior: bool = True
+    row_tolerance_px: float = 40.0
+    min_disparity_px: float = 0.0
+    # The best in-band candidate may be at most this factor worse than the best
+    # out-of-band one (1.1 tolerates repeated texture, rejects a missed partner).
+    prior_outside_margin: float = 1.1
+    max_image_side_px: int | None = None  # detect on a downscaled copy above this size
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.ratio <= 1.0:
+            raise ValueError(f"ratio must be in (0, 1], got {self.ratio}")
+        if self.max_features <= 0:
+            raise ValueError(f"max_features must be positive, got {self.max_features}")
+        if self.ransac_threshold_px <= 0:
+            raise ValueError(f"ransac_threshold_px must be > 0, got {self.ransac_threshold_px}")
+        if self.min_matches < 8:
+            raise ValueError(f"min_matches must be >= 8 (for F), got {self.min_matches}")
+        if self.row_tolerance_px < 0:
+            raise ValueError(f"row_tolerance_px must be >= 0, got {self.row_tolerance_px}")
+
+
+@dataclass(frozen=True)
+class Features:
+    """Keypoints of one image: pixels (n, 2) float64 and descriptors (n, d)."""
+
+    uv: np.ndarray  # (n, 2) pixels, camnet convention
+    descriptors: np.ndarray  # (n, d) float32 (SIFT) or uint8 (ORB)
+    detector: Detector
+
+    def __len__(self) -> int:
+        return len(self.uv)
+
+
+@dataclass(frozen=True)
+class PairMatches:
+    """RANSAC-verified matches between cameras `a` and `b` (indices into the frame set)."""
+
+    a: int
+    b: int
+    index_a: np.ndarray  # (m,) keypoint indices in image a
+    index_b: np.ndarray  # (m,) keypoint indices in image b
+    F: np.ndarray | None  # 3x3, x_b^T F x_a = 0 in pixels; None when too few matches
+    candidates: int  # matches before RANSAC (after ratio, cross check and prior)
+
+    def __len__(self) -> int:
+        return len(self.index_a)
+
+
+@dataclass(frozen=True)
+class FrameSetMatches:
+    """Features of every camera of one frame set and the verified matches of every pair."""
+
+    camera_ids: tuple[str, ...]
+    features: tuple[Features, ...]
+    pairs: tuple[PairMatches, ...] = field(default_factory=tuple)
+
+
+# ROS Bayer names -> OpenCV codes. OpenCV names a mosaic by the second row's
+# second and third pixels, so ROS rggb is OpenCV's BG (the mapping cv_bridge uses).
+_BAYER_TO_GREY = {
+    "bayer_rggb8": cv2.COLOR_BayerBG2GRAY,
+    "bayer_bggr8": cv2.COLOR_BayerRG2GRAY,
+    "bayer_gbrg8": cv2.COLOR_BayerGR2GRAY,
+    "bayer_grbg8": cv2.COLOR_BayerGB2GRAY,
+}
+
+
+def to_grey(image: np.ndarray, *, encoding: str | None = None) -> np.ndarray:
+    """uint8 grey image (H, W) from grey (H, W), (H, W, 1), BGR (H, W, 3) or BGRA.
+
+    `encoding` (a camnet.bus.frame encoding name) says what a frame's pixels are:
+    rgb8 is taken as RGB, bayer_* mosaics are demosaiced; without it three
+    channels are BGR. uint16 images (mono16) are shifted down to 8 bits keeping
+    their highest used bit, so 10- or 12-bit data in 16-bit words keeps its contrast.
+    """
+    image = np.asarray(image)
+    if image.dtype == np.uint16:
+        shift = max(0, int(image.max()).bit_length() - 8)
+        image = (image >> shift).astype(np.uint8)
+    if image.dtype != np.uint8:
+        raise ValueError(f"expected a uint8 or uint16 image, got {image.dtype}")
+    if encoding in _BAYER_TO_GREY and image.ndim == 2:
+        return cv2.cvtColor(image, _BAYER_TO_GREY[encoding])
+    if image.ndim == 2:
+        return image
+    if image.ndim == 3 and image.shape[2] == 1:
+        return image[:, :, 0]
+    if image.ndim == 3 and image.shape[2] == 3:
+        return cv2.cvtColor(image, cv2.COLOR_RGB2GRAY if encoding == "rgb8" else cv2.COLOR_BGR2GRAY)
+    if image.ndim == 3 and image.shape[2] == 4:
+        return cv2.cvtColor(image, cv2.COLOR_BGRA2GRAY)
+    raise ValueError(f"expected an (H, W) or (H, W, 1|3|4) image, got shape {image.shape}")
+
+
+def _make_detector(config: MatcherConfig):
+    if config.detector is Detector.SIFT:
+        # Without precise upscaling, OpenCV's SIFT doubles the image with a
+        # corner-origin convention and every keypoint lands 0.25 px right of
+        # and below the true position (measured on Gaussian blobs).
+        return cv2.SIFT_create(nfeatures=config.max_features, enable_precise_upscale=True)
+    # FAST threshold lowered from 20 so that low-contrast scenes still yield features.
+    return cv2.ORB_create(nfeatures=config.max_features, fastThreshold=10)
+
+
+def detect(image: np.ndarray, config: MatcherConfig = MatcherConfig()) -> Features:
+    """Detect keypoints and descriptors in one image.
+
+    Above `config.max_image_side_px` the image is downscaled by s for
+    detection and the keypoints mapped back with ``u = (u_s + 0.5) * s - 0.5``,
+    which keeps the origin at the centre of the top-left pixel.
+    """
+    grey = to_grey(image)
+    scale = 1.0
+    limit = config.max_image_side_px
+    if limit is not None and max(grey.shape) > limit:
+        scale = max(grey.shape) / limit
+        size = (round(grey.shape[1] / scale), round(grey.shape[0] / scale))
+        grey = cv2.resize(grey, size, interpolation=cv2.INTER_AREA)
+    keypoints, descriptors = _make_detector(config).detectAndCompute(grey, None)
+    n = len(keypoints)
+    if n == 0 or descriptors is None:
+        width = 128 if config.detector is Detector.SIFT else 32
+        dtype = np.float32 if config.detector is Detector.SIFT else np.uint8
+        return Features(np.empty((0, 2)), np.empty((0, width), dtype), config.detector)
+    uv = np.array([kp.pt for kp in keypoints], dtype=float).reshape(n, 2)
+    if scale != 1.0:
+        uv = (uv + 0.5) * scale - 0.5
+    # SIFT can return more than nfeatures when keypoints tie in response.
+    keep = slice(0, config.max_features)
+    return Features(uv[keep], descriptors[keep], config.detector)
+
+
+def _as_distance_operands(desc: np.ndarray, detector: Detector) -> tuple[np.ndarray, np.ndarray]:
+    """(vectors, squared norms) such that distance follows from one matrix product."""
+    if detector is Detector.ORB:
+        bits = np.unpackbits(desc, axis=1).astype(np.float32)
+        return bits, bits.sum(axis=1)
+    vec = desc.astype(np.float32)
+    return vec, np.einsum("ij,ij->i", vec, vec)
+
+
+def _distance_block(va: np.ndarray, na: np.ndarray, vb: np.ndarray, nb: np.ndarray, detector: Detector) -> np.ndarray:
+    # |a - b|^2 = |a|^2 + |b|^2 - 2 a.b; for bit vectors that is the Hamming distance.
+    d = na[:, None] + nb[None, :] - 2.0 * (va @ vb.T)
+    np.maximum(d, 0.0, out=d)
+    return d if detector is Detector.ORB else np.sqrt(d, out=d)
+
+
+def stereo_candidate_mask(
+    uv_left: np.ndarray, uv_right: np.ndarray, *, row_tolerance_px: float, min_disparity_px: float
+) -> np.ndarray:
+    """Boolean (n_left, n_right): pairs allowed by the near-parallel stereo prior.
+
+    Allowed: ``|v_l - v_r| <= row_tolerance_px`` and
+    ``u_l - u_r >= min_disparity_px`` (the right camera sits to the right).
+    """
+    dv = np.abs(uv_left[:, None, 1] - uv_right[None, :, 1])
+    du = uv_left[:, None, 0] - uv_right[None, :, 0]
+    return (dv <= row_tolerance_px) & (du >= min_disparity_px)
+
+
+def mutual_ratio_matches(
+    fa: Features,
+    fb: Features,
+    *,
+    ratio: float,
+    cross_check: bool,
+    allowed=None,
+    outside_margin: float = 1.1,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Nearest-neighbour matches a -> b passing Lowe's ratio test (and the cross check).
+
+    `allowed(rows)` may return a boolean (len(rows), n_b) mask of candidate
+    pairs; the ratio test and the cross check then run among allowed
+    candidates only, so that a repeated texture outside the band does not
+    veto a good match inside it. A geometric prior cannot reject a wrong
+    match inside its own band, so the best allowed candidate must also be
+    within `outside_margin` times the best disallowed one: when the true
+    partner lies outside the band (the prior is wrong for this point), the
+    in-band best is a random feature and is dropped.
+    Returns index arrays (m,) into `fa` and `fb`.
+    """
+    na_pts, nb_pts = len(fa), len(fb)
+    empty = np.empty(0, dtype=np.int64)
+    if na_pts < 2 or nb_pts < 2:
+        return empty, empty
+    if allowed is None and fa.detector is Detector.ORB:
+        return _bf_mutual_ratio(fa, fb, ratio=ratio, cross_check=cross_check)
+    va, sa = _as_distance_operands(fa.descriptors, fa.detector)
+    vb, sb = _as_distance_operands(fb.descriptors, fb.detector)
+    best = np.full(na_pts, -1, dtype=np.int64)
+    keep = np.zeros(na_pts, dtype=bool)
+    col_best = np.full(nb_pts, -1, dtype=np.int64)
+    col_best_d = np.full(nb_pts, np.inf, dtype=np.float32)
+    for start in range(0, na_pts, ROW_BLOCK):
+        rows = np.arange(start, min(start + ROW_BLOCK, na_pts))
+        d = _distance_block(va[rows], sa[rows], vb, sb, fa.detector)
+        best_outside = np.full(len(rows), np.inf, dtype=d.dtype)
+        if allowed is not None:
+            outside = ~allowed(rows)
+            best_outside = np.where(outside, d, np.inf).min(axis=1)
+            d[outside] = np.inf
+        two = np.argpartition(d, 1, axis=1)[:, :2]
+        d2 = np.take_along_axis(d, two, axis=1)
+        order = np.argsort(d2, axis=1)
+        two = np.take_along_axis(two, order, axis=1)
+        d2 = np.take_along_axis(d2, order, axis=1)
+        best[rows] = two[:, 0]
+        # Ratio on distances: an infinite second best (no other candidate) passes.
+        keep[rows] = np.isfinite(d2[:, 0]) & (d2[:, 0] < ratio * d2[:, 1]) & (d2[:, 0] <= outside_margin * best_outside)
+        block_arg = np.argmin(d, axis=0)
+        block_min = d[block_arg, np.arange(nb_pts)]
+        better = block_min < col_best_d
+        col_best_d[better] = block_min[better]
+        col_best[better] = rows[block_arg[better]]
+    ia = np.flatnonzero(keep)
+    ib = best[ia]
+    if cross_check:
+        mutual = col_best[ib] == ia
+        ia, ib = ia[mutual], ib[mutual]
+    return ia.astype(np.int64), ib.astype(np.int64)
+
+
+def _bf_mutual_ratio(fa: Features, fb: Features, *, ratio: float, cross_check: bool) -> tuple[np.ndarray, np.ndarray]:
+    """`mutual_ratio_matches` without a prior by OpenCV's brute force matcher.
+
+    Same result as the dense path; for binary descriptors it is about 3x
+    faster, as OpenCV counts bits directly instead of multiplying unpacked bits.
+    """
+    norm = cv2.NORM_HAMMING if fa.detector is Detector.ORB else cv2.NORM_L2
+    matcher = cv2.BFMatcher(norm)
+    knn = matcher.knnMatch(fa.descriptors, fb.descriptors, k=2)
+    rows = [(m[0].queryIdx, m[0].trainIdx) for m in knn if len(m) == 2 and m[0].distance < ratio * m[1].distance]
+    if not rows:
+        empty = np.empty(0, dtype=np.int64)
+        return empty, empty
+    ia, ib = (np.array(x, dtype=np.int64) for x in zip(*rows, strict=True))
+    if cross_check:
+        back = np.full(len(fb), -1, dtype=np.int64)
+        for m in matcher.match(fb.descriptors, fa.descriptors):
+            back[m.queryIdx] = m.trainIdx
+        mutual = back[ib] == ia
+        ia, ib = ia[mutual], ib[mutual]
+    return ia, ib
+
+
+def ransac_fundamental(
+    uv_a: np.ndarray, uv_b: np.ndarray, config: MatcherConfig
+) -> tuple[np.ndarray | None, np.ndarray]:
+    """Fundamental matrix (x_b^T F x_a = 0, pixels) and inlier mask by USAC MAGSAC."""
+    if len(uv_a) < config.min_matches:
+        return None, np.zeros(len(uv_a), dtype=bool)
+    F, mask = cv2.findFundamentalMat(
+        uv_a.astype(np.float64),
+        uv_b.astype(np.float64),
+        cv2.USAC_MAGSAC,
+        config.ransac_threshold_px,
+        config.ransac_confidence,
+        config.ransac_max_iters,
+    )
+    if F is None or mask is None or F.shape != (3, 3):
+        # OpenCV returns None (or stacked solutions) when no model is found.
+        return None, np.zeros(len(uv_a), dtype=bool)
+    return F, mask.ravel().astype(bool)
+
+
+def match_pair(
+    fa: Features,
+    fb: Features,
+    config: MatcherConfig = MatcherConfig(),
+    *,
+    stereo_prior: bool = False,
+    a: int = 0,
+    b: int = 1,
+) -> PairMatches:
+    """Ratio test, cross check, optional stereo prior (a = left, b = right), then RANSAC on F."""
+    allowed = None
+    if stereo_prior:
+
+        def allowed(rows: np.ndarray) -> np.ndarray:
+            return stereo_candidate_mask(
+                fa.uv[rows],
+                fb.uv,
+                row_tolerance_px=config.row_tolerance_px,
+                min_disparity_px=config.min_disparity_px,
+            )
+
+    ia, ib = mutual_ratio_matches(
+        fa,
+        fb,
+        ratio=config.ratio,
+        cross_check=config.cross_check,
+        allowed=allowed,
+        outside_margin=config.prior_outside_margin,
+    )
+    F, inliers = ransac_fundamental(fa.uv[ia], fb.uv[ib], config)
+    if F is None or inliers.sum() < config.min_matches:
+        log.debug("pair %d-%d: %d candidates, too few RANSAC inliers", a, b, len(ia))
+        empty = np.empty(0, dtype=np.int64)
+        return PairMatches(a, b, empty, empty, None, len(ia))
+    return PairMatches(a, b, ia[inliers], ib[inliers], F, len(ia))
+
+
+def match_frame_set(
+    images: Mapping[str, np.ndarray] | Sequence[tuple[str, np.ndarray]],
+    config: MatcherConfig = MatcherConfig(),
+    *,
+    stereo: Stereo | None = None,
+    seed: int = 0,
+) -> FrameSetMatches:
+    """Detect in every image and match every pair of cameras.
+
+    `images` maps camera id to the image of one trigger. If `stereo` names
+    two of those cameras and `config.use_stereo_prior` is set, the pair
+    (stereo.left, stereo.right) is matched under the near-epipolar prior; all
+    other pairs (each camera against left, right and every other camera) are
+    matched without it. The prior is optional: converging views need none.
+    OpenCV's RNG of the calling thread is seeded with `seed` first, so the
+    matches are a function of the images alone.
+    """
+    # USAC keeps its own fixed state today, but OpenCV's other robust estimators draw from the
+    # thread's RNG, which the renderer and other callers in this thread also move.
+    cv2.setRNGSeed(seed)
+    items = list(images.items()) if isinstance(images, Mapping) else list(images)
+    camera_ids = tuple(cam_id for cam_id, _ in items)
+    if len(set(camera_ids)) != len(camera_ids):
+        raise ValueError(f"duplicate camera ids in frame set: {camera_ids}")
+    features = tuple(detect(img, config) for _, img in items)
+    prior_pair = None
+    if stereo is not None and config.use_stereo_prior and {stereo.left, stereo.right} <= set(camera_ids):
+        prior_pair = (camera_ids.index(stereo.left), camera_ids.index(stereo.right))
+    pairs = []
+    for i in range(len(items)):
+        for j in range(i + 1, len(items)):
+            if prior_pair == (j, i):
+                # Run the prior with left as `a`: the disparity sign depends on it.
+                m = match_pair(features[j], features[i], config, stereo_prior=True, a=j, b=i)
+            else:
+                m = match_pair(features[i], features[j], config, stereo_prior=prior_pair == (i, j), a=i, b=j)
+            pairs.append(m)
+    return FrameSetMatches(camera_ids, features, tuple(pairs))

@@ -1,0 +1,254 @@
+"""Pool tracks from many frame sets into one bounded observation set.
+
+The rig is static while the scene moves, so every frame set adds new scene
+points seen by the same cameras; pooled over time they cover many depths
+and image regions, which the calibration needs.
+
+What counts as the same scene point:
+
+- Within one frame set, two tracks that share a camera and lie within
+  `duplicate_radius_px` there are the same point (one pixel sees one point
+  at one instant). Typically SIFT returns two keypoints at one place with two
+  orientations, matched through different pairs. If they agree in every
+  camera they share, they are merged into one track (union of cameras);
+  otherwise the one seen by fewer cameras is dropped.
+- Across frame sets, a coinciding pixel in one camera is not enough: the
+  scene moved, so the same pixel may see a different point at another depth
+  along the same ray. Those are distinct points and both are kept. But when
+  two tracks coincide in at least two shared cameras (and agree in every
+  camera they share), their rays meet at the same place, and with a static
+  rig that is the same 3-D point whether or not the object moved: typically
+  static background re-detected in every frame set. Adding it again would
+  bring no new geometry, only repeat the same measurement and overweight
+  the static background, so it is merged into the pooled track, which is
+  marked as seen again (`last_seen`).
+
+When the pool is over `max_tracks`, tracks are evicted from the most
+crowded grid cell first (each camera's image is split into a grid and a
+track counts in the fullest cell it occupies), so the pool spreads over the
+image area; among equally crowded tracks the one seen by fewer cameras goes
+first, then the one least recently seen.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from camnet.io.formats import CameraInfo, Observations, Stereo
+from camnet.matching.tracks import FrameTracks
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class PoolConfig:
+    max_tracks: int = 5000
+    duplicate_radius_px: float = 1.0
+    grid_cols: int = 8  # cells across each image for spreading
+    grid_rows: int = 8
+
+    def __post_init__(self) -> None:
+        if self.max_tracks <= 0:
+            raise ValueError(f"max_tracks must be positive, got {self.max_tracks}")
+        if self.duplicate_radius_px < 0:
+            raise ValueError(f"duplicate_radius_px must be >= 0, got {self.duplicate_radius_px}")
+        if self.grid_cols <= 0 or self.grid_rows <= 0:
+            raise ValueError(f"grid must be positive, got {self.grid_cols}x{self.grid_rows}")
+
+
+@dataclass(frozen=True)
+class PoolUpdate:
+    """What one `TrackPool.add` did, for counters and logs."""
+
+    offered: int
+    merged_in_frame: int  # duplicates inside the frame set, merged or dropped
+    reobserved: int  # matched a pooled track (same 3-D point), merged into it
+    added: int
+    evicted: int
+
+
+def _agree(uv_a: np.ndarray, uv_b: np.ndarray, radius_px: float) -> tuple[int, bool]:
+    """(number of cameras both see, whether they lie within radius in all of them).
+
+    `uv_a`, `uv_b`: (C, 2) pixels, NaN = unseen.
+    """
+    both = np.isfinite(uv_a[:, 0]) & np.isfinite(uv_b[:, 0])
+    if not both.any():
+        return 0, False
+    d = np.hypot(*(uv_a[both] - uv_b[both]).T)
+    return int(both.sum()), bool(np.all(d <= radius_px))
+
+
+def _close_pairs(uv_a: np.ndarray, uv_b: np.ndarray | None, radius_px: float) -> set[tuple[int, int]]:
+    """Pairs (i, j) of tracks within `radius_px` in at least one camera.
+
+    With `uv_b` None, pairs i < j within `uv_a` itself. Arrays are (T, C, 2).
+    """
+    pairs: set[tuple[int, int]] = set()
+    for c in range(uv_a.shape[1]):
+        ia = np.flatnonzero(np.isfinite(uv_a[:, c, 0]))
+        if ia.size == 0:
+            continue
+        tree_a = cKDTree(uv_a[ia, c])
+        if uv_b is None:
+            for i, j in tree_a.query_pairs(radius_px, output_type="ndarray"):
+                pairs.add((int(ia[i]), int(ia[j])))
+            continue
+        ib = np.flatnonzero(np.isfinite(uv_b[:, c, 0]))
+        if ib.size == 0:
+            continue
+        for i, near in enumerate(tree_a.query_ball_tree(cKDTree(uv_b[ib, c]), radius_px)):
+            pairs.update((int(ia[i]), int(ib[j])) for j in near)
+    return pairs
+
+
+def dedupe_frame_tracks(uv: np.ndarray, radius_px: float) -> tuple[np.ndarray, int]:
+    """Merge or drop same-frame duplicates (see the module docstring).
+
+    `uv`: (T, C, 2) pixels, NaN = unseen. Returns the deduplicated (T', C, 2)
+    array and the number of tracks merged or dropped.
+    """
+    pairs = _close_pairs(uv, None, radius_px)
+    if not pairs:
+        return uv, 0
+    uv = uv.copy()
+    views = np.isfinite(uv[:, :, 0]).sum(axis=1)
+    neighbours: dict[int, list[int]] = {}
+    for i, j in pairs:
+        neighbours.setdefault(i, []).append(j)
+        neighbours.setdefault(j, []).append(i)
+    alive = np.ones(len(uv), dtype=bool)
+    # Strongest first, so a weak track folds into a strong one, not the reverse.
+    for i in sorted(neighbours, key=lambda k: (-views[k], k)):
+        if not alive[i]:
+            continue
+        for j in neighbours[i]:
+            if not alive[j]:
+                continue
+            _, agree = _agree(uv[i], uv[j], radius_px)
+            if agree:
+                fill = ~np.isfinite(uv[i, :, 0]) & np.isfinite(uv[j, :, 0])
+                uv[i, fill] = uv[j, fill]
+            alive[j] = False
+    return uv[alive], int((~alive).sum())
+
+
+def crowding(uv: np.ndarray, sizes_px: np.ndarray, grid_cols: int, grid_rows: int) -> np.ndarray:
+    """(T,) for each track, the count of tracks in the fullest grid cell it occupies.
+
+    `uv`: (T, C, 2) pixels, NaN = unseen; `sizes_px`: (C, 2) image width, height.
+    """
+    n, n_cams = uv.shape[:2]
+    out = np.zeros(n, dtype=np.int64)
+    for c in range(n_cams):
+        seen = np.isfinite(uv[:, c, 0])
+        if not seen.any():
+            continue
+        w, h = sizes_px[c]
+        # +0.5: pixel centres run from 0 to w - 1, the image area from -0.5 to w - 0.5.
+        col = np.clip(((uv[seen, c, 0] + 0.5) / w * grid_cols).astype(int), 0, grid_cols - 1)
+        row = np.clip(((uv[seen, c, 1] + 0.5) / h * grid_rows).astype(int), 0, grid_rows - 1)
+        cell = row * grid_cols + col
+        count = np.bincount(cell, minlength=grid_cols * grid_rows)
+        out[seen] = np.maximum(out[seen], count[cell])
+    return out
+
+
+class TrackPool:
+    """A bounded pool of tracks over many frame sets of one static rig.
+
+    Not thread-safe: the matcher node owns one and feeds it in order.
+    """
+
+    def __init__(self, cameras: Sequence[CameraInfo], stereo: Stereo, config: PoolConfig = PoolConfig()) -> None:
+        ids = [c.id for c in cameras]
+        if len(set(ids)) != len(ids):
+            raise ValueError(f"duplicate camera ids: {ids}")
+        for side in (stereo.left, stereo.right):
+            if side not in ids:
+                raise ValueError(f"stereo camera {side!r} is not among the cameras {ids}")
+        self.cameras = tuple(cameras)
+        self.stereo = stereo
+        self.config = config
+        self._column = {cam_id: i for i, cam_id in enumerate(ids)}
+        self._sizes_px = np.array([[c.width, c.height] for c in cameras], dtype=float)
+        self._uv = np.empty((0, len(ids), 2))
+        self._ids = np.empty(0, dtype=np.int64)
+        self._last_seen = np.empty(0, dtype=np.int64)
+        self._next_id = 0
+
+    def __len__(self) -> int:
+        return len(self._ids)
+
+    def _to_pool_columns(self, tracks: FrameTracks) -> np.ndarray:
+        uv = np.full((len(tracks), len(self.cameras), 2), np.nan)
+        for c, cam_id in enumerate(tracks.camera_ids):
+            if cam_id not in self._column:
+                raise ValueError(f"frame set camera {cam_id!r} is not in the pool's cameras")
+            uv[:, self._column[cam_id]] = tracks.uv[:, c]
+        return uv
+
+    def add(self, tracks: FrameTracks, *, frame_seq: int) -> PoolUpdate:
+        """Pool the tracks of one frame set; `frame_seq` increases with time."""
+        radius = self.config.duplicate_radius_px
+        new_uv, merged_in_frame = dedupe_frame_tracks(self._to_pool_columns(tracks), radius)
+        is_new = np.ones(len(new_uv), dtype=bool)
+        reobserved = 0
+        for i, j in sorted(_close_pairs(new_uv, self._uv, radius)):
+            if not is_new[i]:
+                continue
+            shared, agree = _agree(new_uv[i], self._uv[j], radius)
+            if shared >= 2 and agree:
+                fill = ~np.isfinite(self._uv[j, :, 0]) & np.isfinite(new_uv[i, :, 0])
+                self._uv[j, fill] = new_uv[i, fill]
+                self._last_seen[j] = frame_seq
+                is_new[i] = False
+                reobserved += 1
+        added = int(is_new.sum())
+        self._uv = np.concatenate([self._uv, new_uv[is_new]])
+        self._ids = np.concatenate([self._ids, self._next_id + np.arange(added)])
+        self._last_seen = np.concatenate([self._last_seen, np.full(added, frame_seq)])
+        self._next_id += added
+        evicted = self._evict()
+        update = PoolUpdate(len(tracks), merged_in_frame, reobserved, added, evicted)
+        log.debug("frame %d: %s, pool %d", frame_seq, update, len(self))
+        return update
+
+    def _evict(self) -> int:
+        cfg = self.config
+        evicted = 0
+        while len(self._ids) > cfg.max_tracks:
+            excess = len(self._ids) - cfg.max_tracks
+            crowd = crowding(self._uv, self._sizes_px, cfg.grid_cols, cfg.grid_rows)
+            views = np.isfinite(self._uv[:, :, 0]).sum(axis=1)
+            # lexsort: last key is primary. Most crowded, then fewest views, then oldest.
+            order = np.lexsort((self._ids, self._last_seen, views, -crowd))
+            # Evict in halves so that crowding is recounted as cells empty.
+            drop = order[: max(1, (excess + 1) // 2)]
+            keep = np.ones(len(self._ids), dtype=bool)
+            keep[drop] = False
+            self._uv, self._ids, self._last_seen = (
+                self._uv[keep],
+                self._ids[keep],
+                self._last_seen[keep],
+            )
+            evicted += drop.size
+        return evicted
+
+    def observations(self) -> Observations:
+        """The pool as `Observations`; track ids are stable while a track stays pooled."""
+        seen = np.isfinite(self._uv[:, :, 0])
+        track_index, cam_index = np.nonzero(seen)
+        return Observations(
+            cameras=self.cameras,
+            stereo=self.stereo,
+            track_ids=self._ids.copy(),
+            cam_index=cam_index.astype(np.int64),
+            track_index=track_index.astype(np.int64),
+            uv=self._uv[track_index, cam_index].reshape(-1, 2),
+        )

@@ -1,0 +1,1 @@
+"""Simulated rigs: scenes, ground-truth cameras, observations and rendered images."""

@@ -1,0 +1,105 @@
+"""The simulated scene of a rig file: textured box, wall and floor as render.Quads.
+
+Textures are procedural and seeded (multi-scale value noise plus random
+shapes), so every run of a rig sees the same feature-rich scene. Texel sizes
+are about 1 mm on the box and 1.5 mm on the wall and floor, close to the
+pixel footprint of the paper's cameras at those depths, to limit aliasing.
+"""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+
+from camnet.io.rig import SceneConfig
+from camnet.sim.render import Quad
+
+BOX_TEXEL_M = 0.0005
+BACKGROUND_TEXEL_M = 0.0015
+
+
+def procedural_texture(width_px: int, height_px: int, rng: np.random.Generator) -> np.ndarray:
+    """A (height, width) uint8 texture rich in corners and blobs at many scales."""
+    acc = np.zeros((height_px, width_px), dtype=np.float32)
+    for cells in (4, 9, 20, 45, 100):
+        grid = rng.random((max(2, cells * height_px // max(width_px, 1)), cells), dtype=np.float32)
+        acc += cv2.resize(grid, (width_px, height_px), interpolation=cv2.INTER_CUBIC) / cells**0.3
+    acc = (acc - acc.min()) / max(float(np.ptp(acc)), 1e-6)
+    image = (40 + 170 * acc).astype(np.uint8)
+    max_size = min(60, max(4, max(width_px, height_px) // 8))
+    for _ in range(int(width_px * height_px / 500) + 10):
+        colour = int(rng.integers(0, 256))
+        x, y = int(rng.integers(width_px)), int(rng.integers(height_px))
+        # Log-uniform sizes: as many small corners as large blobs.
+        size = int(math.exp(rng.uniform(math.log(2), math.log(max_size))))
+        shape = rng.integers(3)
+        if shape == 0:
+            cv2.circle(image, (x, y), size, colour, -1, cv2.LINE_AA)
+        elif shape == 1:
+            cv2.rectangle(image, (x, y), (x + size, y + int(rng.integers(2, size + 3))), colour, -1)
+        else:
+            end = (x + int(rng.integers(-size, size + 1)), y + int(rng.integers(-size, size + 1)))
+            cv2.line(image, (x, y), end, colour, int(rng.integers(1, 3)), cv2.LINE_AA)
+    # A light blur keeps the texture band-limited: no shimmering when it is minified.
+    return cv2.GaussianBlur(image, (0, 0), 0.8)
+
+
+def _texture_for(u: np.ndarray, v: np.ndarray, texel_m: float, rng) -> np.ndarray:
+    w = max(8, int(round(np.linalg.norm(u) / texel_m)))
+    h = max(8, int(round(np.linalg.norm(v) / texel_m)))
+    return procedural_texture(w, h, rng)
+
+
+def _rot_y(angle_rad: float) -> np.ndarray:
+    c, s = math.cos(angle_rad), math.sin(angle_rad)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+class Scene:
+    """The static background quads and the box, whose pose depends on time."""
+
+    def __init__(self, config: SceneConfig) -> None:
+        self.config = config
+        rng = np.random.default_rng(config.seed)
+        (x0, x1), (y0, y1) = config.wall_x_range_m, config.wall_y_range_m
+        wall_u = np.array([x1 - x0, 0.0, 0.0])
+        wall_v = np.array([0.0, y1 - y0, 0.0])
+        # Normal u x v = -z: the wall faces the cameras.
+        self.wall = Quad(np.array([x0, y0, config.wall_z_m]), wall_u, wall_v,
+                         _texture_for(wall_u, wall_v, BACKGROUND_TEXEL_M, rng), layer=0)
+        z0, z1 = config.floor_z_range_m
+        floor_u = np.array([x1 - x0, 0.0, 0.0])
+        floor_v = np.array([0.0, 0.0, z1 - z0])
+        self.floor = Quad(np.array([x0, config.floor_y_m, z0]), floor_u, floor_v,
+                          _texture_for(floor_u, floor_v, BACKGROUND_TEXEL_M, rng), layer=0)
+        self._box_faces = self._make_box_faces(np.array(config.box_size_m), rng)
+
+    @staticmethod
+    def _make_box_faces(size: np.ndarray, rng) -> list[tuple[np.ndarray, np.ndarray, np.ndarray,
+                                                              np.ndarray]]:
+        """Faces (p0, u, v, texture) in box coordinates, normals u x v pointing outwards."""
+        hx, hy, hz = size / 2
+        X, Y, Z = np.eye(3)
+        faces = [
+            (np.array([-hx, -hy, -hz]), 2 * hx * X, 2 * hy * Y),   # front (-z)
+            (np.array([hx, -hy, hz]), -2 * hx * X, 2 * hy * Y),    # back (+z)
+            (np.array([-hx, -hy, hz]), -2 * hz * Z, 2 * hy * Y),   # left (-x)
+            (np.array([hx, -hy, -hz]), 2 * hz * Z, 2 * hy * Y),    # right (+x)
+            (np.array([-hx, -hy, hz]), 2 * hx * X, -2 * hz * Z),   # top (-y)
+            (np.array([-hx, hy, -hz]), 2 * hx * X, 2 * hz * Z),    # bottom (+y)
+        ]
+        return [(p0, u, v, _texture_for(u, v, BOX_TEXEL_M, rng)) for p0, u, v in faces]
+
+    def box_rotation(self, time_s: float) -> np.ndarray:
+        """World-from-box rotation at `time_s` (turning about the world's y axis)."""
+        return _rot_y(math.radians(self.config.box_rotation_deg_per_s * time_s))
+
+    def quads(self, time_s: float) -> list[Quad]:
+        """Every quad of the scene at `time_s` seconds."""
+        R = self.box_rotation(time_s)
+        centre = np.array(self.config.box_centre_m)
+        box = [Quad(centre + R @ p0, R @ u, R @ v, tex, layer=1, cull_back=True)
+               for p0, u, v, tex in self._box_faces]
+        return [self.wall, self.floor, *box]

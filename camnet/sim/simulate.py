@@ -1,0 +1,175 @@
+"""Seeded synthetic camera networks with known ground truth.
+
+The default is the paper's rig (Sec. IV): a parallel stereo pair 0.125 m
+apart and two monocular cameras, 1280x1024, looking at an object about
+0.10 x 0.17 x 0.08 m at 0.65 m. Ring rigs add cameras on an arc around the
+object. Observations get Gaussian pixel noise, optional gross outliers and
+partial visibility. Everything is in the left camera's frame, in metres.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from camnet.geometry.camera import Camera, look_at
+from camnet.geometry.projection import rotation_exp
+from camnet.io.formats import CameraInfo, Observations, Stereo
+
+WIDTH, HEIGHT = 1280, 1024
+OBJECT_CENTRE = np.array([0.0625, 0.0, 0.65])
+OBJECT_SIZE = np.array([0.10, 0.17, 0.08])
+PAPER_BASELINE_M = 0.125
+
+
+@dataclass(frozen=True)
+class SimRig:
+    cameras: list[Camera]  # cameras[0] is the left stereo camera, cameras[1] the right
+    baseline_m: float
+    points: np.ndarray  # (N, 3) metres
+
+    @property
+    def stereo(self) -> Stereo:
+        return Stereo(self.cameras[0].id, self.cameras[1].id, self.baseline_m)
+
+
+def _K(f: float, pp_offset: np.ndarray) -> np.ndarray:
+    cx, cy = (WIDTH - 1) / 2 + pp_offset[0], (HEIGHT - 1) / 2 + pp_offset[1]
+    return np.array([[f, 0.0, cx], [0.0, f, cy], [0.0, 0.0, 1.0]])
+
+
+def make_rig(
+    *,
+    n_cameras: int = 4,
+    n_points: int = 57,
+    seed: int = 0,
+    pp_offset_px: float = 0.0,
+    k1: float = 0.0,
+    k2: float = 0.0,
+    stereo_rotation_deg: float = 0.0,
+    depth_range_m: tuple[float, float] | None = None,
+) -> SimRig:
+    """A network: the paper's four cameras, and for n_cameras > 4 more on an arc.
+
+    pp_offset_px: principal points drawn uniformly within this many pixels of
+    the image centre (per axis). stereo_rotation_deg: the right stereo
+    camera's rotation angle about a random axis. depth_range_m: spread the
+    points over this range of depths instead of the object's 0.08 m.
+    """
+    rng = np.random.default_rng(seed)
+    half = OBJECT_SIZE / 2
+    points = OBJECT_CENTRE + rng.uniform(-half, half, size=(n_points, 3))
+    if depth_range_m is not None:
+        z = rng.uniform(*depth_range_m, size=n_points)
+        points = points * np.array([1.0, 1.0, 0.0]) * (z / OBJECT_CENTRE[2])[:, None]
+        points[:, 2] = z
+
+    def pp() -> np.ndarray:
+        return rng.uniform(-pp_offset_px, pp_offset_px, size=2)
+
+    dist = np.array([k1, k2, 0.0, 0.0, 0.0])
+    axis = rng.normal(size=3)
+    R_right = rotation_exp(np.deg2rad(stereo_rotation_deg) * axis / np.linalg.norm(axis))
+    C_right = np.array([PAPER_BASELINE_M, 0.0, 0.0])
+    cameras = [
+        Camera("left", WIDTH, HEIGHT, _K(1500.0, pp()), dist),
+        Camera("right", WIDTH, HEIGHT, _K(1500.0, pp()), dist, R_right, -R_right @ C_right),
+    ]
+    monos = [("mono_a", (-0.30, 0.0, 0.05), 1300.0), ("mono_b", (0.425, 0.0, 0.05), 1400.0)]
+    extra = n_cameras - 4
+    for i in range(extra):
+        # An arc around the object from -75 to +75 degrees, alternating heights.
+        angle = np.deg2rad(-75.0 + 150.0 * (i + 0.5) / extra)
+        radius = rng.uniform(0.55, 0.75)
+        height = (0.12 if i % 2 else -0.12) + rng.uniform(-0.03, 0.03)
+        centre = OBJECT_CENTRE + radius * np.array([np.sin(angle), 0.0, -np.cos(angle)])
+        centre[1] += height
+        monos.append((f"mono_{i + 2:02d}", tuple(centre), float(rng.uniform(1100, 1700))))
+    for name, centre, f in monos[: n_cameras - 2]:
+        R, t = look_at(np.array(centre), OBJECT_CENTRE + rng.normal(scale=0.01, size=3))
+        cameras.append(Camera(name, WIDTH, HEIGHT, _K(f, pp()), dist, R, t))
+    return SimRig(cameras, PAPER_BASELINE_M, points)
+
+
+def move_camera(rig: SimRig, camera_id: str, *, shift_m: float, angle_deg: float, seed: int = 0) -> SimRig:
+    """The rig with one camera bumped: its centre shifted by shift_m and its
+    orientation turned by angle_deg, both in seeded random directions."""
+    rng = np.random.default_rng(seed)
+    cameras = []
+    for cam in rig.cameras:
+        if cam.id == camera_id:
+            d, w = rng.normal(size=3), rng.normal(size=3)
+            R = rotation_exp(np.deg2rad(angle_deg) * w / np.linalg.norm(w)) @ cam.R
+            C = cam.centre + shift_m * d / np.linalg.norm(d)
+            cam = replace(cam, R=R, t=-R @ C)
+        cameras.append(cam)
+    return replace(rig, cameras=cameras)
+
+
+@dataclass(frozen=True)
+class SimObservations:
+    observations: Observations
+    outlier_obs: np.ndarray  # (n,) bool: observation replaced by a random pixel
+    noise_px: float
+
+
+def observe(
+    rig: SimRig,
+    *,
+    noise_px: float = 0.5,
+    seed: int = 0,
+    outlier_fraction: float = 0.0,
+    visibility: float = 1.0,
+    with_intrinsics: bool = False,
+) -> SimObservations:
+    """Project the rig's points with Gaussian noise (sigma px per coordinate).
+
+    visibility: the share of tracks each non-stereo camera sees (the stereo
+    cameras see every point). outlier_fraction: the share of tracks one of
+    whose observations is replaced by a uniformly random pixel.
+    with_intrinsics: include each camera's true K and distortion (not fixed).
+    """
+    rng = np.random.default_rng(seed + 7919)
+    n_points = len(rig.points)
+    cam_index, track_index, uv = [], [], []
+    for m, cam in enumerate(rig.cameras):
+        pix = cam.project(rig.points)
+        seen = np.all(np.isfinite(pix), axis=1)
+        seen &= (pix[:, 0] >= 0) & (pix[:, 0] <= cam.width - 1)
+        seen &= (pix[:, 1] >= 0) & (pix[:, 1] <= cam.height - 1)
+        if m >= 2:
+            seen &= rng.random(n_points) < visibility
+        idx = np.flatnonzero(seen)
+        cam_index.append(np.full(idx.size, m))
+        track_index.append(idx)
+        uv.append(pix[idx] + rng.normal(scale=noise_px, size=(idx.size, 2)))
+    cam_index = np.concatenate(cam_index)
+    track_index = np.concatenate(track_index)
+    uv = np.concatenate(uv)
+    order = np.lexsort((cam_index, track_index))
+    cam_index, track_index, uv = cam_index[order], track_index[order], uv[order]
+
+    outlier = np.zeros(len(uv), dtype=bool)
+    bad_tracks = rng.choice(n_points, size=int(round(outlier_fraction * n_points)), replace=False)
+    for trk in bad_tracks:
+        k = rng.choice(np.flatnonzero(track_index == trk))
+        cam = rig.cameras[cam_index[k]]
+        uv[k] = rng.uniform([0, 0], [cam.width - 1, cam.height - 1])
+        outlier[k] = True
+
+    cameras = tuple(
+        CameraInfo(c.id, c.width, c.height, c.K.copy(), c.dist.copy())
+        if with_intrinsics
+        else CameraInfo(c.id, c.width, c.height)
+        for c in rig.cameras
+    )
+    obs = Observations(
+        cameras=cameras,
+        stereo=rig.stereo,
+        track_ids=np.arange(n_points, dtype=np.int64),
+        cam_index=cam_index,
+        track_index=track_index,
+        uv=uv,
+    )
+    return SimObservations(obs, outlier, noise_px)

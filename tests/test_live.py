@@ -1,0 +1,157 @@
+"""The calibrator's state machine on simulated observations: warm re-solves,
+moved cameras, and solves that must not replace a good calibration."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from camnet.geometry.camera import Camera
+from camnet.geometry.change import drop_before, new_track_errors
+from camnet.geometry.live import LiveConfig, Tracker
+from camnet.geometry.projection import rotation_exp
+from camnet.io.formats import Observations
+from camnet.sim.simulate import make_rig, observe
+
+
+def pooled(*parts: Observations) -> Observations:
+    """One observation set of several, track ids numbered on across them (as a pool does)."""
+    first, offset = parts[0], 0
+    ids, cams, rows, uv = [], [], [], []
+    for part in parts:
+        ids.append(part.track_ids + offset)
+        rows.append(part.track_index + sum(len(i) for i in ids[:-1]))
+        cams.append(part.cam_index)
+        uv.append(part.uv)
+        offset = int(ids[-1].max()) + 1
+    return Observations(first.cameras, first.stereo, np.concatenate(ids), np.concatenate(cams),
+                        np.concatenate(rows), np.concatenate(uv))
+
+
+def moved(cam: Camera, shift_m, angle_deg: float) -> Camera:
+    R = rotation_exp(np.deg2rad(angle_deg) * np.array([0.0, 1.0, 0.0])) @ cam.R
+    centre = cam.centre + np.asarray(shift_m)
+    return replace(cam, R=R, t=-R @ centre)
+
+
+def rig_with_points(seed: int, n_points: int, cameras=None):
+    rig = make_rig(n_points=n_points, seed=seed)
+    return rig if cameras is None else replace(rig, cameras=cameras)
+
+
+def test_warm_resolve_of_a_growing_pool():
+    rig = make_rig(n_points=300, seed=1)
+    first = observe(rig, seed=1).observations
+    tracker = Tracker(LiveConfig())
+    out1 = tracker.update(first)
+    assert out1.status == "good" and not out1.warm
+    more = pooled(first, observe(replace(rig, points=rig.points[:30] + 0.002), seed=2).observations)
+    out2 = tracker.update(more)
+    assert out2.status == "good" and out2.warm and out2.moved == ()
+    assert tracker.good is out2.calibration
+
+
+def test_a_moved_camera_is_detected_and_recalibrated():
+    before = make_rig(n_points=300, seed=3)
+    new_mono = moved(before.cameras[3], [0.03, -0.02, 0.0], 3.0)
+    after = replace(make_rig(n_points=300, seed=4), cameras=[*before.cameras[:3], new_mono])
+    tracker = Tracker(LiveConfig())
+    assert tracker.update(observe(before, seed=5).observations).status == "good"
+    rms_before = tracker.good.extra["diagnostics"]["cameras"][new_mono.id]["rms_px"]
+
+    obs = pooled(observe(before, seed=5).observations, observe(after, seed=6).observations)
+    outcome = tracker.update(obs)
+    assert outcome.moved == (new_mono.id,)
+    assert outcome.status == "good", outcome.reason
+    cam = {c.id: c for c in outcome.calibration.cameras}[new_mono.id]
+    sigma = outcome.calibration.extra["uncertainty"]["cameras"][new_mono.id]
+    assert np.linalg.norm(cam.centre - new_mono.centre) < 4 * np.linalg.norm(sigma["centre_m"])
+    rms_after = outcome.calibration.extra["diagnostics"]["cameras"][new_mono.id]["rms_px"]
+    assert rms_after < 2 * rms_before + 0.2
+    # The still cameras keep their place.
+    others = tracker.update(pooled(obs, observe(replace(after, points=after.points[:40] + 0.003),
+                                                seed=7).observations))
+    assert others.status == "good" and others.moved == ()
+
+
+def test_detection_sees_only_the_camera_that_moved():
+    before = make_rig(n_points=200, seed=8)
+    tracker = Tracker(LiveConfig())
+    tracker.update(observe(before, seed=8).observations)
+    after = replace(make_rig(n_points=200, seed=9), cameras=[*before.cameras[:2], moved(before.cameras[2], 0.0, 2.0),
+                                                            before.cameras[3]])
+    obs = pooled(observe(before, seed=8).observations, observe(after, seed=9).observations)
+    errors = new_track_errors(tracker.good, obs, np.flatnonzero(obs.track_ids >= 200))
+    medians = {cam_id: float(np.median(e)) for cam_id, e in errors.items()}
+    assert medians["mono_a"] > 10 * max(medians["left"], medians["right"], medians["mono_b"]), medians
+
+
+def test_drop_before_removes_old_observations_of_one_camera():
+    obs = observe(make_rig(n_points=50, seed=10), seed=10).observations
+    out = drop_before(obs, {"mono_a": 20})
+    mono = out.index_of("mono_a")
+    assert out.track_ids[out.track_index[out.cam_index == mono]].min() >= 20
+    assert len(out.uv) == len(obs.uv) - np.sum((obs.cam_index == mono) & (obs.track_ids[obs.track_index] < 20))
+    np.testing.assert_array_equal(np.bincount(out.track_index) >= 2, True)
+
+
+@pytest.mark.parametrize("broken", ["too_few_tracks", "noise"])
+def test_a_bad_solve_never_replaces_a_good_calibration(broken):
+    rig = make_rig(n_points=200, seed=11)
+    tracker = Tracker(LiveConfig(max_rms_px=3.0))
+    good = tracker.update(observe(rig, seed=11).observations).calibration
+    if broken == "too_few_tracks":
+        bad = observe(replace(rig, points=rig.points[:3]), seed=12).observations
+    else:
+        bad = observe(rig, seed=12, noise_px=25.0).observations
+    outcome = tracker.update(bad)
+    assert outcome.status in ("failed", "rejected") and outcome.reason
+    assert tracker.good is good
+    assert tracker.counts[outcome.status] == 1
+
+
+def test_the_command_default_is_the_live_default():
+    from camnet.commands.calibrate import parse_free
+    from camnet.commands.calibrator import DEFAULT_FREE
+    from camnet.geometry.live import LIVE_FREE
+
+    assert parse_free(DEFAULT_FREE) == LIVE_FREE == LiveConfig().options.free
+
+
+def test_a_factory_head_without_points_or_rms_is_a_state_to_resume_from(tmp_path):
+    import json
+
+    from camnet.services.calibrator import load_state
+
+    from camnet.io.formats import Calibration, calibration_to_doc, write_json_atomic
+
+    rig = make_rig(seed=1)
+    head = Calibration(cameras=list(rig.cameras[:2]), point_ids=np.empty(0, dtype=np.int64), points=np.empty((0, 3)),
+                       rms_reprojection_px=float("nan"), world_frame=rig.cameras[0].id)
+    path = tmp_path / "state.json"
+    write_json_atomic(path, calibration_to_doc(head))
+    resumed = load_state(path)
+    assert resumed is not None and len(resumed.cameras) == 2 and np.isnan(resumed.rms_reprojection_px)
+    # The node publishes what it resumes from; JSON has no NaN.
+    assert json.loads(json.dumps(calibration_to_doc(resumed), allow_nan=False))["rms_reprojection_px"] is None
+
+
+def test_a_known_stereo_head_is_held():
+    """A rig file's stereo pose (a factory head): every solve starts from it and, its axes held, keeps it."""
+    from camnet.geometry.evaluate import rotation_angle_deg
+    from camnet.matching.pipeline import with_known_intrinsics
+
+    rig = make_rig(n_points=200, seed=5, stereo_rotation_deg=0.5)
+    obs = with_known_intrinsics(observe(rig, seed=5).observations, {c.id: c for c in rig.cameras[:2]})
+    right = rig.cameras[1]
+    head = Tracker(LiveConfig(options=replace(LiveConfig().options, free=frozenset({"f"})),
+                                    stereo_pose=(right.R, right.t)))
+    ideal = Tracker(LiveConfig(options=replace(LiveConfig().options, free=frozenset({"f"}))))
+    for tracker in (head, ideal):
+        assert tracker.update(obs).status == "good"
+    held = next(c for c in head.good.cameras if c.id == right.id)
+    np.testing.assert_allclose(held.R, right.R, atol=1e-12)
+    np.testing.assert_allclose(held.t, right.t, atol=1e-12)
+    # Without the head the pair is held parallel: 0.5 degrees off.
+    parallel = next(c for c in ideal.good.cameras if c.id == right.id)
+    assert rotation_angle_deg(parallel.R @ right.R.T) > 0.4
