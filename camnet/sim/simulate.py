@@ -122,6 +122,7 @@ def observe(
     outlier_fraction: float = 0.0,
     visibility: float = 1.0,
     with_intrinsics: bool = False,
+    normals: np.ndarray | None = None,
 ) -> SimObservations:
     """Project the rig's points with Gaussian noise (sigma px per coordinate).
 
@@ -129,6 +130,8 @@ def observe(
     cameras see every point). outlier_fraction: the share of tracks one of
     whose observations is replaced by a uniformly random pixel.
     with_intrinsics: include each camera's true K and distortion (not fixed).
+    normals (N, 3): outward surface normals of the points (NaN rows: seen
+    from everywhere); a camera sees a point only from the side it faces.
     """
     rng = np.random.default_rng(seed + 7919)
     n_points = len(rig.points)
@@ -140,6 +143,9 @@ def observe(
         seen &= (pix[:, 1] >= 0) & (pix[:, 1] <= cam.height - 1)
         if m >= 2:
             seen &= rng.random(n_points) < visibility
+        if normals is not None:
+            facing = np.einsum("ij,ij->i", normals, cam.centre - rig.points)
+            seen &= ~(facing <= 0)  # NaN normals: seen from everywhere
         idx = np.flatnonzero(seen)
         cam_index.append(np.full(idx.size, m))
         track_index.append(idx)
