@@ -51,6 +51,7 @@ class SyncCounts:
     partial_sets: int
     dropped: int  # frames never given out in a set
     missing: dict[str, int] = field(default_factory=dict)  # partial sets that lacked each camera
+    future: int = 0  # frames dropped for a capture time ahead of their camera's clock
 
 
 @dataclass
@@ -63,18 +64,25 @@ class FrameSynchronizer:
     """Forms frame sets of `camera_ids`; `required` cameras must be in every set."""
 
     def __init__(self, camera_ids: Sequence[str], *, required: Sequence[str], tolerance_ns: int,
-                 max_wait_s: float, frames_per_camera: int = 4) -> None:
+                 max_wait_s: float, frames_per_camera: int = 4, future_tolerance_s: float = 2.0) -> None:
         self.camera_ids = tuple(camera_ids)
         self.required = tuple(required)
         if len(set(self.camera_ids)) != len(self.camera_ids):
             raise ValueError(f"duplicate camera ids: {self.camera_ids}")
         if not self.required or not set(self.required) <= set(self.camera_ids):
             raise ValueError(f"required cameras {self.required} must be among {self.camera_ids}")
-        if tolerance_ns < 0 or max_wait_s < 0 or frames_per_camera < 1:
-            raise ValueError("tolerance_ns and max_wait_s must be >= 0, frames_per_camera >= 1")
+        if tolerance_ns < 0 or max_wait_s < 0 or frames_per_camera < 1 or future_tolerance_s < 0:
+            raise ValueError("tolerance_ns, max_wait_s and future_tolerance_s must be >= 0, frames_per_camera >= 1")
         self.tolerance_ns = int(tolerance_ns)
         self.max_wait_s = float(max_wait_s)
         self.frames_per_camera = int(frames_per_camera)
+        self.future_tolerance_ns = round(future_tolerance_s * 1e9)
+        # Per camera, its last accepted frame's capture time minus its arrival time (ns):
+        # how far its capture clock is from the arrival clock.
+        self._clock_offset_ns: dict[str, int] = {}
+        self._last_arrival_s: dict[str, float] = {}
+        self._first_arrival_s: float | None = None
+        self._future = 0
         self._buffers: dict[str, list[_Buffered]] = {c: [] for c in self.camera_ids}
         # Frames at or before this capture time can no longer be in a set.
         self._floor_ns: dict[str, int] = {c: -1 for c in self.camera_ids}
@@ -90,6 +98,14 @@ class FrameSynchronizer:
         if buffer is None:
             raise ValueError(f"camera {frame.camera_id!r} is not one of {self.camera_ids}")
         self._received += 1
+        if self._first_arrival_s is None:
+            self._first_arrival_s = now_s
+        offset_ns = frame.timestamp_ns - round(now_s * 1e9)
+        if self._ahead(frame.camera_id, offset_ns):
+            self._future += 1
+            return False
+        self._last_arrival_s[frame.camera_id] = now_s
+        self._clock_offset_ns[frame.camera_id] = offset_ns
         if frame.timestamp_ns <= self._floor_ns[frame.camera_id]:
             self._dropped += 1
             return False
@@ -100,15 +116,28 @@ class FrameSynchronizer:
             self._dropped += 1
         return True
 
+    def _ahead(self, camera_id: str, offset_ns: int) -> bool:
+        """Whether a frame of `camera_id` whose capture clock reads `offset_ns` ahead of arrival is in the future."""
+        own = self._clock_offset_ns.get(camera_id)
+        if own is not None:
+            return offset_ns > own + self.future_tolerance_ns
+        others = [o for c, o in self._clock_offset_ns.items() if c != camera_id]
+        return bool(others) and offset_ns > max(others) + self.future_tolerance_ns
+
+    def silent(self, camera_id: str, *, now_s: float) -> bool:
+        """Whether nothing has arrived from `camera_id` for `max_wait_s` (or ever, since the first frame)."""
+        last = self._last_arrival_s.get(camera_id, self._first_arrival_s)
+        return last is not None and now_s - last >= self.max_wait_s
+
     def pop(self, *, now_s: float) -> FrameSet | None:
         """The newest ready frame set (removed with every older frame), or None."""
         for ref in reversed(self._buffers[self.required[0]]):
             chosen = self._nearest(ref.frame.timestamp_ns)
             if not all(c in chosen for c in self.required):
                 continue
-            complete = len(chosen) == len(self.camera_ids)
+            lacking = [c for c in self.camera_ids if c not in chosen]
             waited_s = now_s - max(b.arrived_s for b in chosen.values())
-            if complete or waited_s >= self.max_wait_s:
+            if waited_s >= self.max_wait_s or all(self.silent(c, now_s=now_s) for c in lacking):
                 return self._take(ref.frame.timestamp_ns, chosen)
         return None
 
@@ -142,7 +171,7 @@ class FrameSynchronizer:
     def counts(self) -> SyncCounts:
         return SyncCounts(received=self._received, complete_sets=self._complete,
                           partial_sets=self._partial, dropped=self._dropped,
-                          missing=dict(self._missing))
+                          missing=dict(self._missing), future=self._future)
 
     @property
     def buffered(self) -> int:
