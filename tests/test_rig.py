@@ -6,7 +6,7 @@ import pytest
 import yaml
 
 from camnet.errors import InputError
-from camnet.geometry.camera import look_at
+from camnet.geometry.projection import look_at
 from camnet.io.rig import AravisConfig, SimConfig, V4l2Config, load_rig, parse_rig
 
 CONFIG = Path(__file__).resolve().parent.parent / "config"

@@ -18,7 +18,8 @@ import numpy as np
 
 from camnet.bus.keys import validate_id
 from camnet.errors import InputError
-from camnet.geometry.camera import Camera, look_at
+from camnet.geometry.camera import Camera
+from camnet.geometry.projection import look_at
 from camnet.io.formats import parse_matrix
 
 DRIVERS = ("sim", "aravis", "v4l2")
