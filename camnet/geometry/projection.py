@@ -27,6 +27,7 @@ import numpy as np
 DIST_SIZE = 5  # k1, k2, p1, p2, k3
 INTRINSIC_NAMES = ("f", "a", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
 N_INTRINSICS = len(INTRINSIC_NAMES)
+ArrayOrFloat = np.ndarray | float
 
 
 def full_dist(dist: np.ndarray | list | None) -> np.ndarray:
@@ -40,7 +41,10 @@ def full_dist(dist: np.ndarray | list | None) -> np.ndarray:
     return out
 
 
-def lens_terms(x, y, k1, k2, p1, p2, k3) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def lens_terms(
+    x: np.ndarray, y: np.ndarray,
+    k1: ArrayOrFloat, k2: ArrayOrFloat, p1: ArrayOrFloat, p2: ArrayOrFloat, k3: ArrayOrFloat,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """OpenCV's distortion at normalised points (x, y): ``(r2, radial, dx, dy)``.
 
     The distorted point is ``(x * radial + dx, y * radial + dy)``: a radial
