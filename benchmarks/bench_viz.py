@@ -19,7 +19,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from camnet import viz
+from camnet import viz, viz_sinks
 from camnet.geometry.calibrate import calibrate
 from camnet.io.formats import Calibration
 from camnet.sim.scene import procedural_texture
@@ -46,7 +46,7 @@ def bench_solve(n_cameras: int, n_points: int, repeats: int, folder: Path) -> tu
     rng = np.random.default_rng(2)
     cals = [replace(cal, points=cal.points + rng.normal(scale=1e-4, size=cal.points.shape)) for _ in range(repeats)]
     path = folder / f"solve_{n_cameras}_{n_points}.rrd"
-    rec = viz.open_recording(rig="bench", sinks=[viz.parse_sink(f"save={path}")])
+    rec = viz.open_recording(rig="bench", sinks=[viz_sinks.parse_sink(f"save={path}")])
     ms = median_ms(lambda k: viz.log_calibration(rec, cals[k], time_ns=T0_NS + k, observations=obs, truth=truth),
                    repeats)
     viz.close_recording(rec)
@@ -57,7 +57,7 @@ def bench_frame(encoding: str, repeats: int, folder: Path) -> tuple[float, float
     greys = [procedural_texture(1280, 1024, np.random.default_rng(seed)) for seed in range(repeats)]
     images = greys if encoding == "mono8" else [cv2.applyColorMap(g, cv2.COLORMAP_BONE) for g in greys]
     path = folder / f"frame_{encoding}.rrd"
-    rec = viz.open_recording(rig="bench", sinks=[viz.parse_sink(f"save={path}")])
+    rec = viz.open_recording(rig="bench", sinks=[viz_sinks.parse_sink(f"save={path}")])
     ms = median_ms(lambda k: viz.log_frame(rec, "left", images[k], time_ns=T0_NS + k, encoding=encoding), repeats)
     viz.close_recording(rec)
     return ms, path.stat().st_size / repeats

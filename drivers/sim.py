@@ -26,7 +26,8 @@ import numpy as np
 from camnet.drivers.base import CameraInfo, ReadTimeout
 
 from camnet.bus.frame import Frame
-from camnet.io.rig import CameraEntry, Rig, SimConfig
+from camnet.io.rig import CameraEntry, Rig
+from camnet.sim.config import SimConfig
 from camnet.sim.render import Renderer
 from camnet.sim.scene import Scene
 

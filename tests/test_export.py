@@ -44,7 +44,7 @@ def rig_calibration(*, k3: bool = True, seed: int = 4) -> tuple[Calibration, obj
 
 
 def cv2_project(cam: Camera, X: np.ndarray) -> np.ndarray:
-    """OpenCV's own projection, independent of camnet.geometry.camera.project."""
+    """OpenCV's own projection, independent of camnet.geometry.projection.project."""
     rvec, _ = cv2.Rodrigues(cam.R)
     uv, _ = cv2.projectPoints(X.reshape(-1, 1, 3), rvec, cam.t.reshape(3, 1), cam.K, cam.dist)
     return uv.reshape(-1, 2)

@@ -6,8 +6,9 @@ import pytest
 import yaml
 
 from camnet.errors import InputError
-from camnet.geometry.camera import look_at
-from camnet.io.rig import AravisConfig, SimConfig, V4l2Config, load_rig, parse_rig
+from camnet.geometry.projection import look_at
+from camnet.io.rig import AravisConfig, V4l2Config, load_rig, parse_rig
+from camnet.sim.config import SimConfig
 
 CONFIG = Path(__file__).resolve().parent.parent / "config"
 

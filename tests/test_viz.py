@@ -9,7 +9,7 @@ from collections import defaultdict
 import numpy as np
 import pytest
 
-from camnet import viz
+from camnet import viz, viz_sinks
 from camnet.errors import InputError
 from camnet.geometry.calibrate import calibrate
 from camnet.geometry.camera import Camera
@@ -57,7 +57,7 @@ def solves():
 @pytest.fixture
 def recording(tmp_path):
     path = tmp_path / "run.rrd"
-    rec = viz.open_recording(rig="sim", sinks=[viz.parse_sink(f"save={path}")])
+    rec = viz.open_recording(rig="sim", sinks=[viz_sinks.parse_sink(f"save={path}")])
     try:
         yield rec, path
     finally:
@@ -201,17 +201,17 @@ def test_no_sink_means_no_recording_and_no_rerun_import():
 @pytest.mark.parametrize(
     "value, expected",
     [
-        ("spawn", viz.RerunSink("spawn")),
-        ("connect", viz.RerunSink("connect", url="rerun+http://127.0.0.1:9876/proxy")),
-        ("connect=rerun+http://10.0.0.5:9877/proxy", viz.RerunSink("connect", url="rerun+http://10.0.0.5:9877/proxy")),
-        ("serve", viz.RerunSink("serve", web_port=9090, grpc_port=9876)),
-        ("serve=8080", viz.RerunSink("serve", web_port=8080, grpc_port=9876)),
-        ("serve=8080,8081", viz.RerunSink("serve", web_port=8080, grpc_port=8081)),
-        ("save=run.rrd", viz.RerunSink("save", path="run.rrd")),
+        ("spawn", viz_sinks.RerunSink("spawn")),
+        ("connect", viz_sinks.RerunSink("connect", url="rerun+http://127.0.0.1:9876/proxy")),
+        ("connect=rerun+http://10.0.0.5:9877/proxy", viz_sinks.RerunSink("connect", url="rerun+http://10.0.0.5:9877/proxy")),
+        ("serve", viz_sinks.RerunSink("serve", web_port=9090, grpc_port=9876)),
+        ("serve=8080", viz_sinks.RerunSink("serve", web_port=8080, grpc_port=9876)),
+        ("serve=8080,8081", viz_sinks.RerunSink("serve", web_port=8080, grpc_port=8081)),
+        ("save=run.rrd", viz_sinks.RerunSink("save", path="run.rrd")),
     ],
 )
 def test_sink_values_parse(value, expected):
-    assert viz.parse_sink(value) == expected
+    assert viz_sinks.parse_sink(value) == expected
 
 
 @pytest.mark.parametrize(
@@ -221,24 +221,24 @@ def test_sink_values_parse(value, expected):
 )
 def test_bad_sink_values_name_the_flag(value):
     with pytest.raises(InputError, match="^--rerun"):
-        viz.parse_sink(value)
+        viz_sinks.parse_sink(value)
 
 
 def test_rerun_flag_is_repeatable_and_off_by_default(tmp_path):
     parser = argparse.ArgumentParser()
-    viz.add_rerun_arguments(parser)
-    assert viz.sinks_from_args(parser.parse_args([])) == ()
+    viz_sinks.add_rerun_arguments(parser)
+    assert viz_sinks.sinks_from_args(parser.parse_args([])) == ()
     args = parser.parse_args(["--rerun", "serve=8000,8001", "--rerun", f"save={tmp_path / 'a.rrd'}"])
-    assert [s.kind for s in viz.sinks_from_args(args)] == ["serve", "save"]
+    assert [s.kind for s in viz_sinks.sinks_from_args(args)] == ["serve", "save"]
     for clash in (["serve=8000,9876", "spawn"], [f"save={tmp_path / 'a.rrd'}"] * 2):
         with pytest.raises(InputError, match="same port or file"):
-            viz.sinks_from_args(parser.parse_args([x for v in clash for x in ("--rerun", v)]))
+            viz_sinks.sinks_from_args(parser.parse_args([x for v in clash for x in ("--rerun", v)]))
 
 
 def test_web_viewer_url_points_the_viewer_at_the_grpc_server():
-    url = viz.web_viewer_url(host="rig-host", web_port=9090, grpc_port=9876)
+    url = viz_sinks.web_viewer_url(host="rig-host", web_port=9090, grpc_port=9876)
     assert url == "http://rig-host:9090/?url=rerun%2Bhttp%3A%2F%2Frig-host%3A9876%2Fproxy"
-    assert "rig-host:9090" in viz.RerunSink("serve").describe(host="rig-host")
+    assert "rig-host:9090" in viz_sinks.RerunSink("serve").describe(host="rig-host")
 
 
 def test_a_sink_that_cannot_open_is_a_clear_error():
@@ -251,4 +251,4 @@ def test_a_sink_that_cannot_open_is_a_clear_error():
         busy.bind(("0.0.0.0", 0))
         busy.listen()
         with pytest.raises(CamnetError, match="^--rerun serve: cannot open"):
-            viz.open_recording(rig="sim", sinks=[viz.parse_sink(f"serve={free_port()},{busy.getsockname()[1]}")])
+            viz.open_recording(rig="sim", sinks=[viz_sinks.parse_sink(f"serve={free_port()},{busy.getsockname()[1]}")])

@@ -17,7 +17,7 @@ from urllib.parse import urlparse
 import numpy as np
 import pytest
 
-from camnet.viz import web_viewer_url
+from camnet.viz_sinks import web_viewer_url
 from tests.conftest import free_port
 from tests.test_network import rig_file
 

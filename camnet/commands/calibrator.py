@@ -12,7 +12,7 @@ DEFAULT_FREE = "f,stereo_rotation,stereo_direction"
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from camnet.bus.session import add_bus_arguments
-    from camnet.viz import add_rerun_arguments
+    from camnet.viz_sinks import add_rerun_arguments
 
     parser.add_argument("--rig", required=True, metavar="RIG.yaml|NAME",
                         help="the rig file, or just the rig's name")
@@ -65,7 +65,8 @@ def run(args: argparse.Namespace) -> int:
     from camnet.geometry.calibrate import Options
     from camnet.geometry.live import LiveConfig
     from camnet.services.calibrator import CalibratorConfig, CalibratorNode, RerunView
-    from camnet.viz import close_recording, open_recording, sinks_from_args
+    from camnet.viz import close_recording, open_recording
+    from camnet.viz_sinks import sinks_from_args
 
     name, rig = load_rig_arg(args.rig)
     sinks = sinks_from_args(args)

@@ -18,7 +18,7 @@ RECORDED_CLOCK_S = 3600.0  # a capture this far from the host clock was stamped 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from camnet.bus.session import add_bus_arguments
-    from camnet.viz import add_rerun_arguments
+    from camnet.viz_sinks import add_rerun_arguments
 
     parser.add_argument("rig_file", nargs="?", metavar="RIG.yaml",
                         help="rig file (default: the built-in simulated rig, config/sim.yaml)")
@@ -51,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
     from camnet.errors import CamnetError, InputError
     from camnet.io.formats import parse_calibration, write_json_atomic
     from camnet.io.rig import load_rig
-    from camnet.viz import sinks_from_args
+    from camnet.viz_sinks import sinks_from_args
 
     rig_path = Path(args.rig_file) if args.rig_file else DEFAULT_RIG
     rig = load_rig(rig_path)

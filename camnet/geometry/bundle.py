@@ -401,16 +401,8 @@ def solve(
             state = trial
             ne, wide = equations(state)
             lam, nu = max(lam * max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3), 1e-12), 2.0
-            gauss_newton_step = _solve_damped(ne, GAUSS_NEWTON_LAMBDA)
-            remaining = _gauss_newton_decrease(ne, gauss_newton_step)
-            log.debug(
-                "LM: cost %.9g (-%.3g), lambda %.2g, a Gauss-Newton step would gain %.3g",
-                ne.cost,
-                decrease,
-                lam,
-                remaining,
-            )
-            if remaining <= ftol * ne.cost:
+            gauss_newton_step, small = _gauss_newton_test(ne, ftol, decrease=decrease, lam=lam)
+            if small:
                 reason, converged = "a Gauss-Newton step would lower the cost by less than ftol (relative)", True
                 break
         else:
@@ -425,6 +417,23 @@ def solve(
 
 def _gauss_newton_decrease(ne: NormalEquations, step: tuple[np.ndarray, np.ndarray] | None) -> float:
     return np.inf if step is None else _predicted_decrease(ne, GAUSS_NEWTON_LAMBDA, *step)
+
+
+def _gauss_newton_test(
+    ne: NormalEquations, ftol: float, *, decrease: float, lam: float
+) -> tuple[tuple[np.ndarray, np.ndarray] | None, bool]:
+    """solve's convergence test after a step: the undamped step at the new state, and whether it
+    promises to lower the cost by at most ``ftol`` relative (then the solve has converged).
+
+    The step is returned so that the next iteration, if it is as undamped, need not solve again;
+    `decrease` (the step's actual decrease) and `lam` are only logged.
+    """
+    step = _solve_damped(ne, GAUSS_NEWTON_LAMBDA)
+    remaining = _gauss_newton_decrease(ne, step)
+    log.debug(
+        "LM: cost %.9g (-%.3g), lambda %.2g, a Gauss-Newton step would gain %.3g", ne.cost, decrease, lam, remaining
+    )
+    return step, remaining <= ftol * ne.cost
 
 
 def gauss_newton_decrease(ne: NormalEquations) -> float:

@@ -17,7 +17,7 @@ import numpy as np
 
 from camnet.errors import SolveError
 from camnet.geometry import paper
-from camnet.geometry.projection import K_from_intrinsics
+from camnet.geometry.projection import DIST_SIZE, K_from_intrinsics, intrinsics_from_K
 from camnet.io.formats import Calibration, Observations
 
 log = logging.getLogger(__name__)
@@ -55,12 +55,11 @@ def initial_intrinsics(obs: Observations, order: list[int]) -> np.ndarray:
     intr = np.zeros((len(order), 9))
     for m, i in enumerate(order):
         cam = obs.cameras[i]
+        dist = np.zeros(DIST_SIZE) if cam.dist is None else cam.dist
         if cam.K is not None:
-            intr[m, :4] = cam.K[0, 0], cam.K[1, 1] / cam.K[0, 0], cam.K[0, 2], cam.K[1, 2]
+            intr[m] = intrinsics_from_K(cam.K, dist)
         else:
-            intr[m, :4] = np.nan, 1.0, (cam.width - 1) / 2, (cam.height - 1) / 2
-        if cam.dist is not None:
-            intr[m, 4:] = cam.dist
+            intr[m] = [np.nan, 1.0, (cam.width - 1) / 2, (cam.height - 1) / 2, *dist]
     return intr
 
 

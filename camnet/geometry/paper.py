@@ -9,8 +9,6 @@ right camera at ``(l, 0, 0)`` in the left camera's frame.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 import scipy.optimize
 
@@ -179,19 +177,6 @@ def pose_from_dlt(P: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
         R = -R
     C = (Ch[:3] / Ch[3]).ravel()
     return float(0.5 * (K[0, 0] + K[1, 1])), R, C
-
-
-@dataclass(frozen=True)
-class PaperSolution:
-    """The paper's unknowns: f_left, and per other camera f, R, C (left camera frame)."""
-
-    f_left: float
-    k: float  # f_right / f_left
-    f: np.ndarray  # (M,) focal lengths, all cameras in the problem's order
-    R: np.ndarray  # (M, 3, 3)
-    C: np.ndarray  # (M, 3)
-    P0: np.ndarray  # (T, 3) stereo cloud for f_left = 1 (rows of tracks; NaN where invalid)
-    cost: float  # eq. 13 with equal x/y weights: 0.5 * sum of squared residuals, px^2
 
 
 def _rotvec_to_R(w: np.ndarray) -> np.ndarray:

@@ -1,19 +1,112 @@
-"""Vectorised projection with analytic derivatives, for the bundle adjustment.
+"""Projection through the pinhole camera with OpenCV distortion: camnet's one lens model.
 
-Per camera the intrinsic vector is ``[f, a, cx, cy, k1, k2, p1, p2, k3]``:
-``fx = f``, ``fy = a * f`` (``a`` is the pixel aspect, 1 for square pixels),
-principal point ``(cx, cy)`` in pixels, OpenCV distortion after it. The pose
-is ``(R, C)``: ``x_cam = R @ (X - C)`` with ``C`` the camera centre in metres,
-so ``t = -R @ C``. Rotations are perturbed on the left, ``R <- expm([w]x) R``,
-which makes ``d x_cam / d w = -[x_cam]x``.
+Conventions used across camnet:
+
+- Camera axes: x right, y down, z forward (optical axis). Lengths in metres.
+- Two ways to give a pose, one projection: `project` takes ``(R, t)`` with
+  ``x_cam = R @ X_world + t`` (the camera centre is ``C = -R.T @ t``), as a
+  `camnet.geometry.camera.Camera` holds it; the bundle adjustment's
+  `project_points` and `project_with_jacobians` take ``(R, C)`` with
+  ``x_cam = R @ (X_world - C)``, so ``t = -R @ C``.
+- Pixels: ``u`` to the right, ``v`` down, origin at the centre of the top-left
+  pixel (OpenCV's convention).
+- Intrinsics ``K = [[fx, s, cx], [0, fy, cy], [0, 0, 1]]`` in pixels; the
+  distortion ``dist`` in OpenCV's order ``[k1, k2, p1, p2, k3]``, applied to
+  normalised coordinates ``x_cam[:2] / x_cam[2]`` before ``K``.
+- The bundle adjustment's intrinsic vector per camera is
+  ``[f, a, cx, cy, k1, k2, p1, p2, k3]``: ``fx = f``, ``fy = a * f`` (``a`` is
+  the pixel aspect, 1 for square pixels), no skew, principal point
+  ``(cx, cy)`` in pixels, the distortion after it. Rotations are perturbed on
+  the left, ``R <- expm([w]x) R``, which makes ``d x_cam / d w = -[x_cam]x``.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+DIST_SIZE = 5  # k1, k2, p1, p2, k3
 INTRINSIC_NAMES = ("f", "a", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
 N_INTRINSICS = len(INTRINSIC_NAMES)
+ArrayOrFloat = np.ndarray | float
+
+
+def full_dist(dist: np.ndarray | list | None) -> np.ndarray:
+    """OpenCV distortion padded with zeros to [k1, k2, p1, p2, k3]."""
+    out = np.zeros(DIST_SIZE)
+    if dist is not None and len(dist):
+        d = np.asarray(dist, dtype=float).ravel()
+        if d.size > DIST_SIZE:
+            raise ValueError(f"distortion has {d.size} coefficients; camnet supports at most 5")
+        out[: d.size] = d
+    return out
+
+
+def lens_terms(
+    x: np.ndarray, y: np.ndarray,
+    k1: ArrayOrFloat, k2: ArrayOrFloat, p1: ArrayOrFloat, p2: ArrayOrFloat, k3: ArrayOrFloat,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """OpenCV's distortion at normalised points (x, y): ``(r2, radial, dx, dy)``.
+
+    The distorted point is ``(x * radial + dx, y * radial + dy)``: a radial
+    factor and a tangential shift. The coefficients are scalars or arrays
+    broadcasting with x and y (one camera per row).
+    """
+    r2 = x * x + y * y
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    dx = 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+    dy = p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+    return r2, radial, dx, dy
+
+
+def distort(xn: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """Apply OpenCV's radial-tangential distortion to normalised points (n, 2)."""
+    x, y = xn[:, 0], xn[:, 1]
+    _, radial, dx, dy = lens_terms(x, y, *full_dist(dist))
+    return np.stack([x * radial + dx, y * radial + dy], axis=1)
+
+
+def project(
+    points_world: np.ndarray,
+    *,
+    K: np.ndarray,
+    dist: np.ndarray | None = None,
+    R: np.ndarray | None = None,
+    t: np.ndarray | None = None,
+) -> np.ndarray:
+    """Pixels (n, 2) of world points (n, 3) in metres, pose ``x_cam = R @ X + t``.
+
+    R and t default to the identity and zero; K may have a skew ``K[0, 1]``.
+    Points at or behind the camera (z <= 0) give NaN pixels.
+    """
+    X = np.asarray(points_world, dtype=float).reshape(-1, 3)
+    R = np.eye(3) if R is None else np.asarray(R, dtype=float)
+    t = np.zeros(3) if t is None else np.asarray(t, dtype=float)
+    xc = X @ R.T + t
+    z = xc[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        xn = xc[:, :2] / z[:, None]
+    xn[z <= 0] = np.nan
+    xd = distort(xn, dist)
+    K = np.asarray(K, dtype=float)
+    u = K[0, 0] * xd[:, 0] + K[0, 1] * xd[:, 1] + K[0, 2]
+    v = K[1, 1] * xd[:, 1] + K[1, 2]
+    return np.stack([u, v], axis=1)
+
+
+def look_at(centre: np.ndarray, target: np.ndarray, up: np.ndarray = (0.0, -1.0, 0.0)) -> tuple:
+    """(R, t) of a camera at `centre` (m) looking at `target`, image-up along `up`.
+
+    `up` is in world coordinates; the default suits a world whose y axis points
+    down, as in the left camera's frame.
+    """
+    centre = np.asarray(centre, dtype=float)
+    z = np.asarray(target, dtype=float) - centre
+    z /= np.linalg.norm(z)
+    x = np.cross(z, np.asarray(up, dtype=float))
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    R = np.stack([x, y, z])
+    return R, -R @ centre
 
 
 def intrinsics_from_K(K: np.ndarray, dist: np.ndarray) -> np.ndarray:
@@ -58,14 +151,11 @@ def project_points(intr: np.ndarray, R: np.ndarray, C: np.ndarray, X: np.ndarray
 
 
 def _pixels(intr: np.ndarray, xc: np.ndarray) -> np.ndarray:
-    f, a, cx, cy, k1, k2, p1, p2, k3 = intr.T
+    f, a, cx, cy = intr[:, :4].T
     x = xc[:, 0] / xc[:, 2]
     y = xc[:, 1] / xc[:, 2]
-    r2 = x * x + y * y
-    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
-    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
-    return np.stack([f * xd + cx, a * f * yd + cy], axis=1)
+    _, radial, dx, dy = lens_terms(x, y, *intr[:, 4:].T)
+    return np.stack([f * (x * radial + dx) + cx, a * f * (y * radial + dy) + cy], axis=1)
 
 
 def project_with_jacobians(
@@ -83,10 +173,9 @@ def project_with_jacobians(
     iz = 1.0 / xc[:, 2]
     x = xc[:, 0] * iz
     y = xc[:, 1] * iz
-    r2 = x * x + y * y
-    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
-    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+    r2, radial, dx, dy = lens_terms(x, y, k1, k2, p1, p2, k3)
+    xd = x * radial + dx
+    yd = y * radial + dy
     fy = a * f
     uv = np.stack([f * xd + cx, fy * yd + cy], axis=1)
 

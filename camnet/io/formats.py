@@ -18,7 +18,8 @@ from typing import Any
 import numpy as np
 
 from camnet.errors import InputError
-from camnet.geometry.camera import Camera, full_dist
+from camnet.geometry.camera import Camera
+from camnet.geometry.projection import full_dist
 
 OBSERVATIONS_FORMAT = "camnet.observations/1"
 CALIBRATION_FORMAT = "camnet.calibration/1"

@@ -20,7 +20,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from camnet.geometry.camera import Camera, distort, full_dist
+from camnet.geometry.camera import Camera
+from camnet.geometry.projection import distort, full_dist, lens_terms
 
 _NEAR_M = 0.01  # near clipping plane in camera z
 
@@ -159,14 +160,10 @@ def undistort_normalised(xd: np.ndarray, dist: np.ndarray, iterations: int = 40)
     Converges for the moderate distortion of real lenses; the residual is
     checked so a lens beyond that fails loudly instead of rendering garbage.
     """
-    k1, k2, p1, p2, k3 = full_dist(dist)
+    coefficients = full_dist(dist)
     x = xd.copy()
     for _ in range(iterations):
-        px, py = x[:, 0], x[:, 1]
-        r2 = px * px + py * py
-        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-        dx = 2.0 * p1 * px * py + p2 * (r2 + 2.0 * px * px)
-        dy = p1 * (r2 + 2.0 * py * py) + 2.0 * p2 * px * py
+        _, radial, dx, dy = lens_terms(x[:, 0], x[:, 1], *coefficients)
         x = np.stack([(xd[:, 0] - dx) / radial, (xd[:, 1] - dy) / radial], axis=1)
     residual = np.abs(distort(x, dist) - xd).max()
     if not residual < 1e-9:

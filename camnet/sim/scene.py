@@ -13,7 +13,7 @@ import math
 import cv2
 import numpy as np
 
-from camnet.io.rig import SceneConfig
+from camnet.sim.config import SceneConfig
 from camnet.sim.render import Quad
 
 BOX_TEXEL_M = 0.0005

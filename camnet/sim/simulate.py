@@ -13,8 +13,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from camnet.geometry.camera import Camera, look_at
-from camnet.geometry.projection import rotation_exp
+from camnet.geometry.camera import Camera
+from camnet.geometry.projection import look_at, rotation_exp
 from camnet.io.formats import CameraInfo, Observations, Stereo
 
 WIDTH, HEIGHT = 1280, 1024
