@@ -22,7 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from camnet.geometry.camera import Camera, look_at
+from camnet.geometry.camera import Camera
+from camnet.geometry.projection import look_at
 from camnet.sim.simulate import HEIGHT, WIDTH, SimRig, make_rig
 
 FAMILIES = ("ring", "two_heads", "tape_pair", "wide")
