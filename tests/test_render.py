@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from camnet.geometry.camera import Camera, look_at
+from camnet.geometry.camera import look_at
+from camnet.geometry.model import Camera
 from camnet.io.rig import load_rig
 from camnet.sim.render import Quad, Renderer
 from camnet.sim.scene import Scene

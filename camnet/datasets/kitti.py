@@ -18,8 +18,7 @@ import cv2
 import numpy as np
 
 from camnet.errors import InputError
-from camnet.geometry.camera import Camera
-from camnet.io.formats import Calibration, Observations, Stereo
+from camnet.geometry.model import Calibration, Camera, Observations, Stereo
 
 CALIB_FILE = "calib_cam_to_cam.txt"
 STEREO_LEFT, STEREO_RIGHT = "0", "1"
@@ -175,7 +174,7 @@ def stereo_head(published: dict[str, Camera]) -> Calibration:
     the pair's pose.
     """
     return Calibration(
-        cameras=[published[c] for c in (STEREO_LEFT, STEREO_RIGHT)],
+        cameras=tuple(published[c] for c in (STEREO_LEFT, STEREO_RIGHT)),
         point_ids=np.empty(0, dtype=np.int64),
         points=np.empty((0, 3)),
         rms_reprojection_px=float("nan"),

@@ -1,4 +1,5 @@
-"""The pinhole camera with OpenCV distortion, and projection.
+"""The pinhole camera with OpenCV distortion: projection and poses (the Camera type is
+camnet.geometry.model.Camera).
 
 Conventions used across camnet:
 
@@ -13,33 +14,9 @@ Conventions used across camnet:
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
 
 DIST_SIZE = 5  # k1, k2, p1, p2, k3
-
-
-@dataclass(frozen=True)
-class Camera:
-    """One calibrated camera: intrinsics, distortion and pose in the world frame."""
-
-    id: str
-    width: int
-    height: int
-    K: np.ndarray
-    dist: np.ndarray = field(default_factory=lambda: np.zeros(DIST_SIZE))
-    R: np.ndarray = field(default_factory=lambda: np.eye(3))
-    t: np.ndarray = field(default_factory=lambda: np.zeros(3))
-
-    @property
-    def centre(self) -> np.ndarray:
-        """Camera centre in world coordinates (m)."""
-        return -self.R.T @ self.t
-
-    def project(self, points_world: np.ndarray) -> np.ndarray:
-        """Pixels (n, 2) of world points (n, 3); see `project`."""
-        return project(points_world, K=self.K, dist=self.dist, R=self.R, t=self.t)
 
 
 def full_dist(dist: np.ndarray | list | None) -> np.ndarray:

@@ -17,8 +17,8 @@ import numpy as np
 
 from camnet.errors import SolveError
 from camnet.geometry import paper
+from camnet.geometry.model import Calibration, Observations
 from camnet.geometry.projection import K_from_intrinsics
-from camnet.io.formats import Calibration, Observations
 
 log = logging.getLogger(__name__)
 

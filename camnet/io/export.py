@@ -16,7 +16,7 @@ import re
 import numpy as np
 
 from camnet.errors import InputError
-from camnet.io.formats import Calibration, Observations
+from camnet.geometry.model import Calibration, Observations
 
 FORMATS = ("opencv", "colmap", "ros", "kalibr")
 # COLMAP puts the pixel origin at the top-left corner of the top-left pixel, camnet at its centre.

@@ -20,7 +20,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from camnet.geometry.camera import Camera, distort, full_dist
+from camnet.geometry.camera import distort, full_dist
+from camnet.geometry.model import Camera
 
 _NEAR_M = 0.01  # near clipping plane in camera z
 

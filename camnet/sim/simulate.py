@@ -13,9 +13,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from camnet.geometry.camera import Camera, look_at
+from camnet.geometry.camera import look_at
+from camnet.geometry.model import Camera, CameraInfo, Observations, Stereo
 from camnet.geometry.projection import rotation_exp
-from camnet.io.formats import CameraInfo, Observations, Stereo
 
 WIDTH, HEIGHT = 1280, 1024
 OBJECT_CENTRE = np.array([0.0625, 0.0, 0.65])
