@@ -54,7 +54,7 @@ from camnet.geometry.initialise import (
     warm_start,
 )
 from camnet.geometry.model import Calibration, Camera, Loss, Method, Observations, StartKind
-from camnet.geometry.projection import N_INTRINSICS, K_from_intrinsics, project_points
+from camnet.geometry.projection import INTRINSIC_NAMES, N_INTRINSICS, K_from_intrinsics, project_points
 from camnet.geometry.uncertainty import Covariance, covariance_with_pp_prior, with_guessed_pp
 
 log = logging.getLogger(__name__)
@@ -64,6 +64,7 @@ MIN_CAMERA_INLIERS = 6  # fewer observations cannot fix a camera's pose and foca
 # The median length of a 2-D residual with Gaussian noise of sigma per axis (Rayleigh):
 # sqrt(2 ln 2) sigma. Dividing a median residual by it gives a sigma that outliers barely move.
 MEDIAN_RESIDUAL_PER_SIGMA = 1.1774
+_DIST = slice(INTRINSIC_NAMES.index("k1"), N_INTRINSICS)  # a camera's distortion among its intrinsics
 
 
 @dataclass(frozen=True)
@@ -431,7 +432,7 @@ def _paper_result(obs, order, intr, rows, start: Start, timings) -> Result:
     f, R, C = start.f, start.R, start.C
     f_left = f[0]
     intr = intr.copy()
-    intr[:, 0], intr[:, 4:] = f, 0.0
+    intr[:, 0], intr[:, _DIST] = f, 0.0
     track_rows = np.flatnonzero(has_P0)
     X = start.P0[track_rows] * np.array([1.0, 1.0, f_left])
     keep = has_P0[obs.track_index]
@@ -472,7 +473,7 @@ def _result(
         info_cam = obs.cameras[i]
         R = state.R[m]
         K = K_from_intrinsics(state.intr[m])
-        cameras[i] = Camera(info_cam.id, info_cam.width, info_cam.height, K, state.intr[m, 4:].copy(), R.copy(),
+        cameras[i] = Camera(info_cam.id, info_cam.width, info_cam.height, K, state.intr[m, _DIST].copy(), R.copy(),
                             -R @ state.C[m])
     c = problem.cam
     uv, xc = project_points(state.intr[c], state.R[c], state.C[c], state.X[problem.pt])
