@@ -198,8 +198,10 @@ class CalibratorNode:
         resumed = load_state(self.config.state_path)
         if resumed is not None:
             self.tracker.good = resumed
+            # The persisted document as it was published, live metadata (solve, status, ...) included:
+            # the calibration type keeps only what it models.
             with self._lock:
-                self.latest_doc = json.dumps(calibration_to_doc(resumed), allow_nan=False).encode()
+                self.latest_doc = json.dumps(load_json(self.config.state_path), allow_nan=False).encode()
             publisher.put(self.latest_doc)
             log.info("resumed from %s (%d cameras)", self.config.state_path, len(resumed.cameras))
         queryable = self.session.declare_queryable(keys.calibration(rig), self._on_query)
