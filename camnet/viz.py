@@ -51,8 +51,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from camnet.errors import CamnetError
-from camnet.geometry.camera import Camera
-from camnet.io.formats import Calibration, Observations
+from camnet.geometry.model import Calibration, Camera, Observations
 from camnet.viz_sinks import RerunSink
 
 if TYPE_CHECKING:
@@ -301,20 +300,20 @@ def _scalar(rec: rr.RecordingStream, value: float, *parts: str) -> None:
 
 
 def _log_series(rec: rr.RecordingStream, calibration: Calibration, truth) -> None:
-    from camnet.geometry.evaluate import compare, compare_cameras
+    from camnet.geometry.evaluate import compare, compare_cameras, scale_sigma_rel
 
-    extra = calibration.extra
-    uncertainty = extra.get("uncertainty", {})
-    diagnostics = extra.get("diagnostics", {}).get("cameras", {})
+    stats = calibration.report.cameras if calibration.report is not None else {}
+    sigmas = calibration.uncertainty.cameras if calibration.uncertainty is not None else {}
     _scalar(rec, calibration.rms_reprojection_px, "network", "rms_px")
     _scalar(rec, len(calibration.points), "network", "points")
-    _scalar(rec, 100.0 * uncertainty.get("scale_rel", np.nan), "network", "scale_sigma_pct")
+    _scalar(rec, 100.0 * scale_sigma_rel(calibration), "network", "scale_sigma_pct")
     for cam in calibration.cameras:
-        _scalar(rec, diagnostics.get(cam.id, {}).get("rms_px", np.nan), "rms_px", cam.id)
-        sigma = uncertainty.get("cameras", {}).get(cam.id, {})
-        _scalar(rec, sigma.get("f_px", np.nan), "sigma_f_px", cam.id)
-        if "centre_m" in sigma:
-            _scalar(rec, 1e3 * float(np.linalg.norm(sigma["centre_m"])), "sigma_centre_mm", cam.id)
+        if cam.id in stats:
+            _scalar(rec, stats[cam.id].rms_px, "rms_px", cam.id)
+        sigma = sigmas.get(cam.id)
+        if sigma is not None:
+            _scalar(rec, sigma.f_px, "sigma_f_px", cam.id)
+            _scalar(rec, 1e3 * float(np.linalg.norm(sigma.centre_m)), "sigma_centre_mm", cam.id)
     if truth is None:
         return
     if isinstance(truth, Calibration):
@@ -333,13 +332,12 @@ def _log_series(rec: rr.RecordingStream, calibration: Calibration, truth) -> Non
 def _log_text(rec: rr.RecordingStream, calibration: Calibration, solve_index: int) -> None:
     import rerun as rr
 
-    diagnostics = calibration.extra.get("diagnostics", {})
-    converged = diagnostics.get("converged")
-    state = "" if converged is None else (", converged" if converged else ", NOT converged")
+    report = calibration.report
+    state = "" if report is None else (", converged" if report.converged else ", NOT converged")
     rec.log("log", rr.TextLog(
         f"solve {solve_index}: {len(calibration.cameras)} cameras, {len(calibration.points)} points, "
         f"RMS {calibration.rms_reprojection_px:.3f} px{state}", level=rr.TextLogLevel.INFO))
-    for warning in diagnostics.get("warnings", []):
+    for warning in calibration.warnings:
         rec.log("log", rr.TextLog(f"solve {solve_index}: {warning}", level=rr.TextLogLevel.WARN))
 
 

@@ -25,10 +25,10 @@ from camnet.bus import keys, lockstep
 from camnet.bus.session import declare_liveliness
 from camnet.bus.stats import NodeStats, RateMeter
 from camnet.errors import InputError
+from camnet.geometry.evaluate import scale_sigma_rel
 from camnet.geometry.live import LiveConfig, Outcome, Tracker
+from camnet.geometry.model import Calibration, Observations
 from camnet.io.formats import (
-    Calibration,
-    Observations,
     calibration_to_doc,
     load_json,
     parse_calibration,
@@ -171,7 +171,7 @@ class CalibratorNode:
             log.info("solve %d: good (%s, %.2f s): %d cameras, %d points, rms %.3f px, scale sigma %.3f%%",
                      self.tracker.solves, "warm" if outcome.warm else "cold", outcome.solve_s,
                      len(cal.cameras), len(cal.points), cal.rms_reprojection_px,
-                     100 * cal.extra.get("uncertainty", {}).get("scale_rel", float("nan")))
+                     100 * scale_sigma_rel(cal))
         else:
             log.warning("solve %d: %s, the last good calibration stays: %s", self.tracker.solves,
                         outcome.status, outcome.reason)
@@ -198,8 +198,10 @@ class CalibratorNode:
         resumed = load_state(self.config.state_path)
         if resumed is not None:
             self.tracker.good = resumed
+            # The persisted document as it was published, live metadata (solve, status, ...) included:
+            # the calibration type keeps only what it models.
             with self._lock:
-                self.latest_doc = json.dumps(calibration_to_doc(resumed), allow_nan=False).encode()
+                self.latest_doc = json.dumps(load_json(self.config.state_path), allow_nan=False).encode()
             publisher.put(self.latest_doc)
             log.info("resumed from %s (%d cameras)", self.config.state_path, len(resumed.cameras))
         queryable = self.session.declare_queryable(keys.calibration(rig), self._on_query)

@@ -46,7 +46,8 @@ from camnet.bus.session import declare_liveliness
 from camnet.bus.stats import NodeStats, RateMeter
 from camnet.bus.sync import FrameSet, FrameSynchronizer, SyncCounts
 from camnet.errors import InputError
-from camnet.io.formats import CameraInfo, Stereo, observations_to_doc
+from camnet.geometry.model import CameraInfo, Stereo
+from camnet.io.formats import observations_to_doc
 from camnet.io.rig import Rig
 from camnet.matching.features import Detector, MatcherConfig, match_frame_set, to_grey
 from camnet.matching.pool import PoolConfig, PoolUpdate, TrackPool

@@ -94,12 +94,12 @@ def test_errors_lie_within_the_reported_uncertainty():
         rig = make_rig(n_cameras=6, n_points=150, seed=seed)
         result = calibrate(observe(rig, noise_px=0.5, seed=seed).observations, Options(free=frozenset({"f"})))
         c = compare(result.calibration, rig.cameras, rig.points)
-        unc = result.calibration.extra["uncertainty"]["cameras"]
+        unc = result.calibration.uncertainty.cameras
         truth = {cam.id: cam for cam in rig.cameras}
         for cam in result.calibration.cameras:
             u = unc[cam.id]
-            checks = [(cam.K[0, 0] - truth[cam.id].K[0, 0], u["f_px"])]
-            checks += list(zip(cam.centre - truth[cam.id].centre, u["centre_m"], strict=True))
+            checks = [(cam.K[0, 0] - truth[cam.id].K[0, 0], u.f_px)]
+            checks += list(zip(cam.centre - truth[cam.id].centre, u.centre_m, strict=True))
             for err, sd in checks:
                 if sd > 0:
                     total += 1
@@ -115,7 +115,7 @@ def test_reported_uncertainty_matches_the_cramer_rao_bound():
     # The bound is conditional on the principal points at the centre, as the solve's held ones are.
     result = calibrate(observe(rig, noise_px=0.5, seed=4).observations, Options(free=frozenset({"f"}), pp_prior_rel=0))
     crb = scale_sigma(covariance(result.problem, truth_state(rig, result), sigma_px=0.5), rig.points)
-    reported = result.calibration.extra["uncertainty"]["scale_rel"]
+    reported = result.calibration.uncertainty.scale_rel.value
     assert 0.5 < reported / crb < 2.0
 
 
@@ -177,11 +177,11 @@ def test_warm_start_after_new_tracks_converges_to_the_same_solution():
     cold = calibrate(obs).calibration
     warm = calibrate(obs, initial=previous).calibration
     for a, b in zip(cold.cameras, warm.cameras, strict=True):
-        sd = cold.extra["uncertainty"]["cameras"][a.id]
+        sd = cold.uncertainty.cameras[a.id]
         # Measured: 0.00-0.03 sigma over seeds 6-11 (the inlier sets differ by one observation at most).
-        assert abs(a.K[0, 0] - b.K[0, 0]) < 0.1 * sd["f_px"] + 1e-6
-        assert np.linalg.norm(a.centre - b.centre) < 0.1 * np.linalg.norm(sd["centre_m"]) + 1e-9
-    assert warm.extra["diagnostics"]["start"] == "warm"
+        assert abs(a.K[0, 0] - b.K[0, 0]) < 0.1 * sd.f_px + 1e-6
+        assert np.linalg.norm(a.centre - b.centre) < 0.1 * np.linalg.norm(sd.centre_m) + 1e-9
+    assert warm.report.start == "warm"
 
 
 @pytest.fixture(scope="module")
@@ -199,27 +199,27 @@ def test_reset_camera_is_placed_again_within_its_uncertainty(bumped):
     reset = calibrate(obs, initial=previous, reset_cameras={"mono_02"})
     cold = calibrate(obs)
     # Without the reset the warm start does not fit the moved camera and falls back to the robust passes.
-    assert plain.calibration.extra["diagnostics"]["start"] == "warm, robust"
-    assert reset.calibration.extra["diagnostics"]["start"] == "warm"
+    assert plain.calibration.report.start == "warm, robust"
+    assert reset.calibration.report.start == "warm"
     truth = {c.id: c for c in rig_now.cameras}
     for result in (reset, cold):
         cam = {c.id: c for c in result.calibration.cameras}["mono_02"]
-        sd = result.calibration.extra["uncertainty"]["cameras"]["mono_02"]
-        assert np.linalg.norm(cam.centre - truth["mono_02"].centre) < 3 * np.linalg.norm(sd["centre_m"])
-        assert rotation_angle_deg(cam.R @ truth["mono_02"].R.T) < 3 * np.linalg.norm(sd["rotation_deg"])
+        sd = result.calibration.uncertainty.cameras["mono_02"]
+        assert np.linalg.norm(cam.centre - truth["mono_02"].centre) < 3 * np.linalg.norm(sd.centre_m)
+        assert rotation_angle_deg(cam.R @ truth["mono_02"].R.T) < 3 * np.linalg.norm(sd.rotation_deg)
     # The reset solve is the cold solve to a fraction of its uncertainty (measured: 0.14 sigma;
     # the two keep a few different observations at the outlier threshold).
     for a, b in zip(cold.calibration.cameras, reset.calibration.cameras, strict=True):
-        sd = cold.calibration.extra["uncertainty"]["cameras"][a.id]
-        assert abs(a.K[0, 0] - b.K[0, 0]) < 0.3 * sd["f_px"] + 1e-9
-        assert np.linalg.norm(a.centre - b.centre) < 0.3 * np.linalg.norm(sd["centre_m"]) + 1e-12
+        sd = cold.calibration.uncertainty.cameras[a.id]
+        assert abs(a.K[0, 0] - b.K[0, 0]) < 0.3 * sd.f_px + 1e-9
+        assert np.linalg.norm(a.centre - b.centre) < 0.3 * np.linalg.norm(sd.centre_m) + 1e-12
 
 
 def test_resetting_a_stereo_camera_solves_from_scratch(bumped):
     previous, _, obs = bumped
     cold = calibrate(obs).calibration
     reset = calibrate(obs, initial=previous, reset_cameras=["left"]).calibration
-    assert reset.extra["diagnostics"]["start"] == "cold"
+    assert reset.report.start == "cold"
     np.testing.assert_allclose(reset.points, cold.points)
 
 
@@ -233,12 +233,12 @@ def test_a_held_stereo_column_difference_is_warned_about_unless_k_is_given():
     rig = make_rig(seed=3)
     sim = observe(rig, noise_px=0.5, seed=3, with_intrinsics=True)
     plain = observe(rig, noise_px=0.5, seed=3).observations
-    warned = calibrate(plain).calibration.extra["diagnostics"]["warnings"]
+    warned = calibrate(plain).calibration.warnings
     # 0.125 m baseline, f = 1500 px, 0.65 m away: a disparity of about 290 px, 0.35% per pixel.
     assert any("principal points in the same column" in w and "0.3" in w for w in warned)
     given = replace(
         sim.observations,
         cameras=tuple(replace(c, fixed=frozenset({"K", "dist"})) for c in sim.observations.cameras),
     )
-    quiet = calibrate(given).calibration.extra["diagnostics"]["warnings"]
+    quiet = calibrate(given).calibration.warnings
     assert not any("principal points in the same column" in w for w in quiet)

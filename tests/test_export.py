@@ -14,9 +14,9 @@ import pytest
 import yaml
 
 from camnet.errors import InputError
-from camnet.geometry.camera import Camera
+from camnet.geometry.model import Calibration, Camera
 from camnet.io.export import colmap_model, export, kalibr_camchain, opencv_yaml, ros_camera_info
-from camnet.io.formats import Calibration, calibration_to_doc, observations_to_doc
+from camnet.io.formats import calibration_to_doc, observations_to_doc
 from camnet.sim.simulate import make_rig, observe
 
 # Per camera [k1, k2, p1, p2, k3]: none, OpenCV's four, and all five (COLMAP's three models).
@@ -39,8 +39,7 @@ def rig_calibration(*, k3: bool = True, seed: int = 4) -> tuple[Calibration, obj
         cameras.append(replace(cam, K=K, dist=d))
     rig = replace(rig, cameras=cameras)
     ids = np.arange(len(rig.points), dtype=np.int64) + 10
-    extra = {"uncertainty": {"sigma_px": 0.5, "scale_rel": 0.001, "cameras": {}}}
-    return Calibration(cameras, ids, rig.points.copy(), 0.5, "left", extra), rig
+    return Calibration(tuple(cameras), ids, rig.points.copy(), 0.5, "left"), rig
 
 
 def cv2_project(cam: Camera, X: np.ndarray) -> np.ndarray:
@@ -167,7 +166,7 @@ def test_colmap_rejects_skew_and_negative_ids():
     cal, _ = rig_calibration()
     K = cal.cameras[2].K.copy()
     K[0, 1] = 0.5
-    skewed = replace(cal, cameras=[*cal.cameras[:2], replace(cal.cameras[2], K=K), *cal.cameras[3:]])
+    skewed = replace(cal, cameras=(*cal.cameras[:2], replace(cal.cameras[2], K=K), *cal.cameras[3:]))
     with pytest.raises(InputError, match=r"cameras\[2\]\.K: skew"):
         colmap_model(skewed)
     with pytest.raises(InputError, match="non-negative"):

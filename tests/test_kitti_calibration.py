@@ -19,8 +19,7 @@ from camnet.datasets.kitti import SCENARIOS, KittiExtract, prepare_scenario, rea
 from camnet.datasets.published import compare, compare_cameras, distance_scale
 from camnet.errors import InputError, SolveError
 from camnet.geometry.calibrate import Options, calibrate
-from camnet.geometry.camera import Camera
-from camnet.io.formats import Calibration, CameraInfo, Observations, Stereo
+from camnet.geometry.model import Calibration, Camera, CameraInfo, Observations, Stereo
 from camnet.matching.pipeline import observations_from_frame_sets, with_known_intrinsics
 from camnet.matching.pool import PoolConfig
 from tests._groundtruth import KITTI_ROOT, require
@@ -108,10 +107,10 @@ def test_nothing_known_is_refused_or_flagged(kitti_obs):
         cal = calibrate(obs, Options()).calibration
     except SolveError:
         return  # an honest refusal; measured: the adjustment reaches its iteration limit
-    warnings = cal.extra["diagnostics"]["warnings"]
+    warnings = cal.warnings
     # Measured: focal lengths +3100 % with sigmas of 38000 %, and not one point determined.
     assert any("poorly determined" in w for w in warnings), warnings
-    assert cal.extra["uncertainty"]["scale_rel"] is None or cal.extra["uncertainty"]["scale_rel"] > 0.05
+    assert cal.uncertainty.scale_rel.value is None or cal.uncertainty.scale_rel.value > 0.05
 
 
 @pytest.mark.xfail(reason="with the pair's pose free, only the colour cameras fix its yaw, and they fire ~7 ms "
@@ -173,7 +172,7 @@ def test_distance_scale_and_camera_errors_on_a_known_distortion():
     ids = np.arange(50) + 100
     cam = Camera("x", 640, 480, np.diag([500.0, 500.0, 1.0]), t=np.array([-0.5, 0.0, 0.0]))
     moved = replace(cam, K=np.diag([505.0, 505.0, 1.0]), t=np.array([-0.5, 0.0, 0.02]))
-    cal = Calibration([moved], ids[::-1], 1.01 * ref[::-1] + 3.0, 0.5, "x")
+    cal = Calibration((moved,), ids[::-1], 1.01 * ref[::-1] + 3.0, 0.5, "x")
     rel, n = distance_scale(cal, ids, ref)
     assert n == 50 and rel == pytest.approx(0.01, abs=1e-9)
     [err] = compare_cameras(cal, {"x": cam})

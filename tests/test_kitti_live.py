@@ -21,7 +21,7 @@ import pytest
 from camnet.datasets.kitti import KittiExtract, prepare_scenario, read_image, run_live
 from camnet.datasets.published import compare
 from camnet.geometry.calibrate import Options, calibrate
-from camnet.io.formats import CameraInfo
+from camnet.geometry.model import CameraInfo
 from camnet.io.rig import load_rig
 from camnet.matching.pipeline import observations_from_frame_sets
 from camnet.matching.pool import PoolConfig

@@ -39,18 +39,6 @@ RULES = (
 
 # Known violations, (importing file, imported module), each to be removed when its fix is merged.
 ALLOWED_IMPORTS = {
-    # The domain model (Calibration, Observations, CameraInfo, Stereo) still lives in io/formats.py;
-    # it moves to camnet/geometry/model.py.
-    ("camnet/geometry/calibrate.py", "camnet.io.formats"),
-    ("camnet/geometry/change.py", "camnet.io.formats"),
-    ("camnet/geometry/evaluate.py", "camnet.io.formats"),
-    ("camnet/geometry/initialise.py", "camnet.io.formats"),
-    ("camnet/geometry/live.py", "camnet.io.formats"),
-    ("camnet/geometry/residuals.py", "camnet.io.formats"),
-    ("camnet/matching/features.py", "camnet.io.formats"),
-    ("camnet/matching/pipeline.py", "camnet.io.formats"),
-    ("camnet/matching/pool.py", "camnet.io.formats"),
-    ("camnet/sim/simulate.py", "camnet.io.formats"),
     # The KITTI live run opens a bus session from the dataset module: launcher code, reworked with the nodes.
     ("camnet/datasets/kitti.py", "camnet.bus"),
     ("camnet/datasets/kitti.py", "camnet.bus.launch"),
@@ -59,9 +47,6 @@ ALLOWED_IMPORTS = {
 
 # Known long modules ("file") and functions ("file:function"), each being split apart.
 ALLOWED_LONG = {
-    # The solve's outcome is becoming a typed report, reworked apart.
-    "camnet/geometry/calibrate.py",
-    "camnet/geometry/calibrate.py:_calibrate",
     # Launcher code, reworked with the nodes.
     "camnet/commands/up.py:run",
     "camnet/datasets/kitti.py:run_live",

@@ -6,11 +6,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from camnet.geometry.camera import Camera
 from camnet.geometry.change import drop_before, new_track_errors
 from camnet.geometry.live import LiveConfig, Tracker
+from camnet.geometry.model import Camera, Observations
 from camnet.geometry.projection import rotation_exp
-from camnet.io.formats import Observations
 from camnet.sim.simulate import make_rig, observe
 
 
@@ -57,16 +56,16 @@ def test_a_moved_camera_is_detected_and_recalibrated():
     after = replace(make_rig(n_points=300, seed=4), cameras=[*before.cameras[:3], new_mono])
     tracker = Tracker(LiveConfig())
     assert tracker.update(observe(before, seed=5).observations).status == "good"
-    rms_before = tracker.good.extra["diagnostics"]["cameras"][new_mono.id]["rms_px"]
+    rms_before = tracker.good.report.cameras[new_mono.id].rms_px
 
     obs = pooled(observe(before, seed=5).observations, observe(after, seed=6).observations)
     outcome = tracker.update(obs)
     assert outcome.moved == (new_mono.id,)
     assert outcome.status == "good", outcome.reason
     cam = {c.id: c for c in outcome.calibration.cameras}[new_mono.id]
-    sigma = outcome.calibration.extra["uncertainty"]["cameras"][new_mono.id]
-    assert np.linalg.norm(cam.centre - new_mono.centre) < 4 * np.linalg.norm(sigma["centre_m"])
-    rms_after = outcome.calibration.extra["diagnostics"]["cameras"][new_mono.id]["rms_px"]
+    sigma = outcome.calibration.uncertainty.cameras[new_mono.id]
+    assert np.linalg.norm(cam.centre - new_mono.centre) < 4 * np.linalg.norm(sigma.centre_m)
+    rms_after = outcome.calibration.report.cameras[new_mono.id].rms_px
     assert rms_after < 2 * rms_before + 0.2
     # The still cameras keep their place.
     others = tracker.update(pooled(obs, observe(replace(after, points=after.points[:40] + 0.003),
@@ -123,10 +122,11 @@ def test_a_factory_head_without_points_or_rms_is_a_state_to_resume_from(tmp_path
 
     from camnet.services.calibrator import load_state
 
-    from camnet.io.formats import Calibration, calibration_to_doc, write_json_atomic
+    from camnet.geometry.model import Calibration
+    from camnet.io.formats import calibration_to_doc, write_json_atomic
 
     rig = make_rig(seed=1)
-    head = Calibration(cameras=list(rig.cameras[:2]), point_ids=np.empty(0, dtype=np.int64), points=np.empty((0, 3)),
+    head = Calibration(cameras=tuple(rig.cameras[:2]), point_ids=np.empty(0, dtype=np.int64), points=np.empty((0, 3)),
                        rms_reprojection_px=float("nan"), world_frame=rig.cameras[0].id)
     path = tmp_path / "state.json"
     write_json_atomic(path, calibration_to_doc(head))

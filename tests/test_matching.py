@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from camnet.io.formats import Stereo
+from camnet.geometry.model import Stereo
 from camnet.matching.features import (
     Detector,
     Features,

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from camnet.geometry.camera import Camera
+from camnet.geometry.model import Camera
 from camnet.geometry.projection import look_at
 from camnet.io.rig import load_rig
 from camnet.sim.render import Quad, Renderer

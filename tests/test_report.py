@@ -19,9 +19,10 @@ import pytest
 
 from camnet.errors import InputError
 from camnet.geometry.calibrate import Options, calibrate
+from camnet.geometry.model import CameraInfo
 from camnet.geometry.residuals import reprojection_residuals
-from camnet.io.formats import CameraInfo, calibration_to_doc, observations_to_doc
-from camnet.io.report import SECTIONS, bounding_box, frustum_xz, further_keys, render_report
+from camnet.io.formats import calibration_to_doc, observations_to_doc, parse_calibration
+from camnet.io.report import SECTIONS, bounding_box, frustum_xz, render_report
 from camnet.sim.simulate import make_rig, observe
 
 # matplotlib's tab10 colours of cameras 0..3 (BGR, as cv2 reads the screenshot).
@@ -34,8 +35,8 @@ def solved():
     rig = make_rig(seed=2)
     obs = observe(rig, noise_px=0.5, seed=2, outlier_fraction=0.05).observations
     cal = calibrate(obs, Options()).calibration
-    cal.extra["diagnostics"]["warnings"].append("camera mono_b: a test warning <with markup>")
-    return cal, obs
+    report = replace(cal.report, warnings=(*cal.report.warnings, "camera mono_b: a test warning <with markup>"))
+    return replace(cal, report=report), obs
 
 
 def test_bounding_box_is_the_extent_in_mm():
@@ -103,34 +104,40 @@ def test_html_holds_every_section_and_the_numbers(solved):
     for cam in cal.cameras:
         assert f"<td>{cam.id}</td>" in page
         assert f"<td>{cam.K[0, 0]:.1f}</td>" in page
-        assert f"<td>{cal.extra['uncertainty']['cameras'][cam.id]['f_px']:.2f}</td>" in page
+        assert f"<td>{cal.uncertainty.cameras[cam.id].f_px:.2f}</td>" in page
         kept = np.isin(obs.track_ids[obs.track_index], cal.point_ids)
         assert f"{cam.id}: {int(np.sum(kept & (obs.cam_index == obs.index_of(cam.id))))} observations" in page
     sx, sy, sz = 1e3 * np.ptp(cal.points, axis=0)
     assert f"{sx:.1f} mm x {sy:.1f} mm x {sz:.1f} mm" in page
     assert f"<td>{cal.rms_reprojection_px:.3f}</td>" in page
-    assert f"<td>{100 * cal.extra['uncertainty']['scale_rel']:.4f}</td>" in page
+    assert f"<td>{100 * cal.uncertainty.scale_rel.value:.4f}</td>" in page
     assert "a test warning &lt;with markup&gt;" in page
 
     without = render_report(cal)
     assert without.count("<svg") == 3 and without.count("--observations OBS.json") == 2
-    bare = replace(cal, extra={})
+    bare = replace(cal, report=None)
     assert "holds no uncertainty" in render_report(bare) and '<p class="note">None.</p>' in render_report(bare)
 
 
 def test_further_keys_are_checked(solved):
     cal, _ = solved
-    for extra, message in [
-        ({"uncertainty": 5}, "uncertainty: expected an object"),
-        ({"uncertainty": {"sigma_px": "0.5"}}, "uncertainty.sigma_px: expected a number"),
-        ({"diagnostics": {"warnings": "none"}}, "diagnostics.warnings: expected a list"),
-        ({"uncertainty": {"cameras": {"left": {"f_px": [1]}}}}, "uncertainty.cameras.left.f_px"),
+    for keys, value, message in [
+        (["uncertainty"], 5, "uncertainty: expected an object"),
+        (["uncertainty", "sigma_px"], "0.5", "uncertainty.sigma_px: expected a number"),
+        (["diagnostics", "warnings"], "none", "diagnostics.warnings: expected a list"),
+        (["uncertainty", "cameras", "left", "f_px"], [1], "uncertainty.cameras.left.f_px"),
     ]:
+        doc = calibration_to_doc(cal)
+        inner = doc
+        for key in keys[:-1]:
+            inner = inner[key]
+        inner[keys[-1]] = value
         with pytest.raises(InputError, match=re.escape(message)):
-            render_report(replace(cal, extra=extra))
-    fk = further_keys(cal)
-    assert fk.sigma_px == cal.extra["uncertainty"]["sigma_px"] and fk.method == "refined"
-    assert fk.uncertainty["mono_a"]["centre_m"] == cal.extra["uncertainty"]["cameras"]["mono_a"]["centre_m"]
+            render_report(parse_calibration(doc))
+    doc = calibration_to_doc(cal)
+    fk = parse_calibration(doc).report
+    assert fk.uncertainty.sigma_px == doc["uncertainty"]["sigma_px"] and fk.method == "refined"
+    assert list(fk.uncertainty.cameras["mono_a"].centre_m) == doc["uncertainty"]["cameras"]["mono_a"]["centre_m"]
 
 
 def run_camnet(*args: str) -> subprocess.CompletedProcess:

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from camnet.io.formats import CameraInfo, Stereo, observations_to_doc, parse_observations
+from camnet.geometry.model import CameraInfo, Stereo
+from camnet.io.formats import observations_to_doc, parse_observations
 from camnet.matching.pool import PoolConfig, TrackPool, crowding, dedupe_frame_tracks
 from camnet.matching.tracks import FrameTracks
 

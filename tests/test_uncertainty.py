@@ -5,8 +5,10 @@ from dataclasses import replace
 import numpy as np
 import scipy.linalg
 
-from camnet.geometry.calibrate import Options, calibrate, reported_points
+from camnet.geometry.calibrate import Options, calibrate
+from camnet.geometry.diagnostics import reported_points
 from camnet.geometry.evaluate import compare
+from camnet.geometry.model import PointsLeftOut
 from camnet.geometry.uncertainty import covariance, inverse_spd, residual_dof, scale_sigma, scale_weights
 from camnet.sim.simulate import make_rig, observe
 
@@ -30,9 +32,9 @@ def test_freeing_the_principal_points_widens_the_focal_sigma():
     sigmas, errors = {}, {}
     for name, free in (("f", {"f"}), ("f,pp", {"f", "pp"})):
         cal = calibrate(obs, Options(free=frozenset(free), pp_prior_rel=0)).calibration
-        unc = cal.extra["uncertainty"]["cameras"]
+        unc = cal.uncertainty.cameras
         truth = {c.id: c.K[0, 0] for c in rig.cameras}
-        sigmas[name] = np.array([unc[c.id]["f_px"] for c in cal.cameras])
+        sigmas[name] = np.array([unc[c.id].f_px for c in cal.cameras])
         errors[name] = np.array([c.K[0, 0] - truth[c.id] for c in cal.cameras])
     assert np.all(sigmas["f,pp"] > 2 * sigmas["f"]), sigmas
     assert np.all(np.abs(errors["f,pp"]) < 4 * sigmas["f,pp"]), (errors, sigmas)
@@ -57,14 +59,14 @@ def test_points_behind_a_camera_or_without_parallax_are_left_out():
     result = calibrate(observe(rig, noise_px=0.5, seed=1).observations, Options(free=frozenset({"f"})))
     problem, state = result.problem, result.state
     kept, dropped = reported_points(problem, state, covariance(problem, state))
-    assert kept.all() and sum(dropped.values()) == 0
+    assert kept.all() and dropped == PointsLeftOut()
     X = state.X.copy()
     X[0] = -X[0]  # behind the left camera
     X[1] = state.C[0] + 1e7 * (X[1] - state.C[0])  # far along its ray: no parallax left
     moved = replace(state, X=X)
     kept, dropped = reported_points(problem, moved, covariance(problem, moved, sigma_px=0.5))
     assert not kept[0] and not kept[1] and kept[2:].all()
-    assert dropped == {"fewer_than_two_views": 0, "behind_a_camera": 1, "undetermined": 1}
+    assert dropped == PointsLeftOut(fewer_than_two_views=0, behind_a_camera=1, undetermined=1)
 
 
 def test_far_points_do_not_swamp_the_scale():
@@ -106,8 +108,8 @@ def test_the_scale_given_exact_principal_points_is_the_conditional_sigma():
     given = scale_sigma(wide, X, w, given=prior_columns)
     assert scale_sigma(wide, X, w) > 3 * given
     assert np.isclose(given, scale_sigma(held, X, w), rtol=1e-6)
-    unc = result.calibration.extra["uncertainty"]
-    assert unc["scale_rel_if_pp_exact"] < unc["scale_rel"] / 3
+    unc = result.calibration.uncertainty
+    assert unc.scale_rel_if_pp_exact.value < unc.scale_rel.value / 3
 
 
 def test_a_solve_reports_the_normal_equations_of_a_wider_problem():

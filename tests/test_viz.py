@@ -12,8 +12,7 @@ import pytest
 from camnet import viz, viz_sinks
 from camnet.errors import InputError
 from camnet.geometry.calibrate import calibrate
-from camnet.geometry.camera import Camera
-from camnet.io.formats import Calibration
+from camnet.geometry.model import Calibration, Camera
 from camnet.sim.simulate import make_rig, observe
 
 T0_NS = 1_700_000_000_000_000_000
@@ -50,7 +49,7 @@ def solves():
     for seed in range(3):
         obs = observe(rig, noise_px=0.5, seed=seed, visibility=0.7, outlier_fraction=0.05).observations
         runs.append((calibrate(obs).calibration, obs))
-    truth = Calibration(rig.cameras, np.arange(len(rig.points)), rig.points, 0.0, "left")
+    truth = Calibration(tuple(rig.cameras), np.arange(len(rig.points)), rig.points, 0.0, "left")
     return rig, truth, runs
 
 
@@ -135,7 +134,7 @@ def test_degenerate_and_failed_solves_are_text_not_cameras(recording, solves):
     rig, _, runs = solves
     cal = runs[0][0]
     broken = Camera("left", 1280, 1024, np.full((3, 3), np.nan))
-    bad = Calibration([broken, *cal.cameras[1:]], cal.point_ids, cal.points, 0.5, "left")
+    bad = Calibration((broken, *cal.cameras[1:]), cal.point_ids, cal.points, 0.5, "left")
     viz.log_calibration(rec, bad, time_ns=T0_NS)
     viz.log_solve_failure(rec, "too few tracks", time_ns=T0_NS + 1)
     viz.log_calibration(rec, cal, time_ns=T0_NS + 2, truth=rig.cameras)

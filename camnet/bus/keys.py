@@ -9,21 +9,9 @@ may not be empty nor contain ``/`` or Zenoh's wildcard and verbatim characters.
 from __future__ import annotations
 
 from camnet.errors import InputError
+from camnet.ids import validate_id
 
 ROOT = "camnet"
-_FORBIDDEN = frozenset("/*$?#")
-
-
-def validate_id(value: str, *, what: str = "id") -> str:
-    """Return `value` if it is usable as one key chunk, else raise InputError naming `what`."""
-    if not isinstance(value, str) or not value:
-        raise InputError(f"{what}: expected a non-empty string, got {value!r}")
-    bad = sorted(set(value) & _FORBIDDEN)
-    if bad:
-        raise InputError(f"{what}: {value!r} contains {''.join(bad)!r} (not allowed in ids)")
-    if value != value.strip():
-        raise InputError(f"{what}: {value!r} has leading or trailing spaces")
-    return value
 
 
 def rig_prefix(rig: str) -> str:

@@ -6,6 +6,8 @@ import argparse
 import json
 import sys
 
+from camnet.geometry.model import Loss, Method
+
 FREE_HELP = (
     "intrinsics to estimate: 'auto' (default: focal lengths, then whatever the data "
     "determine) or a comma list of f, aspect, pp, k1, k2, stereo_rotation, stereo_direction"
@@ -17,15 +19,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-o", "--output", required=True, help="where to write camnet.calibration/1 JSON")
     parser.add_argument(
         "--method",
-        choices=("refined", "paper", "unconstrained"),
-        default="refined",
+        choices=tuple(m.value for m in Method),
+        default=Method.REFINED.value,
         help="refined: baseline-constrained bundle adjustment (default); paper: the paper's "
         "solver alone; unconstrained: bundle adjustment that lets the scale float (for comparison)",
     )
     parser.add_argument(
         "--loss",
-        choices=("cauchy", "huber", "soft_l1", "linear"),
-        default="cauchy",
+        choices=tuple(loss.value for loss in Loss),
+        default=Loss.CAUCHY.value,
         help="robust loss of the first adjustment (default cauchy)",
     )
     parser.add_argument("--loss-scale-px", type=float, default=2.0, help="residual at which the robust loss bends")
@@ -51,7 +53,7 @@ def parse_free(value: str) -> str | frozenset[str]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from camnet.errors import InputError
+    from camnet.errors import InputError, SolveError
     from camnet.geometry.calibrate import Options, calibrate
     from camnet.io.formats import (
         calibration_to_doc,
@@ -68,9 +70,11 @@ def run(args: argparse.Namespace) -> int:
     free = parse_free(args.free)
     obs = parse_observations(load_json(args.observations))
     initial = parse_calibration(load_json(args.initial)) if args.initial else None
-    options = Options(method=args.method, loss=args.loss, loss_scale_px=args.loss_scale_px, free=free, seed=args.seed,
-                      pp_prior_rel=args.pp_prior_rel)
+    options = Options(method=Method(args.method), loss=Loss(args.loss), loss_scale_px=args.loss_scale_px, free=free,
+                      seed=args.seed, pp_prior_rel=args.pp_prior_rel)
     result = calibrate(obs, options, initial=initial)
+    if not result.converged:
+        raise SolveError(f"the adjustment did not converge: {result.reason}")
     write_json_atomic(args.output, calibration_to_doc(result.calibration))
     cal = result.calibration
     summary = {
@@ -78,8 +82,8 @@ def run(args: argparse.Namespace) -> int:
         "cameras": len(cal.cameras),
         "points": len(cal.points),
         "rms_reprojection_px": round(cal.rms_reprojection_px, 4),
-        "scale_sigma_rel": cal.extra.get("uncertainty", {}).get("scale_rel"),
-        "warnings": cal.extra["diagnostics"]["warnings"],
+        "scale_sigma_rel": cal.uncertainty.scale_rel.value if cal.uncertainty is not None else None,
+        "warnings": list(cal.warnings),
     }
     print(json.dumps(summary), file=sys.stdout)
     return 0

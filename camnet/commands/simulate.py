@@ -50,16 +50,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from camnet.io.formats import (
-        Calibration,
-        calibration_to_doc,
-        observations_to_doc,
-        write_json_atomic,
-    )
+    from camnet.geometry.model import Calibration
+    from camnet.io.formats import calibration_to_doc, observations_to_doc, write_json_atomic
 
     rig, sim = simulate_from_args(args)
     write_json_atomic(args.output, observations_to_doc(sim.observations))
     if args.truth:
-        truth = Calibration(list(rig.cameras), np.arange(len(rig.points)), rig.points, 0.0, rig.cameras[0].id)
+        truth = Calibration(tuple(rig.cameras), np.arange(len(rig.points)), rig.points, 0.0, rig.cameras[0].id)
         write_json_atomic(args.truth, calibration_to_doc(truth))
     return 0

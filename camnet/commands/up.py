@@ -182,6 +182,6 @@ def final_report(cal, truth) -> str:
     else:
         for cam in cal.cameras:
             lines.append(f"{cam.id:<10} f {cam.K[0, 0]:9.2f} px  centre {1e3 * cam.centre} mm")
-    for warning in cal.extra.get("diagnostics", {}).get("warnings", []):
+    for warning in cal.warnings:
         lines.append(f"warning: {warning}")
     return "\n".join(lines)

@@ -1,6 +1,6 @@
 """The KITTI raw "extract" (unrectified) layout: calibration and frames.
 
-Reads ``calib_cam_to_cam.txt`` into `camnet.geometry.camera.Camera` objects in the
+Reads ``calib_cam_to_cam.txt`` into `camnet.geometry.model.Camera` objects in the
 frame of camera 0 (``x_cam = R @ X + t``, X in cam-0 coordinates, metres;
 KITTI's ``R_xx``/``T_xx`` already map cam-0 coordinates into camera xx), and
 lists which cameras have an image for each frame in ``image_0X/data/``.
@@ -18,8 +18,7 @@ import cv2
 import numpy as np
 
 from camnet.errors import InputError
-from camnet.geometry.camera import Camera
-from camnet.io.formats import Calibration, Observations, Stereo
+from camnet.geometry.model import Calibration, Camera, Observations, Stereo
 
 CALIB_FILE = "calib_cam_to_cam.txt"
 STEREO_LEFT, STEREO_RIGHT = "0", "1"
@@ -175,7 +174,7 @@ def stereo_head(published: dict[str, Camera]) -> Calibration:
     the pair's pose.
     """
     return Calibration(
-        cameras=[published[c] for c in (STEREO_LEFT, STEREO_RIGHT)],
+        cameras=tuple(published[c] for c in (STEREO_LEFT, STEREO_RIGHT)),
         point_ids=np.empty(0, dtype=np.int64),
         points=np.empty((0, 3)),
         rms_reprojection_px=float("nan"),

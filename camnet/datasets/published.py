@@ -15,9 +15,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from camnet.geometry.camera import Camera
-from camnet.geometry.evaluate import rotation_angle_deg
-from camnet.io.formats import Calibration, Observations
+from camnet.geometry.evaluate import rotation_angle_deg, scale_sigma_rel
+from camnet.geometry.model import Calibration, Camera, Observations
 
 
 @dataclass(frozen=True)
@@ -35,11 +34,11 @@ class CameraVsPublished:
 
 def compare_cameras(cal: Calibration, published: dict[str, Camera]) -> list[CameraVsPublished]:
     """Per camera of `cal`, its errors against `published` (same ids, same world frame)."""
-    unc = cal.extra.get("uncertainty", {}).get("cameras", {})
+    sigmas = cal.uncertainty.cameras if cal.uncertainty is not None else {}
     out = []
     for cam in cal.cameras:
         ref = published[cam.id]
-        u = unc.get(cam.id)
+        u = sigmas.get(cam.id)
         norm_ref = float(np.linalg.norm(ref.centre))
         if norm_ref > 1e-9 and np.linalg.norm(cam.centre) > 1e-9:
             cos = cam.centre @ ref.centre / (np.linalg.norm(cam.centre) * norm_ref)
@@ -51,13 +50,13 @@ def compare_cameras(cal: Calibration, published: dict[str, Camera]) -> list[Came
             CameraVsPublished(
                 id=cam.id,
                 focal_rel=float(cam.K[0, 0] / ref.K[0, 0] - 1.0),
-                focal_sigma_rel=float(u["f_px"]) / ref.K[0, 0] if u else float("nan"),
+                focal_sigma_rel=u.f_px / ref.K[0, 0] if u is not None else float("nan"),
                 centre_mm=1e3 * float(np.linalg.norm(cam.centre - ref.centre)),
-                centre_sigma_mm=1e3 * float(np.linalg.norm(u["centre_m"])) if u else float("nan"),
+                centre_sigma_mm=1e3 * float(np.linalg.norm(u.centre_m)) if u is not None else float("nan"),
                 direction_deg=direction,
                 distance_rel=distance,
                 rotation_deg=rotation_angle_deg(cam.R @ ref.R.T),
-                rotation_sigma_deg=float(np.linalg.norm(u["rotation_deg"])) if u else float("nan"),
+                rotation_sigma_deg=float(np.linalg.norm(u.rotation_deg)) if u is not None else float("nan"),
             )
         )
     return out
@@ -135,7 +134,7 @@ def compare(cal: Calibration, obs: Observations, published: dict[str, Camera]) -
         cameras=compare_cameras(cal, published),
         distance_rel=distance_rel,
         distance_points=n_points,
-        scale_sigma_rel=float(cal.extra.get("uncertainty", {}).get("scale_rel") or np.nan),
+        scale_sigma_rel=scale_sigma_rel(cal),
         rms_reprojection_px=cal.rms_reprojection_px,
-        warnings=list(cal.extra.get("diagnostics", {}).get("warnings", [])),
+        warnings=list(cal.warnings),
     )

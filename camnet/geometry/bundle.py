@@ -23,6 +23,7 @@ import numpy as np
 import scipy.linalg
 import scipy.sparse as sp
 
+from camnet.geometry.model import Loss
 from camnet.geometry.projection import N_INTRINSICS, project_points, project_with_jacobians, rotation_exp
 
 # Local parameter slots of a camera: intrinsics (9), rotation (3), centre (3).
@@ -33,7 +34,6 @@ N_LOCAL = N_INTRINSICS + 6
 log = logging.getLogger(__name__)
 
 CENTRE_FIXED, CENTRE_FREE, CENTRE_ON_BASELINE = 0, 1, 2
-LOSSES = ("linear", "huber", "soft_l1", "cauchy")
 GAUSS_NEWTON_LAMBDA = 1e-9  # damping of the (almost) undamped step: keeps a singular direction solvable
 
 
@@ -148,7 +148,7 @@ def _rho(z: np.ndarray, loss: str) -> tuple[np.ndarray, np.ndarray]:
         return 2.0 * (s - 1.0), 1.0 / s
     if loss == "cauchy":
         return np.log1p(z), 1.0 / (1.0 + z)
-    raise ValueError(f"unknown loss {loss!r}; expected one of {LOSSES}")
+    raise ValueError(f"unknown loss {loss!r}; expected one of {tuple(x.value for x in Loss)}")
 
 
 # ---------------------------------------------------------------- model evaluation

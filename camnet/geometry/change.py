@@ -19,8 +19,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from camnet.geometry.camera import Camera
-from camnet.io.formats import Calibration, Observations
+from camnet.geometry.model import Calibration, Camera, Observations
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,5 @@
-"""The further keys of a calibration: uncertainty, per-camera statistics, warnings.
+"""The solve report of a calibration: uncertainty, per-camera statistics, warnings,
+and which points the calibration reports.
 
 Documented in docs/calibration-keys.md.
 """
@@ -7,9 +8,20 @@ from __future__ import annotations
 
 import numpy as np
 
-from camnet.geometry.bundle import CEN, CENTRE_FREE, CENTRE_ON_BASELINE, ROT, _tangent_basis
-from camnet.geometry.projection import INTRINSIC_NAMES
-from camnet.geometry.uncertainty import scale_sigma, scale_weights
+from camnet.geometry.bundle import CEN, CENTRE_FREE, CENTRE_ON_BASELINE, ROT, Problem, State, _tangent_basis
+from camnet.geometry.model import (
+    CameraSigmas,
+    CameraStats,
+    FreeSet,
+    Method,
+    PointsLeftOut,
+    Sigma,
+    SolveReport,
+    StartKind,
+    Uncertainty,
+)
+from camnet.geometry.projection import INTRINSIC_NAMES, project_points
+from camnet.geometry.uncertainty import Covariance, scale_sigma, scale_weights
 
 MIN_CAMERA_OBSERVATIONS = 12
 MIN_PARALLAX_DEG = 2.0
@@ -18,7 +30,7 @@ POOR_FOCAL_REL = 0.05
 POOR_SCALE_REL = 0.01
 
 
-def _camera_uncertainty(m: int, problem, state, cov) -> dict:
+def _camera_sigmas(m: int, problem, state, cov) -> CameraSigmas:
     cols = cov.columns[m]
     Sigma = cov.cameras
 
@@ -33,15 +45,7 @@ def _camera_uncertainty(m: int, problem, state, cov) -> dict:
     for slot, name in enumerate(INTRINSIC_NAMES):
         if cols[slot] >= 0:
             sd[name] = float(np.sqrt(max(Sigma[cols[slot], cols[slot]], 0.0)))
-    entry = {
-        "f_px": sd.get("f", 0.0),
-        "cx_px": sd.get("cx", 0.0),
-        "cy_px": sd.get("cy", 0.0),
-        "k1": sd.get("k1", 0.0),
-        "k2": sd.get("k2", 0.0),
-    }
     rot = block(list(range(ROT.start, ROT.stop)))
-    entry["rotation_deg"] = np.degrees(np.sqrt(np.maximum(np.diag(rot), 0.0))).tolist()
     mode = problem.centre_mode[m]
     if mode == CENTRE_FREE:
         cen = block(list(range(CEN.start, CEN.stop)))
@@ -50,8 +54,15 @@ def _camera_uncertainty(m: int, problem, state, cov) -> dict:
         cen = B @ block([CEN.start, CEN.start + 1]) @ B.T
     else:
         cen = np.zeros((3, 3))
-    entry["centre_m"] = np.sqrt(np.maximum(np.diag(cen), 0.0)).tolist()
-    return entry
+    return CameraSigmas(
+        f_px=sd.get("f", 0.0),
+        cx_px=sd.get("cx", 0.0),
+        cy_px=sd.get("cy", 0.0),
+        k1=sd.get("k1", 0.0),
+        k2=sd.get("k2", 0.0),
+        rotation_deg=tuple(np.degrees(np.sqrt(np.maximum(np.diag(rot), 0.0))).tolist()),
+        centre_m=tuple(np.sqrt(np.maximum(np.diag(cen), 0.0)).tolist()),
+    )
 
 
 def _parallax_deg(problem, state) -> np.ndarray:
@@ -88,21 +99,110 @@ def _held_disparity_warning(obs, order, problem, state) -> list[str]:
     ]
 
 
-def free_parameters(problem, cameras_ids: list[str]) -> dict:
+def free_parameters(problem: Problem, camera_ids: list[str]) -> FreeSet:
     """Which intrinsics and stereo rotation axes moved: reused by warm starts."""
-    return {
-        "intrinsics": {
-            cam_id: [n for n, free in zip(INTRINSIC_NAMES, problem.intr_free[m], strict=True) if free]
-            for m, cam_id in enumerate(cameras_ids)
+    return FreeSet(
+        intrinsics={
+            cam_id: tuple(n for n, free in zip(INTRINSIC_NAMES, problem.intr_free[m], strict=True) if free)
+            for m, cam_id in enumerate(camera_ids)
         },
-        "stereo_rotation_axes": [ax for ax, free in zip("xyz", problem.rot_free[1], strict=True) if free],
-        "stereo_direction": bool(problem.centre_mode[1] == CENTRE_ON_BASELINE),
-    }
+        stereo_rotation_axes=tuple(ax for ax, free in zip("xyz", problem.rot_free[1], strict=True) if free),
+        stereo_direction=bool(problem.centre_mode[1] == CENTRE_ON_BASELINE),
+    )
 
 
-def describe(obs, order, problem, state, cov, inliers, info, decisions, options, timings, kept, residuals_px) -> dict:
-    """The further keys.
+def reported_points(
+    problem: Problem, state: State, cov: Covariance | None, *, camera_points: np.ndarray | None = None
+) -> tuple[np.ndarray, PointsLeftOut]:
+    """(N,) mask of the points a calibration reports, and how many were left out, by reason.
 
+    A point is reported when at least two inlier views see it, it lies in
+    front of every camera that sees it (a false match along an epipolar
+    line fits two views just as well behind them), and, where the
+    uncertainty is known, its 1-sigma position error is smaller than its
+    distance from the nearest camera that sees it (tracks with no parallax
+    land anywhere along their rays, some at millions of metres).
+    camera_points (n, 3): each observation's point in its camera's frame at
+    `state`, metres, where the caller has them.
+    """
+    views = np.bincount(problem.pt, minlength=problem.n_points)
+    xc = camera_points
+    if xc is None:
+        _, xc = project_points(state.intr[problem.cam], state.R[problem.cam], state.C[problem.cam], state.X[problem.pt])
+    behind = np.zeros(problem.n_points, dtype=bool)
+    behind[problem.pt[xc[:, 2] <= 0]] = True
+    nearest = np.full(problem.n_points, np.inf)
+    np.minimum.at(nearest, problem.pt, np.linalg.norm(xc, axis=1))
+    undetermined = np.zeros(problem.n_points, dtype=bool)
+    if cov is not None:
+        undetermined = np.sqrt(3.0) * cov.point_sigmas_m() >= nearest
+    few = views < 2
+    kept = ~few & ~behind & ~undetermined
+    dropped = PointsLeftOut(
+        fewer_than_two_views=int(few.sum()),
+        behind_a_camera=int((~few & behind).sum()),
+        undetermined=int((~few & ~behind & undetermined).sum()),
+    )
+    return kept, dropped
+
+
+def _uncertainty(ids: list[str], problem, state, cov: Covariance, kept, warnings: list[str]) -> Uncertainty:
+    """The solution's uncertainty; appends the warnings it gives rise to."""
+    weights = scale_weights(cov, state.X, kept)
+    scale = scale_sigma(cov, state.X, weights) if kept.any() else None
+    per_cam = {cam_id: _camera_sigmas(m, problem, state, cov) for m, cam_id in enumerate(ids)}
+    for m, cam_id in enumerate(ids):
+        if per_cam[cam_id].f_px > POOR_FOCAL_REL * state.intr[m, 0]:
+            warnings.append(f"camera {cam_id}: focal length poorly determined (sigma {per_cam[cam_id].f_px:.0f} px)")
+    # The covariance has more columns than the problem where guessed principal points entered
+    # as a prior (calibrate._uncertainty): what the scale would be known to were they exact.
+    scale_if_pp = None
+    prior_columns = cov.columns[:, 2:4][(cov.columns[:, 2:4] >= 0) & ~problem.intr_free[:, 2:4]]
+    if scale is not None and len(prior_columns):
+        scale_if_pp = scale_sigma(cov, state.X, weights, given=prior_columns)
+    if scale is None:
+        warnings.append("no point is determined: the scale is unknown")
+    elif scale > POOR_SCALE_REL:
+        why = ""
+        if scale_if_pp is not None and scale_if_pp < scale / 2:
+            why = (f", {100 * scale_if_pp:.2g}% were the principal points exactly at the image centres: "
+                   "give the stereo cameras' K")
+        warnings.append(f"the scale is uncertain by {100 * scale:.1f}% (1 sigma){why}")
+    return Uncertainty(
+        sigma_px=cov.sigma_px,
+        scale_rel=Sigma(scale) if scale is not None else Sigma.unknown("no point is determined"),
+        scale_rel_if_pp_exact=(
+            Sigma(scale_if_pp) if scale_if_pp is not None else Sigma.unknown("no principal point was guessed")
+        ),
+        cameras=per_cam,
+        point_weights=weights[kept],
+    )
+
+
+def _geometry_warnings(obs, order, problem, state, parallax: np.ndarray, kept: np.ndarray) -> list[str]:
+    """Little parallax, coplanar points, a held stereo column offset."""
+    warnings = []
+    if len(parallax) and np.median(parallax) < MIN_PARALLAX_DEG:
+        warnings.append(
+            f"little parallax: the median point is seen under {np.median(parallax):.2f} deg; "
+            "depth and focal lengths are weakly determined"
+        )
+    body = state.X[kept]
+    sv = np.linalg.svd(body - body.mean(axis=0), compute_uv=False) if len(body) >= 3 else np.ones(3)
+    if sv[2] < COPLANAR_RATIO * sv[0]:
+        warnings.append("the points are nearly coplanar; focal lengths and poses trade off")
+    return warnings + _held_disparity_warning(obs, order, problem, state)
+
+
+def solve_report(
+    obs, order, problem, state, cov, inliers, info, *, method: Method, decisions: list[str],
+    timings_s: dict[str, float], kept: np.ndarray, dropped: PointsLeftOut, residuals_px: np.ndarray,
+    start: StartKind,
+) -> SolveReport:
+    """The report of a solve.
+
+    order: problem camera m is observations camera order[m]; inliers (n,):
+    the observations kept; info: the final adjustment's bundle.SolveInfo;
     kept (N,): the points the calibration reports; residuals_px (n, 2): the
     problem's reprojection residuals at `state`, pixels.
     """
@@ -113,67 +213,26 @@ def describe(obs, order, problem, state, cov, inliers, info, decisions, options,
     for m, cam_id in enumerate(ids):
         mine = problem.cam == m
         n_in = int(mine.sum())
-        cameras[cam_id] = {
-            "rms_px": float(np.sqrt(np.mean(r[mine] ** 2))) if n_in else None,
-            "inliers": n_in,
-        }
+        cameras[cam_id] = CameraStats(rms_px=float(np.sqrt(np.mean(r[mine] ** 2))) if n_in else None, inliers=n_in)
         if n_in < MIN_CAMERA_OBSERVATIONS:
             warnings.append(f"camera {cam_id}: only {n_in} inlier observations; its calibration is weak")
     parallax = _parallax_deg(problem, state)[kept]
-    if len(parallax) and np.median(parallax) < MIN_PARALLAX_DEG:
-        warnings.append(
-            f"little parallax: the median point is seen under {np.median(parallax):.2f} deg; "
-            "depth and focal lengths are weakly determined"
-        )
-    body = state.X[kept]
-    sv = np.linalg.svd(body - body.mean(axis=0), compute_uv=False) if len(body) >= 3 else np.ones(3)
-    if sv[2] < COPLANAR_RATIO * sv[0]:
-        warnings.append("the points are nearly coplanar; focal lengths and poses trade off")
-    warnings += _held_disparity_warning(obs, order, problem, state)
-    out = {
-        "method": options.method,
-        "diagnostics": {
-            "converged": bool(info.converged),
-            "reason": info.reason,
-            "iterations": int(info.iterations),
-            "observations": int(len(inliers)),
-            "inliers": int(np.sum(inliers)),
-            "cameras": cameras,
-            "median_parallax_deg": float(np.median(parallax)) if len(parallax) else None,
-            "free": free_parameters(problem, ids),
-            "free_rule": decisions,
-            "warnings": warnings,
-        },
-        "timings_s": {k: round(v, 6) for k, v in timings.items()},
-    }
-    if cov is not None:
-        weights = scale_weights(cov, state.X, kept)
-        scale = scale_sigma(cov, state.X, weights) if kept.any() else None
-        per_cam = {cam_id: _camera_uncertainty(m, problem, state, cov) for m, cam_id in enumerate(ids)}
-        for m, cam_id in enumerate(ids):
-            if per_cam[cam_id]["f_px"] > POOR_FOCAL_REL * state.intr[m, 0]:
-                warnings.append(
-                    f"camera {cam_id}: focal length poorly determined (sigma {per_cam[cam_id]['f_px']:.0f} px)"
-                )
-        # The covariance has more columns than the problem where guessed principal points entered
-        # as a prior (calibrate._uncertainty): what the scale would be known to were they exact.
-        scale_if_pp = None
-        prior_columns = cov.columns[:, 2:4][(cov.columns[:, 2:4] >= 0) & ~problem.intr_free[:, 2:4]]
-        if scale is not None and len(prior_columns):
-            scale_if_pp = scale_sigma(cov, state.X, weights, given=prior_columns)
-        if scale is None:
-            warnings.append("no point is determined: the scale is unknown")
-        elif scale > POOR_SCALE_REL:
-            why = ""
-            if scale_if_pp is not None and scale_if_pp < scale / 2:
-                why = (f", {100 * scale_if_pp:.2g}% were the principal points exactly at the image centres: "
-                       "give the stereo cameras' K")
-            warnings.append(f"the scale is uncertain by {100 * scale:.1f}% (1 sigma){why}")
-        out["uncertainty"] = {
-            "sigma_px": cov.sigma_px,
-            "scale_rel": scale,
-            "scale_rel_if_pp_exact": scale_if_pp,
-            "cameras": per_cam,
-            "point_weights": weights[kept].tolist(),
-        }
-    return out
+    warnings += _geometry_warnings(obs, order, problem, state, parallax, kept)
+    uncertainty = None if cov is None else _uncertainty(ids, problem, state, cov, kept, warnings)
+    return SolveReport(
+        method=method,
+        converged=bool(info.converged),
+        reason=info.reason,
+        iterations=int(info.iterations),
+        observations=int(len(inliers)),
+        inliers=int(np.sum(inliers)),
+        cameras=cameras,
+        median_parallax_deg=float(np.median(parallax)) if len(parallax) else None,
+        free=free_parameters(problem, ids),
+        free_rule=tuple(decisions),
+        warnings=tuple(warnings),
+        points_left_out=dropped,
+        start=start,
+        timings_s=dict(timings_s),
+        uncertainty=uncertainty,
+    )

@@ -6,9 +6,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from camnet.geometry.camera import Camera
 from camnet.geometry.metrics import scale_error, shape_rms_m
-from camnet.io.formats import Calibration
+from camnet.geometry.model import Calibration, Camera
 
 
 @dataclass(frozen=True)
@@ -37,25 +36,25 @@ def rotation_angle_deg(R: np.ndarray) -> float:
 def compare(cal: Calibration, truth_cameras: list[Camera], truth_points: np.ndarray) -> Comparison:
     """Errors of `cal` against the truth; truth_points are indexed by track id."""
     truth = {c.id: c for c in truth_cameras}
-    unc = cal.extra.get("uncertainty", {}).get("cameras", {})
+    sigmas = cal.uncertainty.cameras if cal.uncertainty is not None else {}
     cams = []
     for cam in cal.cameras:
         t = truth[cam.id]
-        u = unc.get(cam.id, {})
+        u = sigmas.get(cam.id)
         cams.append(
             CameraError(
                 id=cam.id,
                 focal_rel=float(cam.K[0, 0] / t.K[0, 0] - 1.0),
-                focal_sigma_rel=float(u.get("f_px", np.nan)) / t.K[0, 0],
+                focal_sigma_rel=(u.f_px if u is not None else np.nan) / t.K[0, 0],
                 centre_mm=1e3 * float(np.linalg.norm(cam.centre - t.centre)),
-                centre_sigma_mm=1e3 * float(np.linalg.norm(u["centre_m"])) if "centre_m" in u else np.nan,
+                centre_sigma_mm=1e3 * float(np.linalg.norm(u.centre_m)) if u is not None else np.nan,
                 rotation_deg=rotation_angle_deg(cam.R @ t.R.T),
             )
         )
     X_true = truth_points[cal.point_ids]
     return Comparison(
         scale_rel=scale_error(cal.points, X_true, point_weights(cal)),
-        scale_sigma_rel=float(cal.extra.get("uncertainty", {}).get("scale_rel") or np.nan),
+        scale_sigma_rel=scale_sigma_rel(cal),
         shape_rms_mm=1e3 * shape_rms_m(cal.points, X_true),
         rms_reprojection_px=cal.rms_reprojection_px,
         cameras=cams,
@@ -64,8 +63,15 @@ def compare(cal: Calibration, truth_cameras: list[Camera], truth_points: np.ndar
 
 def point_weights(cal: Calibration) -> np.ndarray | None:
     """Weights of the calibration's points in its reported scale, None without uncertainty."""
-    w = cal.extra.get("uncertainty", {}).get("point_weights")
+    w = cal.uncertainty.point_weights if cal.uncertainty is not None else None
     return None if w is None or len(w) != len(cal.points) else np.asarray(w, dtype=float)
+
+
+def scale_sigma_rel(cal: Calibration) -> float:
+    """The calibration's reported relative 1 sigma of its scale; NaN when it has none."""
+    if cal.uncertainty is None or cal.uncertainty.scale_rel.value is None:
+        return float("nan")
+    return cal.uncertainty.scale_rel.value
 
 
 def format_comparison(c: Comparison) -> str:

@@ -17,8 +17,8 @@ import numpy as np
 
 from camnet.errors import SolveError
 from camnet.geometry import paper
+from camnet.geometry.model import Calibration, Observations
 from camnet.geometry.projection import DIST_SIZE, K_from_intrinsics, intrinsics_from_K
-from camnet.io.formats import Calibration, Observations
 
 log = logging.getLogger(__name__)
 

@@ -14,14 +14,14 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, field, replace
+from enum import StrEnum
 
 import numpy as np
 
 from camnet.errors import CamnetError
 from camnet.geometry.calibrate import Options, calibrate
-from camnet.geometry.camera import Camera
 from camnet.geometry.change import MoveRule, drop_before, moved_cameras, new_track_errors
-from camnet.io.formats import Calibration, Observations
+from camnet.geometry.model import Calibration, Camera, Observations
 
 log = logging.getLogger(__name__)
 
@@ -57,11 +57,19 @@ class LiveConfig:
     stereo_pose: tuple[np.ndarray, np.ndarray] | None = None
 
 
+class Status(StrEnum):
+    """What became of one solve."""
+
+    GOOD = "good"  # it replaced the last good calibration
+    REJECTED = "rejected"  # it solved, but `judge` refused it
+    FAILED = "failed"  # it did not solve
+
+
 @dataclass(frozen=True)
 class Outcome:
-    """What one update did. `status` is "good", "rejected" or "failed"."""
+    """What one update did."""
 
-    status: str
+    status: Status
     reason: str
     calibration: Calibration | None = None
     moved: tuple[str, ...] = ()
@@ -71,12 +79,11 @@ class Outcome:
 
 def judge(cal: Calibration, obs: Observations, config: LiveConfig) -> str:
     """Why `cal` must not replace a good calibration, or "" if it may."""
-    diagnostics = cal.extra.get("diagnostics", {})
-    if not diagnostics.get("converged", False):
-        return f"not converged ({diagnostics.get('reason', 'unknown')})"
+    if cal.report is None or not cal.report.converged:
+        return f"not converged ({cal.report.reason if cal.report is not None else 'unknown'})"
     if not cal.rms_reprojection_px <= config.max_rms_px:
         return f"reprojection RMS {cal.rms_reprojection_px:.2f} px > {config.max_rms_px} px"
-    scale_rel = cal.extra.get("uncertainty", {}).get("scale_rel")
+    scale_rel = cal.uncertainty.scale_rel.value if cal.uncertainty is not None else None
     if scale_rel is None or not scale_rel <= config.max_scale_rel:
         return f"scale uncertain ({scale_rel} > {config.max_scale_rel})"
     missing = set(obs.camera_ids) - {c.id for c in cal.cameras}
@@ -98,7 +105,7 @@ class Tracker:
     config: LiveConfig
     good: Calibration | None = None
     solves: int = 0
-    counts: dict[str, int] = field(default_factory=lambda: {"good": 0, "rejected": 0, "failed": 0})
+    counts: dict[Status, int] = field(default_factory=lambda: {status: 0 for status in Status})
     _source: object = None
     _last_max_id: int = -1
     _cutoffs: dict[str, int] = field(default_factory=dict)
@@ -120,7 +127,7 @@ class Tracker:
         outcome = self._solve(solve_obs, moved)
         outcome = replace(outcome, solve_s=time.perf_counter() - t0)
         self.counts[outcome.status] += 1
-        if outcome.status == "good":
+        if outcome.status == Status.GOOD:
             self.good = outcome.calibration
             self._reset.clear()
             self._points_valid = True
@@ -137,8 +144,8 @@ class Tracker:
         except (KeyError, ValueError) as exc:
             log.warning("cannot check for moved cameras: %s", exc)
             return ()
-        reference = {cam_id: stats.get("rms_px")
-                     for cam_id, stats in self.good.extra.get("diagnostics", {}).get("cameras", {}).items()}
+        stats = self.good.report.cameras if self.good.report is not None else {}
+        reference = {cam_id: camera.rms_px for cam_id, camera in stats.items()}
         moved = [c for c in moved_cameras(errors, reference, self.config.move_rule) if c not in self._reset]
         if not moved:
             return ()
@@ -172,15 +179,17 @@ class Tracker:
         for start in attempts:
             try:
                 reset = self._reset if start is not None else ()
-                cal = calibrate(obs, self.config.options, initial=start, reset_cameras=reset).calibration
+                result = calibrate(obs, self.config.options, initial=start, reset_cameras=reset)
             except CamnetError as exc:
-                reason = f"solve failed: {exc}"
-                status = "failed"
+                reason, status = f"solve failed: {exc}", Status.FAILED
                 continue
-            reason = judge(cal, obs, self.config)
+            if not result.converged:
+                reason, status = f"solve failed: the adjustment did not converge: {result.reason}", Status.FAILED
+                continue
+            reason = judge(result.calibration, obs, self.config)
             if not reason:
-                return Outcome("good", "", cal, moved, warm=start is not None)
-            status = "rejected"
+                return Outcome(Status.GOOD, "", result.calibration, moved, warm=start is not None)
+            status = Status.REJECTED
         return Outcome(status, reason, None, moved, warm=False)
 
 
@@ -197,5 +206,5 @@ def stereo_head(obs: Observations, R: np.ndarray, t: np.ndarray) -> Calibration 
             return None
         dist = np.zeros(5) if info.dist is None else info.dist
         cameras.append(Camera(cam_id, info.width, info.height, info.K, dist, R_cam, t_cam))
-    return Calibration(cameras=cameras, point_ids=np.empty(0, dtype=np.int64), points=np.empty((0, 3)),
+    return Calibration(cameras=tuple(cameras), point_ids=np.empty(0, dtype=np.int64), points=np.empty((0, 3)),
                        rms_reprojection_px=float("nan"), world_frame=obs.stereo.left)

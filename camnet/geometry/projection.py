@@ -5,7 +5,7 @@ Conventions used across camnet:
 - Camera axes: x right, y down, z forward (optical axis). Lengths in metres.
 - Two ways to give a pose, one projection: `project` takes ``(R, t)`` with
   ``x_cam = R @ X_world + t`` (the camera centre is ``C = -R.T @ t``), as a
-  `camnet.geometry.camera.Camera` holds it; the bundle adjustment's
+  `camnet.geometry.model.Camera` holds it; the bundle adjustment's
   `project_points` and `project_with_jacobians` take ``(R, C)`` with
   ``x_cam = R @ (X_world - C)``, so ``t = -R @ C``.
 - Pixels: ``u`` to the right, ``v`` down, origin at the centre of the top-left

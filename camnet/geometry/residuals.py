@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from camnet.errors import InputError
-from camnet.io.formats import Calibration, Observations
+from camnet.geometry.model import Calibration, Observations
 
 
 @dataclass(frozen=True)
@@ -47,10 +47,8 @@ def outlier_limit_px(cal: Calibration) -> float:
     from camnet.geometry.calibrate import Options
 
     options = Options()
-    uncertainty = cal.extra.get("uncertainty")
-    sigma = uncertainty.get("sigma_px") if isinstance(uncertainty, dict) else None
-    sigma = cal.rms_reprojection_px if sigma is None else sigma
-    if isinstance(sigma, bool) or not isinstance(sigma, int | float) or not math.isfinite(sigma):
+    sigma = cal.uncertainty.sigma_px if cal.uncertainty is not None else cal.rms_reprojection_px
+    if not math.isfinite(sigma):
         return math.inf
     return max(options.outlier_sigmas * float(sigma), options.min_outlier_px)
 

@@ -10,7 +10,7 @@ noise sigma, the same quantities are the Cramer-Rao bound.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 
 import numpy as np
@@ -105,6 +105,48 @@ def residual_dof(problem: Problem) -> int:
     """
     views = np.bincount(problem.pt, minlength=problem.n_points)
     return int(2 * len(problem.cam) - problem.columns()[1] - np.minimum(3, 2 * views).sum())
+
+
+def with_guessed_pp(problem: Problem, guessed_pp: np.ndarray) -> Problem | None:
+    """`problem` with the guessed principal points it holds freed, or None if it holds none.
+
+    guessed_pp (M,): cameras whose principal point was guessed (the image
+    centre), not given.
+    """
+    consider = guessed_pp & ~problem.intr_free[:, 2]
+    if not consider.any():
+        return None
+    intr_free = problem.intr_free.copy()
+    intr_free[consider, 2:4] = True
+    return replace(problem, intr_free=intr_free)
+
+
+def covariance_with_pp_prior(
+    problem: Problem, wider: Problem | None, state: State, normal, prior_px: np.ndarray
+) -> Covariance:
+    """Covariance at the solution, not conditional on principal points that are only guessed.
+
+    A principal point held at the image centre because nobody gave one is
+    not known exactly: a real lens's sits a percent or so of the image size
+    away (camnet.geometry.calibrate.Options.pp_prior_rel). Held but unknown, it biases focal lengths
+    and scale by amounts the conditional covariance does not show (the data
+    of a small object cannot tell a 10 px offset from a focal length or a
+    rotation, and a column difference in the stereo pair shifts every
+    disparity). Its uncertainty enters as a prior on the held columns, so
+    the reported sigmas include what the guess may cost.
+    wider: `problem` with those principal points freed (`with_guessed_pp`),
+    or None; normal: the normal equations of `wider` (else of `problem`) at
+    `state`; prior_px (M, 2): 1 sigma of the guess in x and y, pixels.
+    """
+    sigma_px = float(np.sqrt(2.0 * normal.cost / max(residual_dof(problem), 1)))
+    if wider is None:
+        return covariance(problem, state, sigma_px=sigma_px, normal=normal)
+    cols = wider.columns()[0]
+    U = normal.U.copy()
+    for m in np.flatnonzero(wider.intr_free[:, 2] & ~problem.intr_free[:, 2]):
+        for slot, prior in ((2, prior_px[m, 0]), (3, prior_px[m, 1])):
+            U[cols[m, slot], cols[m, slot]] += (sigma_px / prior) ** 2
+    return covariance(wider, state, sigma_px=sigma_px, normal=replace(normal, U=U))
 
 
 def inverse_spd(S: np.ndarray) -> np.ndarray:

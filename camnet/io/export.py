@@ -2,7 +2,7 @@
 
 Every exporter is a pure function from a `Calibration` to ``{file name: text}``;
 the `export` command writes the files. camnet's conventions (see
-camnet/geometry/camera.py): ``x_cam = R @ X_world + t`` with the world the left stereo
+camnet/geometry/projection.py): ``x_cam = R @ X_world + t`` with the world the left stereo
 camera's frame, lengths in metres, ``K`` in pixels with the origin at the
 centre of the top-left pixel, distortion in OpenCV's order
 ``[k1, k2, p1, p2, k3]``. Each exporter's docstring says what it changes.
@@ -16,7 +16,7 @@ import re
 import numpy as np
 
 from camnet.errors import InputError
-from camnet.io.formats import Calibration, Observations
+from camnet.geometry.model import Calibration, Observations
 
 FORMATS = ("opencv", "colmap", "ros", "kalibr")
 # COLMAP puts the pixel origin at the top-left corner of the top-left pixel, camnet at its centre.

@@ -13,14 +13,14 @@ from __future__ import annotations
 import html
 import io
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from camnet.errors import InputError
+from camnet.geometry.model import Calibration, CameraSigmas, Observations
 from camnet.geometry.residuals import Residuals, outlier_limit_px, reprojection_residuals
-from camnet.io.formats import Calibration, Observations
 
 SECTIONS = {
     "summary": "Summary",
@@ -68,78 +68,6 @@ def bounding_box(points_m: np.ndarray) -> BoundingBox | None:
 def camera_colour(m: int) -> str:
     """The colour of camera `m` in every plot (matplotlib's tab10 cycle)."""
     return f"C{m % 10}"
-
-
-UNCERTAINTY_SCALARS = ("f_px", "cx_px", "cy_px", "k1", "k2")
-UNCERTAINTY_AXES = ("centre_m", "rotation_deg")
-
-
-@dataclass(frozen=True)
-class FurtherKeys:
-    """The further keys of a calibration that the report shows (docs/calibration-keys.md), checked.
-
-    Absent keys are None or empty. `diagnostics` and `camera_stats` are only
-    shown as text; `uncertainty[camera id]` maps UNCERTAINTY_SCALARS to a
-    number or None and UNCERTAINTY_AXES to 3 numbers or None.
-    """
-
-    method: str
-    sigma_px: float | None
-    scale_rel: float | None
-    diagnostics: dict[str, Any]
-    camera_stats: dict[str, dict[str, Any]]
-    uncertainty: dict[str, dict[str, Any]]
-    warnings: list[str]
-
-
-def _object(value: Any, path: str) -> dict:
-    if value is None:
-        return {}
-    if not isinstance(value, dict):
-        raise InputError(f"{path}: expected an object")
-    return value
-
-
-def _number(value: Any, path: str) -> float | None:
-    if value is None:
-        return None
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise InputError(f"{path}: expected a number")
-    return float(value)
-
-
-def _camera_uncertainty(value: Any, path: str) -> dict[str, Any]:
-    u = _object(value, path)
-    out: dict[str, Any] = {k: _number(u.get(k), f"{path}.{k}") for k in UNCERTAINTY_SCALARS}
-    for key in UNCERTAINTY_AXES:
-        axes = u.get(key)
-        if axes is not None and (not isinstance(axes, list) or len(axes) != 3):
-            raise InputError(f"{path}.{key}: expected 3 numbers")
-        out[key] = None if axes is None else [_number(x, f"{path}.{key}[{i}]") or 0.0 for i, x in enumerate(axes)]
-    return out
-
-
-def further_keys(cal: Calibration) -> FurtherKeys:
-    """The report's view of `cal.extra`; a key of the wrong type is an `InputError` naming it."""
-    unc = _object(cal.extra.get("uncertainty"), "uncertainty")
-    diag = _object(cal.extra.get("diagnostics"), "diagnostics")
-    warnings = diag.get("warnings", [])
-    if not isinstance(warnings, list):
-        raise InputError("diagnostics.warnings: expected a list")
-    stats = _object(diag.get("cameras"), "diagnostics.cameras")
-    per_camera = _object(unc.get("cameras"), "uncertainty.cameras")
-    return FurtherKeys(
-        method=str(cal.extra.get("method", "unknown")),
-        sigma_px=_number(unc.get("sigma_px"), "uncertainty.sigma_px"),
-        scale_rel=_number(unc.get("scale_rel"), "uncertainty.scale_rel"),
-        diagnostics=diag,
-        camera_stats={k: _object(v, f"diagnostics.cameras.{k}") for k, v in stats.items()},
-        uncertainty={k: _camera_uncertainty(v, f"uncertainty.cameras.{k}") for k, v in per_camera.items()},
-        warnings=[str(w) for w in warnings],
-    )
-
-
-# ---------------------------------------------------------------- plots
 
 
 def _svg(fig) -> str:
@@ -215,12 +143,12 @@ def plot_residual_histograms(cal: Calibration, res: Residuals, limit_px: float, 
     return _svg(fig)
 
 
-def plot_uncertainty(cal: Calibration, per_camera: dict[str, dict]) -> str:
+def plot_uncertainty(cal: Calibration, per_camera: Mapping[str, CameraSigmas]) -> str:
     """Per camera, 1-sigma of the intrinsics (px), the centre (mm) and the rotation (deg); held is 0."""
     panels = [
-        ("intrinsics (px)", ["f", "cx", "cy"], lambda u: [u["f_px"], u["cx_px"], u["cy_px"]]),
-        ("centre (mm)", ["x", "y", "z"], lambda u: [1e3 * v for v in u["centre_m"] or [0.0] * 3]),
-        ("rotation (deg)", ["x", "y", "z"], lambda u: u["rotation_deg"] or [0.0] * 3),
+        ("intrinsics (px)", ["f", "cx", "cy"], lambda u: [u.f_px, u.cx_px, u.cy_px]),
+        ("centre (mm)", ["x", "y", "z"], lambda u: [1e3 * v for v in u.centre_m]),
+        ("rotation (deg)", ["x", "y", "z"], lambda u: list(u.rotation_deg)),
     ]
     fig, axes = _figure(len(panels), columns=3, panel_in=(3.9, 2.9))
     width = 0.8 / max(1, len(cal.cameras))
@@ -228,7 +156,7 @@ def plot_uncertainty(cal: Calibration, per_camera: dict[str, dict]) -> str:
         for m, cam in enumerate(cal.cameras):
             if cam.id not in per_camera:
                 continue
-            heights = [v or 0.0 for v in values(per_camera[cam.id])]
+            heights = values(per_camera[cam.id])
             x = np.arange(len(labels)) + (m + 0.5) * width - 0.4
             ax.bar(x, heights, width=width, color=camera_colour(m), label=cam.id)
         ax.set_xticks(np.arange(len(labels)), labels)
@@ -317,29 +245,37 @@ def _table(header: list[str], rows: list[list[str]]) -> str:
     return f"<table><tr>{head}</tr>{body}</table>"
 
 
-def _summary(cal: Calibration, fk: FurtherKeys, res: Residuals | None) -> str:
-    diag = fk.diagnostics
+def _summary(cal: Calibration, res: Residuals | None) -> str:
+    report, uncertainty = cal.report, cal.uncertainty
+    scale_rel = uncertainty.scale_rel.value if uncertainty is not None else None
+    if report is None:
+        converged, counts, parallax = "n/a (no reason given)", "n/a / n/a", None
+    else:
+        converged = f"{_esc(report.converged)} ({_esc(report.reason)})"
+        counts, parallax = f"{report.observations} / {report.inliers}", report.median_parallax_deg
     rows = [
         ["world frame", _esc(cal.world_frame)],
-        ["method", _esc(fk.method)],
+        ["method", _esc(report.method.value if report is not None else "unknown")],
         ["cameras", str(len(cal.cameras))],
         ["points", str(len(cal.points))],
         ["reprojection RMS (px)", _fmt(cal.rms_reprojection_px, 3)],
-        ["pixel noise sigma (px)", _fmt(fk.sigma_px, 3)],
-        ["scale uncertainty (1 sigma, %)", _fmt(100 * fk.scale_rel, 4) if fk.scale_rel is not None else "n/a"],
-        ["converged", f"{_esc(diag.get('converged', 'n/a'))} ({_esc(diag.get('reason', 'no reason given'))})"],
-        ["observations / inliers", f"{_esc(diag.get('observations', 'n/a'))} / {_esc(diag.get('inliers', 'n/a'))}"],
-        ["median parallax (deg)", _fmt(diag.get("median_parallax_deg"), 2)],
+        ["pixel noise sigma (px)", _fmt(uncertainty.sigma_px if uncertainty is not None else None, 3)],
+        ["scale uncertainty (1 sigma, %)", _fmt(100 * scale_rel, 4) if scale_rel is not None else "n/a"],
+        ["converged", converged],
+        ["observations / inliers", counts],
+        ["median parallax (deg)", _fmt(parallax, 2)],
     ]
     if res is not None:
         rows.append(["observations of dropped tracks", str(res.dropped_observations)])
     return _table(["quantity", "value"], rows)
 
 
-def _camera_table(cal: Calibration, fk: FurtherKeys) -> str:
+def _camera_table(cal: Calibration) -> str:
+    stats = cal.report.cameras if cal.report is not None else {}
+    sigmas = cal.uncertainty.cameras if cal.uncertainty is not None else {}
     rows = []
     for cam in cal.cameras:
-        d, u = fk.camera_stats.get(cam.id, {}), fk.uncertainty.get(cam.id, {})
+        d, u = stats.get(cam.id), sigmas.get(cam.id)
         rows.append(
             [
                 _esc(cam.id),
@@ -347,17 +283,17 @@ def _camera_table(cal: Calibration, fk: FurtherKeys) -> str:
                 *(_fmt(x, 1) for x in (cam.K[0, 0], cam.K[1, 1], cam.K[0, 2], cam.K[1, 2])),
                 " ".join(f"{x:.4g}" for x in cam.dist),
                 " ".join(_fmt(1e3 * x, 1) for x in cam.centre),
-                _fmt(u.get("f_px"), 2),
-                f"{_fmt(u.get('cx_px'), 2)} / {_fmt(u.get('cy_px'), 2)}",
-                _fmt(d.get("rms_px"), 3),
-                _esc(d.get("inliers", "n/a")),
+                _fmt(u.f_px if u is not None else None, 2),
+                f"{_fmt(u.cx_px, 2)} / {_fmt(u.cy_px, 2)}" if u is not None else "None / None",
+                _fmt(d.rms_px if d is not None else None, 3),
+                _esc(d.inliers if d is not None else "n/a"),
             ]
         )
     header = ["camera", "size", "fx", "fy", "cx", "cy", "k1 k2 p1 p2 k3", "centre X Y Z (mm)", "sigma f (px)"]
     return _table([*header, "sigma cx / cy (px)", "RMS (px)", "inliers"], rows)
 
 
-def _uncertainty_table(cal: Calibration, per_camera: dict[str, dict]) -> str:
+def _uncertainty_table(cal: Calibration, per_camera: Mapping[str, CameraSigmas]) -> str:
     rows = []
     for cam in cal.cameras:
         u = per_camera.get(cam.id)
@@ -366,10 +302,10 @@ def _uncertainty_table(cal: Calibration, per_camera: dict[str, dict]) -> str:
         rows.append(
             [
                 _esc(cam.id),
-                *(_fmt(u[k], 3) for k in ("f_px", "cx_px", "cy_px")),
-                *(f"{u[k]:.3g}" if u[k] is not None else "n/a" for k in ("k1", "k2")),
-                " ".join(_fmt(1e3 * x, 3) for x in u["centre_m"]) if u["centre_m"] else "n/a",
-                " ".join(_fmt(x, 4) for x in u["rotation_deg"]) if u["rotation_deg"] else "n/a",
+                *(_fmt(x, 3) for x in (u.f_px, u.cx_px, u.cy_px)),
+                *(f"{x:.3g}" for x in (u.k1, u.k2)),
+                " ".join(_fmt(1e3 * x, 3) for x in u.centre_m),
+                " ".join(_fmt(x, 4) for x in u.rotation_deg),
             ]
         )
     header = ["camera", "f (px)", "cx (px)", "cy (px)", "k1", "k2", "centre X Y Z (mm)", "rotation x y z (deg)"]
@@ -391,21 +327,21 @@ def _bounding_box_text(box: BoundingBox) -> str:
 
 def render_report(cal: Calibration, obs: Observations | None = None, *, title: str = "camnet calibration") -> str:
     """The whole HTML page of `cal`; with `obs`, also the per-point errors and histograms."""
-    fk = further_keys(cal)
+    uncertainty = cal.uncertainty
     res = reprojection_residuals(cal, obs) if obs is not None else None
     limit_px = outlier_limit_px(cal)
     box = bounding_box(cal.points)
     needs_observations = f'<p class="note">{NEEDS_OBSERVATIONS}</p>'
     body = {
-        "summary": _summary(cal, fk, res),
-        "warnings": "".join(f'<p class="warning">{_esc(w)}</p>' for w in fk.warnings) or '<p class="note">None.</p>',
-        "cameras": _camera_table(cal, fk),
+        "summary": _summary(cal, res),
+        "warnings": "".join(f'<p class="warning">{_esc(w)}</p>' for w in cal.warnings) or '<p class="note">None.</p>',
+        "cameras": _camera_table(cal),
         "reprojection": plot_per_point_errors(cal, res, limit_px) if res is not None else needs_observations,
-        "residuals": plot_residual_histograms(cal, res, limit_px, fk.sigma_px)
+        "residuals": plot_residual_histograms(cal, res, limit_px, uncertainty.sigma_px if uncertainty else None)
         if res is not None
         else needs_observations,
-        "uncertainty": _uncertainty_table(cal, fk.uncertainty) + plot_uncertainty(cal, fk.uncertainty)
-        if fk.uncertainty
+        "uncertainty": _uncertainty_table(cal, uncertainty.cameras) + plot_uncertainty(cal, uncertainty.cameras)
+        if uncertainty is not None and uncertainty.cameras
         else '<p class="note">The calibration holds no uncertainty.</p>',
         "bounding-box": _bounding_box_text(box) + plot_bounding_box(cal, box)
         if box is not None

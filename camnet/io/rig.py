@@ -9,36 +9,22 @@ default. The format is documented in config/README.md.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from camnet.bus.keys import validate_id
 from camnet.errors import InputError
-from camnet.geometry.camera import Camera
-from camnet.io.formats import parse_matrix
+from camnet.geometry.model import Camera, Stereo
+from camnet.geometry.projection import full_dist
+from camnet.ids import validate_id
+from camnet.io import validate as v
 from camnet.sim.config import SceneConfig, SimConfig
 
 DRIVERS = ("sim", "aravis", "v4l2")
 SIM_ENCODINGS = ("mono8", "mono16", "bgr8", "rgb8")
 V4L2_ENCODINGS = ("bgr8", "mono8")
-
-
-@dataclass(frozen=True)
-class StereoPair:
-    """The stereo pair; R, t (when known, a factory-calibrated head) the right camera's pose in the left's frame.
-
-    x_right = R x_left + t, t in metres, |t| = baseline_m.
-    """
-
-    left: str
-    right: str
-    baseline_m: float
-    R: np.ndarray | None = None
-    t: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -119,7 +105,7 @@ class CameraEntry:
 class Rig:
     name: str
     cameras: tuple[CameraEntry, ...]
-    stereo: StereoPair | None
+    stereo: Stereo | None
     scene: SceneConfig
     source: str = "<memory>"
     sync: SyncSettings | None = None
@@ -150,11 +136,14 @@ class Rig:
 
 
 class _Section:
-    """Typed reads of one mapping of the rig file, with errors naming the field path."""
+    """Typed reads of one mapping of the rig file (camnet.io.validate), with errors naming the field path.
+
+    A key that is absent or null takes `default` (required when none is given).
+    """
 
     def __init__(self, data: Any, path: str) -> None:
         if not isinstance(data, dict):
-            raise InputError(f"{path or 'rig file'}: expected a mapping, got {_kind(data)}")
+            raise InputError(f"{path or 'rig file'}: expected a mapping, got {v.kind(data)}")
         self.data = data
         self.path = path
         self.used: set[str] = set()
@@ -174,63 +163,36 @@ class _Section:
         value = self.raw(key, {} if not required else ..., required=required)
         return _Section(value, self.field(key))
 
-    def number(self, key: str, default: Any = ..., *, positive: bool = False,
-               minimum: float | None = None) -> float:
+    def _read(self, key: str, default: Any, check, *args, **kwargs) -> Any:
         value = self.raw(key, default)
         if value is default and default is not ...:
             return value
-        if isinstance(value, bool) or not isinstance(value, int | float) or \
-                not math.isfinite(value):
-            raise InputError(f"{self.field(key)}: expected a finite number, got {value!r}")
-        if positive and value <= 0:
-            raise InputError(f"{self.field(key)}: must be positive, got {value!r}")
-        if minimum is not None and value < minimum:
-            raise InputError(f"{self.field(key)}: must be at least {minimum}, got {value!r}")
-        return float(value)
+        return check(value, self.field(key), *args, **kwargs)
+
+    def number(self, key: str, default: Any = ..., *, positive: bool = False, minimum: float | None = None) -> float:
+        return self._read(key, default, v.number, positive=positive, minimum=minimum)
 
     def integer(self, key: str, default: Any = ..., *, positive: bool = False) -> int:
-        value = self.raw(key, default)
-        if value is default and default is not ...:
-            return value
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise InputError(f"{self.field(key)}: expected an integer, got {value!r}")
-        if positive and value <= 0:
-            raise InputError(f"{self.field(key)}: must be positive, got {value!r}")
-        return int(value)
+        return self._read(key, default, v.integer, positive=positive)
 
     def string(self, key: str, default: Any = ..., *, choices: tuple[str, ...] = ()) -> str:
-        value = self.raw(key, default)
-        if value is default and default is not ...:
-            return value
-        if not isinstance(value, str) or not value:
-            raise InputError(f"{self.field(key)}: expected a non-empty string, got {value!r}")
-        if choices and value not in choices:
-            raise InputError(f"{self.field(key)}: unknown value {value!r} "
-                             f"(expected {', '.join(choices)})")
-        return value
+        return self._read(key, default, v.string, choices=choices)
 
     def boolean(self, key: str, default: bool) -> bool:
-        value = self.raw(key, default)
-        if not isinstance(value, bool):
-            raise InputError(f"{self.field(key)}: expected true or false, got {value!r}")
-        return value
+        return v.boolean(self.raw(key, default), self.field(key))
 
     def matrix(self, key: str, rows: int, cols: int, default: Any = ...) -> np.ndarray:
-        value = self.raw(key, default)
-        if value is default and default is not ...:
-            return value
-        return parse_matrix(value, rows, cols, self.field(key))
+        return self._read(key, default, lambda value, path: v.matrix(value, rows, cols, path))
+
+    def rotation(self, key: str, default: Any = ...) -> np.ndarray:
+        return self._read(key, default, v.rotation)
+
+    def dist(self, key: str, default: Any = ...) -> np.ndarray:
+        """OpenCV distortion: up to 5 numbers [k1, k2, p1, p2, k3]."""
+        return self._read(key, default, lambda value, path: v.vector(value, path, max_size=5))
 
     def vector(self, key: str, size: int, default: Any = ...) -> tuple[float, ...]:
-        value = self.raw(key, default)
-        if value is default and default is not ...:
-            return value
-        ok = isinstance(value, list | tuple) and len(value) == size and all(
-            not isinstance(v, bool) and isinstance(v, int | float) and math.isfinite(v)
-            for v in value)
-        if not ok:
-            raise InputError(f"{self.field(key)}: expected {size} finite numbers, got {value!r}")
-        return tuple(float(v) for v in value)
+        return self._read(key, default, lambda value, path: tuple(v.vector(value, path, size=size).tolist()))
 
     def finish(self) -> None:
         """Refuse keys that were never read: they are typos or unsupported options."""
@@ -240,22 +202,13 @@ class _Section:
                              f"(known: {', '.join(sorted(self.used))})")
 
 
-def _kind(value: Any) -> str:
-    return "nothing" if value is None else type(value).__name__
-
-
 def _sim(s: _Section) -> SimConfig:
     if "f_px" in s.data:
         fx = fy = s.number("f_px", positive=True)
     else:
         fx, fy = s.number("fx_px", positive=True), s.number("fy_px", positive=True)
     width, height = s.integer("width", positive=True), s.integer("height", positive=True)
-    dist = s.raw("dist", [])
-    if not isinstance(dist, list) or len(dist) > 5 or not all(
-            isinstance(d, int | float) and not isinstance(d, bool) and math.isfinite(d)
-            for d in dist):
-        raise InputError(f"{s.field('dist')}: expected up to 5 finite numbers "
-                         f"[k1, k2, p1, p2, k3], got {dist!r}")
+    dist = s.dist("dist", np.zeros(0))
     config = SimConfig(
         width=width, height=height,
         encoding=s.string("encoding", "mono8", choices=SIM_ENCODINGS),
@@ -263,7 +216,7 @@ def _sim(s: _Section) -> SimConfig:
         fx_px=fx, fy_px=fy,
         cx_px=s.number("cx_px", (width - 1) / 2.0),
         cy_px=s.number("cy_px", (height - 1) / 2.0),
-        dist=tuple(float(d) for d in dist),
+        dist=tuple(dist.tolist()),
         centre_m=s.vector("centre_m", 3, (0.0, 0.0, 0.0)),
         look_at_m=s.vector("look_at_m", 3, None),
         up=s.vector("up", 3, (0.0, -1.0, 0.0)),
@@ -351,13 +304,8 @@ def _intrinsics(s: _Section) -> KnownIntrinsics:
     if not upper_triangular:
         raise InputError(f"{s.field('K')}: expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with "
                          f"fx, fy > 0, got {K.tolist()}")
-    dist = s.raw("dist", None)
-    if dist is not None:
-        if not isinstance(dist, list) or len(dist) > 5 or not all(
-                isinstance(d, int | float) and not isinstance(d, bool) and math.isfinite(d) for d in dist):
-            raise InputError(f"{s.field('dist')}: expected up to 5 finite numbers "
-                             f"[k1, k2, p1, p2, k3], got {dist!r}")
-        dist = np.pad(np.array(dist, dtype=float), (0, 5 - len(dist)))
+    dist = s.dist("dist", None)
+    dist = full_dist(dist) if dist is not None else None
     given = [name for name, value in (("K", K), ("dist", dist)) if value is not None]
     if not given:
         raise InputError(f"{s.path}: give K, dist or both")
@@ -454,8 +402,8 @@ def _parse_rig(data: Any, source: str) -> Rig:
                                  f"(have {', '.join(seen)})")
         if left == right:
             raise InputError(f"{st.field('right')}: must differ from stereo.left")
-        stereo = _stereo_pose(st, StereoPair(left=left, right=right,
-                                             baseline_m=st.number("baseline_m", positive=True)), cameras)
+        stereo = _stereo_pose(st, Stereo(left=left, right=right, baseline_m=st.number("baseline_m", positive=True)),
+                              cameras)
         st.finish()
     scene = _scene(top.section("scene", required=False))
     sync = _sync(top.section("sync")) if top.data.get("sync") is not None else None
@@ -464,16 +412,14 @@ def _parse_rig(data: Any, source: str) -> Rig:
     return Rig(name=name, cameras=cameras, stereo=stereo, scene=scene, source=source, sync=sync)
 
 
-def _stereo_pose(st: _Section, pair: StereoPair, cameras: tuple[CameraEntry, ...]) -> StereoPair:
+def _stereo_pose(st: _Section, pair: Stereo, cameras: tuple[CameraEntry, ...]) -> Stereo:
     """The pair with its known pose (stereo.R, stereo.t), checked, when the rig file gives one."""
-    R, t = st.matrix("R", 3, 3, None), st.vector("t", 3, None)
+    R, t = st.rotation("R", None), st.vector("t", 3, None)
     if R is None and t is None:
         return pair
     if R is None or t is None:
         raise InputError(f"{st.field('R' if R is None else 't')}: missing; a known stereo pose needs both R and t "
                          "(the right camera's pose in the left's frame, x_right = R x_left + t)")
-    if not (np.allclose(R @ R.T, np.eye(3), atol=1e-5) and np.linalg.det(R) > 0):
-        raise InputError(f"{st.field('R')}: not a rotation matrix (R R^T = I, det R = 1)")
     t = np.array(t)
     if abs(np.linalg.norm(t) - pair.baseline_m) > 1e-3 * pair.baseline_m:
         raise InputError(f"{st.field('t')}: its length {np.linalg.norm(t):.6g} m differs from "

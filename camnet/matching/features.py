@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from camnet.io.formats import Stereo
+from camnet.geometry.model import Stereo
 
 log = logging.getLogger(__name__)
 

@@ -16,9 +16,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from camnet.geometry.camera import Camera
+from camnet.geometry.model import FIXABLE, Camera, CameraInfo, Observations, Stereo
 from camnet.geometry.projection import full_dist
-from camnet.io.formats import FIXABLE, CameraInfo, Observations, Stereo
 from camnet.matching.features import MatcherConfig, match_frame_set
 from camnet.matching.pool import PoolConfig, TrackPool
 from camnet.matching.tracks import build_tracks

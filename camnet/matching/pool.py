@@ -39,7 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from camnet.io.formats import CameraInfo, Observations, Stereo
+from camnet.geometry.model import CameraInfo, Observations, Stereo
 from camnet.matching.tracks import FrameTracks
 
 log = logging.getLogger(__name__)

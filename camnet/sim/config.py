@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from camnet.geometry.camera import Camera
+from camnet.geometry.model import Camera
 from camnet.geometry.projection import look_at
 
 
@@ -38,7 +38,7 @@ class SimConfig:
     noise_sigma_dn: float
 
     def camera(self, camera_id: str) -> Camera:
-        """The ground-truth camnet.geometry.camera.Camera of this simulated camera."""
+        """The ground-truth camnet.geometry.model.Camera of this simulated camera."""
         K = np.array([[self.fx_px, 0.0, self.cx_px], [0.0, self.fy_px, self.cy_px], [0, 0, 1.0]])
         centre = np.array(self.centre_m, dtype=float)
         if self.look_at_m is None:

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from camnet.geometry.camera import Camera
+from camnet.geometry.model import Camera
 from camnet.geometry.projection import look_at
 from camnet.sim.simulate import HEIGHT, WIDTH, SimRig, make_rig
 

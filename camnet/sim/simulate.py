@@ -13,9 +13,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from camnet.geometry.camera import Camera
+from camnet.geometry.model import Camera, CameraInfo, Observations, Stereo
 from camnet.geometry.projection import look_at, rotation_exp
-from camnet.io.formats import CameraInfo, Observations, Stereo
 
 WIDTH, HEIGHT = 1280, 1024
 OBJECT_CENTRE = np.array([0.0625, 0.0, 0.65])

@@ -1,0 +1,176 @@
+"""Which parameters a solve frees: the automatic rule of camnet.geometry.calibrate's
+docstring, explicit free sets, and the free set a warm start takes over.
+
+Blocks are tried in the order of `CANDIDATES`. A block is freed when the data
+determine it (its standard deviation, with it and the blocks before it free,
+moves the image by at most `determined_px` pixels) or when the data ask for it
+(freeing it lowers the cost by more than chance allows: a chi-square score
+test at false-alarm rate `significance`, on the a-posteriori pixel variance).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from camnet.errors import SolveError
+from camnet.geometry import bundle
+from camnet.geometry.bundle import CEN, CENTRE_ON_BASELINE, ROT, Problem, State
+from camnet.geometry.model import FreeSet
+from camnet.geometry.projection import INTRINSIC_NAMES, N_INTRINSICS
+from camnet.geometry.uncertainty import Covariance, covariance, residual_dof
+
+FREE_NAMES = ("f", "aspect", "pp", "k1", "k2", "stereo_rotation", "stereo_direction")
+CANDIDATES = ("stereo_pitch_roll", "stereo_direction", "stereo_yaw", "pp", "k1", "k2")
+
+_SLOT = {name: i for i, name in enumerate(INTRINSIC_NAMES)}  # a camera's intrinsic columns
+_SLOTS = {"pp": (_SLOT["cx"], _SLOT["cy"]), "k1": (_SLOT["k1"],), "k2": (_SLOT["k2"],)}
+_PITCH, _YAW, _ROLL = ROT.start, ROT.start + 1, ROT.start + 2  # rotation about x, y, z
+_DIRECTION = (CEN.start, CEN.start + 1)  # the two tangent slots of a centre on the baseline sphere
+
+
+def free_names(free: str | frozenset[str]) -> frozenset[str]:
+    """The names freed from the start: only f for "auto", else the explicit set, checked."""
+    if free == "auto":
+        return frozenset({"f"})
+    unknown = set(free) - set(FREE_NAMES)
+    if unknown:
+        raise SolveError(f"free: unknown parameter(s) {sorted(unknown)}; expected some of {FREE_NAMES}")
+    return frozenset(free)
+
+
+def free_mask(problem_cams: int, names: frozenset[str], fixed_K: np.ndarray, fixed_dist: np.ndarray) -> np.ndarray:
+    """(M, N_INTRINSICS) bool: the intrinsics `names` frees, except those held by the observations."""
+    intr_free = np.zeros((problem_cams, N_INTRINSICS), dtype=bool)
+    intr_free[:, _SLOT["f"]] = "f" in names
+    intr_free[:, _SLOT["a"]] = "aspect" in names
+    intr_free[:, list(_SLOTS["pp"])] = "pp" in names
+    intr_free[:, _SLOT["k1"]] = "k1" in names
+    intr_free[:, _SLOT["k2"]] = "k2" in names
+    _hold_given(intr_free, fixed_K, fixed_dist)
+    return intr_free
+
+
+def _hold_given(intr_free: np.ndarray, fixed_K: np.ndarray, fixed_dist: np.ndarray) -> None:
+    """Hold (in place) K's intrinsics where fixed_K (M,), the distortion's where fixed_dist (M,)."""
+    intr_free[fixed_K, : _SLOT["k1"]] = False
+    intr_free[fixed_dist, _SLOT["k1"] :] = False
+
+
+def restore_free(
+    free: FreeSet, ids: list[str], intr_free: np.ndarray, rot_free: np.ndarray, *, fixed_K, fixed_dist
+) -> None:
+    """Take the free set of a previous solve (in place) for the cameras it knew; what is fixed stays held."""
+    for m, cam_id in enumerate(ids):
+        names = free.intrinsics.get(cam_id)
+        if names is not None:
+            intr_free[m] = [n in names for n in INTRINSIC_NAMES]
+    rot_free[1] = [a in free.stereo_rotation_axes for a in "xyz"]
+    _hold_given(intr_free, fixed_K, fixed_dist)
+
+
+def _pixel_effect(name: str, state: State, cov: Covariance, widths, heights) -> float | np.ndarray:
+    """Standard deviation, in pixels, of a candidate block's effect on the image."""
+    cols = cov.columns
+    sd = np.sqrt(np.maximum(np.diag(cov.cameras), 0.0))
+
+    def sigma(m: int, *slots: int) -> float:
+        return max(float(sd[cols[m, s]]) if cols[m, s] >= 0 else np.nan for s in slots)
+
+    f = state.intr[:, _SLOT["f"]]
+    cams = range(len(f))
+    r_max = np.hypot(np.asarray(widths) / 2, np.asarray(heights) / 2) / f
+    if name == "stereo_pitch_roll":
+        return f[1] * sigma(1, _PITCH, _ROLL)
+    if name == "stereo_yaw":
+        return f[1] * sigma(1, _YAW)
+    if name == "stereo_direction":  # a sideways shift of l * angle, seen at the typical depth
+        return f[1] * sigma(1, *_DIRECTION) * np.linalg.norm(state.C[1]) / np.median(state.X[:, 2])
+    if name == "pp":
+        return np.array([sigma(m, *_SLOTS["pp"]) for m in cams])
+    if name == "k1":
+        return np.array([f[m] * r_max[m] ** 3 * sigma(m, _SLOT["k1"]) for m in cams])
+    return np.array([f[m] * r_max[m] ** 5 * sigma(m, _SLOT["k2"]) for m in cams])
+
+
+def with_block(problem: Problem, name: str, cameras: np.ndarray) -> Problem:
+    """`problem` with the candidate block `name` also free (for `cameras` (M,) bool, per-camera blocks)."""
+    intr_free, rot_free, centre_mode = problem.intr_free.copy(), problem.rot_free.copy(), problem.centre_mode.copy()
+    if name == "stereo_pitch_roll":
+        rot_free[1, [0, 2]] = True
+    elif name == "stereo_direction":
+        centre_mode[1] = CENTRE_ON_BASELINE
+    elif name == "stereo_yaw":
+        rot_free[1, 1] = True
+    else:
+        for s in _SLOTS[name]:
+            intr_free[cameras, s] = True
+    return replace(problem, intr_free=intr_free, rot_free=rot_free, centre_mode=centre_mode)
+
+
+def choose_free(
+    problem: Problem, state: State, *, determined_px: float, significance: float, widths, heights, held_K, held_dist
+) -> tuple[Problem, list[str]]:
+    """Apply the rule of the module docstring; returns (problem, decisions).
+
+    `state` is the least-squares solution of `problem`. Both tests are
+    linearised at it: the standard deviation from the covariance with the
+    block free, the cost decrease from the Gauss-Newton step with it free
+    (the score test, first-order equal to the likelihood ratio).
+    """
+    from scipy.special import chdtri
+
+    M = problem.n_cameras
+    can_move = {"pp": ~held_K, "k1": ~held_dist, "k2": ~held_dist}
+    # A block's Jacobian does not depend on which other blocks are free: one set of
+    # normal equations with every candidate free serves every trial.
+    everything = problem
+    for name in CANDIDATES:
+        everything = with_block(everything, name, can_move.get(name, np.ones(M, bool)))
+    ne = bundle.normal_equations(everything, state)
+    columns = everything.columns()[0]
+
+    def restricted(trial: Problem):
+        return bundle.restrict(ne, columns[trial.columns()[0] >= 0])
+
+    variance = 2.0 * ne.cost / max(residual_dof(problem), 1)  # a posteriori pixel variance
+
+    def significant(trial: Problem, base_decrease: float, k: int) -> tuple[bool, float]:
+        """Whether freeing the trial's new block lowers the cost beyond chance (chi-square, k dof)."""
+        statistic = 2.0 * (bundle.gauss_newton_decrease(restricted(trial)) - base_decrease) / max(variance, 1e-300)
+        # An infinite decrease means the block is not determined at all: no evidence for it.
+        wanted = variance > 1e-12 and np.isfinite(statistic) and statistic > chdtri(k, significance)
+        return bool(wanted), statistic
+
+    decisions = []
+    for name in CANDIDATES:
+        base = bundle.gauss_newton_decrease(restricted(problem))
+        movable = can_move.get(name, np.ones(M, bool))
+        trial = with_block(problem, name, movable)
+        try:
+            effect = _pixel_effect(name, state, covariance(trial, state, normal=restricted(trial)), widths, heights)
+        except np.linalg.LinAlgError:  # the block is not fixed at all by these observations
+            effect = np.inf if name.startswith("stereo") else np.full(M, np.inf)
+        if name.startswith("stereo"):
+            k = int(trial.columns()[1] - problem.columns()[1])
+            wanted, statistic = significant(trial, base, k)
+            free = effect <= determined_px or wanted
+            if free:
+                problem = trial
+            decisions.append(
+                f"{name}: {'free' if free else 'held'} (sigma {effect:.2g} px, chi2 {statistic:.3g} on {k} dof)"
+            )
+            continue
+        k = len(_SLOTS[name])
+        determined = np.isfinite(effect) & (effect <= determined_px) & movable
+        wanted = np.zeros(M, bool)
+        if significant(trial, base, k * int(movable.sum()))[0]:  # the block as a whole; then camera by camera
+            for m in np.flatnonzero(movable & ~determined):
+                wanted[m] = significant(with_block(problem, name, np.arange(M) == m), base, k)[0]
+        problem = with_block(problem, name, determined | wanted)
+        decisions.append(
+            f"{name}: sigma px per camera {np.round(effect, 2).tolist()}; "
+            f"freed by significance {[m for m in np.flatnonzero(wanted & ~determined).tolist()]}"
+        )
+    return problem, decisions

@@ -1,0 +1,252 @@
+"""The domain model: cameras, what observations say of them, the stereo pair, and a
+solved network with the typed report of its solve.
+
+Pure values, no I/O: the JSON codec of these types is camnet.io.formats, and
+docs/calibration-keys.md documents the report's keys. Conventions are those of
+camnet.geometry.projection: ``x_cam = R @ X_world + t``, lengths in metres, pixels
+with ``u`` right, ``v`` down, origin at the centre of the top-left pixel, ``K``
+in pixels and ``dist`` in OpenCV's order ``[k1, k2, p1, p2, k3]``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from enum import StrEnum
+
+import numpy as np
+
+from camnet.geometry.projection import DIST_SIZE, project
+
+
+class Method(StrEnum):
+    """How a calibration was solved (see camnet.geometry.calibrate)."""
+
+    PAPER = "paper"
+    REFINED = "refined"
+    UNCONSTRAINED = "unconstrained"
+
+
+class Loss(StrEnum):
+    """The robust losses of the adjustment (scipy.optimize.least_squares' names)."""
+
+    LINEAR = "linear"
+    HUBER = "huber"
+    SOFT_L1 = "soft_l1"
+    CAUCHY = "cauchy"
+
+
+class StartKind(StrEnum):
+    """How a solve started: the paper's solver, or a previous calibration (a warm start)."""
+
+    COLD = "cold"
+    WARM = "warm"  # every camera still fitted: only new tracks got the robust fit
+    WARM_ROBUST = "warm, robust"  # some camera no longer fitted (it moved): the robust adjustment ran
+
+
+@dataclass(frozen=True)
+class Camera:
+    """One calibrated camera: intrinsics, distortion and pose in the world frame."""
+
+    id: str
+    width: int
+    height: int
+    K: np.ndarray
+    dist: np.ndarray = field(default_factory=lambda: np.zeros(DIST_SIZE))
+    R: np.ndarray = field(default_factory=lambda: np.eye(3))
+    t: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+    @property
+    def centre(self) -> np.ndarray:
+        """Camera centre in world coordinates (m)."""
+        return -self.R.T @ self.t
+
+    def project(self, points_world: np.ndarray) -> np.ndarray:
+        """Pixels (n, 2) of world points (n, 3); see camnet.geometry.projection.project."""
+        return project(points_world, K=self.K, dist=self.dist, R=self.R, t=self.t)
+
+
+FIXABLE = ("K", "dist")  # what observations may hold as given (CameraInfo.fixed)
+
+
+@dataclass(frozen=True)
+class CameraInfo:
+    """What observations say of one camera."""
+
+    id: str
+    width: int
+    height: int
+    K: np.ndarray | None = None  # 3x3, pixels, if known
+    dist: np.ndarray | None = None  # [k1, k2, p1, p2, k3], if known
+    fixed: frozenset[str] = frozenset()  # subset of {"K", "dist"} to hold as given
+
+
+@dataclass(frozen=True)
+class Stereo:
+    """The pair with the known baseline; its left camera's frame is the world frame.
+
+    R, t (when known, a factory-calibrated head): the right camera's pose in
+    the left's frame, ``x_right = R x_left + t``, t in metres, |t| = baseline_m.
+    """
+
+    left: str
+    right: str
+    baseline_m: float
+    R: np.ndarray | None = None
+    t: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class Observations:
+    """Multi-view correspondences in flat arrays, one row per observation.
+
+    ``uv[k]`` is the pixel at which camera ``cameras[cam_index[k]]`` sees
+    track ``track_ids[track_index[k]]``.
+    """
+
+    cameras: tuple[CameraInfo, ...]
+    stereo: Stereo
+    track_ids: np.ndarray  # (T,) int
+    cam_index: np.ndarray  # (n,) int
+    track_index: np.ndarray  # (n,) int
+    uv: np.ndarray  # (n, 2) float pixels
+
+    @property
+    def camera_ids(self) -> list[str]:
+        return [c.id for c in self.cameras]
+
+    def index_of(self, camera_id: str) -> int:
+        return self.camera_ids.index(camera_id)
+
+
+# ---------------------------------------------------------------- the solve report
+
+
+@dataclass(frozen=True)
+class Sigma:
+    """A 1-sigma value that the data may not determine; then `value` is None and `reason` says why."""
+
+    value: float | None
+    reason: str = ""
+
+    @staticmethod
+    def unknown(reason: str) -> Sigma:
+        return Sigma(None, reason)
+
+
+@dataclass(frozen=True)
+class CameraSigmas:
+    """One camera's 1-sigma uncertainties (0 where a parameter is held).
+
+    rotation_deg: 3 axes, left perturbation; centre_m: 3 axes of the camera centre.
+    """
+
+    f_px: float
+    cx_px: float
+    cy_px: float
+    k1: float
+    k2: float
+    rotation_deg: tuple[float, float, float]
+    centre_m: tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class Uncertainty:
+    """The solution's uncertainty, from the Jacobian at the solution.
+
+    scale_rel: relative 1 sigma of the network's scale (weighted by
+    `point_weights`); scale_rel_if_pp_exact: the same were the guessed
+    principal points exactly right; point_weights (N,): per reported point,
+    its weight in the scale, None when not given.
+    """
+
+    sigma_px: float
+    scale_rel: Sigma
+    scale_rel_if_pp_exact: Sigma
+    cameras: Mapping[str, CameraSigmas]
+    point_weights: np.ndarray | None
+
+
+@dataclass(frozen=True)
+class CameraStats:
+    """One camera's inlier observations and their reprojection RMS (None without inliers)."""
+
+    rms_px: float | None
+    inliers: int
+
+
+@dataclass(frozen=True)
+class FreeSet:
+    """Which parameters moved in a solve (reused by warm starts).
+
+    intrinsics: per camera id, the names of camnet.geometry.projection.INTRINSIC_NAMES
+    that were free; stereo_rotation_axes: of "xyz", the right stereo camera's
+    free rotation axes; stereo_direction: whether its baseline could turn.
+    """
+
+    intrinsics: Mapping[str, tuple[str, ...]]
+    stereo_rotation_axes: tuple[str, ...]
+    stereo_direction: bool
+
+
+@dataclass(frozen=True)
+class PointsLeftOut:
+    """Tracks with a solution that a calibration does not report, by reason."""
+
+    fewer_than_two_views: int = 0
+    behind_a_camera: int = 0
+    undetermined: int = 0
+
+
+@dataclass(frozen=True)
+class SolveReport:
+    """How a calibration was solved and how well it is determined (docs/calibration-keys.md).
+
+    converged, reason, iterations: the final adjustment's; observations,
+    inliers: used and kept after outlier rejection; free_rule: the automatic
+    rule's decisions; warnings: near-degenerate geometry; timings_s: seconds
+    per stage. Fields a document may lack are None (`free`, `start`,
+    `points_left_out`, `uncertainty`, `median_parallax_deg`).
+    """
+
+    method: Method
+    converged: bool
+    reason: str
+    iterations: int
+    observations: int
+    inliers: int
+    cameras: Mapping[str, CameraStats]
+    median_parallax_deg: float | None
+    free: FreeSet | None
+    free_rule: tuple[str, ...]
+    warnings: tuple[str, ...]
+    points_left_out: PointsLeftOut | None
+    start: StartKind | None
+    timings_s: Mapping[str, float]
+    uncertainty: Uncertainty | None = None
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """A solved network: cameras in the left stereo camera's frame, metric points.
+
+    rms_reprojection_px is NaN when no observation went into it (a factory
+    stereo head); report is None when no solve made it.
+    """
+
+    cameras: tuple[Camera, ...]
+    point_ids: np.ndarray  # (N,) int, the track ids kept
+    points: np.ndarray  # (N, 3) metres, world frame
+    rms_reprojection_px: float
+    world_frame: str
+    report: SolveReport | None = None
+
+    @property
+    def uncertainty(self) -> Uncertainty | None:
+        """The report's uncertainty; None without a report or without uncertainty in it."""
+        return self.report.uncertainty if self.report is not None else None
+
+    @property
+    def warnings(self) -> tuple[str, ...]:
+        """The report's warnings; none without a report."""
+        return self.report.warnings if self.report is not None else ()

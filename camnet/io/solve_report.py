@@ -1,0 +1,192 @@
+"""The further keys of ``camnet.calibration/1`` (docs/calibration-keys.md): the JSON
+codec of camnet.geometry.model.SolveReport.
+
+Writing keeps the documented keys and their order. Reading is tolerant of a
+document without them (a factory stereo head has no report: None) and of the
+keys older writers left out (None in the report), and strict about types:
+every error is an `InputError` naming the JSON path.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from camnet.geometry.model import (
+    CameraSigmas,
+    CameraStats,
+    FreeSet,
+    Method,
+    PointsLeftOut,
+    Sigma,
+    SolveReport,
+    StartKind,
+    Uncertainty,
+)
+from camnet.io import validate as v
+
+# Timings are written to the microsecond: finer digits are noise.
+TIMING_DIGITS = 6
+# Why a sigma that a document gives as null is unknown.
+NULL_SIGMA = "null in the document"
+
+
+def report_to_doc(report: SolveReport) -> dict:
+    """The further keys, in the documented order."""
+    diagnostics: dict[str, Any] = {
+        "converged": report.converged,
+        "reason": report.reason,
+        "iterations": report.iterations,
+        "observations": report.observations,
+        "inliers": report.inliers,
+        "cameras": {cam_id: {"rms_px": s.rms_px, "inliers": s.inliers} for cam_id, s in report.cameras.items()},
+        "median_parallax_deg": report.median_parallax_deg,
+    }
+    if report.free is not None:
+        diagnostics["free"] = {
+            "intrinsics": {cam_id: list(names) for cam_id, names in report.free.intrinsics.items()},
+            "stereo_rotation_axes": list(report.free.stereo_rotation_axes),
+            "stereo_direction": report.free.stereo_direction,
+        }
+    diagnostics["free_rule"] = list(report.free_rule)
+    diagnostics["warnings"] = list(report.warnings)
+    if report.points_left_out is not None:
+        dropped = report.points_left_out
+        diagnostics["points_left_out"] = {
+            "fewer_than_two_views": dropped.fewer_than_two_views,
+            "behind_a_camera": dropped.behind_a_camera,
+            "undetermined": dropped.undetermined,
+        }
+    if report.start is not None:
+        diagnostics["start"] = report.start.value
+    doc: dict[str, Any] = {
+        "method": report.method.value,
+        "diagnostics": diagnostics,
+        "timings_s": {k: round(t, TIMING_DIGITS) for k, t in report.timings_s.items()},
+    }
+    if report.uncertainty is not None:
+        doc["uncertainty"] = _uncertainty_to_doc(report.uncertainty)
+    return doc
+
+
+def _uncertainty_to_doc(u: Uncertainty) -> dict:
+    out: dict[str, Any] = {
+        "sigma_px": u.sigma_px,
+        "scale_rel": u.scale_rel.value,
+        "scale_rel_if_pp_exact": u.scale_rel_if_pp_exact.value,
+        "cameras": {
+            cam_id: {
+                "f_px": s.f_px,
+                "cx_px": s.cx_px,
+                "cy_px": s.cy_px,
+                "k1": s.k1,
+                "k2": s.k2,
+                "rotation_deg": list(s.rotation_deg),
+                "centre_m": list(s.centre_m),
+            }
+            for cam_id, s in u.cameras.items()
+        },
+    }
+    if u.point_weights is not None:
+        out["point_weights"] = np.asarray(u.point_weights, dtype=float).tolist()
+    return out
+
+
+# ---------------------------------------------------------------- reading
+
+
+def parse_report(doc: dict) -> SolveReport | None:
+    """The report of a calibration document; None when it has no ``diagnostics``."""
+    if "diagnostics" not in doc:
+        return None
+    method = v.string(v.require(doc, "method", ""), "method", choices=tuple(m.value for m in Method))
+    diag = v.mapping(doc["diagnostics"], "diagnostics")
+
+    def get(key: str, read, default=None):
+        path = f"diagnostics.{key}"
+        return read(diag[key], path) if diag.get(key) is not None else default
+
+    start = get("start", lambda x, p: v.string(x, p, choices=tuple(s.value for s in StartKind)))
+    timings = v.mapping(doc.get("timings_s", {}), "timings_s")
+    return SolveReport(
+        method=Method(method),
+        converged=v.boolean(v.require(diag, "converged", "diagnostics"), "diagnostics.converged"),
+        reason=str(diag.get("reason", "")),
+        iterations=get("iterations", v.integer, 0),
+        observations=get("observations", v.integer, 0),
+        inliers=get("inliers", v.integer, 0),
+        cameras=get("cameras", _parse_camera_stats, {}),
+        median_parallax_deg=get("median_parallax_deg", v.optional_number),
+        free=get("free", _parse_free),
+        free_rule=get("free_rule", v.strings, ()),
+        warnings=get("warnings", v.strings, ()),
+        points_left_out=get("points_left_out", _parse_points_left_out),
+        start=StartKind(start) if start is not None else None,
+        timings_s={k: v.number(t, f"timings_s.{k}") for k, t in timings.items()},
+        uncertainty=_parse_uncertainty(doc["uncertainty"], "uncertainty") if "uncertainty" in doc else None,
+    )
+
+
+def _parse_camera_stats(value: Any, path: str) -> dict[str, CameraStats]:
+    out = {}
+    for cam_id, stats in v.mapping(value, path).items():
+        here = f"{path}.{cam_id}"
+        out[cam_id] = CameraStats(
+            rms_px=v.optional_number(v.mapping(stats, here).get("rms_px"), f"{here}.rms_px"),
+            inliers=v.integer(v.require(stats, "inliers", here), f"{here}.inliers"),
+        )
+    return out
+
+
+def _parse_free(value: Any, path: str) -> FreeSet:
+    intrinsics = v.mapping(v.require(value, "intrinsics", path), f"{path}.intrinsics")
+    return FreeSet(
+        intrinsics={cam_id: v.strings(names, f"{path}.intrinsics.{cam_id}") for cam_id, names in intrinsics.items()},
+        stereo_rotation_axes=v.strings(v.require(value, "stereo_rotation_axes", path), f"{path}.stereo_rotation_axes"),
+        stereo_direction=v.boolean(value.get("stereo_direction", False), f"{path}.stereo_direction"),
+    )
+
+
+def _parse_points_left_out(value: Any, path: str) -> PointsLeftOut:
+    counts = v.mapping(value, path)
+    return PointsLeftOut(**{
+        key: v.integer(counts.get(key, 0), f"{path}.{key}")
+        for key in ("fewer_than_two_views", "behind_a_camera", "undetermined")
+    })
+
+
+def _sigma(value: Any, path: str) -> Sigma:
+    number = v.optional_number(value, path)
+    return Sigma(number) if number is not None else Sigma.unknown(NULL_SIGMA)
+
+
+def _parse_uncertainty(value: Any, path: str) -> Uncertainty:
+    u = v.mapping(value, path)
+    sigma_px = v.optional_number(v.require(u, "sigma_px", path), f"{path}.sigma_px")
+    if sigma_px is None:
+        raise v.fail(f"{path}.sigma_px", "expected a number, got null")
+    weights = u.get("point_weights")
+    return Uncertainty(
+        sigma_px=sigma_px,
+        scale_rel=_sigma(u.get("scale_rel"), f"{path}.scale_rel"),
+        scale_rel_if_pp_exact=_sigma(u.get("scale_rel_if_pp_exact"), f"{path}.scale_rel_if_pp_exact"),
+        cameras={
+            cam_id: _parse_camera_sigmas(s, f"{path}.cameras.{cam_id}")
+            for cam_id, s in v.mapping(u.get("cameras", {}), f"{path}.cameras").items()
+        },
+        point_weights=None if weights is None else v.vector(weights, f"{path}.point_weights"),
+    )
+
+
+def _parse_camera_sigmas(value: Any, path: str) -> CameraSigmas:
+    s = v.mapping(value, path)
+
+    def axes(key: str) -> tuple[float, float, float]:
+        return tuple(v.vector(v.require(s, key, path), f"{path}.{key}", size=3).tolist())
+
+    return CameraSigmas(
+        **{key: v.number(v.require(s, key, path), f"{path}.{key}") for key in ("f_px", "cx_px", "cy_px", "k1", "k2")},
+        rotation_deg=axes("rotation_deg"),
+        centre_m=axes("centre_m"),
+    )

@@ -1,0 +1,133 @@
+"""Typed reads of parsed documents (JSON, YAML) with errors that name the field.
+
+Every check raises an `InputError` whose message starts with the field's path,
+e.g. ``cameras[2].K: expected a 3x3 array``. Used by the observation and
+calibration codecs, the rig file and the report.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from camnet.errors import InputError
+
+# R R^T = I to this, per entry: loose enough for a rotation typed into a rig file with
+# six decimals, tight enough that a scaled or sheared matrix is refused.
+ROTATION_TOLERANCE = 1e-5
+
+
+def fail(path: str, message: str) -> InputError:
+    """The error for the field at `path` (the document itself when empty)."""
+    return InputError(f"{path or 'document'}: {message}")
+
+
+def show(value: Any) -> str:
+    """A short rendering of an offending value."""
+    text = repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def kind(value: Any) -> str:
+    return "nothing" if value is None else type(value).__name__
+
+
+def mapping(value: Any, path: str) -> dict:
+    if not isinstance(value, dict):
+        raise fail(path, f"expected an object, got {kind(value)}")
+    return value
+
+
+def require(obj: Any, key: str, path: str) -> Any:
+    """`obj[key]`; the error names `path.key` when it is missing."""
+    mapping(obj, path)
+    if key not in obj:
+        raise fail(f"{path}.{key}" if path else key, "missing")
+    return obj[key]
+
+
+def number(value: Any, path: str, *, positive: bool = False, minimum: float | None = None) -> float:
+    """A finite number (not a boolean)."""
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise fail(path, f"expected a finite number, got {show(value)}")
+    if positive and value <= 0:
+        raise fail(path, f"must be positive, got {value!r}")
+    if minimum is not None and value < minimum:
+        raise fail(path, f"must be at least {minimum}, got {value!r}")
+    return float(value)
+
+
+def optional_number(value: Any, path: str) -> float | None:
+    """A finite number, or None for null."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise fail(path, f"expected a number or null, got {show(value)}")
+    return number(value, path)
+
+
+def integer(value: Any, path: str, *, positive: bool = False) -> int:
+    """An integer (not a boolean)."""
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise fail(path, f"expected an integer, got {show(value)}")
+    if positive and value <= 0:
+        raise fail(path, f"must be positive, got {value!r}")
+    return int(value)
+
+
+def string(value: Any, path: str, *, choices: tuple[str, ...] = ()) -> str:
+    """A non-empty string, one of `choices` when given."""
+    if not isinstance(value, str) or not value:
+        raise fail(path, f"expected a non-empty string, got {show(value)}")
+    if choices and value not in choices:
+        raise fail(path, f"unknown value {value!r} (expected {', '.join(choices)})")
+    return value
+
+
+def boolean(value: Any, path: str) -> bool:
+    if not isinstance(value, bool):
+        raise fail(path, f"expected true or false, got {show(value)}")
+    return value
+
+
+def array(value: Any, path: str) -> list:
+    if not isinstance(value, list):
+        raise fail(path, f"expected a list, got {kind(value)}")
+    return value
+
+
+def strings(value: Any, path: str) -> tuple[str, ...]:
+    """A list of strings (possibly empty)."""
+    return tuple(string(x, f"{path}[{i}]") for i, x in enumerate(array(value, path)))
+
+
+def vector(value: Any, path: str, *, size: int | None = None, max_size: int | None = None) -> np.ndarray:
+    """A list of finite numbers: exactly `size` of them, or at most `max_size`."""
+    if not isinstance(value, list | tuple) or (size is not None and len(value) != size):
+        raise fail(path, f"expected {size} numbers, got {show(value)}")
+    if max_size is not None and len(value) > max_size:
+        raise fail(path, f"expected a list of at most {max_size} numbers, got {show(value)}")
+    return np.array([number(x, f"{path}[{i}]") for i, x in enumerate(value)], dtype=float)
+
+
+def matrix(value: Any, rows: int, cols: int, path: str) -> np.ndarray:
+    """A rows x cols list of lists of finite numbers."""
+    if not isinstance(value, list) or len(value) != rows:
+        raise fail(path, f"expected a {rows}x{cols} array")
+    out = np.empty((rows, cols))
+    for i, row in enumerate(value):
+        if not isinstance(row, list) or len(row) != cols:
+            raise fail(f"{path}[{i}]", f"expected {cols} numbers")
+        for j, x in enumerate(row):
+            out[i, j] = number(x, f"{path}[{i}][{j}]")
+    return out
+
+
+def rotation(value: Any, path: str) -> np.ndarray:
+    """A 3x3 rotation matrix (orthonormal to ROTATION_TOLERANCE, determinant +1)."""
+    R = matrix(value, 3, 3, path)
+    if not np.allclose(R @ R.T, np.eye(3), atol=ROTATION_TOLERANCE) or np.linalg.det(R) <= 0:
+        raise fail(path, "not a rotation matrix (R R^T = I, det R = 1)")
+    return R
