@@ -29,6 +29,7 @@ from camnet.services.matcher import MatcherNode, MatcherNodeConfig
 from camnet.bus import keys
 from camnet.bus.session import BusOptions, open_session
 from camnet.io.rig import load_rig
+from camnet.matching.features import Detector
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -93,7 +94,7 @@ def main() -> None:
     print(f"rig {rig.name}: {len(rig.cameras)} cameras {', '.join(sorted(sizes))}; {args.seconds:g} s per row")
     print(f"{'detector':8} {'ms/set':>7} {'sets/s':>7} {'partial':>8} {'dropped':>8} {'frames':>7} "
           f"{'latency ms':>11} {'tracks':>7}")
-    for detector in ("sift", "orb"):
+    for detector in Detector:
         r = run_once(args.rig, rig, MatcherNodeConfig(detector=detector), args.seconds)
         print(f"{detector:8} {r['ms_per_set']:7.0f} {r['sets_per_s']:7.2f} {r['partial']:8d} {r['dropped']:8d} "
               f"{r['frames']:7d} {r['latency_ms']:11.0f} {r['tracks']:7d}")

@@ -17,11 +17,11 @@ from typing import Any
 import numpy as np
 
 from camnet.bus.keys import validate_id
+from camnet.drivers.base import DRIVER_NAMES
 from camnet.errors import InputError
 from camnet.geometry.camera import Camera, look_at
 from camnet.io.formats import parse_matrix
 
-DRIVERS = ("sim", "aravis", "v4l2")
 SIM_ENCODINGS = ("mono8", "mono16", "bgr8", "rgb8")
 V4L2_ENCODINGS = ("bgr8", "mono8")
 
@@ -438,9 +438,9 @@ def _camera(s: _Section) -> CameraEntry:
         raise InputError(f"{s.field('id')}: expected a string, got {camera_id!r}")
     validate_id(camera_id, what=s.field("id"))
     driver = s.raw("driver", required=True)
-    if driver not in DRIVERS:
+    if driver not in DRIVER_NAMES:
         raise InputError(f"{s.field('driver')}: unknown driver {driver!r} "
-                         f"(expected {', '.join(DRIVERS)})")
+                         f"(expected {', '.join(DRIVER_NAMES)})")
     config = _DRIVER_PARSERS[driver](s.section(driver))
     intrinsics = _intrinsics(s.section("intrinsics")) if s.data.get("intrinsics") is not None else None
     s.used.add("intrinsics")
