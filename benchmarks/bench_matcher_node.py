@@ -48,8 +48,7 @@ def run_once(rig_path: str, rig, config: MatcherNodeConfig, seconds: float) -> d
         session.declare_subscriber(
             keys.observations(rig.name),
             lambda s: latencies_ms.append(_latency_ms(json.loads(s.payload.to_bytes()))))
-        stop = threading.Event()
-        worker = threading.Thread(target=node.run, args=(stop,))
+        worker = threading.Thread(target=node.run)
         worker.start()
         drivers = [subprocess.Popen([sys.executable, "-m", "camnet", "driver", "sim", "--rig", rig_path,
                                      "--camera", entry.id, "--connect", endpoint], cwd=ROOT)
@@ -69,7 +68,7 @@ def run_once(rig_path: str, rig, config: MatcherNodeConfig, seconds: float) -> d
                 driver.terminate()
             for driver in drivers:
                 driver.wait(timeout=10)
-            stop.set()
+            node.stop.set()
             worker.join()
         print("\r", end="")
         sync = node.sync_counts()

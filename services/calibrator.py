@@ -97,6 +97,7 @@ class CalibratorNode:
         self.rig_name = keys.validate_id(rig_name, what="rig")
         self.config = config
         self.viewer = viewer
+        self.stop = threading.Event()
         self.tracker = Tracker(config.live)
         self.mailbox = LatestMessage()
         self.malformed = Tally(log)  # observations messages that do not parse, by kind
@@ -190,7 +191,7 @@ class CalibratorNode:
         publisher.put(self.latest_doc)
         log.info("resumed from %s (%d cameras)", self.config.state_path, len(resumed.cameras))
 
-    def run(self, stop: threading.Event) -> None:
+    def run(self) -> None:
         """Serve until `stop` is set (or SIGTERM, Ctrl-C)."""
         rig = self.rig_name
         publisher = self.session.declare_publisher(keys.calibration(rig))
@@ -211,8 +212,8 @@ class CalibratorNode:
         presence = Presence(self.session, rig=rig, kind=NODE_KIND, node_id=NODE_KIND, report=self._activity,
                             tallies=(self.malformed, self.failures), period_s=self.config.stats_period_s)
         try:
-            with stop_on_signals(stop), presence:
-                while not stop.is_set():
+            with stop_on_signals(self.stop), presence:
+                while not self.stop.is_set():
                     payload = self.mailbox.take(timeout_s=0.2)
                     if payload is not None:
                         outcome = self.handle(payload, publisher)

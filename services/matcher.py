@@ -157,6 +157,7 @@ class MatcherNode:
         self.rig = rig
         self.config = config
         self.camera_ids = tuple(c.id for c in rig.cameras)
+        self.stop = threading.Event()
         self.receiver = FrameReceiver()
         self._matcher_config = config.matcher_config()
         self._ready = threading.Condition()
@@ -364,7 +365,7 @@ class MatcherNode:
             ack = replace(ack, pool_id=self._pool_id, frame_sets=self.frame_sets_pooled)
         ack_publisher.put(ack.to_json())
 
-    def run(self, stop: threading.Event) -> int:
+    def run(self) -> int:
         """Subscribe, match and publish until `stop` is set (or SIGTERM, Ctrl-C)."""
         import zenoh
 
@@ -388,8 +389,8 @@ class MatcherNode:
         log.info("matching %s (stereo %s-%s), publishing %s%s", ", ".join(self.camera_ids), self.stereo.left,
                  self.stereo.right, keys.observations(rig), " in lockstep" if self._inbox is not None else "")
         try:
-            with stop_on_signals(stop), presence:
-                while not stop.is_set():
+            with stop_on_signals(self.stop), presence:
+                while not self.stop.is_set():
                     if self._inbox is None:
                         self._live_iteration(publisher)
                     else:

@@ -20,13 +20,12 @@ RIG = "calnode"
 @contextmanager
 def running(session, config):
     node = CalibratorNode(session, RIG, config)
-    stop = threading.Event()
-    thread = threading.Thread(target=node.run, args=(stop,), daemon=True)
+    thread = threading.Thread(target=node.run, daemon=True)
     thread.start()
     try:
         yield node
     finally:
-        stop.set()
+        node.stop.set()
         thread.join(timeout=30)
         assert not thread.is_alive(), "calibrator did not stop"
 

@@ -59,8 +59,7 @@ class Network:
         self.observer = open_session(BusOptions(connect=(endpoint,)))
         self.sessions += [self.drivers_session, self.observer]
         self.node = MatcherNode(self.matcher_session, rig, config=config)
-        self.stop = threading.Event()
-        self.threads = [threading.Thread(target=self.node.run, args=(self.stop,), daemon=True)]
+        self.threads = [threading.Thread(target=self.node.run, daemon=True)]
         self.drivers = []
         self.lock = threading.Lock()
         self.documents: list[dict] = []
@@ -93,7 +92,7 @@ class Network:
             return self.documents[-1]
 
     def close(self) -> None:
-        self.stop.set()
+        self.node.stop.set()
         for driver in self.drivers:
             driver.stop.set()
         for thread in self.threads:

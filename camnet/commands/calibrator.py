@@ -56,7 +56,6 @@ def default_state_path(rig: str) -> Path:
 
 def run(args: argparse.Namespace) -> int:
     import socket
-    import threading
 
     from camnet.bus.session import open_session, options_from_args
     from camnet.commands.calibrate import parse_free
@@ -90,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
         truth = (rig.simulated_truth() if rig is not None else []) or None
         viewer = RerunView(rec, truth=truth) if rec is not None else None
         with open_session(options_from_args(args)) as session:
-            CalibratorNode(session, name, config, viewer=viewer, lockstep=args.lockstep).run(threading.Event())
+            CalibratorNode(session, name, config, viewer=viewer, lockstep=args.lockstep).run()
     finally:
         close_recording(rec)
     return 0

@@ -54,8 +54,6 @@ def node_config_from_args(args: argparse.Namespace, rig=None):
 
 
 def run(args: argparse.Namespace) -> int:
-    import threading
-
     from camnet.bus.session import open_session, options_from_args
     from camnet.io.rig import load_rig
     from camnet.services.matcher import MatcherNode, rig_stereo
@@ -64,4 +62,4 @@ def run(args: argparse.Namespace) -> int:
     rig_stereo(rig)  # refuse a rig without a stereo pair before joining the bus
     config = node_config_from_args(args, rig)
     with open_session(options_from_args(args)) as session:
-        return MatcherNode(session, rig, config=config).run(threading.Event())
+        return MatcherNode(session, rig, config=config).run()
