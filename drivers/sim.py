@@ -50,9 +50,8 @@ class SimCamera:
         self.camera_id = camera_id
         self.config = config
         self.scene = scene
-        self.groundtruth = groundtruth
-        self.ground_truth = config.camera(camera_id)
-        self._renderer = Renderer(self.ground_truth)
+        self.groundtruth = groundtruth  # the whole rig's, for the node to publish
+        self._renderer = Renderer(config.camera(camera_id))
         # Each camera its own noise, reproducible from the rig's seed and the camera id.
         self._noise_seed = (seed, scene.config.seed, zlib.crc32(camera_id.encode()))
         self._info = DeviceInfo(camera_id=camera_id, driver="sim", width=config.width,
