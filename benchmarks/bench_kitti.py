@@ -25,7 +25,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from camnet.datasets.kitti import SCENARIOS, KittiExtract, prepare_scenario, read_image, run_live
+from camnet.commands.up import calibrate_live
+from camnet.datasets.kitti import SCENARIOS, KittiExtract, prepare_scenario, read_image
 from camnet.datasets.published import VsPublished, compare
 from camnet.errors import CamnetError
 from camnet.geometry.calibrate import Options, calibrate
@@ -67,8 +68,8 @@ def live_rows(kitti: KittiExtract, max_tracks: int) -> tuple[list[str], str]:
         endpoint = f"tcp/127.0.0.1:{s.getsockname()[1]}"
     run_dir = Path(tempfile.mkdtemp(prefix="camnet-kitti-live-"))
     print(f"live: config/kitti.yaml, nodes' logs in {run_dir}", file=sys.stderr)
-    cal, obs, elapsed_s = run_live(ROOT / "config" / "kitti.yaml", run_dir=run_dir,
-                                   endpoint=endpoint, max_tracks=max_tracks)
+    cal, obs, elapsed_s = calibrate_live(ROOT / "config" / "kitti.yaml", run_dir=run_dir,
+                                         endpoint=endpoint, max_tracks=max_tracks)
     result = compare(cal, obs, kitti.cameras)
     return camera_rows("live all-K", result, kitti.stereo.left), scenario_row("live all-K", result, elapsed_s)
 

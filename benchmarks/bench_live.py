@@ -19,6 +19,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+from camnet.matching.features import Detector
+
 ROOT = Path(__file__).resolve().parent.parent
 
 
@@ -32,12 +34,12 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--rig", default=str(ROOT / "config" / "sim.yaml"))
     parser.add_argument("--seconds", type=float, default=120.0)
-    parser.add_argument("--detector", choices=("sift", "orb"), default="sift")
+    parser.add_argument("--detector", type=Detector, choices=list(Detector), default=Detector.SIFT)
     args = parser.parse_args()
     with tempfile.TemporaryDirectory(prefix="camnet-bench-live-") as tmp:
         progress = Path(tmp) / "progress.jsonl"
         command = [sys.executable, "-m", "camnet.cli", "up", args.rig, "--duration-s", str(args.seconds),
-                   "--detector", args.detector, "--run-dir", str(Path(tmp) / "run"),
+                   "--detector", str(args.detector), "--run-dir", str(Path(tmp) / "run"),
                    "--progress-jsonl", str(progress), "--listen", f"tcp/127.0.0.1:{free_port()}"]
         print(f"running {' '.join(command[3:])} ...", file=sys.stderr, flush=True)
         # camnet up prints its own progress line per calibration on stdout; pass it through.

@@ -29,6 +29,7 @@ from camnet.services.matcher import MatcherNode, MatcherNodeConfig
 from camnet.bus import keys
 from camnet.bus.session import BusOptions, open_session
 from camnet.io.rig import load_rig
+from camnet.matching.features import Detector
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -47,8 +48,7 @@ def run_once(rig_path: str, rig, config: MatcherNodeConfig, seconds: float) -> d
         session.declare_subscriber(
             keys.observations(rig.name),
             lambda s: latencies_ms.append(_latency_ms(json.loads(s.payload.to_bytes()))))
-        stop = threading.Event()
-        worker = threading.Thread(target=node.run, args=(stop,))
+        worker = threading.Thread(target=node.run)
         worker.start()
         drivers = [subprocess.Popen([sys.executable, "-m", "camnet", "driver", "sim", "--rig", rig_path,
                                      "--camera", entry.id, "--connect", endpoint], cwd=ROOT)
@@ -68,7 +68,7 @@ def run_once(rig_path: str, rig, config: MatcherNodeConfig, seconds: float) -> d
                 driver.terminate()
             for driver in drivers:
                 driver.wait(timeout=10)
-            stop.set()
+            node.stop.set()
             worker.join()
         print("\r", end="")
         sync = node.sync_counts()
@@ -93,7 +93,7 @@ def main() -> None:
     print(f"rig {rig.name}: {len(rig.cameras)} cameras {', '.join(sorted(sizes))}; {args.seconds:g} s per row")
     print(f"{'detector':8} {'ms/set':>7} {'sets/s':>7} {'partial':>8} {'dropped':>8} {'frames':>7} "
           f"{'latency ms':>11} {'tracks':>7}")
-    for detector in ("sift", "orb"):
+    for detector in Detector:
         r = run_once(args.rig, rig, MatcherNodeConfig(detector=detector), args.seconds)
         print(f"{detector:8} {r['ms_per_set']:7.0f} {r['sets_per_s']:7.2f} {r['partial']:8d} {r['dropped']:8d} "
               f"{r['frames']:7d} {r['latency_ms']:11.0f} {r['tracks']:7d}")

@@ -29,14 +29,14 @@ from sim_publishers import free_port, run_publishers  # noqa: E402  (the same ca
 
 
 def record(compression: str, *, cameras: int, fps: float, seconds: float, size, directory: Path):
-    from camnet.services.recorder import Recorder, RecorderConfig
+    from camnet.services.recorder import ChunkCompression, Recorder, RecorderConfig
 
     from camnet.bus.session import BusOptions, open_session
 
     path = directory / f"bench-{compression}.mcap"
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     with open_session(BusOptions(listen=(endpoint,))) as session:
-        recorder = Recorder(session, RecorderConfig(rig="sim", path=path, compression=compression))
+        recorder = Recorder(session, RecorderConfig(rig="sim", path=path, compression=ChunkCompression(compression)))
         out = {}
         thread = threading.Thread(target=lambda: out.setdefault("summary", recorder.run()))
         thread.start()

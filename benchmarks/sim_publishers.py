@@ -68,15 +68,16 @@ class PooledCamera:
     """A Camera (camnet.drivers.base protocol) replaying pre-rendered frames at `fps`."""
 
     def __init__(self, camera_id: str, pool: list[np.ndarray], fps: float) -> None:
-        from camnet.drivers.base import CameraInfo
+        from camnet.drivers.base import DeviceInfo
 
         self.camera_id = camera_id
+        self.groundtruth = None
         self.pool = pool
         self.fps = fps
         self.seq = 0
         self.t0_ns = 0
         h, w = pool[0].shape
-        self.info = CameraInfo(camera_id, "sim", w, h, "mono8", fps, "pooled sim frames")
+        self.info = DeviceInfo(camera_id, "sim", w, h, "mono8", fps, "pooled sim frames")
         self.dropped = 0
 
     def __enter__(self):

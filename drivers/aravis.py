@@ -34,7 +34,7 @@ import gi
 import numpy as np
 
 gi.require_version("Aravis", "0.8")
-from camnet.drivers.base import CameraInfo, DeviceError, ReadTimeout  # noqa: E402
+from camnet.drivers.base import DeviceError, DeviceInfo, ReadTimeout  # noqa: E402
 from gi.repository import Aravis, GLib  # noqa: E402  (require_version must come first)
 
 from camnet.bus.frame import Frame  # noqa: E402
@@ -76,6 +76,7 @@ def _release_in_order(held: list) -> None:
 
 
 class AravisCamera:
+    groundtruth = None  # a real camera
     def __init__(self, camera_id: str, config: AravisConfig, *, lost_after_s: float = 2.0) -> None:
         self.camera_id = camera_id
         self.config = config
@@ -84,7 +85,7 @@ class AravisCamera:
         self._stream = None
         self._gv_device = None  # the GigE device, whose controller flag tells control loss
         self._release: threading.Thread | None = None
-        self._info: CameraInfo | None = None
+        self._info: DeviceInfo | None = None
         self._seq = 0
         self._dropped = 0
         self._reconnects = 0
@@ -94,7 +95,7 @@ class AravisCamera:
         self._next_attempt_mono = 0.0
 
     @property
-    def info(self) -> CameraInfo:
+    def info(self) -> DeviceInfo:
         if self._info is None:
             raise DeviceError(f"camera {self.camera_id!r}: not open")
         return self._info
@@ -161,7 +162,7 @@ class AravisCamera:
         _, _, width, height = camera.get_region()
         encoding = PIXEL_FORMATS.get(camera.get_pixel_format(), "unsupported")
         fps = camera.get_frame_rate() if camera.is_frame_rate_available() else 0.0
-        self._info = CameraInfo(
+        self._info = DeviceInfo(
             camera_id=self.camera_id, driver="aravis", width=width, height=height,
             encoding=encoding, fps=fps,
             description=f"{camera.get_vendor_name()} {camera.get_model_name()} "

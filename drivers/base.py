@@ -2,9 +2,10 @@
 
 A camera is a context manager: entering opens it, leaving closes it. Inside,
 `read()` returns the next `camnet.bus.frame.Frame` (blocking at most `timeout_s`)
-and `dropped` counts frames the camera produced but the driver lost. Driver
-modules are imported only when chosen, so a missing SDK (Aravis, say) breaks
-only that driver.
+and `dropped` counts frames the camera produced but the driver lost. A
+simulated camera also knows the rig's ground truth (`groundtruth`), which its
+node publishes; real cameras have None. Driver modules are imported only when
+chosen, so a missing SDK (Aravis, say) breaks only that driver.
 """
 
 from __future__ import annotations
@@ -15,14 +16,11 @@ from typing import Protocol, runtime_checkable
 
 from camnet.bus.frame import Frame
 from camnet.errors import CamnetError
-from camnet.io.rig import CameraEntry, Rig
+from camnet.io.rig import DRIVERS, CameraEntry, Rig
 
-# driver name -> module implementing `create(entry, rig) -> Camera`
-DRIVER_MODULES = {
-    "sim": "camnet.drivers.sim",
-    "aravis": "camnet.drivers.aravis",
-    "v4l2": "camnet.drivers.v4l2",
-}
+# The driver registry: driver name (one per config section of a rig file) -> module implementing
+# `create(entry, rig) -> Camera`, imported only when the driver is chosen.
+DRIVER_MODULES = {name: f"camnet.drivers.{name}" for name in DRIVERS}
 
 # What to install when a driver's module cannot be imported.
 _INSTALL_HINTS = {
@@ -44,8 +42,8 @@ class EndOfStream(Exception):
 
 
 @dataclass(frozen=True)
-class CameraInfo:
-    """What a driver knows of its camera once open; `fps` is nominal (0 if unknown)."""
+class DeviceInfo:
+    """What an opened device reports of itself; `fps` is nominal (0 if unknown)."""
 
     camera_id: str
     driver: str
@@ -59,9 +57,10 @@ class CameraInfo:
 @runtime_checkable
 class Camera(Protocol):
     camera_id: str
+    groundtruth: dict | None  # the rig's simulated cameras, camnet.calibration/1-like (world = left)
 
     @property
-    def info(self) -> CameraInfo: ...
+    def info(self) -> DeviceInfo: ...
 
     @property
     def dropped(self) -> int: ...
@@ -78,7 +77,7 @@ def create_camera(entry: CameraEntry, rig: Rig) -> Camera:
     module_name = DRIVER_MODULES.get(entry.driver)
     if module_name is None:
         raise DeviceError(f"camera {entry.id!r}: unknown driver {entry.driver!r} "
-                          f"(expected {', '.join(DRIVER_MODULES)})")
+                          f"(expected {', '.join(DRIVERS)})")
     try:
         module = importlib.import_module(module_name)
     except ImportError as exc:

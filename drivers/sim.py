@@ -23,7 +23,7 @@ import zlib
 from fractions import Fraction
 
 import numpy as np
-from camnet.drivers.base import CameraInfo, ReadTimeout
+from camnet.drivers.base import DeviceInfo, ReadTimeout
 
 from camnet.bus.frame import Frame
 from camnet.io.rig import CameraEntry, Rig
@@ -33,7 +33,7 @@ from camnet.sim.scene import Scene
 
 
 def create(entry: CameraEntry, rig: Rig) -> SimCamera:
-    return SimCamera(entry.id, entry.config, Scene(rig.scene))
+    return SimCamera(entry.id, entry.config, Scene(rig.scene), groundtruth=groundtruth_document(rig))
 
 
 def _convert(image: np.ndarray, encoding: str) -> np.ndarray:
@@ -46,15 +46,16 @@ def _convert(image: np.ndarray, encoding: str) -> np.ndarray:
 
 
 class SimCamera:
-    def __init__(self, camera_id: str, config: SimConfig, scene: Scene, *, seed: int = 0) -> None:
+    def __init__(self, camera_id: str, config: SimConfig, scene: Scene, *, seed: int = 0,
+                 groundtruth: dict | None = None) -> None:
         self.camera_id = camera_id
         self.config = config
         self.scene = scene
-        self.ground_truth = config.camera(camera_id)
-        self._renderer = Renderer(self.ground_truth)
+        self.groundtruth = groundtruth  # the whole rig's, for the node to publish
+        self._renderer = Renderer(config.camera(camera_id))
         # Each camera its own noise, reproducible from the rig's seed and the camera id.
         self._noise_seed = (seed, scene.config.seed, zlib.crc32(camera_id.encode()))
-        self._info = CameraInfo(camera_id=camera_id, driver="sim", width=config.width,
+        self._info = DeviceInfo(camera_id=camera_id, driver="sim", width=config.width,
                                 height=config.height, encoding=config.encoding, fps=config.fps,
                                 description="simulated camera (camnet.sim.render)")
         # fps as an exact fraction, so that every camera computes the same integer timestamps.
@@ -63,7 +64,7 @@ class SimCamera:
         self._next_slot = 0
 
     @property
-    def info(self) -> CameraInfo:
+    def info(self) -> DeviceInfo:
         return self._info
 
     @property

@@ -33,7 +33,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from camnet.drivers.base import CameraInfo, DeviceError, EndOfStream, ReadTimeout
+from camnet.drivers.base import DeviceError, DeviceInfo, EndOfStream, ReadTimeout
 
 from camnet.bus.frame import Frame
 from camnet.io.rig import CameraEntry, Rig, V4l2Config, is_image_pattern
@@ -139,6 +139,7 @@ def _to_encoding(image: np.ndarray, encoding: str) -> np.ndarray:
 
 
 class V4l2Camera:
+    groundtruth = None  # recorded or live, the scene's truth is not known
     def __init__(self, camera_id: str, config: V4l2Config) -> None:
         self.camera_id = camera_id
         self.config = config
@@ -151,12 +152,12 @@ class V4l2Camera:
         self._fps = 0.0
         self._start_mono_ns = 0
         self._start_wall_ns = 0
-        self._info: CameraInfo | None = None
+        self._info: DeviceInfo | None = None
         # The frame read while opening (to learn the size), handed out first.
         self._pending: np.ndarray | None = None
 
     @property
-    def info(self) -> CameraInfo:
+    def info(self) -> DeviceInfo:
         if self._info is None:
             raise DeviceError(f"camera {self.camera_id!r}: not open")
         return self._info
@@ -181,7 +182,7 @@ class V4l2Camera:
             description = f"{'device' if self._is_device else 'video file'} {source}"
         self._start_mono_ns = time.monotonic_ns()
         self._start_wall_ns = time.time_ns()
-        self._info = CameraInfo(camera_id=self.camera_id, driver="v4l2", width=first.shape[1],
+        self._info = DeviceInfo(camera_id=self.camera_id, driver="v4l2", width=first.shape[1],
                                 height=first.shape[0], encoding=self.config.encoding,
                                 fps=self._fps, description=description)
         return self

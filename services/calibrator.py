@@ -22,8 +22,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from camnet.bus import keys, lockstep
+from camnet.bus.node import Presence, Tally, guarded, stop_on_signals
 from camnet.bus.session import declare_liveliness
-from camnet.bus.stats import NodeStats, RateMeter
+from camnet.bus.stats import Activity, RateMeter
 from camnet.errors import InputError
 from camnet.geometry.evaluate import scale_sigma_rel
 from camnet.geometry.live import LiveConfig, Outcome, Tracker
@@ -96,10 +97,12 @@ class CalibratorNode:
         self.rig_name = keys.validate_id(rig_name, what="rig")
         self.config = config
         self.viewer = viewer
+        self.stop = threading.Event()
         self.tracker = Tracker(config.live)
         self.mailbox = LatestMessage()
-        self.malformed: dict[str, int] = {}
-        self._unexpected: set[str] = set()
+        self.malformed = Tally(log)  # observations messages that do not parse, by kind
+        self.failures = Tally(log)  # handlers that raised, by what and exception type
+        self._solve = guarded(self.tracker.update, self.failures, "the solver")
         self.latest_doc: bytes | None = None
         self._meter = RateMeter(window_s=30.0)
         self._lock = threading.Lock()
@@ -117,22 +120,16 @@ class CalibratorNode:
 
     # ------------------------------------------------------------ work
 
-    def _count_malformed(self, kind: str, message: str) -> None:
-        first = kind not in self.malformed
-        self.malformed[kind] = self.malformed.get(kind, 0) + 1
-        if first:
-            log.warning("dropping malformed observations (%s); further ones of this kind are only counted", message)
-
     def _parse(self, payload: bytes) -> tuple[Observations, dict] | None:
         try:
             doc = json.loads(payload)
         except ValueError as exc:
-            self._count_malformed("json", f"not JSON: {exc}")
+            self.malformed.count("json", "dropping malformed observations (not JSON: %s)", exc)
             return None
         try:
             return parse_observations(doc), doc
         except InputError as exc:
-            self._count_malformed(str(exc).split(":", 1)[0], str(exc))
+            self.malformed.count(str(exc).split(":", 1)[0], "dropping malformed observations (%s)", exc)
             return None
 
     def _publish(self, publisher, cal: Calibration, doc_in: dict, outcome: Outcome) -> None:
@@ -155,14 +152,9 @@ class CalibratorNode:
         if parsed is None:
             return None
         obs, doc = parsed
-        try:
-            outcome = self.tracker.update(obs, source=doc.get("pool_id"))
-        except Exception as exc:  # noqa: BLE001 (a bug met by one message must not stop the node)
+        outcome = self._solve(obs, source=doc.get("pool_id"))
+        if outcome is None:
             self.tracker.counts["failed"] += 1
-            if type(exc).__name__ not in self._unexpected:
-                self._unexpected.add(type(exc).__name__)
-                log.exception("solve %d: the solver failed unexpectedly; such failures are counted "
-                              "as failed solves from now on", self.tracker.solves)
             return None
         self._meter.tick()
         if outcome.status == "good":
@@ -179,35 +171,39 @@ class CalibratorNode:
             self.viewer.solved(outcome, obs, doc)
         return outcome
 
-    def _stats(self) -> NodeStats:
+    def _activity(self) -> Activity:
         counts = self.tracker.counts
         good = self.tracker.good
         detail = (f"good {counts['good']}, rejected {counts['rejected']}, failed {counts['failed']}, "
-                  f"malformed {sum(self.malformed.values())}")
+                  f"malformed {self.malformed.total}")
         if good is not None:
             detail += f"; rms {good.rms_reprojection_px:.2f} px, {len(good.points)} points"
-        return NodeStats(rig=self.rig_name, kind=NODE_KIND, node_id=NODE_KIND,
-                         fps=round(self._meter.rate(), 3), frames=self.tracker.solves,
-                         dropped=self.mailbox.superseded, timestamp_ns=time.time_ns(), detail=detail)
+        return Activity(fps=round(self._meter.rate(), 3), frames=self.tracker.solves,
+                        dropped=self.mailbox.superseded, detail=detail)
 
-    def run(self, stop: threading.Event) -> None:
-        """Serve until `stop` is set."""
+    def _resume(self, publisher) -> None:
+        resumed = load_state(self.config.state_path)
+        if resumed is None:
+            return
+        self.tracker.good = resumed
+        # The persisted document as it was published, live metadata (solve, status, ...) included:
+        # the calibration type keeps only what it models.
+        with self._lock:
+            self.latest_doc = json.dumps(load_json(self.config.state_path), allow_nan=False).encode()
+        publisher.put(self.latest_doc)
+        log.info("resumed from %s (%d cameras)", self.config.state_path, len(resumed.cameras))
+
+    def run(self) -> None:
+        """Serve until `stop` is set (or SIGTERM, Ctrl-C)."""
         rig = self.rig_name
         publisher = self.session.declare_publisher(keys.calibration(rig))
-        stats_publisher = self.session.declare_publisher(keys.node_stats(rig, NODE_KIND, NODE_KIND))
-        resumed = load_state(self.config.state_path)
-        if resumed is not None:
-            self.tracker.good = resumed
-            # The persisted document as it was published, live metadata (solve, status, ...) included:
-            # the calibration type keeps only what it models.
-            with self._lock:
-                self.latest_doc = json.dumps(load_json(self.config.state_path), allow_nan=False).encode()
-            publisher.put(self.latest_doc)
-            log.info("resumed from %s (%d cameras)", self.config.state_path, len(resumed.cameras))
-        queryable = self.session.declare_queryable(keys.calibration(rig), self._on_query)
+        self._resume(publisher)
+        queryable = self.session.declare_queryable(keys.calibration(rig),
+                                                   guarded(self._on_query, self.failures, "answering a query"))
         subscriber = self.session.declare_subscriber(keys.observations(rig), self._on_observations)
-        frames = (self.session.declare_subscriber(keys.all_frames(rig), self.viewer.on_frame)
-                  if self.viewer is not None else None)
+        frames = (self.session.declare_subscriber(
+            keys.all_frames(rig), guarded(self.viewer.on_frame, self.failures, "showing a frame"))
+            if self.viewer is not None else None)
         ack_publisher = ack_token = None
         if self.lockstep:
             import zenoh
@@ -215,28 +211,25 @@ class CalibratorNode:
             ack_publisher = self.session.declare_publisher(keys.lockstep_ack(rig, NODE_KIND),
                                                            congestion_control=zenoh.CongestionControl.BLOCK)
             ack_token = declare_liveliness(self.session, keys.lockstep_ack(rig, NODE_KIND))
-        token = declare_liveliness(self.session, keys.node(rig, NODE_KIND, NODE_KIND))
-        next_stats = 0.0
+        presence = Presence(self.session, rig=rig, kind=NODE_KIND, node_id=NODE_KIND, report=self._activity,
+                            tallies=(self.malformed, self.failures), period_s=self.config.stats_period_s)
         try:
-            while not stop.is_set():
-                payload = self.mailbox.take(timeout_s=0.2)
-                if payload is not None:
-                    outcome = self.handle(payload, publisher)
-                    if ack_publisher is not None:
-                        status = outcome.status if outcome is not None else "not solved"
-                        ack_publisher.put(lockstep.Ack.for_observations(payload, status=status).to_json())
-                if time.monotonic() >= next_stats:
-                    stats_publisher.put(self._stats().to_json())
-                    next_stats = time.monotonic() + self.config.stats_period_s
+            with stop_on_signals(self.stop), presence:
+                while not self.stop.is_set():
+                    payload = self.mailbox.take(timeout_s=0.2)
+                    if payload is not None:
+                        outcome = self.handle(payload, publisher)
+                        if ack_publisher is not None:
+                            status = outcome.status if outcome is not None else "not solved"
+                            ack_publisher.put(lockstep.Ack.for_observations(payload, status=status).to_json())
+                    presence.publish_if_due()
         finally:
-            stats_publisher.put(self._stats().to_json())
             subscriber.undeclare()
             if frames is not None:
                 frames.undeclare()
             queryable.undeclare()
             if ack_token is not None:
                 ack_token.undeclare()
-            token.undeclare()
 
 
 class RerunView:

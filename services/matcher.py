@@ -36,14 +36,14 @@ import time
 import uuid
 from dataclasses import dataclass, replace
 
-import cv2
 import numpy as np
 
 from camnet.bus import keys, lockstep
 from camnet.bus.frame import Frame
+from camnet.bus.node import Presence, Tally, guarded, stop_on_signals
 from camnet.bus.receiver import FrameReceiver
 from camnet.bus.session import declare_liveliness
-from camnet.bus.stats import NodeStats, RateMeter
+from camnet.bus.stats import Activity, RateMeter
 from camnet.bus.sync import FrameSet, FrameSynchronizer, SyncCounts
 from camnet.errors import InputError
 from camnet.geometry.model import CameraInfo, Stereo
@@ -66,7 +66,7 @@ LOCKSTEP_FRAME_WAIT_S = 10.0  # a step's frames are on their way when it is anno
 class MatcherNodeConfig:
     """Options of the matcher node; see `camnet matcher --help` for their meaning."""
 
-    detector: str = "sift"  # sift | orb
+    detector: Detector = Detector.SIFT
     sync_tolerance_ms: float = 5.0  # capture times of one frame set differ by at most this
     max_wait_s: float = 0.5  # then a frame set goes without its late cameras (never without the stereo pair)
     frames_per_camera: int = 4  # latest frames kept per camera while matching runs
@@ -78,8 +78,8 @@ class MatcherNodeConfig:
     lockstep: bool = False  # frames come from `camnet replay --lockstep`, one step at a time
 
     def __post_init__(self) -> None:
-        if self.detector not in {d.value for d in Detector}:
-            raise InputError(f"detector: unknown {self.detector!r} (expected sift or orb)")
+        if not isinstance(self.detector, Detector):
+            raise InputError(f"detector: expected a Detector, got {self.detector!r}")
         for name in ("sync_tolerance_ms", "max_wait_s"):
             if not getattr(self, name) >= 0:
                 raise InputError(f"{name}: must be >= 0, got {getattr(self, name)}")
@@ -93,7 +93,7 @@ class MatcherNodeConfig:
             raise InputError(f"max_image_side_px: must be at least 16, got {self.max_image_side_px}")
 
     def matcher_config(self) -> MatcherConfig:
-        return MatcherConfig(detector=Detector(self.detector), max_features=self.max_features,
+        return MatcherConfig(detector=self.detector, max_features=self.max_features,
                              max_image_side_px=self.max_image_side_px)
 
     def pool_config(self) -> PoolConfig:
@@ -158,6 +158,7 @@ class MatcherNode:
         self.rig = rig
         self.config = config
         self.camera_ids = tuple(c.id for c in rig.cameras)
+        self.stop = threading.Event()
         self.receiver = FrameReceiver()
         self._matcher_config = config.matcher_config()
         self._ready = threading.Condition()
@@ -168,8 +169,9 @@ class MatcherNode:
         self._sizes = {c: s for c in self.camera_ids if (s := _configured_size(rig, c)) is not None}
         self._pool: TrackPool | None = None
         self._pool_id = ""
-        self._rejected: dict[str, int] = {}  # frames decoded but not usable, by kind
-        self._failed: dict[str, int] = {}  # frame sets whose matching raised, by error type
+        self.rejected = Tally(log)  # frames decoded but not usable, and malformed steps, by kind
+        self.failures = Tally(log)  # handlers that raised (matching a frame set, say), by what and type
+        self._process_safely = guarded(self.process, self.failures, "matching a frame set")
         self.frame_sets_matched = 0
         self.frame_sets_pooled = 0
         self.latest_capture_ns = 0
@@ -193,7 +195,8 @@ class MatcherNode:
             return
         kind = self._check(frame, str(sample.key_expr))
         if kind is not None:
-            self._reject(kind, frame)
+            self.rejected.count(kind, "dropping a frame of camera %r (%s; rig %r has cameras %s)", frame.camera_id,
+                                kind, self.rig.name, ", ".join(self.camera_ids))
         if self._inbox is not None:
             self._inbox.add_frame(frame.camera_id, frame.seq, frame if kind is None else None)
             return
@@ -212,27 +215,11 @@ class MatcherNode:
             return "bad-key"
         return None if key_camera == frame.camera_id else "camera-mismatch"
 
-    def _reject(self, kind: str, frame: Frame) -> None:
-        with self._ready:
-            first = kind not in self._rejected
-            self._rejected[kind] = self._rejected.get(kind, 0) + 1
-        if first:
-            log.warning("dropping a frame of camera %r (%s; rig %r has cameras %s); further ones of "
-                        "this kind are only counted", frame.camera_id, kind, self.rig.name,
-                        ", ".join(self.camera_ids))
-
     def _on_step(self, sample) -> None:
         try:
             self._inbox.add_step(lockstep.Step.parse(sample.payload.to_bytes()))
         except InputError as exc:
-            self._reject_step(str(exc))
-
-    def _reject_step(self, message: str) -> None:
-        with self._ready:
-            first = "bad-step" not in self._rejected
-            self._rejected["bad-step"] = self._rejected.get("bad-step", 0) + 1
-        if first:
-            log.warning("dropping a malformed lockstep step (%s); further ones are only counted", message)
+            self.rejected.count("bad-step", "dropping a malformed lockstep step (%s)", exc)
 
     def _on_query(self, query) -> None:
         document = self._latest_document
@@ -303,18 +290,6 @@ class MatcherNode:
                  int(np.sum(tracks.views >= 3)), update.added, len(pool), 1e3 * self.last_match_s)
         return update
 
-    def _process_safely(self, frame_set: FrameSet) -> None:
-        # Frames that decode but hold unusable pixels (tiny, constant) must not stop the node.
-        try:
-            self.process(frame_set)
-        except (cv2.error, ValueError) as exc:
-            kind = type(exc).__name__
-            first = kind not in self._failed
-            self._failed[kind] = self._failed.get(kind, 0) + 1
-            if first:
-                log.warning("frame set at %d ns could not be matched (%s); further failures of this "
-                            "kind are only counted", frame_set.timestamp_ns, exc)
-
     def document(self) -> dict:
         """The observations document of the pool now (contract keys plus the node's own)."""
         doc = observations_to_doc(self._ensure_pool().observations())
@@ -327,16 +302,14 @@ class MatcherNode:
         with self._ready:
             return self._sync.counts
 
-    def stats(self) -> NodeStats:
+    def activity(self) -> Activity:
         counts = self.sync_counts()
-        with self._ready:
-            malformed = self.receiver.malformed_total + sum(self._rejected.values())
+        malformed = self.receiver.malformed.total + self.rejected.total
         pooled = len(self._pool) if self._pool is not None else 0
         detail = (f"{pooled} tracks pooled, {self.frame_sets_pooled} sets, match "
                   f"{1e3 * self.last_match_s:.0f} ms, {counts.partial_sets} partial, {malformed} bad frames")
-        return NodeStats(rig=self.rig.name, kind=NODE_KIND, node_id=NODE_ID, fps=round(self._rate.rate(), 2),
-                         frames=self.frame_sets_matched, dropped=counts.dropped,
-                         timestamp_ns=time.time_ns(), detail=detail)
+        return Activity(fps=round(self._rate.rate(), 2), frames=self.frame_sets_matched, dropped=counts.dropped,
+                        detail=detail)
 
     def _may_warn(self, kind: str, now_s: float) -> bool:
         """True at most once per WARNING_PERIOD_S for each kind of warning."""
@@ -393,44 +366,38 @@ class MatcherNode:
             ack = replace(ack, pool_id=self._pool_id, frame_sets=self.frame_sets_pooled)
         ack_publisher.put(ack.to_json())
 
-    def run(self, stop: threading.Event) -> int:
-        """Subscribe, match and publish until `stop` is set (or Ctrl-C)."""
+    def run(self) -> int:
+        """Subscribe, match and publish until `stop` is set (or SIGTERM, Ctrl-C)."""
         import zenoh
 
         rig = self.rig.name
         publisher = self.session.declare_publisher(keys.observations(rig),
                                                    congestion_control=zenoh.CongestionControl.BLOCK)
-        stats_publisher = self.session.declare_publisher(keys.node_stats(rig, NODE_KIND, NODE_ID))
-        subscriber = self.session.declare_subscriber(keys.all_frames(rig), self.on_sample)
-        queryable = self.session.declare_queryable(keys.observations(rig), self._on_query)
-        step_subscriber = ack_publisher = ack_token = None
+        declared = [self.session.declare_subscriber(keys.all_frames(rig),
+                                                    guarded(self.on_sample, self.failures, "receiving a frame")),
+                    self.session.declare_queryable(keys.observations(rig),
+                                                   guarded(self._on_query, self.failures, "answering a query"))]
+        ack_publisher = None
         if self._inbox is not None:
-            step_subscriber = self.session.declare_subscriber(keys.lockstep_step(rig), self._on_step)
+            declared.append(self.session.declare_subscriber(
+                keys.lockstep_step(rig), guarded(self._on_step, self.failures, "receiving a step")))
             ack_publisher = self.session.declare_publisher(keys.lockstep_ack(rig, NODE_KIND),
                                                            congestion_control=zenoh.CongestionControl.BLOCK)
-            ack_token = declare_liveliness(self.session, keys.lockstep_ack(rig, NODE_KIND))
-        token = declare_liveliness(self.session, keys.node(rig, NODE_KIND, NODE_ID))
+            declared.append(declare_liveliness(self.session, keys.lockstep_ack(rig, NODE_KIND)))
+        presence = Presence(self.session, rig=rig, kind=NODE_KIND, node_id=NODE_ID, report=self.activity,
+                            tallies=(self.receiver.malformed, self.rejected, self.failures),
+                            period_s=self.config.stats_period_s)
         log.info("matching %s (stereo %s-%s), publishing %s%s", ", ".join(self.camera_ids), self.stereo.left,
                  self.stereo.right, keys.observations(rig), " in lockstep" if self._inbox is not None else "")
-        next_stats_s = time.monotonic()
         try:
-            while not stop.is_set():
-                if self._inbox is None:
-                    self._live_iteration(publisher)
-                else:
-                    self._lockstep_iteration(publisher, ack_publisher)
-                now_s = time.monotonic()
-                if now_s >= next_stats_s:
-                    stats_publisher.put(self.stats().to_json())
-                    next_stats_s = now_s + self.config.stats_period_s
-        except KeyboardInterrupt:
-            log.info("matcher: interrupted")
+            with stop_on_signals(self.stop), presence:
+                while not self.stop.is_set():
+                    if self._inbox is None:
+                        self._live_iteration(publisher)
+                    else:
+                        self._lockstep_iteration(publisher, ack_publisher)
+                    presence.publish_if_due()
         finally:
-            subscriber.undeclare()
-            queryable.undeclare()
-            for declared in (step_subscriber, ack_token):
-                if declared is not None:
-                    declared.undeclare()
-            stats_publisher.put(self.stats().to_json())
-            token.undeclare()
+            for entity in declared:
+                entity.undeclare()
         return 0

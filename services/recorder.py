@@ -18,9 +18,9 @@ footer. Layout: docs/session-format.md.
 from __future__ import annotations
 
 import contextlib
+import enum
 import json
 import logging
-import signal
 import threading
 import time
 from collections import deque
@@ -33,15 +33,22 @@ from mcap.writer import CompressionType, Writer
 from camnet import __version__
 from camnet.bus import keys
 from camnet.bus.frame import FrameError, FrameHeader
-from camnet.bus.session import declare_liveliness
-from camnet.bus.stats import NodeStats, RateMeter
+from camnet.bus.node import Presence, Tally, guarded, stop_on_signals
+from camnet.bus.stats import Activity, RateMeter
 from camnet.errors import CamnetError, InputError
 from camnet.io import session_file as sf
 
 log = logging.getLogger(__name__)
 
 NODE_KIND = "recorder"
-COMPRESSIONS = ("lz4", "zstd", "none")
+
+
+class ChunkCompression(enum.StrEnum):
+    """How the file's chunks are compressed (mcap's names)."""
+
+    LZ4 = "lz4"
+    ZSTD = "zstd"  # level 3 in mcap: 8x slower than lz4 for ~15% smaller files of noisy frames
+    NONE = "none"
 
 
 @dataclass(frozen=True)
@@ -51,7 +58,7 @@ class RecorderConfig:
     rig: str
     path: Path
     duration_s: float = 0.0
-    compression: str = "lz4"  # zstd (level 3 in mcap) is 8x slower for ~15% on noisy frames
+    compression: ChunkCompression = ChunkCompression.LZ4
     chunk_size_bytes: int = 4 << 20
     flush_period_s: float = 1.0
     queue_capacity_bytes: int = 512 << 20
@@ -62,8 +69,8 @@ class RecorderConfig:
     def __post_init__(self) -> None:
         keys.validate_id(self.rig, what="rig")
         keys.validate_id(self.node_id, what="node id")
-        if self.compression not in COMPRESSIONS:
-            raise InputError(f"compression: {self.compression!r} (expected {', '.join(COMPRESSIONS)})")
+        if not isinstance(self.compression, ChunkCompression):
+            raise InputError(f"compression: expected a ChunkCompression, got {self.compression!r}")
         if not self.duration_s >= 0:
             raise InputError(f"duration_s: must be >= 0, got {self.duration_s}")
         for name in ("flush_period_s", "stats_period_s"):
@@ -210,7 +217,8 @@ class Recorder:
         self.stop = threading.Event()
         self._queue = _ByteBoundedQueue(config.queue_capacity_bytes)
         self._tallies: dict[str, CameraTally] = {}
-        self._malformed: dict[str, int] = {}
+        self.malformed = Tally(log)  # messages not recorded, by kind
+        self.failures = Tally(log)  # callbacks that raised, by what and exception type
         self._messages = 0
         self._sequence: dict[str, int] = {}
         self._meter = RateMeter()
@@ -245,7 +253,7 @@ class Recorder:
                 try:
                     header = sf.frame_header(payload)
                 except FrameError as exc:
-                    self._count_malformed(f"frame {exc.kind}", str(exc), item.key)
+                    self._count_malformed(f"frame {exc.kind}", exc, item.key)
                     return
                 publish_ns = header.timestamp_ns
                 self._account(channels, item, header, len(payload))
@@ -300,12 +308,8 @@ class Recorder:
             self._add(channels, sf.gaps_topic(self.config.rig), sf.JSON_ENCODING, sf.GAP_FORMAT,
                       item.log_time_ns, header.timestamp_ns, json.dumps(gap).encode())
 
-    def _count_malformed(self, kind: str, message: str, key: str) -> None:
-        first = kind not in self._malformed
-        self._malformed[kind] = self._malformed.get(kind, 0) + 1
-        if first:
-            log.warning("not recording a malformed message on %s (%s: %s); further ones of this "
-                        "kind are only counted", key, kind, message)
+    def _count_malformed(self, kind: str, problem: object, key: str) -> None:
+        self.malformed.count(kind, "not recording a malformed message on %s (%s: %s)", key, kind, problem)
 
     # -- the node --------------------------------------------------------------------------
 
@@ -315,16 +319,14 @@ class Recorder:
             path=path, duration_s=time.monotonic() - self._started, messages=self._messages,
             file_bytes=path.stat().st_size if path.exists() else 0, cameras=dict(self._tallies),
             queue_overflows=self._queue.refused,
-            malformed=dict(self._malformed))
+            malformed=self.malformed.counts)
 
-    def _stats(self, summary: RecordingSummary) -> NodeStats:
+    def _activity(self) -> Activity:
+        summary = self.summary()
         frames = sum(t.frames for t in summary.cameras.values())
         missing = sum(t.missing for t in summary.cameras.values())
-        return NodeStats(rig=self.config.rig, kind=NODE_KIND, node_id=self.config.node_id,
-                         fps=round(self._meter.rate(), 2), frames=frames,
-                         dropped=summary.queue_overflows, timestamp_ns=time.time_ns(),
-                         detail=f"{self.config.path.name} {summary.file_bytes / 1e6:.0f} MB, "
-                                f"{missing} missing")
+        return Activity(fps=round(self._meter.rate(), 2), frames=frames, dropped=summary.queue_overflows,
+                        detail=f"{self.config.path.name} {summary.file_bytes / 1e6:.0f} MB, {missing} missing")
 
     def _open_file(self):
         path = self.config.path
@@ -340,19 +342,19 @@ class Recorder:
     def _start_writer(self, stream):
         cfg = self.config
         writer = Writer(stream, chunk_size=cfg.chunk_size_bytes,
-                        compression=CompressionType[cfg.compression.upper()])
+                        compression=CompressionType[cfg.compression.name])
         writer.start(profile=sf.PROFILE, library=f"camnet {__version__}")
         writer.add_metadata(sf.SESSION_METADATA, {
             "rig": cfg.rig, "camnet_version": __version__, "recorder": cfg.node_id,
-            "started_ns": str(time.time_ns()), "compression": cfg.compression})
+            "started_ns": str(time.time_ns()), "compression": cfg.compression.value})
         stream.flush()
         return writer
 
-    def _loop(self, channels: _Channels, stats_publisher, on_progress, progress_period_s: float) -> None:
+    def _loop(self, channels: _Channels, presence: Presence, on_progress, progress_period_s: float) -> None:
         cfg = self.config
         self._started = now = time.monotonic()
         deadline = now + cfg.duration_s if cfg.duration_s > 0 else float("inf")
-        next_flush, next_stats, next_progress = now + cfg.flush_period_s, now, now + progress_period_s
+        next_flush, next_progress = now + cfg.flush_period_s, now + progress_period_s
         refused_reported = 0
         while not self.stop.is_set() and time.monotonic() < deadline:
             item = self._queue.get(timeout_s=0.05)
@@ -367,9 +369,7 @@ class Recorder:
                                 "cannot keep up (try --compression none, or a faster disk)",
                                 self._queue.refused - refused_reported, self._queue.refused)
                     refused_reported = self._queue.refused
-            if now >= next_stats:
-                stats_publisher.put(self._stats(self.summary()).to_json())
-                next_stats = now + cfg.stats_period_s
+            presence.publish_if_due()
             if on_progress is not None and now >= next_progress:
                 on_progress(self.summary())
                 next_progress = now + progress_period_s
@@ -378,51 +378,51 @@ class Recorder:
             progress_period_s: float = 1.0) -> RecordingSummary:
         """Record until stopped (stop event, SIGTERM, Ctrl-C) or `duration_s`; the summary."""
         cfg = self.config
-        if threading.current_thread() is threading.main_thread():
-            signal.signal(signal.SIGTERM, lambda *_: self.stop.set())
         stream = self._open_file()
         try:
             channels = _Channels(self._start_writer(stream))
         except OSError as exc:
             raise CamnetError(f"{cfg.path}: cannot write ({exc.strerror or exc})") from exc
         prefix = keys.rig_prefix(cfg.rig)
-        subscriber = self.session.declare_subscriber(f"{prefix}/**", self._on_sample)
-        nodes = self.session.liveliness().declare_subscriber(keys.all_nodes(cfg.rig),
-                                                             self._on_liveliness, history=True)
+        subscriber = self.session.declare_subscriber(
+            f"{prefix}/**", guarded(self._on_sample, self.failures, "receiving a message"))
+        nodes = self.session.liveliness().declare_subscriber(
+            keys.all_nodes(cfg.rig), guarded(self._on_liveliness, self.failures, "receiving a node event"),
+            history=True)
         # Latest values published before we subscribed (the sim driver's ground truth, the
         # calibrator's latest calibration) are only reachable by query.
         for key in (keys.groundtruth(cfg.rig), keys.calibration(cfg.rig)):
-            self.session.get(key, self._on_reply, timeout=2.0)
-        stats_publisher = self.session.declare_publisher(
-            keys.node_stats(cfg.rig, NODE_KIND, cfg.node_id))
-        token = declare_liveliness(self.session, keys.node(cfg.rig, NODE_KIND, cfg.node_id))
+            self.session.get(key, guarded(self._on_reply, self.failures, "receiving a reply"), timeout=2.0)
+        presence = Presence(self.session, rig=cfg.rig, kind=NODE_KIND, node_id=cfg.node_id, report=self._activity,
+                            tallies=(self.malformed, self.failures), period_s=cfg.stats_period_s)
         log.info("recording %s/** to %s", prefix, cfg.path)
         error = None
-        try:
-            self._loop(channels, stats_publisher, on_progress, progress_period_s)
-        except KeyboardInterrupt:
-            log.info("recorder: interrupted")
-        except OSError as exc:
-            error = exc
-        finally:
-            subscriber.undeclare()
-            nodes.undeclare()
+        with stop_on_signals(self.stop), presence:
             try:
-                if error is None:
-                    while (item := self._queue.get(timeout_s=0.0)) is not None:
-                        self._write(channels, item)
-                    channels.writer.add_metadata(sf.SUMMARY_METADATA, _summary_metadata(self.summary()))
-                    channels.writer.finish()
-                stream.close()
+                self._loop(channels, presence, on_progress, progress_period_s)
             except OSError as exc:
-                error = error or exc
+                error = exc
             finally:
-                stats_publisher.put(self._stats(self.summary()).to_json())
-                token.undeclare()
+                subscriber.undeclare()
+                nodes.undeclare()
+                error = self._finish(channels, stream, error)
         if error is not None:
             raise CamnetError(f"{cfg.path}: cannot write ({error.strerror or error}); the file is "
                               "readable up to the last flush") from error
         return self.summary()
+
+    def _finish(self, channels: _Channels, stream, error: OSError | None) -> OSError | None:
+        """Write what is still queued, the summary and the footer (unless writing failed); close the file."""
+        try:
+            if error is None:
+                while (item := self._queue.get(timeout_s=0.0)) is not None:
+                    self._write(channels, item)
+                channels.writer.add_metadata(sf.SUMMARY_METADATA, _summary_metadata(self.summary()))
+                channels.writer.finish()
+            stream.close()
+        except OSError as exc:
+            return error or exc
+        return error
 
 
 def _summary_metadata(summary: RecordingSummary) -> dict[str, str]:

@@ -26,8 +26,8 @@ cannot express, and it shares the session layout with the recorder.
 
 from __future__ import annotations
 
+import contextlib
 import logging
-import signal
 import threading
 import time
 from collections.abc import Callable
@@ -35,8 +35,8 @@ from dataclasses import dataclass, field
 
 from camnet.bus import keys, lockstep
 from camnet.bus.frame import FrameError, FrameHeader
-from camnet.bus.session import declare_liveliness
-from camnet.bus.stats import NodeStats, RateMeter
+from camnet.bus.node import Presence, Tally, guarded, stop_on_signals
+from camnet.bus.stats import Activity, RateMeter
 from camnet.errors import CamnetError, InputError
 from camnet.io import session_file as sf
 
@@ -172,9 +172,11 @@ class StepGrouper:
 
 @dataclass
 class _Camera:
+    """One replayed camera: to the rig, a driver node."""
+
     publisher: object
-    stats_publisher: object
-    token: object
+    presence: Presence
+    malformed: Tally  # recorded frames not published, by FrameError.kind
     meter: RateMeter = field(default_factory=RateMeter)
     frames: int = 0
 
@@ -188,7 +190,7 @@ class Replayer:
         self.stop = threading.Event()
         self.recorded_rig = session_file.rigs[0]
         self.rig = options.rig or self.recorded_rig
-        self._malformed: dict[str, int] = {}
+        self.failures = Tally(log)  # callbacks that raised, and malformed acknowledgements, by kind
         self._groundtruth: bytes | None = None
         self._acks = lockstep.AckBox()
         self._last_capture_ns = 0
@@ -205,7 +207,8 @@ class Replayer:
             routes[keys.calibration(src)] = keys.calibration(dst)
         return {topic: key for topic, key in routes.items() if topic in self.file.topics}
 
-    def _declare_cameras(self) -> dict[str, _Camera]:
+    def _declare_cameras(self, stack: contextlib.ExitStack) -> dict[str, _Camera]:
+        """The replayed cameras by topic, each on the bus (as a driver) until `stack` closes."""
         import zenoh
 
         congestion = (zenoh.CongestionControl.DROP if self.options.rate > 0 and not self.options.lockstep
@@ -213,13 +216,19 @@ class Replayer:
         cameras = {}
         for topic in self.file.frame_topics():
             camera_id = keys.parse_frame(topic)[1]
+            malformed = Tally(log)
+            presence = Presence(self.session, rig=self.rig, kind=NODE_KIND, node_id=camera_id,
+                                report=lambda topic=topic: self._activity(cameras[topic]),
+                                tallies=(malformed,), period_s=self.options.stats_period_s)
             cameras[topic] = _Camera(
                 publisher=self.session.declare_publisher(keys.frame(self.rig, camera_id),
                                                          congestion_control=congestion),
-                stats_publisher=self.session.declare_publisher(
-                    keys.node_stats(self.rig, NODE_KIND, camera_id)),
-                token=declare_liveliness(self.session, keys.node(self.rig, NODE_KIND, camera_id)))
+                presence=stack.enter_context(presence), malformed=malformed)
         return cameras
+
+    def _activity(self, camera: _Camera) -> Activity:
+        return Activity(fps=round(camera.meter.rate(), 2), frames=camera.frames, dropped=0,
+                        detail=f"replay {self.file.path.name}")
 
     def _wait_for_subscribers(self, cameras: dict[str, _Camera]) -> None:
         deadline = time.monotonic() + self.options.wait_s
@@ -252,7 +261,8 @@ class Replayer:
         try:
             self._acks.add(kind, lockstep.Ack.parse(sample.payload.to_bytes()))
         except InputError as exc:
-            log.warning("ignoring a malformed lockstep acknowledgement on %s: %s", sample.key_expr, exc)
+            self.failures.count("malformed ack", "ignoring a malformed lockstep acknowledgement on %s (%s)",
+                                sample.key_expr, exc)
 
     def _await_ack(self, kind: str, wanted, what: str) -> lockstep.Ack | None:
         ack = self._acks.wait(kind, wanted, timeout_s=self.options.ack_timeout_s, stop=self.stop)
@@ -293,21 +303,6 @@ class Replayer:
         if payload is not None:
             query.reply(keys.groundtruth(self.rig), payload)
 
-    def _publish_stats(self, cameras: dict[str, _Camera]) -> None:
-        for topic, camera in cameras.items():
-            camera_id = keys.parse_frame(topic)[1]
-            camera.stats_publisher.put(NodeStats(
-                rig=self.rig, kind=NODE_KIND, node_id=camera_id, fps=round(camera.meter.rate(), 2),
-                frames=camera.frames, dropped=0, timestamp_ns=time.time_ns(),
-                detail=f"replay {self.file.path.name}").to_json())
-
-    def _count_malformed(self, exc: FrameError, topic: str) -> None:
-        first = exc.kind not in self._malformed
-        self._malformed[exc.kind] = self._malformed.get(exc.kind, 0) + 1
-        if first:
-            log.warning("skipping a malformed recorded frame on %s (%s); further ones of this kind "
-                        "are only counted", topic, exc)
-
     def _sleep_until(self, due_s: float) -> None:
         while not self.stop.is_set():
             wait_s = due_s - time.monotonic()
@@ -318,88 +313,84 @@ class Replayer:
     def summary(self, cameras: dict[str, _Camera], messages: int, started_s: float) -> ReplaySummary:
         damage = self.file.damage.describe(self.file.path) if self.file.damage else None
         total = sum(self.file.message_counts.get(t, 0) for t in self.file.frame_topics())
+        malformed: dict[str, int] = {}
+        for camera in cameras.values():
+            for kind, n in camera.malformed.counts.items():
+                malformed[kind] = malformed.get(kind, 0) + n
         return ReplaySummary(
             rig=self.rig, frames={keys.parse_frame(t)[1]: c.frames for t, c in cameras.items()},
             messages=messages, total_frames=total, duration_s=time.monotonic() - started_s,
-            damage=damage, malformed=dict(self._malformed),
+            damage=damage, malformed=malformed,
             lockstep=dict(self._lockstep_counts) if self._lockstep_counts is not None else None)
+
+    def _replay_one(self, message: sf.SessionMessage, cameras: dict[str, _Camera], others: dict[str, object],
+                    grouper: StepGrouper | None, step_publisher, pacer: Pacer) -> int:
+        """Publish one recorded message, or in lockstep add it to its step and play the steps it
+        completes; 1 if it was replayed, 0 if it was malformed."""
+        topic = message.topic
+        camera = cameras.get(topic)
+        if camera is None:
+            self._sleep_until(pacer.due_s(topic, message.log_time_ns, message.publish_time_ns))
+            if topic == keys.groundtruth(self.recorded_rig):
+                self._groundtruth = message.data
+            others[topic].put(message.data)
+            return 1
+        try:
+            header = sf.frame_header(message.data)
+        except FrameError as exc:
+            camera.malformed.count(exc.kind, "skipping a malformed recorded frame on %s (%s)", topic, exc)
+            return 0
+        if grouper is not None:
+            for group in grouper.add(topic, message.data, header):
+                self._play_step(step_publisher, cameras, group)
+        else:
+            self._sleep_until(pacer.due_s(topic, message.log_time_ns, message.publish_time_ns))
+            self._put_frame(camera, message.data)
+        return 1
 
     def run(self, *, on_progress: Callable[[ReplaySummary], None] | None = None,
             progress_period_s: float = 1.0) -> ReplaySummary:
-        """Replay the session once, or until stopped; the summary."""
+        """Replay the session once, or until stopped (stop event, SIGTERM, Ctrl-C); the summary."""
         import zenoh
 
-        if threading.current_thread() is threading.main_thread():
-            signal.signal(signal.SIGTERM, lambda *_: self.stop.set())
         routes = self._routes()
-        groundtruth_key = keys.groundtruth(self.recorded_rig)
-        cameras = self._declare_cameras()
-        others = {topic: self.session.declare_publisher(key) for topic, key in routes.items()
-                  if topic not in cameras}
-        queryable = None
-        if groundtruth_key in routes:
-            queryable = self.session.declare_queryable(keys.groundtruth(self.rig),
-                                                       self._on_groundtruth_query)
-        grouper = step_publisher = ack_subscriber = None
-        if self.options.lockstep:
-            grouper = StepGrouper(len(cameras), tolerance_ns=round(self.options.step_tolerance_ms * 1e6))
-            step_publisher = self.session.declare_publisher(keys.lockstep_step(self.rig),
-                                                            congestion_control=zenoh.CongestionControl.BLOCK)
-            ack_subscriber = self.session.declare_subscriber(
-                keys.all_lockstep_acks(self.rig), self._on_ack)
-        pacer = Pacer(self.options.rate)
         messages = 0
-        started_s = time.monotonic()
-        try:
+        with contextlib.ExitStack() as stack:
+            stack.enter_context(stop_on_signals(self.stop))
+            cameras = self._declare_cameras(stack)
+            others = {topic: self.session.declare_publisher(key) for topic, key in routes.items()
+                      if topic not in cameras}
+            if keys.groundtruth(self.recorded_rig) in routes:
+                stack.callback(self.session.declare_queryable(
+                    keys.groundtruth(self.rig),
+                    guarded(self._on_groundtruth_query, self.failures, "answering a query")).undeclare)
+            grouper = step_publisher = None
+            if self.options.lockstep:
+                grouper = StepGrouper(len(cameras), tolerance_ns=round(self.options.step_tolerance_ms * 1e6))
+                step_publisher = self.session.declare_publisher(keys.lockstep_step(self.rig),
+                                                                congestion_control=zenoh.CongestionControl.BLOCK)
+                stack.callback(self.session.declare_subscriber(
+                    keys.all_lockstep_acks(self.rig),
+                    guarded(self._on_ack, self.failures, "receiving an acknowledgement")).undeclare)
+            pacer = Pacer(self.options.rate)
+            started_s = time.monotonic()
             self._wait_for_subscribers(cameras)
             if grouper is not None:
                 self._wait_for_lockstep_nodes()
-            started_s = next_stats_s = time.monotonic()
+            started_s = time.monotonic()
             next_progress_s = started_s + progress_period_s
             for message in self.file.messages():
                 if self.stop.is_set():
                     break
-                topic = message.topic
-                if topic not in routes:
+                if message.topic not in routes:
                     continue
-                camera = cameras.get(topic)
-                if camera is not None:
-                    try:
-                        header = sf.frame_header(message.data)
-                    except FrameError as exc:
-                        self._count_malformed(exc, topic)
-                        continue
-                    if grouper is not None:
-                        for group in grouper.add(topic, message.data, header):
-                            self._play_step(step_publisher, cameras, group)
-                        messages += 1
-                    else:
-                        self._sleep_until(pacer.due_s(topic, message.log_time_ns, message.publish_time_ns))
-                        self._put_frame(camera, message.data)
-                        messages += 1
-                else:
-                    self._sleep_until(pacer.due_s(topic, message.log_time_ns, message.publish_time_ns))
-                    if topic == groundtruth_key:
-                        self._groundtruth = message.data
-                    others[topic].put(message.data)
-                    messages += 1
-                now = time.monotonic()
-                if now >= next_stats_s:
-                    self._publish_stats(cameras)
-                    next_stats_s = now + self.options.stats_period_s
-                if on_progress is not None and now >= next_progress_s:
+                messages += self._replay_one(message, cameras, others, grouper, step_publisher, pacer)
+                for camera in cameras.values():
+                    camera.presence.publish_if_due()
+                if on_progress is not None and time.monotonic() >= next_progress_s:
                     on_progress(self.summary(cameras, messages, started_s))
-                    next_progress_s = now + progress_period_s
+                    next_progress_s = time.monotonic() + progress_period_s
             if grouper is not None and not self.stop.is_set():
                 for group in [*grouper.flush(), None]:
                     self._play_step(step_publisher, cameras, group)
-        except KeyboardInterrupt:
-            log.info("replay: interrupted")
-        finally:
-            self._publish_stats(cameras)
-            for declared in (queryable, ack_subscriber):
-                if declared is not None:
-                    declared.undeclare()
-            for camera in cameras.values():
-                camera.token.undeclare()
         return self.summary(cameras, messages, started_s)

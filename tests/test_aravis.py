@@ -215,7 +215,7 @@ def test_streams_from_emulator(emulator, driver_process):
     assert frames[-1].timestamp_ns > frames[0].timestamp_ns
     # The emulator's test pattern is not blank.
     assert frames[-1].image.std() > 1
-    assert driver.receiver.malformed_total == 0
+    assert driver.receiver.malformed.total == 0
     assert driver.stop() == 0, driver.log()
 
 

@@ -48,7 +48,7 @@ def test_bad_frames_do_not_stop_the_subscriber(zenoh_pair):
         publisher.put(encode_frame(make_frame("mono8", seq=seq, camera_id="c1")))
     assert wait_for(lambda: len(good) == len(seqs))
     assert good == seqs
-    assert receiver.malformed == {kind: len(seqs) for kind in bad}
+    assert receiver.malformed.counts == {kind: len(seqs) for kind in bad}
     assert receiver.counts()["c1"].dropped == 4
     sub.undeclare()
 
@@ -67,17 +67,15 @@ def test_liveliness_token_is_seen_and_goes_away(zenoh_pair):
     assert wait_for(lambda: live() == [], 5.0)
 
 
-def test_frame_queue_keeps_the_latest_and_counts_overflow(zenoh_pair):
-    from camnet.bus.receiver import subscribe_frames
-
+def test_receiver_counts_what_crosses_the_bus(zenoh_pair):
     a, b = zenoh_pair
-    sub, queue = subscribe_frames(b, keys.frame("t", "c3"), capacity=2)
+    receiver = FrameReceiver()
+    sub = b.declare_subscriber(keys.frame("t", "c3"), lambda s: receiver.accept(s.payload.to_bytes()))
     publisher = matched_publisher(a, keys.frame("t", "c3"))
     for seq in range(6):
         publisher.put(encode_frame(make_frame("mono8", seq=seq, camera_id="c3")))
-    assert wait_for(lambda: queue.receiver.counts().get("c3") is not None
-                    and queue.receiver.counts()["c3"].received == 6)
-    assert [queue.get(timeout_s=1.0).seq for _ in range(2)] == [4, 5]
-    assert queue.overflowed == 4
-    assert queue.get(timeout_s=0.05) is None
+    assert wait_for(lambda: receiver.counts().get("c3") is not None
+                    and receiver.counts()["c3"].received == 6)
+    assert receiver.counts()["c3"].last_seq == 5
+    assert receiver.counts()["c3"].dropped == 0
     sub.undeclare()

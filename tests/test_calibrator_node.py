@@ -20,13 +20,12 @@ RIG = "calnode"
 @contextmanager
 def running(session, config):
     node = CalibratorNode(session, RIG, config)
-    stop = threading.Event()
-    thread = threading.Thread(target=node.run, args=(stop,), daemon=True)
+    thread = threading.Thread(target=node.run, daemon=True)
     thread.start()
     try:
         yield node
     finally:
-        stop.set()
+        node.stop.set()
         thread.join(timeout=30)
         assert not thread.is_alive(), "calibrator did not stop"
 
@@ -46,9 +45,9 @@ def test_solves_publishes_persists_and_answers_late_joiners(zenoh_pair, tmp_path
         with running(a, CalibratorConfig(state_path=state)) as node:
             publisher = matched_publisher(b, keys.observations(RIG))
             publisher.put(b"{not json")
-            assert wait_for(lambda: node.malformed == {"json": 1})
+            assert wait_for(lambda: node.malformed.counts == {"json": 1})
             publisher.put(json.dumps({"format": "camnet.observations/1", "cameras": 3}).encode())
-            assert wait_for(lambda: node.malformed == {"json": 1, "cameras": 1})
+            assert wait_for(lambda: node.malformed.counts == {"json": 1, "cameras": 1})
             publisher.put(observations_payload(seed=1))
             assert wait_for(lambda: got, 60), "no calibration published"
             doc = got[-1]

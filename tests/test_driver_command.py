@@ -51,7 +51,7 @@ def test_sim_driver_process_publishes_frames_groundtruth_and_status():
             assert (frame.camera_id, frame.encoding, frame.image.shape) == \
                 ("mono_a", "mono8", (1024, 1280))
             assert frame.image.std() > 20
-            assert receiver.malformed_total == 0
+            assert receiver.malformed.total == 0
             seqs = [f.seq for f in frames[:10]]
             assert seqs == sorted(seqs)
             replies = list(session.get(keys.groundtruth("sim"), timeout=5.0))

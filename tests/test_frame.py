@@ -6,6 +6,7 @@ import pytest
 from camnet.bus.frame import (
     ENCODINGS,
     FIXED_HEADER_SIZE,
+    Compression,
     Frame,
     FrameError,
     decode_frame,
@@ -26,7 +27,7 @@ def make_frame(encoding: str, *, seq: int = 7, camera_id: str = "cam_é", h: int
 
 
 @pytest.mark.parametrize("encoding", sorted(ENCODINGS))
-@pytest.mark.parametrize("compression", ["none", "png"])
+@pytest.mark.parametrize("compression", [Compression.NONE, Compression.PNG])
 def test_round_trip_bit_exact(encoding, compression):
     frame = make_frame(encoding)
     back = decode_frame(encode_frame(frame, compression=compression))
@@ -39,10 +40,10 @@ def test_round_trip_bit_exact(encoding, compression):
 def test_jpeg_is_close_and_refuses_16_bit():
     image = np.tile(np.arange(64, dtype=np.uint8) * 3, (48, 1))
     frame = Frame("c", 0, 0, "mono8", image)
-    back = decode_frame(encode_frame(frame, compression="jpeg", jpeg_quality=95))
+    back = decode_frame(encode_frame(frame, compression=Compression.JPEG, jpeg_quality=95))
     assert np.abs(back.image.astype(int) - image).mean() < 2
     with pytest.raises(ValueError, match="JPEG"):
-        encode_frame(make_frame("mono16"), compression="jpeg")
+        encode_frame(make_frame("mono16"), compression=Compression.JPEG)
 
 
 def test_header_layout_is_documented_size():
@@ -121,7 +122,7 @@ def test_receiver_counts_gaps_and_malformed(caplog):
     counts = receiver.counts()
     assert (counts["a"].received, counts["a"].dropped, counts["a"].last_seq) == (6, 5, 10)
     assert (counts["b"].received, counts["b"].dropped) == (2, 0)
-    assert receiver.malformed == {"truncated": 3, "unknown-version": 1}
+    assert receiver.malformed.counts == {"truncated": 3, "unknown-version": 1}
     # Logged once per kind, not once per frame.
     assert sum("truncated" in r.getMessage() for r in caplog.records) == 1
     receiver.accept(encode_frame(make_frame("mono8", seq=0, camera_id="a")))

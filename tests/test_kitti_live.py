@@ -18,7 +18,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from camnet.datasets.kitti import KittiExtract, prepare_scenario, read_image, run_live
+from camnet.commands.up import calibrate_live
+from camnet.datasets.kitti import KittiExtract, prepare_scenario, read_image
 from camnet.datasets.published import compare
 from camnet.geometry.calibrate import Options, calibrate
 from camnet.geometry.model import CameraInfo
@@ -51,8 +52,8 @@ def offline(kitti):
 
 def test_live_network_calibrates_every_camera_like_the_offline_pipeline(kitti, offline, tmp_path, monkeypatch):
     monkeypatch.chdir(ROOT)  # the rig file's paths are relative to the project root
-    cal, obs, elapsed_s = run_live(RIG, run_dir=tmp_path / "run",
-                                   endpoint=f"tcp/127.0.0.1:{free_port()}", timeout_s=120.0)
+    cal, obs, elapsed_s = calibrate_live(RIG, run_dir=tmp_path / "run",
+                                         endpoint=f"tcp/127.0.0.1:{free_port()}", timeout_s=120.0)
     live = compare(cal, obs, kitti.cameras)
     # Every camera, from frame sets of the pair plus one colour camera; a few hundred tracks tie each
     # colour camera to the pair, as offline.

@@ -20,7 +20,7 @@ from camnet.bus.stats import NodeStats
 from camnet.bus.sync import FrameSet
 from camnet.io.formats import parse_observations
 from camnet.io.rig import parse_rig
-from camnet.matching.features import to_grey
+from camnet.matching.features import Detector, to_grey
 from tests._groundtruth import epipolar_distance_px
 from tests.conftest import free_port, wait_for
 
@@ -59,8 +59,7 @@ class Network:
         self.observer = open_session(BusOptions(connect=(endpoint,)))
         self.sessions += [self.drivers_session, self.observer]
         self.node = MatcherNode(self.matcher_session, rig, config=config)
-        self.stop = threading.Event()
-        self.threads = [threading.Thread(target=self.node.run, args=(self.stop,), daemon=True)]
+        self.threads = [threading.Thread(target=self.node.run, daemon=True)]
         self.drivers = []
         self.lock = threading.Lock()
         self.documents: list[dict] = []
@@ -93,7 +92,7 @@ class Network:
             return self.documents[-1]
 
     def close(self) -> None:
-        self.stop.set()
+        self.node.stop.set()
         for driver in self.drivers:
             driver.stop.set()
         for thread in self.threads:
@@ -150,7 +149,7 @@ def test_live_network_tracks_match_the_ground_truth(network):
     net.drivers_session.put(keys.frame(rig.name, "left"), b"CNFR\x01 not a frame")
     stranger = Frame("stranger", 0, 0, "mono8", np.zeros((8, 8), np.uint8))
     net.drivers_session.put(keys.frame(rig.name, "stranger"), encode_frame(stranger))
-    assert wait_for(lambda: net.node.receiver.malformed_total == 1, 10.0)
+    assert wait_for(lambda: net.node.receiver.malformed.total == 1, 10.0)
     seen = net.count()
     assert wait_for(lambda: net.count() >= seen + 2, 60.0), "observations stopped after a bad frame"
 
@@ -255,7 +254,7 @@ def test_command_help_defaults_and_bad_rigs(tmp_path):
         assert flag in help_text
         assert f"(default: {field.default}" in help_text.split(flag, 2)[-1].split(" --")[0], flag
     args = build_parser().parse_args(["matcher", "--rig", "r.yaml", "--detector", "orb", "--max-tracks", "300"])
-    assert node_config_from_args(args) == MatcherNodeConfig(detector="orb", max_tracks=300)
+    assert node_config_from_args(args) == MatcherNodeConfig(detector=Detector.ORB, max_tracks=300)
 
     bad = tmp_path / "bad.yaml"
     bad.write_text("rig: x\ncameras: []\n")

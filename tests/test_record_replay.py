@@ -18,7 +18,7 @@ import time
 from pathlib import Path
 
 import pytest
-from camnet.services.recorder import Recorder, RecorderConfig, _ByteBoundedQueue
+from camnet.services.recorder import ChunkCompression, Recorder, RecorderConfig, _ByteBoundedQueue
 from camnet.services.replayer import Replayer, ReplayOptions
 from mcap.reader import make_reader
 from mcap.stream_reader import StreamReader
@@ -77,7 +77,7 @@ def recorded(tmp_path_factory):
     bus = open_session(BusOptions(listen=(endpoint,)))
     recorder_bus = open_session(BusOptions(connect=(endpoint,)))
     recorder = Recorder(recorder_bus, RecorderConfig(rig=RIG, path=path, flush_period_s=0.5,
-                                                      compression="zstd"))
+                                                      compression=ChunkCompression.ZSTD))
     result = {}
     nodes, threads = [], []
     try:

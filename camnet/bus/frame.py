@@ -38,6 +38,8 @@ class FrameError(ValueError):
 
 
 class Compression(enum.IntEnum):
+    """How a frame's pixels travel; the values are wire codes: never renumber."""
+
     NONE = 0
     PNG = 1
     JPEG = 2
@@ -105,11 +107,9 @@ class Frame:
         return int(self.image.shape[0])
 
 
-def encode_frame(frame: Frame, *, compression: Compression | str = Compression.NONE,
+def encode_frame(frame: Frame, *, compression: Compression = Compression.NONE,
                  jpeg_quality: int = 90) -> bytes:
     """The wire bytes of `frame`; PNG is lossless, JPEG is lossy and 8-bit only."""
-    compression = Compression[compression.upper()] if isinstance(compression, str) \
-        else Compression(compression)
     spec = ENCODINGS[frame.encoding]
     id_bytes = frame.camera_id.encode("utf-8")
     if not id_bytes or len(id_bytes) > MAX_ID_BYTES:

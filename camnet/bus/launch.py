@@ -3,6 +3,7 @@
 Each node is `python -m camnet.cli <command> ...` with its log in its own
 file. `Launch` is a context manager: leaving it (normally, on an error or on
 Ctrl-C) stops every child with SIGTERM, then SIGKILL after a grace period.
+`start_network` starts the nodes of one rig (`NetworkSpec`) in it.
 """
 
 from __future__ import annotations
@@ -15,6 +16,8 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
+
+from camnet.errors import CamnetError
 
 log = logging.getLogger(__name__)
 
@@ -79,6 +82,12 @@ class Launch:
         """Children that have ended."""
         return [c for c in self.children if c.process.poll() is not None]
 
+    def check(self) -> None:
+        """Raise CamnetError, with the end of its log, if a child has ended."""
+        for child in self.exited():
+            raise CamnetError(f"node {child.name} exited with status {child.process.returncode}; "
+                              f"the end of {child.log_path}:\n{child.log_tail()}")
+
     def stop(self, child: Child, *, kill: bool = False) -> int:
         """Stop one child (SIGKILL at once with `kill`); its exit status."""
         if child.process.poll() is None:
@@ -106,3 +115,28 @@ class Launch:
                 os.killpg(child.process.pid, signal.SIGKILL)
                 child.process.wait()
         self.children.clear()
+
+
+@dataclass(frozen=True)
+class NetworkSpec:
+    """The nodes of one rig on this machine: a driver per camera, the matcher, the calibrator, and
+    the recorder when `record_path` is given. `bus` flags go to every node, the others to one."""
+
+    rig_path: Path
+    rig_name: str
+    cameras: tuple[tuple[str, str], ...]  # (camera id, driver name), in the rig file's order
+    bus: tuple[str, ...] = ()
+    matcher: tuple[str, ...] = ()
+    calibrator: tuple[str, ...] = ()
+    record_path: Path | None = None
+
+
+def start_network(launch: Launch, spec: NetworkSpec) -> None:
+    """Start the nodes of `spec` as children of `launch`, drivers first."""
+    rig = str(spec.rig_path)
+    for camera_id, driver in spec.cameras:
+        launch.start(f"driver-{camera_id}", ["driver", driver, "--rig", rig, "--camera", camera_id, *spec.bus])
+    launch.start("matcher", ["matcher", "--rig", rig, *spec.matcher, *spec.bus])
+    launch.start("calibrator", ["calibrator", "--rig", rig, *spec.calibrator, *spec.bus])
+    if spec.record_path is not None:
+        launch.start("recorder", ["record", "--rig", spec.rig_name, "-o", str(spec.record_path), *spec.bus])

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 import time
 from collections import deque
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 
 from camnet.errors import InputError
 
@@ -13,8 +13,19 @@ STATS_FORMAT = "camnet.node-stats/1"
 
 
 @dataclass(frozen=True)
+class Activity:
+    """What a node says it did: `fps` measured over the last few seconds; counters since start."""
+
+    fps: float
+    frames: int
+    dropped: int
+    detail: str = ""
+
+
+@dataclass(frozen=True)
 class NodeStats:
-    """One report of a node: `fps` measured over the last few seconds; counters since start."""
+    """One report of a node: its `Activity`, who it is, when (`timestamp_ns`, Unix epoch), and
+    `faults`: what it dropped or survived (malformed messages, failed handlers), by kind."""
 
     rig: str
     kind: str
@@ -24,6 +35,7 @@ class NodeStats:
     dropped: int
     timestamp_ns: int
     detail: str = ""
+    faults: dict[str, int] = field(default_factory=dict)
 
     def to_json(self) -> bytes:
         return json.dumps({"format": STATS_FORMAT, **asdict(self)}).encode()
@@ -38,7 +50,8 @@ class NodeStats:
                              node_id=str(doc["node_id"]), fps=float(doc["fps"]),
                              frames=int(doc["frames"]), dropped=int(doc["dropped"]),
                              timestamp_ns=int(doc["timestamp_ns"]),
-                             detail=str(doc.get("detail", "")))
+                             detail=str(doc.get("detail", "")),
+                             faults={str(k): int(n) for k, n in doc.get("faults", {}).items()})
         except (ValueError, KeyError, TypeError, AttributeError) as exc:
             raise InputError(f"stats: malformed message ({exc})") from exc
 

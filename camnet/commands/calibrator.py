@@ -55,9 +55,7 @@ def default_state_path(rig: str) -> Path:
 
 
 def run(args: argparse.Namespace) -> int:
-    import signal
     import socket
-    import threading
 
     from camnet.bus.session import open_session, options_from_args
     from camnet.commands.calibrate import parse_free
@@ -85,9 +83,6 @@ def run(args: argparse.Namespace) -> int:
     live = LiveConfig(options=Options(free=free, loss=args.loss), stereo_pose=stereo_pose,
                       max_rms_px=args.max_rms_px, max_scale_rel=args.max_scale_rel)
     config = CalibratorConfig(live=live, state_path=state)
-    stop = threading.Event()
-    if threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGTERM, lambda *_: stop.set())
     rec = open_recording(rig=name, sinks=sinks)
     try:
         for sink in sinks:
@@ -95,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
         truth = (rig.simulated_truth() if rig is not None else []) or None
         viewer = RerunView(rec, truth=truth) if rec is not None else None
         with open_session(options_from_args(args)) as session:
-            CalibratorNode(session, name, config, viewer=viewer, lockstep=args.lockstep).run(stop)
+            CalibratorNode(session, name, config, viewer=viewer, lockstep=args.lockstep).run()
     finally:
         close_recording(rec)
     return 0

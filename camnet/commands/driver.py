@@ -7,16 +7,16 @@ import logging
 
 log = logging.getLogger(__name__)
 
-DRIVER_CHOICES = ("sim", "aravis", "v4l2")
-
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from camnet.bus.frame import Compression
     from camnet.bus.session import add_bus_arguments
+    from camnet.io.rig import DRIVERS
 
-    parser.add_argument("driver", choices=DRIVER_CHOICES, help="camera driver")
+    parser.add_argument("driver", choices=DRIVERS, help="camera driver")
     parser.add_argument("--rig", required=True, metavar="RIG.yaml", help="rig file")
     parser.add_argument("--camera", required=True, metavar="ID", help="camera id in the rig")
-    parser.add_argument("--compression", choices=("none", "png", "jpeg"), default="none",
+    parser.add_argument("--compression", choices=[c.name.lower() for c in Compression], default="none",
                         help="frame compression on the wire (default: none)")
     parser.add_argument("--max-frames", type=int, default=0, metavar="N",
                         help="stop after N frames (default: run until stopped)")
@@ -26,6 +26,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from camnet.bus.frame import Compression
     from camnet.bus.session import open_session, options_from_args
     from camnet.drivers.base import create_camera
     from camnet.errors import InputError
@@ -40,6 +41,6 @@ def run(args: argparse.Namespace) -> int:
     with open_session(options_from_args(args)) as session:
         from camnet.drivers.node import DriverNode
 
-        node = DriverNode(session, rig, camera, compression=args.compression,
+        node = DriverNode(session, rig, camera, compression=Compression[args.compression.upper()],
                           stats_period_s=args.stats_period_s)
         return node.run(max_frames=args.max_frames)

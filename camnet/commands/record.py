@@ -8,6 +8,7 @@ import sys
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from camnet.bus.session import add_bus_arguments
+    from camnet.services.recorder import ChunkCompression
 
     parser.add_argument("--rig", required=True, metavar="NAME", help="rig name (as in its file)")
     parser.add_argument("-o", "--output", required=True, metavar="SESSION.mcap",
@@ -15,7 +16,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "directory gets a new <rig>-<UTC time>.mcap in it")
     parser.add_argument("--duration-s", type=float, default=0.0, metavar="S",
                         help="stop after S seconds (default: until Ctrl-C or SIGTERM)")
-    parser.add_argument("--compression", choices=("lz4", "zstd", "none"), default="lz4",
+    parser.add_argument("--compression", type=ChunkCompression, choices=list(ChunkCompression),
+                        default=ChunkCompression.LZ4,
                         help="chunk compression (default: lz4; zstd makes smaller files but "
                              "costs much more CPU)")
     parser.add_argument("--flush-period-s", type=float, default=1.0, metavar="S",

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import signal
 import threading
 
 log = logging.getLogger(__name__)
@@ -17,19 +16,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from camnet.bus.node import stop_on_signals
     from camnet.bus.session import open_session, options_from_args
 
     options = options_from_args(args, mode="router")
-    stop = threading.Event()
-    # docker stop / process managers send SIGTERM: leave as cleanly as on Ctrl-C.
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    with open_session(options) as session:
+    with open_session(options) as session, stop_on_signals(threading.Event()) as stop:
         endpoints = ", ".join(options.listen) or "the loopback rendezvous (tcp/127.0.0.1:7447)"
         print(f"camnet router {session.info.zid()} listening on {endpoints}; Ctrl-C to stop",
               flush=True)
-        try:
-            while not stop.wait(1.0):
-                pass
-        except KeyboardInterrupt:
-            log.info("router stopping")
+        while not stop.wait(1.0):
+            pass
+        log.info("router stopping")
     return 0

@@ -18,7 +18,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def format_table(nodes: list[tuple[str, str]], stats: dict) -> str:
-    """Rows 'kind id fps dropped frames detail' for live `nodes`, with `stats` by (kind, id)."""
+    """Rows 'kind id fps dropped frames detail' for live `nodes`, with `stats` by (kind, id);
+    the detail ends with what the node counted as faults (malformed messages, failed handlers)."""
     header = f"{'KIND':<12}{'ID':<16}{'FPS':>8}{'DROPPED':>9}{'FRAMES':>9}  DETAIL"
     rows = [header]
     for kind, node_id in sorted(nodes):
@@ -26,8 +27,9 @@ def format_table(nodes: list[tuple[str, str]], stats: dict) -> str:
         if s is None:
             rows.append(f"{kind:<12}{node_id:<16}{'-':>8}{'-':>9}{'-':>9}  (no statistics yet)")
         else:
+            faults = "".join(f"; {fault} {n}" for fault, n in sorted(s.faults.items()))
             rows.append(f"{kind:<12}{node_id:<16}{s.fps:>8.1f}{s.dropped:>9d}{s.frames:>9d}"
-                        f"  {s.detail}")
+                        f"  {s.detail}{faults}")
     return "\n".join(rows)
 
 
@@ -36,18 +38,20 @@ def run(args: argparse.Namespace) -> int:
     import time
 
     from camnet.bus import keys
+    from camnet.bus.node import Tally
     from camnet.bus.session import open_session, options_from_args
     from camnet.bus.stats import NodeStats
     from camnet.errors import InputError
 
     stats: dict[tuple[str, str], NodeStats] = {}
     lock = threading.Lock()
+    malformed = Tally(log)
 
     def on_stats(sample) -> None:
         try:
             s = NodeStats.from_json(bytes(sample.payload.to_bytes()))
         except InputError as exc:
-            log.warning("ignoring statistics on %s: %s", sample.key_expr, exc)
+            malformed.count("stats", "ignoring statistics on %s: %s", sample.key_expr, exc)
             return
         with lock:
             stats[(s.kind, s.node_id)] = s

@@ -18,6 +18,7 @@ RECORDED_CLOCK_S = 3600.0  # a capture this far from the host clock was stamped 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from camnet.bus.session import add_bus_arguments
+    from camnet.matching.features import Detector
     from camnet.viz_sinks import add_rerun_arguments
 
     parser.add_argument("rig_file", nargs="?", metavar="RIG.yaml",
@@ -25,7 +26,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--duration-s", type=float, default=60.0,
                         help="seconds to run before printing the result and stopping (default 60)")
     parser.add_argument("--forever", action="store_true", help="run until interrupted")
-    parser.add_argument("--detector", choices=("sift", "orb"), default="sift", help="matcher features")
+    parser.add_argument("--detector", type=Detector, choices=list(Detector), default=Detector.SIFT,
+                        help="matcher features (default: sift)")
     parser.add_argument("--run-dir", metavar="DIR",
                         help="where the nodes' logs and the calibration state go (default: a new temporary one)")
     parser.add_argument("-o", "--output", metavar="CALIBRATION.json", help="also write the final calibration here")
@@ -37,19 +39,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_bus_arguments(parser)
 
 
-def run(args: argparse.Namespace) -> int:
-    import contextlib
-    import json
-    import signal
-    import tempfile
-    import threading
-    import time
-
-    from camnet.bus import keys
-    from camnet.bus.launch import Launch, bus_flags
-    from camnet.bus.session import open_session, options_from_args
-    from camnet.errors import CamnetError, InputError
-    from camnet.io.formats import parse_calibration, write_json_atomic
+def _checked_rig(args: argparse.Namespace):
+    """(rig path, Rig) of the command, once its flags are known to be usable; InputError if not."""
+    from camnet.errors import InputError
     from camnet.io.rig import load_rig
     from camnet.viz_sinks import sinks_from_args
 
@@ -62,12 +54,34 @@ def run(args: argparse.Namespace) -> int:
     if args.record and Path(args.record).exists() and not Path(args.record).is_dir():
         raise InputError(f"--record: {args.record} exists; camnet never overwrites a session")
     sinks_from_args(args)  # refuse a bad --rerun here, before anything is written or started
+    return rig_path, rig
+
+
+def run(args: argparse.Namespace) -> int:
+    import contextlib
+    import json
+    import tempfile
+    import threading
+    import time
+
+    from camnet.bus import keys
+    from camnet.bus.launch import Launch, NetworkSpec, bus_flags, start_network
+    from camnet.bus.node import stop_on_signals
+    from camnet.bus.session import open_session, options_from_args
+    from camnet.errors import CamnetError
+    from camnet.io.formats import parse_calibration, write_json_atomic
+
+    rig_path, rig = _checked_rig(args)
     run_dir = Path(args.run_dir) if args.run_dir else Path(tempfile.mkdtemp(prefix=f"camnet-{rig.name}-"))
     run_dir.mkdir(parents=True, exist_ok=True)
     truth = rig.simulated_truth()
-    rerun_flags = [flag for value in args.rerun for flag in ("--rerun", value)]
-    children_bus = bus_flags(connect=args.connect, listen=args.listen, zenoh_config=args.zenoh_config,
-                             scouting=args.scouting)
+    spec = NetworkSpec(
+        rig_path=rig_path, rig_name=rig.name, cameras=tuple((e.id, e.driver) for e in rig.cameras),
+        bus=tuple(bus_flags(connect=args.connect, listen=args.listen, zenoh_config=args.zenoh_config,
+                            scouting=args.scouting)),
+        matcher=("--detector", str(args.detector)),
+        calibrator=("--state", str(run_dir / "calibration.json"), *(f for v in args.rerun for f in ("--rerun", v))),
+        record_path=Path(args.record) if args.record else None)
 
     latest: dict[str, dict] = {}
     arrived = threading.Event()
@@ -79,33 +93,21 @@ def run(args: argparse.Namespace) -> int:
             return
         arrived.set()
 
-    stop = threading.Event()
-    if threading.current_thread() is threading.main_thread():
+    print(f"camnet up: rig {rig.name!r}, {len(rig.cameras)} cameras, logs in {run_dir}", flush=True)
+    with contextlib.ExitStack() as stack:
         # Ctrl-C and a process manager's SIGTERM only ask the loop below to end, so that no
         # exception lands in the middle of starting a node (which would leave it orphaned)
         # and every node is stopped on the way out.
-        for signum in (signal.SIGINT, signal.SIGTERM):
-            signal.signal(signum, lambda *_: stop.set())
-    print(f"camnet up: rig {rig.name!r}, {len(rig.cameras)} cameras, logs in {run_dir}", flush=True)
-    with contextlib.ExitStack() as stack:
+        stop = stack.enter_context(stop_on_signals(threading.Event()))
         progress_file = stack.enter_context(open(args.progress_jsonl, "w")) if args.progress_jsonl else None
         session = stack.enter_context(open_session(options_from_args(args)))
         launch = stack.enter_context(Launch(run_dir))
         subscriber = session.declare_subscriber(keys.calibration(rig.name), on_calibration)
-        for entry in rig.cameras:
-            launch.start(f"driver-{entry.id}", ["driver", entry.driver, "--rig", str(rig_path),
-                                                "--camera", entry.id, *children_bus])
-        launch.start("matcher", ["matcher", "--rig", str(rig_path), "--detector", args.detector, *children_bus])
-        launch.start("calibrator", ["calibrator", "--rig", str(rig_path), "--state",
-                                    str(run_dir / "calibration.json"), *rerun_flags, *children_bus])
-        if args.record:
-            launch.start("recorder", ["record", "--rig", rig.name, "-o", args.record, *children_bus])
+        start_network(launch, spec)
         start = time.monotonic()
         next_wait_note = start + 10.0
         while (args.forever or time.monotonic() - start < args.duration_s) and not stop.is_set():
-            for child in launch.exited():
-                raise CamnetError(f"node {child.name} exited with status {child.process.returncode}; "
-                                  f"the end of {child.log_path}:\n{child.log_tail()}")
+            launch.check()
             if arrived.wait(timeout=0.5):
                 arrived.clear()
                 summary = summarise(time.monotonic() - start, latest["doc"], truth)
@@ -129,6 +131,79 @@ def run(args: argparse.Namespace) -> int:
         write_json_atomic(args.output, doc)
     print(final_report(parse_calibration(doc), truth))
     return 0
+
+
+def calibrate_live(rig_path: str | Path, *, run_dir: Path, endpoint: str, max_tracks: int = 3000,
+                   min_frame_sets: int = 4, timeout_s: float = 120.0):
+    """The rig's drivers, matcher and calibrator as processes on the bus, until they calibrate every camera.
+
+    The nodes connect to `endpoint` (tcp on loopback), where this process
+    listens; their logs go to `run_dir`, and the calibrator keeps no state.
+    The calibrator holds the stereo pair's pose when the rig file gives it
+    (a factory head, as in config/kitti.yaml); the matcher pools at most
+    `max_tracks` tracks. Returns (Calibration, Observations, seconds): the
+    first calibration of every camera in the rig from at least
+    `min_frame_sets` pooled frame sets, the observations it was solved from,
+    and the seconds since the nodes started. Raises CamnetError when a node
+    exits or nothing comes within `timeout_s`.
+    """
+    import json
+    import logging
+    import threading
+    import time
+
+    from camnet.bus import keys
+    from camnet.bus.launch import Launch, NetworkSpec, start_network
+    from camnet.bus.session import BusOptions, open_session
+    from camnet.errors import CamnetError
+    from camnet.io.formats import parse_calibration, parse_observations
+    from camnet.io.rig import load_rig
+
+    log = logging.getLogger(__name__)
+    rig = load_rig(rig_path)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    observed: dict[tuple[int, int], dict] = {}
+    calibrations: list[dict] = []
+    lock = threading.Lock()
+    arrived = threading.Event()
+
+    def on_observations(sample) -> None:
+        doc = json.loads(sample.payload.to_bytes())
+        with lock:
+            observed[doc["frame_sets"], doc["latest_capture_ns"]] = doc
+
+    def on_calibration(sample) -> None:
+        with lock:
+            calibrations.append(json.loads(sample.payload.to_bytes()))
+        arrived.set()
+
+    spec = NetworkSpec(rig_path=Path(rig_path), rig_name=rig.name,
+                       cameras=tuple((e.id, e.driver) for e in rig.cameras), bus=("--connect", endpoint),
+                       matcher=("--max-tracks", str(max_tracks)), calibrator=("--no-state",))
+    want = {entry.id for entry in rig.cameras}
+    with open_session(BusOptions(listen=(endpoint,))) as session, Launch(run_dir) as launch:
+        session.declare_subscriber(keys.observations(rig.name), on_observations)
+        session.declare_subscriber(keys.calibration(rig.name), on_calibration)
+        start_network(launch, spec)
+        start_s = time.monotonic()
+        while time.monotonic() - start_s < timeout_s:
+            launch.check()
+            if not arrived.wait(timeout=0.5):
+                continue
+            arrived.clear()
+            with lock:
+                pending = calibrations[:]
+                calibrations.clear()
+            for doc in pending:
+                cameras = {c["id"] for c in doc["cameras"]}
+                log.info("calibration %s: cameras %s, %s frame sets, %.1f s", doc.get("solve"),
+                         ",".join(sorted(cameras)), doc.get("frame_sets"), time.monotonic() - start_s)
+                with lock:
+                    source = observed.get((doc.get("frame_sets"), doc.get("latest_capture_ns")))
+                if cameras == want and doc.get("frame_sets", 0) >= min_frame_sets and source is not None:
+                    return parse_calibration(doc), parse_observations(source), time.monotonic() - start_s
+    raise CamnetError(f"no calibration of cameras {sorted(want)} from {min_frame_sets} frame sets in "
+                      f"{timeout_s:.0f} s; the nodes' logs are in {run_dir}")
 
 
 def summarise(elapsed_s: float, doc: dict, truth) -> dict:

@@ -22,7 +22,6 @@ from camnet.ids import validate_id
 from camnet.io import validate as v
 from camnet.sim.config import SceneConfig, SimConfig
 
-DRIVERS = ("sim", "aravis", "v4l2")
 SIM_ENCODINGS = ("mono8", "mono16", "bgr8", "rgb8")
 V4L2_ENCODINGS = ("bgr8", "mono8")
 
@@ -324,6 +323,7 @@ def _sync(s: _Section) -> SyncSettings:
 
 
 _DRIVER_PARSERS = {"sim": _sim, "aravis": _aravis, "v4l2": _v4l2}
+DRIVERS = tuple(_DRIVER_PARSERS)  # the camera drivers, one config section each (camnet.drivers has their modules)
 
 
 def _camera(s: _Section) -> CameraEntry:
