@@ -27,7 +27,13 @@ COMMANDS = {
 }
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The command line; with `only`, just that sub-command's arguments are built.
+
+    Building a sub-command's arguments imports its module (and what its flags'
+    choices come from), so `camnet --help` and each command's start import
+    only what that command needs.
+    """
     parser = argparse.ArgumentParser(
         prog="camnet",
         description="True-to-scale auto calibration of camera networks.",
@@ -36,15 +42,22 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name, summary in COMMANDS.items():
-        module = importlib.import_module(f"camnet.commands.{name}")
         command_parser = sub.add_parser(name, help=summary, description=summary)
-        module.add_arguments(command_parser)
-        command_parser.set_defaults(run=module.run)
+        if only is None or name == only:
+            module = importlib.import_module(f"camnet.commands.{name}")
+            module.add_arguments(command_parser)
+            command_parser.set_defaults(run=module.run)
     return parser
 
 
+def _command(argv: list[str]) -> str | None:
+    """The sub-command named on the command line (the first word that is one), if any."""
+    return next((word for word in argv if word in COMMANDS), None)
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else argv
+    parser = build_parser(only=_command(argv) or "")
     args = parser.parse_args(argv)
     level = logging.WARNING - 10 * min(args.verbose, 2)
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")

@@ -41,11 +41,14 @@ def test_sim_driver_process_publishes_frames_groundtruth_and_status():
                     endpoint, "--stats-period-s", "0.5")
     try:
         receiver = FrameReceiver()
-        frames = []
+        frames, arrivals_s = [], []
+
+        def on_frame(sample) -> None:
+            frames.append(receiver.accept(sample.payload.to_bytes()))
+            arrivals_s.append(time.monotonic())
+
         with open_session(BusOptions(connect=(endpoint,))) as session:
-            session.declare_subscriber(
-                keys.frame("sim", "mono_a"),
-                lambda s: frames.append(receiver.accept(s.payload.to_bytes())))
+            session.declare_subscriber(keys.frame("sim", "mono_a"), on_frame)
             assert wait_for(lambda: len(frames) >= 10, 30.0), stop(driver)
             frame = frames[-1]
             assert (frame.camera_id, frame.encoding, frame.image.shape) == \
@@ -66,7 +69,10 @@ def test_sim_driver_process_publishes_frames_groundtruth_and_status():
             line = next(row for row in status.stdout.splitlines() if "mono_a" in row)
             kind, node_id, fps, dropped = line.split()[:4]
             assert (kind, node_id) == ("driver", "mono_a")
-            assert float(fps) > 10 and int(dropped) >= 0
+            # The rate it reports is the rate that arrives here; on a loaded machine both fall together.
+            now_s = time.monotonic()
+            received_fps = sum(t > now_s - 2.0 for t in arrivals_s) / 2.0
+            assert float(fps) > 0.5 * received_fps > 0 and int(dropped) >= 0
     finally:
         err = stop(driver)
     assert driver.returncode == 0, err
