@@ -15,6 +15,7 @@ and leaves the scale to float, as in classical structure from motion.
 
 from __future__ import annotations
 
+import enum
 import logging
 from dataclasses import dataclass, replace
 from functools import cached_property
@@ -33,7 +34,16 @@ N_LOCAL = N_INTRINSICS + 6
 
 log = logging.getLogger(__name__)
 
-CENTRE_FIXED, CENTRE_FREE, CENTRE_ON_BASELINE = 0, 1, 2
+
+
+class CentreMode(enum.IntEnum):
+    """How a camera's centre moves in the adjustment (values of `Problem.centre_mode`)."""
+
+    FIXED = 0  # held: the left stereo camera, which fixes the frame
+    FREE = 1  # three coordinates
+    ON_BASELINE = 2  # on the sphere of radius baseline_m about the left camera: two angles
+
+
 GAUSS_NEWTON_LAMBDA = 1e-9  # damping of the (almost) undamped step: keeps a singular direction solvable
 
 
@@ -57,7 +67,7 @@ class Problem:
     ``cam[k]``, ``pt[k]``, ``uv[k]``: observation k is point ``pt[k]`` seen at
     pixel ``uv[k]`` by camera ``cam[k]``. ``intr_free`` (M, 9) and
     ``rot_free`` (M, 3) mark free intrinsics and rotation axes; ``centre_mode``
-    (M,) is one of CENTRE_FIXED, CENTRE_FREE, CENTRE_ON_BASELINE.
+    (M,) holds `CentreMode` values.
     """
 
     cam: np.ndarray
@@ -78,8 +88,8 @@ class Problem:
         free = np.zeros((self.n_cameras, N_LOCAL), dtype=bool)
         free[:, :N_INTRINSICS] = self.intr_free
         free[:, ROT] = self.rot_free
-        free[:, CEN] = (self.centre_mode == CENTRE_FREE)[:, None]
-        free[self.centre_mode == CENTRE_ON_BASELINE, CEN.start : CEN.start + 2] = True
+        free[:, CEN] = (self.centre_mode == CentreMode.FREE)[:, None]
+        free[self.centre_mode == CentreMode.ON_BASELINE, CEN.start : CEN.start + 2] = True
         cols = np.full(free.shape, -1)
         cols[free] = np.arange(free.sum())
         return cols, int(free.sum())
@@ -215,7 +225,7 @@ def normal_equations(problem: Problem, state: State, *, loss: str = "linear", sc
 
     J_local = np.concatenate([J_intr, J_rot, J_cen], axis=2) * sw[:, :, None]
     J_pt = J_pt * sw[:, :, None]
-    for m in np.flatnonzero(problem.centre_mode == CENTRE_ON_BASELINE):
+    for m in np.flatnonzero(problem.centre_mode == CentreMode.ON_BASELINE):
         rows = c == m
         B = problem.baseline_m * _tangent_basis(state.C[m] / np.linalg.norm(state.C[m]))
         J_local[rows, :, CEN.start : CEN.start + 2] = J_local[rows, :, CEN] @ B
@@ -317,9 +327,9 @@ def apply_step(problem: Problem, state: State, dc: np.ndarray, dp: np.ndarray) -
         if np.any(d[ROT]):
             R[m] = rotation_exp(d[ROT]) @ R[m]
         mode = problem.centre_mode[m]
-        if mode == CENTRE_FREE:
+        if mode == CentreMode.FREE:
             C[m] += d[CEN]
-        elif mode == CENTRE_ON_BASELINE:
+        elif mode == CentreMode.ON_BASELINE:
             u = C[m] / np.linalg.norm(C[m])
             u = u + _tangent_basis(u) @ d[CEN.start : CEN.start + 2]
             C[m] = problem.baseline_m * u / np.linalg.norm(u)

@@ -41,7 +41,7 @@ import numpy as np
 
 from camnet.errors import SolveError
 from camnet.geometry import bundle
-from camnet.geometry.bundle import CENTRE_FIXED, CENTRE_FREE, CENTRE_ON_BASELINE, Problem, State
+from camnet.geometry.bundle import CentreMode, Problem, State
 from camnet.geometry.diagnostics import reported_points, solve_report
 from camnet.geometry.free_rule import choose_free, free_mask, free_names, restore_free
 from camnet.geometry.initialise import (
@@ -127,8 +127,8 @@ def _problem(obs, order, rows_kept, track_rows, intr_free, rot_free, right_centr
     m_of[order] = np.arange(len(order))
     pt_of = np.full(len(obs.track_ids), -1)
     pt_of[track_rows] = np.arange(len(track_rows))
-    centre_mode = np.full(len(order), CENTRE_FREE)
-    centre_mode[0] = CENTRE_FIXED
+    centre_mode = np.full(len(order), CentreMode.FREE)
+    centre_mode[0] = CentreMode.FIXED
     centre_mode[1] = right_centre
     rot_free = rot_free.copy()
     rot_free[0] = False
@@ -280,11 +280,11 @@ def _full_problem(obs, order, start: Start, options: Options, initial: Calibrati
         ids = [obs.cameras[i].id for i in order]
         restore_free(restored, ids, intr_free, rot_free, fixed_K=held_K, fixed_dist=held_dist)
     if options.method == Method.UNCONSTRAINED:
-        right_centre = CENTRE_FREE
+        right_centre = CentreMode.FREE
     elif "stereo_direction" in names or (restored is not None and restored.stereo_direction):
-        right_centre = CENTRE_ON_BASELINE
+        right_centre = CentreMode.ON_BASELINE
     else:
-        right_centre = CENTRE_FIXED
+        right_centre = CentreMode.FIXED
     full = _problem(obs, order, np.flatnonzero(keep_obs), track_rows, intr_free, rot_free, right_centre)
     return full, track_rows
 
@@ -367,7 +367,7 @@ def _robust_passes(full: Problem, state: State, options: Options, *, cold: bool,
             full,
             intr_free=full.intr_free & free_mask(M, frozenset({"f"}), held_K, held_dist),
             rot_free=full.rot_free & (np.arange(M) != 1)[:, None],
-            centre_mode=np.where(np.arange(M) == 1, CENTRE_FIXED, full.centre_mode),
+            centre_mode=np.where(np.arange(M) == 1, CentreMode.FIXED, full.centre_mode),
         )
         state, _ = bundle.solve(first, state, **robust)
     if cold and options.free == "auto" and options.method == "refined":
@@ -391,7 +391,7 @@ def _fit_points(full: Problem, state: State, which: np.ndarray, options: Options
         n_points=len(points),
         intr_free=np.zeros_like(full.intr_free),
         rot_free=np.zeros_like(full.rot_free),
-        centre_mode=np.full_like(full.centre_mode, CENTRE_FIXED),
+        centre_mode=np.full_like(full.centre_mode, CentreMode.FIXED),
     )
     # A start for the joint adjustment, which refines these points again: loose tolerance.
     fitted, _ = bundle.solve(
@@ -443,7 +443,7 @@ def _paper_result(obs, order, intr, rows, start: Start, timings) -> Result:
         track_rows,
         np.zeros((len(order), N_INTRINSICS), bool),
         np.zeros((len(order), 3), bool),
-        CENTRE_FIXED,
+        CentreMode.FIXED,
     )
     state = State(intr, R, C, X)
     timings["eq13"] = time.perf_counter() - t0

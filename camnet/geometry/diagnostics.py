@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from camnet.geometry.bundle import CEN, CENTRE_FREE, CENTRE_ON_BASELINE, ROT, Problem, State, _tangent_basis
+from camnet.geometry.bundle import CEN, ROT, CentreMode, Problem, State, _tangent_basis
 from camnet.geometry.model import (
     CameraSigmas,
     CameraStats,
@@ -47,9 +47,9 @@ def _camera_sigmas(m: int, problem, state, cov) -> CameraSigmas:
             sd[name] = float(np.sqrt(max(Sigma[cols[slot], cols[slot]], 0.0)))
     rot = block(list(range(ROT.start, ROT.stop)))
     mode = problem.centre_mode[m]
-    if mode == CENTRE_FREE:
+    if mode == CentreMode.FREE:
         cen = block(list(range(CEN.start, CEN.stop)))
-    elif mode == CENTRE_ON_BASELINE:
+    elif mode == CentreMode.ON_BASELINE:
         B = problem.baseline_m * _tangent_basis(state.C[m] / np.linalg.norm(state.C[m]))
         cen = B @ block([CEN.start, CEN.start + 1]) @ B.T
     else:
@@ -107,7 +107,7 @@ def free_parameters(problem: Problem, camera_ids: list[str]) -> FreeSet:
             for m, cam_id in enumerate(camera_ids)
         },
         stereo_rotation_axes=tuple(ax for ax, free in zip("xyz", problem.rot_free[1], strict=True) if free),
-        stereo_direction=bool(problem.centre_mode[1] == CENTRE_ON_BASELINE),
+        stereo_direction=bool(problem.centre_mode[1] == CentreMode.ON_BASELINE),
     )
 
 

@@ -16,7 +16,7 @@ import numpy as np
 
 from camnet.errors import SolveError
 from camnet.geometry import bundle
-from camnet.geometry.bundle import CEN, CENTRE_ON_BASELINE, ROT, Problem, State
+from camnet.geometry.bundle import CEN, ROT, CentreMode, Problem, State
 from camnet.geometry.model import FreeSet
 from camnet.geometry.projection import INTRINSIC_NAMES, N_INTRINSICS
 from camnet.geometry.uncertainty import Covariance, covariance, residual_dof
@@ -100,7 +100,7 @@ def with_block(problem: Problem, name: str, cameras: np.ndarray) -> Problem:
     if name == "stereo_pitch_roll":
         rot_free[1, [0, 2]] = True
     elif name == "stereo_direction":
-        centre_mode[1] = CENTRE_ON_BASELINE
+        centre_mode[1] = CentreMode.ON_BASELINE
     elif name == "stereo_yaw":
         rot_free[1, 1] = True
     else:
