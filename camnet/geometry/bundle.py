@@ -35,7 +35,6 @@ N_LOCAL = N_INTRINSICS + 6
 log = logging.getLogger(__name__)
 
 
-
 class CentreMode(enum.IntEnum):
     """How a camera's centre moves in the adjustment (values of `Problem.centre_mode`)."""
 
