@@ -12,6 +12,7 @@ DEFAULT_FREE = "f,stereo_rotation,stereo_direction"
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from camnet.bus.session import add_bus_arguments
+    from camnet.geometry.model import Loss
     from camnet.viz_sinks import add_rerun_arguments
 
     parser.add_argument("--rig", required=True, metavar="RIG.yaml|NAME",
@@ -23,9 +24,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--free", default=DEFAULT_FREE,
                         help="intrinsics to estimate: a comma list of f, aspect, pp, k1, k2, stereo_rotation, "
                              "stereo_direction, or 'auto' for the engine's rule (default: %(default)s; principal "
-                             "points and distortion are held as given, see services/calibrator.py; a rig file "
+                             "points and distortion are held as given, see camnet/geometry/live.py; a rig file "
                              "with the pair's pose, stereo.R and stereo.t, holds the pair: default f)")
-    parser.add_argument("--loss", choices=("cauchy", "huber", "soft_l1", "linear"), default="cauchy",
+    parser.add_argument("--loss", choices=tuple(loss.value for loss in Loss), default=Loss.CAUCHY.value,
                         help="robust loss of the adjustment (default cauchy)")
     parser.add_argument("--max-rms-px", type=float, default=3.0,
                         help="a solution with a larger reprojection RMS is not trusted (default 3)")

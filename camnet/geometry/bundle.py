@@ -144,18 +144,18 @@ class SolveInfo:
 # ---------------------------------------------------------------- robust losses
 
 
-def _rho(z: np.ndarray, loss: str) -> tuple[np.ndarray, np.ndarray]:
+def _rho(z: np.ndarray, loss: Loss) -> tuple[np.ndarray, np.ndarray]:
     """SciPy's robust losses of a squared, scaled residual z: (rho(z), rho'(z))."""
-    if loss == "linear":
+    if loss == Loss.LINEAR:
         return z, np.ones_like(z)
-    if loss == "huber":
+    if loss == Loss.HUBER:
         big = z > 1.0
         s = np.sqrt(np.where(big, z, 1.0))
         return np.where(big, 2.0 * s - 1.0, z), np.where(big, 1.0 / s, 1.0)
-    if loss == "soft_l1":
+    if loss == Loss.SOFT_L1:
         s = np.sqrt(1.0 + z)
         return 2.0 * (s - 1.0), 1.0 / s
-    if loss == "cauchy":
+    if loss == Loss.CAUCHY:
         return np.log1p(z), 1.0 / (1.0 + z)
     raise ValueError(f"unknown loss {loss!r}; expected one of {tuple(x.value for x in Loss)}")
 
