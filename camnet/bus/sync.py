@@ -10,8 +10,8 @@ frame of the first required camera (the left stereo camera); a set holds,
 for each camera, its buffered frame nearest to the reference within the
 tolerance. A set is ready when every camera has one, or, once `max_wait_s`
 has passed since its last frame arrived, when the required cameras have one:
-a late or silent camera is then left out of that set (counted) and never
-stalls the rest. `pop` never waits: it returns the newest ready set or None.
+a late or silent camera is then left out of that set (counted). `pop` never
+waits: it returns the newest ready set or None.
 
 Each camera keeps only its latest `frames_per_camera` frames. A frame that
 leaves without being part of a set is counted as dropped: pushed out by newer
@@ -80,8 +80,6 @@ class FrameSynchronizer:
         # Per camera, its last accepted frame's capture time minus its arrival time (ns):
         # how far its capture clock is from the arrival clock.
         self._clock_offset_ns: dict[str, int] = {}
-        self._last_arrival_s: dict[str, float] = {}
-        self._first_arrival_s: float | None = None
         self._future = 0
         self._buffers: dict[str, list[_Buffered]] = {c: [] for c in self.camera_ids}
         # Frames at or before this capture time can no longer be in a set.
@@ -98,13 +96,10 @@ class FrameSynchronizer:
         if buffer is None:
             raise ValueError(f"camera {frame.camera_id!r} is not one of {self.camera_ids}")
         self._received += 1
-        if self._first_arrival_s is None:
-            self._first_arrival_s = now_s
         offset_ns = frame.timestamp_ns - round(now_s * 1e9)
-        if self._ahead(frame.camera_id, offset_ns):
+        if self._ahead(offset_ns):
             self._future += 1
             return False
-        self._last_arrival_s[frame.camera_id] = now_s
         self._clock_offset_ns[frame.camera_id] = offset_ns
         if frame.timestamp_ns <= self._floor_ns[frame.camera_id]:
             self._dropped += 1
@@ -116,18 +111,12 @@ class FrameSynchronizer:
             self._dropped += 1
         return True
 
-    def _ahead(self, camera_id: str, offset_ns: int) -> bool:
-        """Whether a frame of `camera_id` whose capture clock reads `offset_ns` ahead of arrival is in the future."""
-        own = self._clock_offset_ns.get(camera_id)
-        if own is not None:
-            return offset_ns > own + self.future_tolerance_ns
-        others = [o for c, o in self._clock_offset_ns.items() if c != camera_id]
-        return bool(others) and offset_ns > max(others) + self.future_tolerance_ns
-
-    def silent(self, camera_id: str, *, now_s: float) -> bool:
-        """Whether nothing has arrived from `camera_id` for `max_wait_s` (or ever, since the first frame)."""
-        last = self._last_arrival_s.get(camera_id, self._first_arrival_s)
-        return last is not None and now_s - last >= self.max_wait_s
+    def _ahead(self, offset_ns: int) -> bool:
+        """Whether a frame whose capture clock reads `offset_ns` ahead of its arrival is in the future:
+        ahead of every camera's clock (at its last accepted frame) by more than the tolerance."""
+        if not self._clock_offset_ns:
+            return False
+        return offset_ns > max(self._clock_offset_ns.values()) + self.future_tolerance_ns
 
     def pop(self, *, now_s: float) -> FrameSet | None:
         """The newest ready frame set (removed with every older frame), or None."""
@@ -135,9 +124,9 @@ class FrameSynchronizer:
             chosen = self._nearest(ref.frame.timestamp_ns)
             if not all(c in chosen for c in self.required):
                 continue
-            lacking = [c for c in self.camera_ids if c not in chosen]
+            complete = len(chosen) == len(self.camera_ids)
             waited_s = now_s - max(b.arrived_s for b in chosen.values())
-            if waited_s >= self.max_wait_s or all(self.silent(c, now_s=now_s) for c in lacking):
+            if complete or waited_s >= self.max_wait_s:
                 return self._take(ref.frame.timestamp_ns, chosen)
         return None
 
