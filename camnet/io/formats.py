@@ -72,9 +72,7 @@ def _parse_camera(value: Any, path: str) -> CameraInfo:
 def parse_observations(doc: Any) -> Observations:
     """Validate a ``camnet.observations/1`` document and return flat arrays."""
     _check_format(doc, OBSERVATIONS_FORMAT)
-    cams_raw = v.require(doc, "cameras", "")
-    if not isinstance(cams_raw, list) or not cams_raw:
-        raise v.fail("cameras", "expected a non-empty list")
+    cams_raw = v.non_empty_list(v.require(doc, "cameras", ""), "cameras")
     cameras = tuple(_parse_camera(c, f"cameras[{i}]") for i, c in enumerate(cams_raw))
     ids = [c.id for c in cameras]
     for i, cam_id in enumerate(ids):
@@ -209,9 +207,7 @@ def _parse_camera_pose(c: Any, path: str) -> Camera:
 def parse_calibration(doc: Any) -> Calibration:
     """Validate a ``camnet.calibration/1`` document; its further keys, when present, become the report."""
     _check_format(doc, CALIBRATION_FORMAT)
-    cams_raw = v.require(doc, "cameras", "")
-    if not isinstance(cams_raw, list) or not cams_raw:
-        raise v.fail("cameras", "expected a non-empty list")
+    cams_raw = v.non_empty_list(v.require(doc, "cameras", ""), "cameras")
     cameras = tuple(_parse_camera_pose(c, f"cameras[{i}]") for i, c in enumerate(cams_raw))
     ids, xyz = [], []
     for i, p in enumerate(v.array(doc.get("points", []), "points")):

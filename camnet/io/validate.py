@@ -48,6 +48,13 @@ def require(obj: Any, key: str, path: str) -> Any:
     return obj[key]
 
 
+def non_empty_list(value: Any, path: str) -> list:
+    """`value`, a list with at least one item."""
+    if not isinstance(value, list) or not value:
+        raise fail(path, "expected a non-empty list")
+    return value
+
+
 def number(value: Any, path: str, *, positive: bool = False, minimum: float | None = None) -> float:
     """A finite number (not a boolean)."""
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
