@@ -297,7 +297,7 @@ def _apply_free_rule(obs, order, problem: Problem, state: State, options: Option
     R = state.R.copy()
     R[1] = np.eye(3)
     state, _ = bundle.solve(problem, State(state.intr, R, state.C, state.X), max_iterations=options.max_iterations)
-    problem, decisions = choose_free(
+    return choose_free(
         problem,
         state,
         determined_px=options.determined_px,
@@ -306,8 +306,8 @@ def _apply_free_rule(obs, order, problem: Problem, state: State, options: Option
         heights=heights,
         held_K=held_K,
         held_dist=held_dist,
+        max_iterations=options.max_iterations,
     )
-    return problem, state, decisions
 
 
 def _adjust_inliers(full: Problem, problem: Problem, state: State, inliers, guessed_pp, options: Options):

@@ -6,6 +6,11 @@ determine it (its standard deviation, with it and the blocks before it free,
 moves the image by at most `determined_px` pixels) or when the data ask for it
 (freeing it lowers the cost by more than chance allows: a chi-square score
 test at false-alarm rate `significance`, on the a-posteriori pixel variance).
+Every test is made at the least-squares solution of the problem as it
+stands, so the network is solved again after each block that is freed. A
+camera block the cameras ask for together, but none alone, is freed for all
+of them; the cameras still held are then tried again (a 100 degree lens's k2
+shows in one camera only once the others' is free).
 """
 
 from __future__ import annotations
@@ -110,24 +115,48 @@ def with_block(problem: Problem, name: str, cameras: np.ndarray) -> Problem:
 
 
 def choose_free(
-    problem: Problem, state: State, *, determined_px: float, significance: float, widths, heights, held_K, held_dist
-) -> tuple[Problem, list[str]]:
-    """Apply the rule of the module docstring; returns (problem, decisions).
+    problem: Problem, state: State, *, determined_px: float, significance: float, widths, heights, held_K, held_dist,
+    max_iterations: int = 300,
+) -> tuple[Problem, State, list[str]]:
+    """Apply the rule of the module docstring; returns (problem, state, decisions).
 
     `state` is the least-squares solution of `problem`. Both tests are
-    linearised at it: the standard deviation from the covariance with the
-    block free, the cost decrease from the Gauss-Newton step with it free
-    (the score test, first-order equal to the likelihood ratio).
+    linearised at the least-squares solution of the problem as it stands:
+    the standard deviation from the covariance with the block free, the cost
+    decrease from the Gauss-Newton step with it free (the score test,
+    first-order equal to the likelihood ratio). Each freed block moves the
+    solution, so it is solved again before the next test: a test made away
+    from the minimum measures the distance to it, not the block.
     """
+    decisions = []
+    for name in CANDIDATES:
+        # A camera block is tried again for the cameras still held once others are freed:
+        # their misfit, spread over every camera before, then stands out.
+        for _ in range(1 if name.startswith("stereo") else problem.n_cameras):
+            trial, decision = _try_block(name, problem, state, determined_px, significance, widths, heights,
+                                         held_K, held_dist)
+            if decision:
+                decisions.append(decision)
+            if trial is problem:
+                break
+            problem = trial
+            state, _ = bundle.solve(problem, state, max_iterations=max_iterations)
+    return problem, state, decisions
+
+
+def _try_block(name, problem: Problem, state: State, determined_px, significance, widths, heights, held_K, held_dist):
+    """(problem with the block `name` freed where the rule says so, the decision's text)."""
     from scipy.special import chdtri
 
     M = problem.n_cameras
-    can_move = {"pp": ~held_K, "k1": ~held_dist, "k2": ~held_dist}
+    movable = {"pp": ~held_K, "k1": ~held_dist, "k2": ~held_dist}.get(name, np.ones(M, bool))
+    if not name.startswith("stereo"):
+        movable = movable & ~problem.intr_free[:, _SLOTS[name][0]]
+        if not movable.any():
+            return problem, ""  # freed for every camera by an earlier round
     # A block's Jacobian does not depend on which other blocks are free: one set of
-    # normal equations with every candidate free serves every trial.
-    everything = problem
-    for name in CANDIDATES:
-        everything = with_block(everything, name, can_move.get(name, np.ones(M, bool)))
+    # normal equations with the whole block free serves every trial.
+    everything = with_block(problem, name, movable)
     ne = bundle.normal_equations(everything, state)
     columns = everything.columns()[0]
 
@@ -135,42 +164,39 @@ def choose_free(
         return bundle.restrict(ne, columns[trial.columns()[0] >= 0])
 
     variance = 2.0 * ne.cost / max(residual_dof(problem), 1)  # a posteriori pixel variance
+    base = bundle.gauss_newton_decrease(restricted(problem))
 
-    def significant(trial: Problem, base_decrease: float, k: int) -> tuple[bool, float]:
+    def significant(trial: Problem, k: int) -> tuple[bool, float]:
         """Whether freeing the trial's new block lowers the cost beyond chance (chi-square, k dof)."""
-        statistic = 2.0 * (bundle.gauss_newton_decrease(restricted(trial)) - base_decrease) / max(variance, 1e-300)
+        statistic = 2.0 * (bundle.gauss_newton_decrease(restricted(trial)) - base) / max(variance, 1e-300)
         # An infinite decrease means the block is not determined at all: no evidence for it.
         wanted = variance > 1e-12 and np.isfinite(statistic) and statistic > chdtri(k, significance)
         return bool(wanted), statistic
 
-    decisions = []
-    for name in CANDIDATES:
-        base = bundle.gauss_newton_decrease(restricted(problem))
-        movable = can_move.get(name, np.ones(M, bool))
-        trial = with_block(problem, name, movable)
-        try:
-            effect = _pixel_effect(name, state, covariance(trial, state, normal=restricted(trial)), widths, heights)
-        except np.linalg.LinAlgError:  # the block is not fixed at all by these observations
-            effect = np.inf if name.startswith("stereo") else np.full(M, np.inf)
-        if name.startswith("stereo"):
-            k = int(trial.columns()[1] - problem.columns()[1])
-            wanted, statistic = significant(trial, base, k)
-            free = effect <= determined_px or wanted
-            if free:
-                problem = trial
-            decisions.append(
-                f"{name}: {'free' if free else 'held'} (sigma {effect:.2g} px, chi2 {statistic:.3g} on {k} dof)"
-            )
-            continue
-        k = len(_SLOTS[name])
-        determined = np.isfinite(effect) & (effect <= determined_px) & movable
-        wanted = np.zeros(M, bool)
-        if significant(trial, base, k * int(movable.sum()))[0]:  # the block as a whole; then camera by camera
-            for m in np.flatnonzero(movable & ~determined):
-                wanted[m] = significant(with_block(problem, name, np.arange(M) == m), base, k)[0]
-        problem = with_block(problem, name, determined | wanted)
-        decisions.append(
-            f"{name}: sigma px per camera {np.round(effect, 2).tolist()}; "
-            f"freed by significance {[m for m in np.flatnonzero(wanted & ~determined).tolist()]}"
-        )
-    return problem, decisions
+    try:
+        effect = _pixel_effect(name, state, covariance(everything, state, normal=restricted(everything)),
+                               widths, heights)
+    except np.linalg.LinAlgError:  # the block is not fixed at all by these observations
+        effect = np.inf if name.startswith("stereo") else np.full(M, np.inf)
+    if name.startswith("stereo"):
+        k = int(everything.columns()[1] - problem.columns()[1])
+        wanted, statistic = significant(everything, k)
+        free = effect <= determined_px or wanted
+        text = f"{name}: {'free' if free else 'held'} (sigma {effect:.2g} px, chi2 {statistic:.3g} on {k} dof)"
+        return (everything if free else problem), text
+    k = len(_SLOTS[name])
+    determined = np.isfinite(effect) & (effect <= determined_px) & movable
+    wanted = np.zeros(M, bool)
+    if significant(everything, k * int(movable.sum()))[0]:  # the block as a whole; then camera by camera
+        for m in np.flatnonzero(movable & ~determined):
+            wanted[m] = significant(with_block(problem, name, np.arange(M) == m), k)[0]
+        if not (wanted | determined).any():
+            # The cameras together ask for it, none alone does (one lens model shared by
+            # all, each camera's evidence weak): free it where it can move.
+            wanted = movable.copy()
+    text = (
+        f"{name}: sigma px per camera {np.round(effect, 2).tolist()}; "
+        f"freed by significance {np.flatnonzero(wanted & ~determined).tolist()}"
+    )
+    freed = determined | wanted
+    return (with_block(problem, name, freed) if freed.any() else problem), text
