@@ -5,6 +5,7 @@ from dataclasses import replace
 import numpy as np
 import scipy.linalg
 
+from camnet.geometry.bundle import CEN, CentreMode
 from camnet.geometry.calibrate import Options, calibrate
 from camnet.geometry.diagnostics import reported_points
 from camnet.geometry.evaluate import compare
@@ -20,9 +21,24 @@ def test_inverse_keeps_the_weak_directions_of_a_badly_scaled_matrix():
     D = np.diag(np.logspace(-5, 5, 12))  # pixels, radians and metres side by side
     S = D @ A @ D
     # inv(S) = inv(D) inv(A) inv(D): compare in A's units, where the valley is 1e8 deep.
-    np.testing.assert_allclose(D @ inverse_spd(S) @ D, np.linalg.inv(A), rtol=1e-6, atol=1e-6)
+    inverse, null, _ = inverse_spd(S)
+    np.testing.assert_allclose(D @ inverse @ D, np.linalg.inv(A), rtol=1e-6, atol=1e-6)
+    assert null.shape == (12, 0)
     # A pseudo-inverse cut off relative to the largest eigenvalue loses the valley.
     assert not np.allclose(D @ scipy.linalg.pinvh(S) @ D, np.linalg.inv(A), rtol=1e-2)
+
+
+def test_a_direction_nothing_fixes_is_named_and_the_rest_keeps_its_inverse():
+    rng = np.random.default_rng(1)
+    B = rng.normal(size=(6, 6))
+    A = np.zeros((8, 8))
+    A[:6, :6] = B @ B.T + np.eye(6)  # determined
+    A[6:, 6:] = [[1.0, 1.0], [1.0, 1.0]]  # the last two trade off exactly: only their sum is fixed
+    inverse, null, unit = inverse_spd(A)
+    np.testing.assert_allclose(inverse[:6, :6], np.linalg.inv(A[:6, :6]), rtol=1e-9)
+    assert null.shape == (8, 1)
+    direction = null[:, 0] / unit
+    assert np.allclose(direction[:6], 0.0) and np.isclose(direction[6], -direction[7])
 
 
 def test_freeing_the_principal_points_widens_the_focal_sigma():
@@ -152,3 +168,20 @@ def test_a_track_seen_twice_by_one_camera_adds_to_the_normal_equations():
     for name in ("U", "W", "V", "gc", "gp"):
         np.testing.assert_allclose(getattr(parts[0], name) + getattr(parts[1], name), getattr(parts[2], name),
                                    rtol=1e-10, atol=1e-6)
+
+
+def test_a_free_scale_is_reported_undetermined_and_the_rest_keeps_its_sigmas():
+    """With nothing holding the baseline, the scale and the centres are unknown; focal lengths are not."""
+    rig = make_rig(seed=5)
+    result = calibrate(observe(rig, noise_px=0.5, seed=5).observations)
+    held = covariance(result.problem, result.state)
+    modes = result.problem.centre_mode.copy()
+    modes[1] = CentreMode.FREE
+    free_scale = covariance(replace(result.problem, centre_mode=modes), result.state)
+    cols = free_scale.columns
+    undetermined = free_scale.undetermined
+    assert undetermined[cols[1, CEN.start]] and undetermined[cols[2, CEN]].any()  # the centres move with the scale
+    assert not undetermined[cols[:, 0]].any()  # every focal length is still fixed
+    sd = np.sqrt(np.diag(free_scale.cameras))[cols[:, 0]]
+    assert np.all(sd > 0) and np.all(sd < 10 * np.sqrt(np.diag(held.cameras))[held.columns[:, 0]])
+    assert np.isinf(scale_sigma(free_scale, result.state.X)) and np.isfinite(scale_sigma(held, result.state.X))

@@ -42,7 +42,7 @@ import numpy as np
 from camnet.errors import SolveError
 from camnet.geometry import bundle
 from camnet.geometry.bundle import CentreMode, Problem, State
-from camnet.geometry.diagnostics import reported_points, solve_report
+from camnet.geometry.diagnostics import refuse_undetermined, reported_points, solve_report
 from camnet.geometry.free_rule import choose_free, free_mask, free_names, restore_free
 from camnet.geometry.initialise import (
     Start,
@@ -484,6 +484,7 @@ def _result(
         obs, order, problem, state, cov, inliers, info, method=method, decisions=decisions, timings_s=timings,
         kept=kept, dropped=dropped, residuals_px=r, start=start,
     )
+    refuse_undetermined(report)
     calibration = Calibration(
         cameras=tuple(cameras),
         point_ids=obs.track_ids[track_rows[kept]],

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from camnet.errors import SolveError
 from camnet.geometry.bundle import CEN, ROT, CentreMode, Problem, State, _tangent_basis
 from camnet.geometry.model import (
     CameraSigmas,
@@ -39,19 +40,23 @@ def _camera_sigmas(m: int, problem, state, cov) -> CameraSigmas:
         out = np.zeros((len(slots), len(slots)))
         ok = c >= 0
         out[np.ix_(ok, ok)] = Sigma[np.ix_(c[ok], c[ok])]
+        if cov.undetermined[c[ok]].any():  # a direction nothing fixes: the whole block is unknown
+            out[:] = np.inf
         return out
 
+    undetermined = cov.undetermined
     sd = {}
     for slot, name in enumerate(INTRINSIC_NAMES):
         if cols[slot] >= 0:
-            sd[name] = float(np.sqrt(max(Sigma[cols[slot], cols[slot]], 0.0)))
+            sd[name] = np.inf if undetermined[cols[slot]] else float(np.sqrt(max(Sigma[cols[slot], cols[slot]], 0.0)))
     rot = block(list(range(ROT.start, ROT.stop)))
     mode = problem.centre_mode[m]
     if mode == CentreMode.FREE:
         cen = block(list(range(CEN.start, CEN.stop)))
     elif mode == CentreMode.ON_BASELINE:
         B = problem.baseline_m * _tangent_basis(state.C[m] / np.linalg.norm(state.C[m]))
-        cen = B @ block([CEN.start, CEN.start + 1]) @ B.T
+        tangent = block([CEN.start, CEN.start + 1])
+        cen = np.full((3, 3), np.inf) if np.isinf(tangent).any() else B @ tangent @ B.T
     else:
         cen = np.zeros((3, 3))
     return CameraSigmas(
@@ -63,6 +68,13 @@ def _camera_sigmas(m: int, problem, state, cov) -> CameraSigmas:
         rotation_deg=tuple(np.degrees(np.sqrt(np.maximum(np.diag(rot), 0.0))).tolist()),
         centre_m=tuple(np.sqrt(np.maximum(np.diag(cen), 0.0)).tolist()),
     )
+
+
+def _undetermined_names(s: CameraSigmas) -> list[str]:
+    """The names of a camera's parameters whose sigma is infinite (nothing fixes them)."""
+    names = [n for n in ("f_px", "cx_px", "cy_px", "k1", "k2") if not np.isfinite(getattr(s, n))]
+    names += [n for n in ("rotation_deg", "centre_m") if not np.all(np.isfinite(getattr(s, n)))]
+    return names
 
 
 def _parallax_deg(problem, state) -> np.ndarray:
@@ -150,9 +162,18 @@ def _uncertainty(ids: list[str], problem, state, cov: Covariance, kept, warnings
     """The solution's uncertainty; appends the warnings it gives rise to."""
     weights = scale_weights(cov, state.X, kept)
     scale = scale_sigma(cov, state.X, weights) if kept.any() else None
+    undetermined_scale = scale is not None and not np.isfinite(scale)
+    if undetermined_scale:
+        scale = None
     per_cam = {cam_id: _camera_sigmas(m, problem, state, cov) for m, cam_id in enumerate(ids)}
     for m, cam_id in enumerate(ids):
-        if per_cam[cam_id].f_px > POOR_FOCAL_REL * state.intr[m, 0]:
+        unknown = _undetermined_names(per_cam[cam_id])
+        if unknown:
+            warnings.append(
+                f"camera {cam_id}: {', '.join(unknown)} not determined by the observations (sigma null); "
+                "give them (K, dist) or add views that share more points with it"
+            )
+        elif per_cam[cam_id].f_px > POOR_FOCAL_REL * state.intr[m, 0]:
             warnings.append(f"camera {cam_id}: focal length poorly determined (sigma {per_cam[cam_id].f_px:.0f} px)")
     # The covariance has more columns than the problem where guessed principal points entered
     # as a prior (calibrate._uncertainty): what the scale would be known to were they exact.
@@ -160,7 +181,9 @@ def _uncertainty(ids: list[str], problem, state, cov: Covariance, kept, warnings
     prior_columns = cov.columns[:, 2:4][(cov.columns[:, 2:4] >= 0) & ~problem.intr_free[:, 2:4]]
     if scale is not None and len(prior_columns):
         scale_if_pp = scale_sigma(cov, state.X, weights, given=prior_columns)
-    if scale is None:
+    if undetermined_scale:
+        warnings.append("the scale is not determined by the observations and the known distances")
+    elif scale is None:
         warnings.append("no point is determined: the scale is unknown")
     elif scale > POOR_SCALE_REL:
         why = ""
@@ -170,7 +193,7 @@ def _uncertainty(ids: list[str], problem, state, cov: Covariance, kept, warnings
         warnings.append(f"the scale is uncertain by {100 * scale:.1f}% (1 sigma){why}")
     return Uncertainty(
         sigma_px=cov.sigma_px,
-        scale_rel=Sigma(scale) if scale is not None else Sigma.unknown("no point is determined"),
+        scale_rel=Sigma(scale) if scale is not None else Sigma.unknown("not determined by the observations"),
         scale_rel_if_pp_exact=(
             Sigma(scale_if_pp) if scale_if_pp is not None else Sigma.unknown("no principal point was guessed")
         ),
@@ -236,3 +259,19 @@ def solve_report(
         timings_s=dict(timings_s),
         uncertainty=uncertainty,
     )
+
+
+def refuse_undetermined(report: SolveReport) -> None:
+    """Refuse a solution whose scale the observations do not determine: it is no calibration.
+
+    Parameters the data leave free elsewhere are reported (sigma null, a
+    warning naming them); without a scale nothing of the network is known.
+    """
+    u = report.uncertainty
+    if u is not None and u.scale_rel.value is None:
+        cameras = [w.split(":")[0].removeprefix("camera ") for w in report.warnings if "not determined by" in w]
+        also = f" (nor cameras {cameras})" if cameras else ""
+        raise SolveError(
+            f"the observations do not determine the scale{also}: too few points agree with one solution; "
+            "check the tracks and that the cameras see a common scene"
+        )

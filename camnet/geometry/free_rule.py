@@ -78,7 +78,7 @@ def restore_free(
 def _pixel_effect(name: str, state: State, cov: Covariance, widths, heights) -> float | np.ndarray:
     """Standard deviation, in pixels, of a candidate block's effect on the image."""
     cols = cov.columns
-    sd = np.sqrt(np.maximum(np.diag(cov.cameras), 0.0))
+    sd = np.where(cov.undetermined, np.inf, np.sqrt(np.maximum(np.diag(cov.cameras), 0.0)))
 
     def sigma(m: int, *slots: int) -> float:
         return max(float(sd[cols[m, s]]) if cols[m, s] >= 0 else np.nan for s in slots)
@@ -173,11 +173,8 @@ def _try_block(name, problem: Problem, state: State, determined_px, significance
         wanted = variance > 1e-12 and np.isfinite(statistic) and statistic > chdtri(k, significance)
         return bool(wanted), statistic
 
-    try:
-        effect = _pixel_effect(name, state, covariance(everything, state, normal=restricted(everything)),
-                               widths, heights)
-    except np.linalg.LinAlgError:  # the block is not fixed at all by these observations
-        effect = np.inf if name.startswith("stereo") else np.full(M, np.inf)
+    # Infinite where the block is not fixed at all by these observations.
+    effect = _pixel_effect(name, state, covariance(everything, state, normal=restricted(everything)), widths, heights)
     if name.startswith("stereo"):
         k = int(everything.columns()[1] - problem.columns()[1])
         wanted, statistic = significant(everything, k)

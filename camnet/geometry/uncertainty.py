@@ -21,6 +21,10 @@ from camnet.geometry.bundle import NormalEquations, Problem, State, normal_equat
 # A point block whose smallest eigenvalue is below this fraction of its largest leaves
 # the point undetermined along that direction (in metres, so the ratio has meaning).
 POINT_RCOND = 1e-12
+# An eigenvalue of the unit-diagonal camera matrix below this (per parameter) is a direction
+# no observation fixes: well-posed but weak directions sit many orders of magnitude above it.
+NULL_EIGENVALUE = 1e-13
+NULL_COMPONENT = 1e-6  # a unit vector with this much of its square in the null space is undetermined
 
 
 @dataclass(frozen=True)
@@ -31,11 +35,29 @@ class Covariance:
     V_inv: np.ndarray  # (N, 3, 3) pseudo-inverses of the point blocks V
     V: np.ndarray  # (N, 3, 3)
     columns: np.ndarray  # (M, 15) problem.columns()
+    # (Pc, k) orthonormal basis, in unit-diagonal coordinates (see `inverse_spd`), of the
+    # camera directions no observation fixes; S_inv is the pseudo-inverse on the rest.
+    null: np.ndarray | None = None
+    unit: np.ndarray | None = None  # (Pc,) the scaling to unit-diagonal coordinates
 
     @property
     def cameras(self) -> np.ndarray:
-        """(Pc, Pc) covariance of the camera parameters."""
+        """(Pc, Pc) covariance of the camera parameters (finite: see `undetermined`)."""
         return self.sigma_px**2 * self.S_inv
+
+    @property
+    def undetermined(self) -> np.ndarray:
+        """(Pc,) camera columns that move along a direction no observation fixes (infinite variance)."""
+        if self.null is None or not self.null.shape[1]:
+            return np.zeros(self.S_inv.shape[0], dtype=bool)
+        return np.sum(self.null**2, axis=1) > NULL_COMPONENT
+
+    def _determines(self, reduced: np.ndarray) -> bool:
+        """Whether a function with this reduced camera gradient is blind to the undetermined directions."""
+        if self.null is None or not self.null.shape[1]:
+            return True
+        r = reduced / self.unit
+        return bool(np.linalg.norm(self.null.T @ r) <= np.sqrt(NULL_COMPONENT) * np.linalg.norm(r))
 
     def variance(self, g_cam: np.ndarray | None, g_pts: np.ndarray | None, *, given: np.ndarray = ()) -> float:
         """Variance of a linear function with gradient (g_cam (Pc,), g_pts (N, 3)).
@@ -48,7 +70,10 @@ class Covariance:
         gp = np.zeros((N, 3)) if g_pts is None else g_pts
         # Solve H x = g by the Schur complement, then g^T x.
         y = np.einsum("nij,nj->ni", self.V_inv, gp)
-        xc = self.S_inv @ (gc - self.W @ y.reshape(-1))
+        reduced = gc - self.W @ y.reshape(-1)
+        if not self._determines(reduced):
+            return np.inf
+        xc = self.S_inv @ reduced
         xp = y - np.einsum("nij,nj->ni", self.V_inv, (self.W.T @ xc).reshape(-1, 3))
         var = gc @ xc + np.sum(gp * xp)
         if len(given):  # var(g | c) = var(g) - cov(g, c) var(c)^-1 cov(c, g); cov(c, g) = x_c
@@ -68,6 +93,11 @@ class Covariance:
         determined = eig[:, 0] > POINT_RCOND * np.maximum(eig[:, -1], 1e-300)
         cov = self.sigma_px**2 * (self.V_inv + extra)
         cov[~determined] = np.inf
+        if self.null is not None and self.null.shape[1]:  # points a free camera direction moves
+            along_null = np.einsum("pk,pnj->nkj", self.null, (WV / self.unit[:, None]).reshape(-1, N, 3))
+            size = np.linalg.norm((WV / self.unit[:, None]).reshape(-1, N, 3), axis=0)  # (N, 3)
+            moved = np.linalg.norm(along_null, axis=1) > np.sqrt(NULL_COMPONENT) * np.maximum(size, 1e-300)
+            cov[moved.any(axis=1)] = np.inf
         return cov
 
     def point_sigmas_m(self) -> np.ndarray:
@@ -89,10 +119,10 @@ def covariance(
     # infinite error.
     V_inv = np.linalg.pinv(ne.V, rcond=POINT_RCOND, hermitian=True)
     S = ne.U - times_block_diag(ne.W, V_inv) @ ne.W.T
-    S_inv = inverse_spd(S)
+    S_inv, null, unit = inverse_spd(S)
     if sigma_px is None:
         sigma_px = float(np.sqrt(2.0 * ne.cost / max(residual_dof(problem), 1)))
-    return Covariance(sigma_px, S_inv, ne.W, V_inv, ne.V, problem.columns()[0])
+    return Covariance(sigma_px, S_inv, ne.W, V_inv, ne.V, problem.columns()[0], null, unit)
 
 
 def residual_dof(problem: Problem) -> int:
@@ -149,8 +179,8 @@ def covariance_with_pp_prior(
     return covariance(wider, state, sigma_px=sigma_px, normal=replace(normal, U=U))
 
 
-def inverse_spd(S: np.ndarray) -> np.ndarray:
-    """Inverse of a symmetric positive semi-definite matrix of mixed units, keeping weak directions.
+def inverse_spd(S: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(inverse, null, unit) of a symmetric positive semi-definite matrix of mixed units.
 
     The camera parameters mix pixels, radians and metres, so the eigenvalues of
     S span twenty orders of magnitude even when every direction is
@@ -158,18 +188,29 @@ def inverse_spd(S: np.ndarray) -> np.ndarray:
     eigenvalue would drop the weakest directions, which are exactly the
     nearly flat valleys (focal length against principal point and depth)
     whose large variance must be reported. Scaling to a unit diagonal first
-    leaves only the true conditioning. Raises numpy's LinAlgError when a
-    direction is not fixed at all (its variance would be infinite).
+    (``unit``, (P,): ``S_unit = S / outer(unit, unit)``) leaves only the true
+    conditioning. Directions that no observation fixes at all (a parameter
+    with no effect, or a rank defect the solve did not remove) form ``null``
+    (P, k), an orthonormal basis in those coordinates; the inverse is the
+    pseudo-inverse on the rest, and `Covariance` reports them as undetermined
+    rather than refusing the whole result.
     """
     if not len(S):
-        return S
+        return S, np.zeros((0, 0)), np.ones(0)
     diag = np.diag(S)
-    if not np.all(diag > 0):
-        raise np.linalg.LinAlgError("a camera parameter has no effect on any observation")
-    d = 1.0 / np.sqrt(diag)
-    scaled = S * d[:, None] * d[None, :]
-    inv = scipy.linalg.cho_solve(scipy.linalg.cho_factor(scaled), np.eye(len(S)))
-    return inv * d[:, None] * d[None, :]
+    unit = np.sqrt(np.where(diag > 0, diag, 1.0))
+    scaled = S / unit[:, None] / unit[None, :]
+    try:
+        if not np.all(diag > 0):
+            raise np.linalg.LinAlgError("a camera parameter has no effect on any observation")
+        inv = scipy.linalg.cho_solve(scipy.linalg.cho_factor(scaled), np.eye(len(S)))
+        null = np.zeros((len(S), 0))
+    except np.linalg.LinAlgError:
+        w, V = np.linalg.eigh(scaled)
+        fixed = w > NULL_EIGENVALUE * len(S)
+        inv = (V[:, fixed] / w[fixed]) @ V[:, fixed].T
+        null = V[:, ~fixed]
+    return inv / unit[:, None] / unit[None, :], null, unit
 
 
 def scale_gradient(points: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
@@ -209,6 +250,8 @@ def scale_weights(cov: Covariance, points: np.ndarray, kept: np.ndarray | None =
         along = np.sqrt(np.abs(np.einsum("ni,nij,nj->n", arm, cov.point_covariances_m2, arm)))
     along = np.where(np.isfinite(along), along, np.inf)
     typical = np.median(along[kept])
+    if not np.isfinite(typical):  # most points move along a direction nothing fixes: weigh them alike
+        return kept.astype(float)
     w = np.minimum(1.0, typical / np.maximum(along, 1e-300)) ** 2
     return np.where(kept, w, 0.0)
 

@@ -77,13 +77,13 @@ def _uncertainty_to_doc(u: Uncertainty) -> dict:
         "scale_rel_if_pp_exact": u.scale_rel_if_pp_exact.value,
         "cameras": {
             cam_id: {
-                "f_px": s.f_px,
-                "cx_px": s.cx_px,
-                "cy_px": s.cy_px,
-                "k1": s.k1,
-                "k2": s.k2,
-                "rotation_deg": list(s.rotation_deg),
-                "centre_m": list(s.centre_m),
+                "f_px": _finite(s.f_px),
+                "cx_px": _finite(s.cx_px),
+                "cy_px": _finite(s.cy_px),
+                "k1": _finite(s.k1),
+                "k2": _finite(s.k2),
+                "rotation_deg": [_finite(x) for x in s.rotation_deg],
+                "centre_m": [_finite(x) for x in s.centre_m],
             }
             for cam_id, s in u.cameras.items()
         },
@@ -91,6 +91,11 @@ def _uncertainty_to_doc(u: Uncertainty) -> dict:
     if u.point_weights is not None:
         out["point_weights"] = np.asarray(u.point_weights, dtype=float).tolist()
     return out
+
+
+def _finite(x: float) -> float | None:
+    """A sigma as written: null where the observations do not determine it (infinite)."""
+    return float(x) if np.isfinite(x) else None
 
 
 # ---------------------------------------------------------------- reading
@@ -182,11 +187,18 @@ def _parse_uncertainty(value: Any, path: str) -> Uncertainty:
 def _parse_camera_sigmas(value: Any, path: str) -> CameraSigmas:
     s = v.mapping(value, path)
 
+    def one(value: Any, where: str) -> float:
+        number = v.optional_number(value, where)
+        return np.inf if number is None else number  # null: not determined
+
     def axes(key: str) -> tuple[float, float, float]:
-        return tuple(v.vector(v.require(s, key, path), f"{path}.{key}", size=3).tolist())
+        values = v.require(s, key, path)
+        if not isinstance(values, list) or len(values) != 3:
+            raise v.fail(f"{path}.{key}", "expected 3 numbers or nulls")
+        return tuple(one(x, f"{path}.{key}[{i}]") for i, x in enumerate(values))
 
     return CameraSigmas(
-        **{key: v.number(v.require(s, key, path), f"{path}.{key}") for key in ("f_px", "cx_px", "cy_px", "k1", "k2")},
+        **{key: one(v.require(s, key, path), f"{path}.{key}") for key in ("f_px", "cx_px", "cy_px", "k1", "k2")},
         rotation_deg=axes("rotation_deg"),
         centre_m=axes("centre_m"),
     )
