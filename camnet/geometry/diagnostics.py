@@ -22,6 +22,7 @@ from camnet.geometry.model import (
     Uncertainty,
 )
 from camnet.geometry.projection import INTRINSIC_NAMES, project_points
+from camnet.geometry.residual_structure import structure_warnings
 from camnet.geometry.uncertainty import Covariance, scale_sigma, scale_weights
 
 MIN_CAMERA_OBSERVATIONS = 12
@@ -241,6 +242,10 @@ def solve_report(
             warnings.append(f"camera {cam_id}: only {n_in} inlier observations; its calibration is weak")
     parallax = _parallax_deg(problem, state)[kept]
     warnings += _geometry_warnings(obs, order, problem, state, parallax, kept)
+    if method != Method.PAPER:  # eq. 13 is no least-squares fit of every camera: its residuals differ by design
+        observed = np.bincount(obs.cam_index, minlength=len(obs.cameras))[order]
+        warnings += structure_warnings(ids, problem.cam, problem.uv, residuals_px, state.intr,
+                                       problem.intr_free[:, 4], observed)
     uncertainty = None if cov is None else _uncertainty(ids, problem, state, cov, kept, warnings)
     return SolveReport(
         method=method,
