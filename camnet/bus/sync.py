@@ -13,10 +13,13 @@ has passed since its last frame arrived, when the required cameras have one:
 a late or silent camera is then left out of that set (counted). `pop` never
 waits: it returns the newest ready set or None.
 
-Each camera keeps only its latest `frames_per_camera` frames. A frame that
-leaves without being part of a set is counted as dropped: pushed out by newer
-ones (the consumer is slower than the cameras), superseded by a newer set, or
-arriving after a set at or after its capture time was already given out.
+Each camera keeps its latest `frames_per_camera` frames, and any that arrived
+within `KEEP_WAITS` times `max_wait_s`, up to `max_frames_per_camera`: a set
+that waits for a silent camera must still be there when its wait is over,
+however fast the others deliver. A frame that leaves without being part of a
+set is counted as dropped: pushed out by newer ones (the consumer is slower
+than the cameras), superseded by a newer set, or arriving after a set at or
+after its capture time was already given out.
 Sets go forward in time and no frame is ever in two sets.
 """
 
@@ -60,11 +63,15 @@ class _Buffered:
     arrived_s: float
 
 
+KEEP_WAITS = 1.5  # frames are kept this many max_wait_s after they arrive (pop runs a little late)
+
+
 class FrameSynchronizer:
     """Forms frame sets of `camera_ids`; `required` cameras must be in every set."""
 
     def __init__(self, camera_ids: Sequence[str], *, required: Sequence[str], tolerance_ns: int,
-                 max_wait_s: float, frames_per_camera: int = 4, future_tolerance_s: float = 2.0) -> None:
+                 max_wait_s: float, frames_per_camera: int = 4, max_frames_per_camera: int = 64,
+                 future_tolerance_s: float = 2.0) -> None:
         self.camera_ids = tuple(camera_ids)
         self.required = tuple(required)
         if len(set(self.camera_ids)) != len(self.camera_ids):
@@ -73,9 +80,12 @@ class FrameSynchronizer:
             raise ValueError(f"required cameras {self.required} must be among {self.camera_ids}")
         if tolerance_ns < 0 or max_wait_s < 0 or frames_per_camera < 1 or future_tolerance_s < 0:
             raise ValueError("tolerance_ns, max_wait_s and future_tolerance_s must be >= 0, frames_per_camera >= 1")
+        if max_frames_per_camera < frames_per_camera:
+            raise ValueError("max_frames_per_camera must be >= frames_per_camera")
         self.tolerance_ns = int(tolerance_ns)
         self.max_wait_s = float(max_wait_s)
         self.frames_per_camera = int(frames_per_camera)
+        self.max_frames_per_camera = int(max_frames_per_camera)
         self.future_tolerance_ns = round(future_tolerance_s * 1e9)
         # Per camera, its last accepted frame's capture time minus its arrival time (ns):
         # how far its capture clock is from the arrival clock.
@@ -106,7 +116,10 @@ class FrameSynchronizer:
             return False
         keys = [b.frame.timestamp_ns for b in buffer]
         buffer.insert(bisect.bisect_right(keys, frame.timestamp_ns), _Buffered(frame, now_s))
-        if len(buffer) > self.frames_per_camera:
+        keep_since_s = now_s - KEEP_WAITS * self.max_wait_s
+        while len(buffer) > self.max_frames_per_camera or (
+            len(buffer) > self.frames_per_camera and buffer[0].arrived_s < keep_since_s
+        ):
             del buffer[0]
             self._dropped += 1
         return True
