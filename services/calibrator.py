@@ -36,6 +36,7 @@ from camnet.io.formats import (
     parse_observations,
     write_json_atomic,
 )
+from camnet.io.validate import decode_json
 
 log = logging.getLogger(__name__)
 
@@ -122,9 +123,9 @@ class CalibratorNode:
 
     def _parse(self, payload: bytes) -> tuple[Observations, dict] | None:
         try:
-            doc = json.loads(payload)
-        except ValueError as exc:
-            self.malformed.count("json", "dropping malformed observations (not JSON: %s)", exc)
+            doc = decode_json(payload, "observations")
+        except InputError as exc:
+            self.malformed.count("json", "dropping malformed observations (%s)", exc)
             return None
         try:
             return parse_observations(doc), doc

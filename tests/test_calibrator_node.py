@@ -7,7 +7,8 @@ import threading
 from contextlib import contextmanager
 
 import numpy as np
-from camnet.services.calibrator import CalibratorConfig, CalibratorNode
+import pytest
+from camnet.services.calibrator import CalibratorConfig, CalibratorNode, load_state
 
 from camnet.bus import keys
 from camnet.io.formats import observations_to_doc, parse_calibration
@@ -84,6 +85,17 @@ def test_a_restarted_calibrator_resumes_from_its_state(zenoh_pair, tmp_path):
         publisher.put(observations_payload(seed=2, n_points=160))
         assert wait_for(lambda: sum(node.tracker.counts.values()) == 1, 60)
         assert node.tracker.counts["good"] == 1
+
+
+@pytest.mark.parametrize("content", [b"\xff\xfe{}", b"[" * 100_000, b'{"format": "camnet.calibration/1", "cameras": '
+                                     b'[{"id": "a", "width": 100000000000000000000000000000, "height": 1}]}'])
+def test_a_state_file_that_is_not_a_calibration_is_moved_aside_with_a_warning(tmp_path, content, caplog):
+    state = tmp_path / "calibration.json"
+    state.write_bytes(content)
+    assert load_state(state) is None
+    aside = list(tmp_path.glob("calibration.json.damaged-*"))
+    assert len(aside) == 1 and aside[0].read_bytes() == content and not state.exists()
+    assert "cannot resume from it" in caplog.text
 
 
 def test_a_damaged_state_file_is_kept_aside(zenoh_pair, tmp_path):

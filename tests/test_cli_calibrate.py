@@ -93,13 +93,29 @@ def _mutations(doc: dict):
         "need at least 4",
     )
     yield "duplicate camera", mutate(lambda d: d["cameras"].append(dict(d["cameras"][0]))), "duplicate camera id"
+    yield "nested 100k deep", "[" * 100_000 + "]" * 100_000, "nested too deeply"
+    yield "not UTF-8", json.dumps(doc).encode()[:40] + b"\xff\xfe" + json.dumps(doc).encode()[40:], "not UTF-8"
+    yield "float track id", mutate(lambda d: d["tracks"][0].update(id=1e30)), "tracks[0].id"
+    yield "huge track id", mutate(lambda d: d["tracks"][0].update(id=10**30)), "tracks[0].id: integer out of range"
+    assert '"id": 0,' in json.dumps(doc)
+    yield "5000-digit integer", json.dumps(doc).replace('"id": 0,', '"id": ' + "9" * 5000 + ",", 1), "not usable JSON"
 
 
-@pytest.mark.parametrize("index", range(13))
+MUTATIONS = 18
+
+
+def test_every_mutation_is_run(good_doc):
+    assert len(list(_mutations(good_doc))) == MUTATIONS
+
+
+@pytest.mark.parametrize("index", range(MUTATIONS))
 def test_bad_input_gets_one_clear_line_and_no_output(tmp_path, good_doc, index):
     name, doc, expected = list(_mutations(good_doc))[index]
     src, out = tmp_path / "obs.json", tmp_path / "cal.json"
-    src.write_text(doc if isinstance(doc, str) else json.dumps(doc))
+    if isinstance(doc, bytes):
+        src.write_bytes(doc)
+    else:
+        src.write_text(doc if isinstance(doc, str) else json.dumps(doc))
     proc = run_camnet("calibrate", str(src), "-o", str(out))
     assert proc.returncode != 0, name
     lines = proc.stderr.strip().splitlines()

@@ -60,16 +60,18 @@ def _checked_rig(args: argparse.Namespace):
 def run(args: argparse.Namespace) -> int:
     import contextlib
     import json
+    import logging
     import tempfile
     import threading
     import time
 
     from camnet.bus import keys
     from camnet.bus.launch import Launch, NetworkSpec, bus_flags, start_network
-    from camnet.bus.node import stop_on_signals
+    from camnet.bus.node import Tally, stop_on_signals
     from camnet.bus.session import open_session, options_from_args
-    from camnet.errors import CamnetError
+    from camnet.errors import CamnetError, InputError
     from camnet.io.formats import parse_calibration, write_json_atomic
+    from camnet.io.validate import decode_json
 
     rig_path, rig = _checked_rig(args)
     run_dir = Path(args.run_dir) if args.run_dir else Path(tempfile.mkdtemp(prefix=f"camnet-{rig.name}-"))
@@ -86,11 +88,17 @@ def run(args: argparse.Namespace) -> int:
     latest: dict[str, dict] = {}
     arrived = threading.Event()
 
+    malformed = Tally(logging.getLogger("camnet.up"))
+
     def on_calibration(sample) -> None:
+        # Any peer may publish here: only a valid calibration document is shown and kept.
         try:
-            latest["doc"] = json.loads(sample.payload.to_bytes())
-        except ValueError:
+            doc = decode_json(sample.payload.to_bytes(), str(sample.key_expr))
+            parse_calibration(doc)
+        except InputError as exc:
+            malformed.count(str(exc).split(":", 1)[0], "ignoring a message that is no calibration (%s)", exc)
             return
+        latest["doc"] = doc
         arrived.set()
 
     print(f"camnet up: rig {rig.name!r}, {len(rig.cameras)} cameras, logs in {run_dir}", flush=True)

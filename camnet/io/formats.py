@@ -38,13 +38,10 @@ def _check_format(doc: Any, expected: str) -> None:
 def load_json(path: str | Path) -> Any:
     """Read a JSON file; a missing or malformed file is an `InputError`."""
     try:
-        text = Path(path).read_text()
+        data = Path(path).read_bytes()
     except OSError as exc:
         raise InputError(f"{path}: cannot read ({exc.strerror})") from None
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise InputError(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
+    return v.decode_json(data, str(path))
 
 
 # ---------------------------------------------------------------- observations
@@ -99,9 +96,7 @@ def parse_observations(doc: Any) -> Observations:
     seen: set[int] = set()
     for ti, track in enumerate(tracks_raw):
         path = f"tracks[{ti}]"
-        track_id = v.require(track, "id", path)
-        if isinstance(track_id, bool) or not isinstance(track_id, int):
-            raise v.fail(f"{path}.id", "expected an integer")
+        track_id = v.integer(v.require(track, "id", path), f"{path}.id")
         if track_id in seen:
             raise v.fail(f"{path}.id", f"duplicate track id {track_id}")
         seen.add(track_id)

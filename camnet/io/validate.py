@@ -7,6 +7,7 @@ calibration codecs, the rig file and the report.
 
 from __future__ import annotations
 
+import json
 import math
 from typing import Any
 
@@ -17,6 +18,29 @@ from camnet.errors import InputError
 # R R^T = I to this, per entry: loose enough for a rotation typed into a rig file with
 # six decimals, tight enough that a scaled or sheared matrix is refused.
 ROTATION_TOLERANCE = 1e-5
+
+
+MAX_INTEGER = 2**63 - 1  # ids and sizes are int64 wherever they go
+
+
+def decode_json(data: bytes | str, source: str) -> Any:
+    """The JSON value of `data` from `source` (a path, a bus key); anything that is not JSON is an InputError.
+
+    json's own failures are many kinds: malformed text, bytes that are not
+    UTF-8, nesting deep enough to exhaust the stack, integers longer than
+    Python converts. Each is one line naming the source, so a file gets a
+    clean refusal and a node can count it and go on.
+    """
+    try:
+        return json.loads(data)
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{source}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{source}: not UTF-8 text (byte {exc.start}); JSON must be UTF-8") from None
+    except RecursionError:
+        raise InputError(f"{source}: JSON nested too deeply for a camnet document") from None
+    except ValueError as exc:  # e.g. an integer of thousands of digits
+        raise InputError(f"{source}: not usable JSON ({str(exc).split(';')[0]})") from None
 
 
 def fail(path: str, message: str) -> InputError:
@@ -79,6 +103,8 @@ def integer(value: Any, path: str, *, positive: bool = False) -> int:
     """An integer (not a boolean)."""
     if isinstance(value, bool) or not isinstance(value, int):
         raise fail(path, f"expected an integer, got {show(value)}")
+    if abs(value) > MAX_INTEGER:
+        raise fail(path, f"integer out of range (at most {MAX_INTEGER} in magnitude), got {show(value)}")
     if positive and value <= 0:
         raise fail(path, f"must be positive, got {value!r}")
     return int(value)
