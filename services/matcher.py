@@ -159,7 +159,8 @@ class MatcherNode:
         self.config = config
         self.camera_ids = tuple(c.id for c in rig.cameras)
         self.stop = threading.Event()
-        self.receiver = FrameReceiver()
+        # Frames of other cameras or sizes are refused from their header, before decoding.
+        self.receiver = FrameReceiver({c: _configured_size(rig, c) for c in self.camera_ids})
         self._matcher_config = config.matcher_config()
         self._ready = threading.Condition()
         self._sync = FrameSynchronizer(self.camera_ids, required=(self.stereo.left, self.stereo.right),

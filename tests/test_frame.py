@@ -127,3 +127,26 @@ def test_receiver_counts_gaps_and_malformed(caplog):
     assert sum("truncated" in r.getMessage() for r in caplog.records) == 1
     receiver.accept(encode_frame(make_frame("mono8", seq=0, camera_id="a")))
     assert receiver.counts()["a"].restarts == 1
+
+
+def test_pixels_beyond_the_header_are_refused_before_decoding():
+    """Measured before: six 249 KB PNGs of 16000 x 16000 took a matcher from 389 to 879 MB."""
+    import cv2
+
+    small = encode_frame(make_frame("mono8", camera_id="a", h=48, w=64), compression=Compression.PNG)
+    header_size = struct.unpack_from("<H", small, 8)[0]
+    bomb = cv2.imencode(".png", np.zeros((16000, 16000), np.uint8))[1].tobytes()
+    forged = bytearray(small[:header_size]) + bomb
+    struct.pack_into("<I", forged, 36, len(bomb))  # the payload size, last field of the fixed header
+    with pytest.raises(FrameError, match="declares") as info:
+        decode_frame(bytes(forged))
+    assert info.value.kind == "bad-size"
+
+
+def test_a_receiver_with_the_rig_sizes_refuses_other_cameras_and_sizes_from_the_header():
+    receiver = FrameReceiver({"a": (64, 48), "b": None})
+    assert receiver.accept(encode_frame(make_frame("mono8", camera_id="a", h=48, w=64)))
+    assert receiver.accept(encode_frame(make_frame("mono8", camera_id="b", h=10, w=10)))
+    assert receiver.accept(encode_frame(make_frame("mono8", camera_id="a", h=480, w=640))) is None
+    assert receiver.accept(encode_frame(make_frame("mono8", camera_id="c", h=48, w=64))) is None
+    assert receiver.malformed.counts == {"wrong-size": 1, "unknown-camera": 1}

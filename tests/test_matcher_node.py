@@ -149,7 +149,9 @@ def test_live_network_tracks_match_the_ground_truth(network):
     net.drivers_session.put(keys.frame(rig.name, "left"), b"CNFR\x01 not a frame")
     stranger = Frame("stranger", 0, 0, "mono8", np.zeros((8, 8), np.uint8))
     net.drivers_session.put(keys.frame(rig.name, "stranger"), encode_frame(stranger))
-    assert wait_for(lambda: net.node.receiver.malformed.total == 1, 10.0)
+    # Both refused by the receiver, the stranger from its header before its pixels are decoded.
+    assert wait_for(lambda: len(net.node.receiver.malformed.counts) == 2, 10.0)
+    assert net.node.receiver.malformed.counts.get("unknown-camera") == 1
     seen = net.count()
     assert wait_for(lambda: net.count() >= seen + 2, 60.0), "observations stopped after a bad frame"
 

@@ -231,6 +231,11 @@ def _pixels(payload, compression: Compression, encoding: str, width: int,
         return image.astype(spec.dtype.newbyteorder("="), copy=False)
     import cv2
 
+    # Decoding allocates what the compressed stream declares, which may be far more than the
+    # header says (a 250 KB PNG can hold 16000 x 16000 pixels): compare before decoding.
+    declared = compressed_size(payload, compression)
+    if declared != (width, height):
+        raise FrameError("bad-size", f"{compression.name} payload declares {declared}, header says {width}x{height}")
     image = cv2.imdecode(np.frombuffer(payload, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
     if image is None:
         raise FrameError("bad-payload", f"{compression.name} payload does not decode")
@@ -238,3 +243,28 @@ def _pixels(payload, compression: Compression, encoding: str, width: int,
         raise FrameError("bad-size", f"decoded {image.shape} {image.dtype}, header says "
                          f"{shape} {encoding}")
     return image
+
+
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+_JPEG_SOF = {0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF}  # frame headers
+
+
+def compressed_size(payload, compression: Compression) -> tuple[int, int] | None:
+    """(width, height) a PNG or JPEG stream declares, read from its header alone; None if unreadable.
+
+    PNG: the IHDR chunk that must come first. JPEG: the first start-of-frame
+    marker (SOFn), after the segments before it.
+    """
+    data = bytes(payload[:65536]) if compression is Compression.JPEG else bytes(payload[:24])
+    if compression is Compression.PNG:
+        if len(data) < 24 or data[:8] != _PNG_SIGNATURE or data[12:16] != b"IHDR":
+            return None
+        return struct.unpack(">II", data[16:24])
+    at = 2 if data[:2] == b"\xff\xd8" else len(data)
+    while at + 9 <= len(data) and data[at] == 0xFF:
+        marker, length = data[at + 1], struct.unpack(">H", data[at + 2:at + 4])[0]
+        if marker in _JPEG_SOF:
+            height, width = struct.unpack(">HH", data[at + 5:at + 9])
+            return width, height
+        at += 2 + length
+    return None

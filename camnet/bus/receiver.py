@@ -9,9 +9,10 @@ from __future__ import annotations
 
 import logging
 import threading
+from collections.abc import Mapping
 from dataclasses import dataclass
 
-from camnet.bus.frame import Frame, FrameError, decode_frame
+from camnet.bus.frame import Frame, FrameError, FrameHeader, decode_frame, decode_header
 from camnet.bus.node import Tally
 
 log = logging.getLogger(__name__)
@@ -36,16 +37,34 @@ class _Track:
 
 
 class FrameReceiver:
-    """Thread-safe decoder with counters; feed it payloads with `accept`."""
+    """Thread-safe decoder with counters; feed it payloads with `accept`.
 
-    def __init__(self) -> None:
+    sizes: (width, height) per camera id that this receiver takes: a frame of
+    another camera or another size is refused from its header, before its
+    pixels are decoded (counted as "unknown-camera" or "wrong-size"). None
+    takes any camera of any size.
+    """
+
+    def __init__(self, sizes: Mapping[str, tuple[int, int] | None] | None = None) -> None:
         self._lock = threading.Lock()
         self.malformed = Tally(log)  # malformed frames, by FrameError.kind
         self._tracks: dict[str, _Track] = {}
+        self._sizes = None if sizes is None else dict(sizes)
+
+    def _admit(self, header: FrameHeader) -> None:
+        if self._sizes is None:
+            return
+        if header.camera_id not in self._sizes:
+            raise FrameError("unknown-camera", f"camera {header.camera_id!r} is not one of {sorted(self._sizes)}")
+        size = self._sizes[header.camera_id]
+        if size is not None and (header.width, header.height) != size:
+            raise FrameError("wrong-size", f"camera {header.camera_id!r} sends {header.width}x{header.height}, "
+                             f"the rig says {size[0]}x{size[1]}")
 
     def accept(self, payload: bytes | bytearray | memoryview) -> Frame | None:
-        """The decoded frame, or None if it was malformed (then counted)."""
+        """The decoded frame, or None if it was malformed or not admitted (then counted)."""
         try:
+            self._admit(decode_header(payload))
             frame = decode_frame(payload)
         except FrameError as exc:
             self.malformed.count(exc.kind, "dropping malformed frame (%s)", exc)
