@@ -100,7 +100,8 @@ def with_block(problem: Problem, name: str, cameras: np.ndarray) -> Problem:
     if name == "stereo_pitch_roll":
         rot_free[1, [0, 2]] = True
     elif name == "stereo_direction":
-        centre_mode[1] = CentreMode.ON_BASELINE
+        if centre_mode[1] == CentreMode.FIXED:  # a FREE centre (a soft stereo baseline) turns already
+            centre_mode[1] = CentreMode.ON_BASELINE
     elif name == "stereo_yaw":
         rot_free[1, 1] = True
     else:
@@ -148,6 +149,9 @@ def choose_free(
         base = bundle.gauss_newton_decrease(restricted(problem))
         movable = can_move.get(name, np.ones(M, bool))
         trial = with_block(problem, name, movable)
+        if name == "stereo_direction" and trial.columns()[1] == problem.columns()[1]:
+            decisions.append(f"{name}: free (the right camera's centre is free: its baseline is soft)")
+            continue
         try:
             effect = _pixel_effect(name, state, covariance(trial, state, normal=restricted(trial)), widths, heights)
         except np.linalg.LinAlgError:  # the block is not fixed at all by these observations
