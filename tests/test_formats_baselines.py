@@ -7,6 +7,7 @@ import pytest
 
 from camnet.errors import InputError
 from camnet.io.formats import observations_to_doc, parse_observations
+from camnet.io.rig import parse_rig
 from camnet.sim.simulate import make_rig, observe
 
 
@@ -94,3 +95,58 @@ def test_a_missing_distance_is_named(doc):
     del doc["baselines"][0]["baseline_m"]
     with pytest.raises(InputError, match=r"^baselines\[0\]\.baseline_m: missing$"):
         parse_observations(doc)
+
+
+# ---------------------------------------------------------------- rig files and the matcher's observations
+
+
+def rig_doc() -> dict:
+    sim = {"width": 64, "height": 48, "f_px": 50}
+    return {
+        "rig": "r",
+        "stereo": {"left": "a", "right": "b", "baseline_m": 0.1, "sigma_m": 0.001},
+        "baselines": [{"cameras": ["c", "d"], "baseline_m": 0.12}, {"cameras": ["a", "c"], "baseline_m": 1.5,
+                                                                     "sigma_m": 0.002}],
+        "cameras": [{"id": name, "driver": "sim", "sim": sim} for name in "abcd"],
+    }
+
+
+def test_a_rig_file_names_its_distances_as_the_observations_do():
+    rig = parse_rig(rig_doc(), source="rig.yaml")
+    assert rig.stereo.sigma_m == 0.001
+    assert [(b.a, b.b, b.baseline_m, b.sigma_m) for b in rig.baselines] == [("c", "d", 0.12, 0.0),
+                                                                            ("a", "c", 1.5, 0.002)]
+    plain = rig_doc()
+    del plain["baselines"], plain["stereo"]["sigma_m"]
+    rig = parse_rig(plain)
+    assert rig.baselines == () and rig.stereo.sigma_m == 0.0
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        (lambda d: d["baselines"][1].update(cameras=["a", "x"]), "rig.yaml: baselines[1].cameras: unknown camera 'x'"),
+        (lambda d: d["baselines"][1].update(cameras=["b", "a"]), "rig.yaml: baselines[1].cameras: the distance of "
+                                                                 "'b' and 'a' is already given by stereo.baseline_m"),
+        (lambda d: d["baselines"][0].update(sigma=0.1), "rig.yaml: baselines[0].sigma: unknown key (known: "),
+        (lambda d: d["baselines"][0].update(baseline_m=-1), "rig.yaml: baselines[0].baseline_m: must be positive"),
+        (lambda d: d["stereo"].update(sigma_m=-1), "rig.yaml: stereo.sigma_m: must be at least 0"),
+        (lambda d: d.update(baselines={"c": "d"}), "rig.yaml: baselines: expected a list"),
+    ],
+)
+def test_bad_distances_in_a_rig_file_are_named(change, message):
+    data = rig_doc()
+    change(data)
+    with pytest.raises(InputError) as err:
+        parse_rig(data, source="rig.yaml")
+    assert str(err.value).startswith(message), str(err.value)
+
+
+def test_the_matchers_observations_carry_the_rigs_distances():
+    from camnet.services.matcher import MatcherNode, MatcherNodeConfig
+
+    doc = MatcherNode(None, parse_rig(rig_doc()), config=MatcherNodeConfig()).document()
+    assert doc["stereo"] == rig_doc()["stereo"]
+    assert doc["baselines"] == rig_doc()["baselines"]
+    obs = parse_observations(doc)
+    assert [b.a for b in obs.baselines] == ["c", "a"]
