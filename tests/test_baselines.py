@@ -96,3 +96,19 @@ def test_the_unconstrained_method_knows_no_distance(rig):
     plain = calibrate(replace(obs, baselines=()), options)
     wrong = calibrate(replace(obs, baselines=(Baseline(*HEAD, 2 * PAPER_BASELINE_M),)), options)
     np.testing.assert_allclose(wrong.calibration.points, plain.calibration.points, atol=1e-9)
+
+
+def test_camnet_simulate_draws_a_second_head():
+    import argparse
+
+    from camnet.commands.simulate import add_arguments, simulate_from_args
+    from camnet.errors import InputError
+
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    rig, sim = simulate_from_args(parser.parse_args(["-o", "x.json", "--second-head"]))
+    assert sim.observations.baselines == (Baseline(*HEAD, PAPER_BASELINE_M),)
+    C = {c.id: c.centre for c in rig.cameras}
+    assert np.linalg.norm(C["mono_b_right"] - C["mono_b"]) == pytest.approx(PAPER_BASELINE_M)
+    with pytest.raises(InputError, match="--second-head"):
+        simulate_from_args(parser.parse_args(["-o", "x.json", "--second-head", "--cameras", "3"]))
