@@ -105,7 +105,7 @@ def rig_stereo(rig: Rig) -> Stereo:
     if rig.stereo is None:
         raise InputError(f"{rig.source}: rig {rig.name!r} has no stereo pair; the matcher needs one "
                          "(add a 'stereo:' section with left, right and baseline_m)")
-    return Stereo(rig.stereo.left, rig.stereo.right, rig.stereo.baseline_m)
+    return Stereo(rig.stereo.left, rig.stereo.right, rig.stereo.baseline_m, sigma_m=rig.stereo.sigma_m)
 
 
 def rig_options(rig: Rig) -> dict:
@@ -293,7 +293,7 @@ class MatcherNode:
 
     def document(self) -> dict:
         """The observations document of the pool now (contract keys plus the node's own)."""
-        doc = observations_to_doc(self._ensure_pool().observations())
+        doc = observations_to_doc(replace(self._ensure_pool().observations(), baselines=self.rig.baselines))
         doc.update(rig=self.rig.name, pool_id=self._pool_id, frame_sets=self.frame_sets_pooled,
                    latest_capture_ns=self.latest_capture_ns, published_ns=time.time_ns())
         return doc

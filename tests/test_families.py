@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from camnet.sim.families import FAMILIES, HEAD_BASELINE_M, RING_RADIUS_M, family
+from camnet.sim.families import FAMILIES, HEAD_BASELINE_M, RING_RADIUS_M, TAPE_SIGMA_M, family
 from camnet.sim.simulate import observe
 
 
@@ -18,7 +18,8 @@ def test_the_pair_comes_first_in_the_left_frame_at_its_distance(name):
     left, right = rig.cameras[:2]
     np.testing.assert_allclose(left.R, np.eye(3), atol=1e-12)
     np.testing.assert_allclose(left.t, 0.0, atol=1e-12)
-    assert np.linalg.norm(right.centre) == pytest.approx(rig.baseline_m, rel=1e-12)
+    # A taped distance is a reading within a few of its sigmas; a head's baseline is exact.
+    assert np.linalg.norm(right.centre) == pytest.approx(rig.baseline_m, rel=1e-12, abs=4 * rig.stereo_sigma_m)
     for cam in rig.cameras:  # every camera sees the scene in front of it
         assert np.median((rig.points @ cam.R.T + cam.t)[:, 2]) > 0
 
@@ -42,9 +43,14 @@ def test_two_heads_and_a_taped_pair():
     assert ids[:4] == ["head0_left", "head0_right", "head1_left", "head1_right"]
     second = np.linalg.norm(heads.cameras[3].centre - heads.cameras[2].centre)
     assert second == pytest.approx(HEAD_BASELINE_M)
+    assert [(b.a, b.b, b.baseline_m, b.sigma_m) for b in heads.baselines] == [
+        ("head1_left", "head1_right", HEAD_BASELINE_M, 0.0)
+    ]
+    assert observe(heads, seed=2).observations.baselines == heads.baselines
     taped = family("tape_pair", seed=2).rig
     angle = np.degrees(np.arccos(np.clip(np.trace(taped.cameras[1].R) / 2 - 0.5, -1, 1)))
     assert 30 < angle < 60 and 1.2 < taped.baseline_m < 1.9  # 45 degrees round a 2 m ring
+    assert taped.stereo.sigma_m == TAPE_SIGMA_M and taped.baselines == ()
 
 
 def test_wide_lenses_fill_the_image_where_distortion_matters():

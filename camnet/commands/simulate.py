@@ -17,12 +17,16 @@ def add_simulation_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--pp-offset-px", type=float, default=0.0, help="principal points drawn within this many pixels of the centre"
     )
+    parser.add_argument(
+        "--second-head", action="store_true",
+        help="give mono_b a parallel partner 0.125 m to its right, their distance a further known one",
+    )
     parser.add_argument("--seed", type=int, default=0)
 
 
 def simulate_from_args(args: argparse.Namespace):
     from camnet.errors import InputError
-    from camnet.sim.simulate import make_rig, observe
+    from camnet.sim.simulate import make_rig, observe, with_head
 
     if args.cameras < 3:
         raise InputError(f"--cameras: a metric solve needs at least 3, got {args.cameras}")
@@ -35,6 +39,10 @@ def simulate_from_args(args: argparse.Namespace):
     if args.noise_px < 0:
         raise InputError(f"--noise-px: must not be negative, got {args.noise_px}")
     rig = make_rig(n_cameras=args.cameras, n_points=args.points, seed=args.seed, pp_offset_px=args.pp_offset_px)
+    if args.second_head:
+        if args.cameras < 4:
+            raise InputError(f"--second-head: pairs with mono_b, the fourth camera; --cameras is {args.cameras}")
+        rig = with_head(rig, "mono_b")
     sim = observe(
         rig, noise_px=args.noise_px, seed=args.seed, outlier_fraction=args.outliers, visibility=args.visibility
     )

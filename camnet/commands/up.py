@@ -57,21 +57,51 @@ def _checked_rig(args: argparse.Namespace):
     return rig_path, rig
 
 
+class LatestCalibration:
+    """Subscriber callback keeping the latest valid calibration document (`latest["doc"]`).
+
+    Any peer may publish on the calibration key: what is no calibration is
+    counted and logged once per kind, never shown or kept.
+    """
+
+    def __init__(self) -> None:
+        import logging
+        import threading
+
+        from camnet.bus.node import Tally
+
+        self.latest: dict[str, dict] = {}
+        self.arrived = threading.Event()
+        self.malformed = Tally(logging.getLogger("camnet.up"))
+
+    def __call__(self, sample) -> None:
+        from camnet.errors import InputError
+        from camnet.io.formats import parse_calibration
+        from camnet.io.validate import decode_json
+
+        try:
+            doc = decode_json(sample.payload.to_bytes(), str(sample.key_expr))
+            parse_calibration(doc)
+        except InputError as exc:
+            self.malformed.count(str(exc).split(":", 1)[0], "ignoring a message that is no calibration (%s)", exc)
+            return
+        self.latest["doc"] = doc
+        self.arrived.set()
+
+
 def run(args: argparse.Namespace) -> int:
     import contextlib
     import json
-    import logging
     import tempfile
     import threading
     import time
 
     from camnet.bus import keys
     from camnet.bus.launch import Launch, NetworkSpec, bus_flags, start_network
-    from camnet.bus.node import Tally, stop_on_signals
+    from camnet.bus.node import stop_on_signals
     from camnet.bus.session import open_session, options_from_args
-    from camnet.errors import CamnetError, InputError
+    from camnet.errors import CamnetError
     from camnet.io.formats import parse_calibration, write_json_atomic
-    from camnet.io.validate import decode_json
 
     rig_path, rig = _checked_rig(args)
     run_dir = Path(args.run_dir) if args.run_dir else Path(tempfile.mkdtemp(prefix=f"camnet-{rig.name}-"))
@@ -85,21 +115,8 @@ def run(args: argparse.Namespace) -> int:
         calibrator=("--state", str(run_dir / "calibration.json"), *(f for v in args.rerun for f in ("--rerun", v))),
         record_path=Path(args.record) if args.record else None)
 
-    latest: dict[str, dict] = {}
-    arrived = threading.Event()
-
-    malformed = Tally(logging.getLogger("camnet.up"))
-
-    def on_calibration(sample) -> None:
-        # Any peer may publish here: only a valid calibration document is shown and kept.
-        try:
-            doc = decode_json(sample.payload.to_bytes(), str(sample.key_expr))
-            parse_calibration(doc)
-        except InputError as exc:
-            malformed.count(str(exc).split(":", 1)[0], "ignoring a message that is no calibration (%s)", exc)
-            return
-        latest["doc"] = doc
-        arrived.set()
+    on_calibration = LatestCalibration()
+    latest, arrived = on_calibration.latest, on_calibration.arrived
 
     print(f"camnet up: rig {rig.name!r}, {len(rig.cameras)} cameras, logs in {run_dir}", flush=True)
     with contextlib.ExitStack() as stack:

@@ -17,13 +17,14 @@ from __future__ import annotations
 
 import enum
 import logging
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 
 import numpy as np
 import scipy.linalg
 import scipy.sparse as sp
 
+from camnet.geometry.distances import Distances
 from camnet.geometry.model import Loss
 from camnet.geometry.projection import N_INTRINSICS, project_points, project_with_jacobians, rotation_exp
 
@@ -66,7 +67,9 @@ class Problem:
     ``cam[k]``, ``pt[k]``, ``uv[k]``: observation k is point ``pt[k]`` seen at
     pixel ``uv[k]`` by camera ``cam[k]``. ``intr_free`` (M, 9) and
     ``rot_free`` (M, 3) mark free intrinsics and rotation axes; ``centre_mode``
-    (M,) holds `CentreMode` values.
+    (M,) holds `CentreMode` values. ``distances``: known distances between
+    camera centres, residual rows weighted by ``distance_sigma_px`` (the
+    pixel noise sigma, camnet.geometry.distances).
     """
 
     cam: np.ndarray
@@ -77,6 +80,8 @@ class Problem:
     centre_mode: np.ndarray
     baseline_m: float
     n_points: int
+    distances: Distances = field(default_factory=Distances.none)
+    distance_sigma_px: float = 1.0
 
     @property
     def n_cameras(self) -> int:
@@ -176,7 +181,36 @@ def _cost(problem: Problem, state: State, loss: str, scale_px: float) -> float:
     rho, _ = _rho(z, loss)
     if not np.all(np.isfinite(rho)):
         return np.inf
-    return 0.5 * scale_px**2 * float(np.sum(rho))
+    distance_px = problem.distances.weights_px_per_m(problem.distance_sigma_px) * problem.distances.errors_m(state.C)
+    return 0.5 * scale_px**2 * float(np.sum(rho)) + 0.5 * float(distance_px @ distance_px)
+
+
+def _centre_derivative(problem: Problem, state: State, m: int) -> np.ndarray:
+    """(3, 3): how camera m's centre moves with its three centre slots (zero where held)."""
+    mode = problem.centre_mode[m]
+    if mode == CentreMode.FREE:
+        return np.eye(3)
+    D = np.zeros((3, 3))
+    if mode == CentreMode.ON_BASELINE:
+        D[:, :2] = problem.baseline_m * _tangent_basis(state.C[m] / np.linalg.norm(state.C[m]))
+    return D
+
+
+def distance_rows(problem: Problem, state: State) -> tuple[np.ndarray, np.ndarray]:
+    """The known distances' weighted residuals (B,), pixels, and their Jacobian (B, Pc) in the camera columns.
+
+    Not robust: a known distance is no outlier.
+    """
+    known = problem.distances
+    cols, n_cols = problem.columns()
+    w = known.weights_px_per_m(problem.distance_sigma_px)
+    u = known.directions(state.C)
+    J = np.zeros((len(known), n_cols))
+    for k, (a, b) in enumerate(known.cams):
+        for m, sign in ((a, 1.0), (b, -1.0)):
+            c = cols[m, CEN]
+            J[k, c[c >= 0]] += (sign * w[k] * u[k] @ _centre_derivative(problem, state, m))[c >= 0]
+    return w * known.errors_m(state.C), J
 
 
 def _tangent_basis(u: np.ndarray) -> np.ndarray:
@@ -258,13 +292,14 @@ def normal_equations(problem: Problem, state: State, *, loss: str = "linear", sc
     )
     summed = problem.point_sum @ point_terms
     V, gp = summed[:, :9], summed[:, 9:]
+    r_dist, J_dist = distance_rows(problem, state)  # rows on camera columns only: U and gc
     return NormalEquations(
-        U=U,
+        U=U + J_dist.T @ J_dist,
         W=W.reshape(n_cols, 3 * N),
         V=V.reshape(N, 3, 3),
-        gc=gc,
+        gc=gc + J_dist.T @ r_dist,
         gp=gp,
-        cost=0.5 * scale_px**2 * float(np.sum(rho)),
+        cost=0.5 * scale_px**2 * float(np.sum(rho)) + 0.5 * float(r_dist @ r_dist),
     )
 
 

@@ -6,10 +6,10 @@ Methods:
   principal points as given or at the image centre, no distortion.
 - ``refined`` (default): the paper's solution, extended to every camera and
   track, then a bundle adjustment that keeps the stereo pair rigid with its
-  baseline exactly ``baseline_m``, with a robust loss, outlier rejection
-  and the free-intrinsics rule below.
-- ``unconstrained``: the same adjustment with the right camera free in 3-D,
-  as classical structure from motion: the scale is left to the optimiser.
+  baseline ``baseline_m`` (and every further known distance), with a robust
+  loss, outlier rejection and the free-intrinsics rule below.
+- ``unconstrained``: the same adjustment with the right camera free in 3-D and
+  no known distance, as structure from motion: the scale is left to the optimiser.
 
 Which intrinsics move (``free="auto"``): the focal length of every camera
 always (unless the observations fix K), and the pose of every camera outside
@@ -40,7 +40,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from camnet.errors import SolveError
-from camnet.geometry import bundle
+from camnet.geometry import bundle, distances
 from camnet.geometry.bundle import CentreMode, Problem, State
 from camnet.geometry.diagnostics import refuse_undetermined, reported_points, solve_report
 from camnet.geometry.free_rule import choose_free, free_mask, free_names, restore_free
@@ -55,7 +55,7 @@ from camnet.geometry.initialise import (
 )
 from camnet.geometry.model import Calibration, Camera, Loss, Method, Observations, StartKind
 from camnet.geometry.projection import INTRINSIC_NAMES, N_INTRINSICS, K_from_intrinsics, project_points
-from camnet.geometry.uncertainty import Covariance, covariance_with_pp_prior, with_guessed_pp
+from camnet.geometry.uncertainty import Covariance, covariance_with_pp_prior, pixel_sigma, with_guessed_pp
 
 log = logging.getLogger(__name__)
 
@@ -230,6 +230,7 @@ def _calibrate(
     if not near:
         state = _robust_passes(full, state, options, cold=initial is None, held_K=held_K, held_dist=held_dist)
     inliers = _reject_outliers(full, state, options)
+    full = replace(full, distance_sigma_px=pixel_sigma(full.subset(inliers), state))  # the distances' weight
     problem = full.subset(inliers)
     timings["robust_adjustment"] = time.perf_counter() - t1
 
@@ -279,14 +280,15 @@ def _full_problem(obs, order, start: Start, options: Options, initial: Calibrati
     if restored is not None:
         ids = [obs.cameras[i].id for i in order]
         restore_free(restored, ids, intr_free, rot_free, fixed_K=held_K, fixed_dist=held_dist)
-    if options.method == Method.UNCONSTRAINED:
+    if options.method == Method.UNCONSTRAINED or obs.stereo.sigma_m > 0:  # soft: held by its distance row
         right_centre = CentreMode.FREE
     elif "stereo_direction" in names or (restored is not None and restored.stereo_direction):
         right_centre = CentreMode.ON_BASELINE
     else:
         right_centre = CentreMode.FIXED
     full = _problem(obs, order, np.flatnonzero(keep_obs), track_rows, intr_free, rot_free, right_centre)
-    return full, track_rows
+    known = full.distances if options.method == Method.UNCONSTRAINED else distances.known_distances(obs, order)
+    return replace(full, distances=known), track_rows
 
 
 def _apply_free_rule(obs, order, problem: Problem, state: State, options: Options, held_K, held_dist):
@@ -355,7 +357,12 @@ def _reset_indices(obs: Observations, order: list[int], reset_cameras: Collectio
 
 
 def _robust_passes(full: Problem, state: State, options: Options, *, cold: bool, held_K, held_dist) -> State:
-    """The robust adjustment of every parameter that moves, from a rough start."""
+    """The robust adjustment of every parameter that moves, from a rough start.
+
+    Of the known distances only the stereo pair's: the start knows no other, and held to one
+    far from it a network tears; they enter the least squares that follows.
+    """
+    full = replace(full, distances=full.distances.between(0, 1))
     robust = dict(loss=options.loss, scale_px=options.loss_scale_px, max_iterations=options.max_iterations)
     if cold and options.method != "unconstrained":
         # Continuation: a first pass moves focal lengths and the poses outside the
@@ -436,15 +443,8 @@ def _paper_result(obs, order, intr, rows, start: Start, timings) -> Result:
     track_rows = np.flatnonzero(has_P0)
     X = start.P0[track_rows] * np.array([1.0, 1.0, f_left])
     keep = has_P0[obs.track_index]
-    problem = _problem(
-        obs,
-        order,
-        np.flatnonzero(keep),
-        track_rows,
-        np.zeros((len(order), N_INTRINSICS), bool),
-        np.zeros((len(order), 3), bool),
-        CentreMode.FIXED,
-    )
+    problem = _problem(obs, order, np.flatnonzero(keep), track_rows, np.zeros((len(order), N_INTRINSICS), bool),
+                       np.zeros((len(order), 3), bool), CentreMode.FIXED)
     state = State(intr, R, C, X)
     timings["eq13"] = time.perf_counter() - t0
     timings["total"] = sum(timings.values())

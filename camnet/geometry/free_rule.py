@@ -105,7 +105,8 @@ def with_block(problem: Problem, name: str, cameras: np.ndarray) -> Problem:
     if name == "stereo_pitch_roll":
         rot_free[1, [0, 2]] = True
     elif name == "stereo_direction":
-        centre_mode[1] = CentreMode.ON_BASELINE
+        if centre_mode[1] == CentreMode.FIXED:  # a FREE centre (a soft stereo baseline) turns already
+            centre_mode[1] = CentreMode.ON_BASELINE
     elif name == "stereo_yaw":
         rot_free[1, 1] = True
     else:
@@ -173,6 +174,8 @@ def _try_block(name, problem: Problem, state: State, determined_px, significance
         wanted = variance > 1e-12 and np.isfinite(statistic) and statistic > chdtri(k, significance)
         return bool(wanted), statistic
 
+    if name == "stereo_direction" and everything.columns()[1] == problem.columns()[1]:
+        return problem, f"{name}: free (the right camera's centre is free: its baseline is soft)"
     # Infinite where the block is not fixed at all by these observations.
     effect = _pixel_effect(name, state, covariance(everything, state, normal=restricted(everything)), widths, heights)
     if name.startswith("stereo"):

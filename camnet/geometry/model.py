@@ -94,6 +94,21 @@ class Stereo:
     baseline_m: float
     R: np.ndarray | None = None
     t: np.ndarray | None = None
+    sigma_m: float = 0.0  # 1 sigma of baseline_m, metres (a tape measure); 0: exact
+
+
+@dataclass(frozen=True)
+class Baseline:
+    """A further known distance between two camera centres: a second stereo head, or a taped distance.
+
+    a, b: camera ids; baseline_m: the distance, metres; sigma_m: its 1 sigma,
+    metres (0: exact).
+    """
+
+    a: str
+    b: str
+    baseline_m: float
+    sigma_m: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -110,6 +125,7 @@ class Observations:
     cam_index: np.ndarray  # (n,) int
     track_index: np.ndarray  # (n,) int
     uv: np.ndarray  # (n, 2) float pixels
+    baselines: tuple[Baseline, ...] = ()  # known distances beyond the stereo pair's
 
     @property
     def camera_ids(self) -> list[str]:

@@ -16,7 +16,7 @@ from functools import cached_property
 import numpy as np
 import scipy.linalg
 
-from camnet.geometry.bundle import NormalEquations, Problem, State, normal_equations, times_block_diag
+from camnet.geometry.bundle import NormalEquations, Problem, State, normal_equations, residuals, times_block_diag
 
 # A point block whose smallest eigenvalue is below this fraction of its largest leaves
 # the point undetermined along that direction (in metres, so the ratio has meaning).
@@ -132,9 +132,18 @@ def residual_dof(problem: Problem) -> int:
     three unknowns; a point left without observations uses none. Counting
     three for every point would shrink the count (and inflate the a-posteriori
     sigma) wherever outlier rejection leaves tracks with a single view.
+    Each known distance is one more residual (an exact one, held by a stiff
+    row, one parameter fewer).
     """
     views = np.bincount(problem.pt, minlength=problem.n_points)
-    return int(2 * len(problem.cam) - problem.columns()[1] - np.minimum(3, 2 * views).sum())
+    n_rows = 2 * len(problem.cam) + len(problem.distances)
+    return int(n_rows - problem.columns()[1] - np.minimum(3, 2 * views).sum())
+
+
+def pixel_sigma(problem: Problem, state: State) -> float:
+    """The a-posteriori pixel noise sigma of the (least-squares) reprojection residuals at `state`."""
+    r = residuals(problem, state)
+    return float(np.sqrt(np.sum(r * r) / max(residual_dof(problem) - len(problem.distances), 1)))
 
 
 def with_guessed_pp(problem: Problem, guessed_pp: np.ndarray) -> Problem | None:

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from camnet.errors import InputError
-from camnet.geometry.model import FIXABLE, Calibration, Camera, CameraInfo, Observations, Stereo
+from camnet.geometry.model import FIXABLE, Baseline, Calibration, Camera, CameraInfo, Observations, Stereo
 from camnet.geometry.projection import full_dist
 from camnet.io import validate as v
 from camnet.io.solve_report import parse_report, report_to_doc
@@ -66,6 +66,23 @@ def _parse_camera(value: Any, path: str) -> CameraInfo:
     return CameraInfo(cam_id, width, height, K, dist, frozenset(fixed_raw))
 
 
+def _parse_stereo(stereo_raw: Any, index: dict[str, int]) -> Stereo:
+    """The `stereo` section; `index`: the camera ids."""
+    left = v.string(v.require(stereo_raw, "left", "stereo"), "stereo.left")
+    right = v.string(v.require(stereo_raw, "right", "stereo"), "stereo.right")
+    for key, cam_id in (("left", left), ("right", right)):
+        if cam_id not in index:
+            raise v.fail(f"stereo.{key}", f"unknown camera id {cam_id!r}")
+    if left == right:
+        raise v.fail("stereo.right", "the stereo pair needs two different cameras")
+    baseline = v.number(v.require(stereo_raw, "baseline_m", "stereo"), "stereo.baseline_m")
+    if baseline <= 0:
+        raise v.fail("stereo.baseline_m", f"must be positive, got {baseline:g}")
+    sigma = stereo_raw.get("sigma_m")
+    stereo_sigma_m = 0.0 if sigma is None else v.number(sigma, "stereo.sigma_m", minimum=0.0)
+    return Stereo(left, right, baseline, sigma_m=stereo_sigma_m)
+
+
 def parse_observations(doc: Any) -> Observations:
     """Validate a ``camnet.observations/1`` document and return flat arrays."""
     _check_format(doc, OBSERVATIONS_FORMAT)
@@ -77,17 +94,8 @@ def parse_observations(doc: Any) -> Observations:
             raise v.fail(f"cameras[{i}].id", f"duplicate camera id {cam_id!r}")
     index = {cam_id: i for i, cam_id in enumerate(ids)}
 
-    stereo_raw = v.require(doc, "stereo", "")
-    left = v.string(v.require(stereo_raw, "left", "stereo"), "stereo.left")
-    right = v.string(v.require(stereo_raw, "right", "stereo"), "stereo.right")
-    for key, cam_id in (("left", left), ("right", right)):
-        if cam_id not in index:
-            raise v.fail(f"stereo.{key}", f"unknown camera id {cam_id!r}")
-    if left == right:
-        raise v.fail("stereo.right", "the stereo pair needs two different cameras")
-    baseline = v.number(v.require(stereo_raw, "baseline_m", "stereo"), "stereo.baseline_m")
-    if baseline <= 0:
-        raise v.fail("stereo.baseline_m", f"must be positive, got {baseline:g}")
+    stereo = _parse_stereo(v.require(doc, "stereo", ""), index)
+    baselines = v.baselines(doc.get("baselines", []), "baselines", index, (stereo.left, stereo.right))
 
     tracks_raw = v.require(doc, "tracks", "")
     if not isinstance(tracks_raw, list):
@@ -117,11 +125,12 @@ def parse_observations(doc: Any) -> Observations:
         track_ids.append(track_id)
     return Observations(
         cameras=cameras,
-        stereo=Stereo(left, right, baseline),
+        stereo=stereo,
         track_ids=np.asarray(track_ids, dtype=np.int64),
         cam_index=np.asarray(cam_index, dtype=np.int64),
         track_index=np.asarray(track_index, dtype=np.int64),
         uv=np.asarray(uv, dtype=float).reshape(-1, 2),
+        baselines=baselines,
     )
 
 
@@ -140,16 +149,23 @@ def observations_to_doc(obs: Observations) -> dict:
     tracks: list[dict] = [{"id": int(t), "observations": {}} for t in obs.track_ids]
     for cam, trk, (u_px, v_px) in zip(obs.cam_index, obs.track_index, obs.uv, strict=True):
         tracks[trk]["observations"][obs.cameras[cam].id] = [float(u_px), float(v_px)]
-    return {
+    doc = {
         "format": OBSERVATIONS_FORMAT,
         "cameras": cameras,
-        "stereo": {
-            "left": obs.stereo.left,
-            "right": obs.stereo.right,
-            "baseline_m": obs.stereo.baseline_m,
-        },
-        "tracks": tracks,
+        "stereo": _distance_doc({"left": obs.stereo.left, "right": obs.stereo.right}, obs.stereo),
     }
+    if obs.baselines:
+        doc["baselines"] = [_distance_doc({"cameras": [b.a, b.b]}, b) for b in obs.baselines]
+    doc["tracks"] = tracks
+    return doc
+
+
+def _distance_doc(entry: dict, known: Stereo | Baseline) -> dict:
+    """`entry` with the distance of `known` (baseline_m, and sigma_m unless exact, as the format has it)."""
+    entry["baseline_m"] = known.baseline_m
+    if known.sigma_m > 0:
+        entry["sigma_m"] = known.sigma_m
+    return entry
 
 
 # ---------------------------------------------------------------- calibration

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from camnet.errors import InputError
-from camnet.geometry.model import Camera, Stereo
+from camnet.geometry.model import Baseline, Camera, Stereo
 from camnet.geometry.projection import full_dist
 from camnet.ids import validate_id
 from camnet.io import validate as v
@@ -108,6 +108,7 @@ class Rig:
     scene: SceneConfig
     source: str = "<memory>"
     sync: SyncSettings | None = None
+    baselines: tuple[Baseline, ...] = ()  # known distances beyond the stereo pair's (a second head, a tape)
 
     def camera(self, camera_id: str) -> CameraEntry:
         for entry in self.cameras:
@@ -402,14 +403,17 @@ def _parse_rig(data: Any, source: str) -> Rig:
                                  f"(have {', '.join(seen)})")
         if left == right:
             raise InputError(f"{st.field('right')}: must differ from stereo.left")
-        stereo = _stereo_pose(st, Stereo(left=left, right=right, baseline_m=st.number("baseline_m", positive=True)),
-                              cameras)
+        pair = Stereo(left=left, right=right, baseline_m=st.number("baseline_m", positive=True),
+                      sigma_m=st.number("sigma_m", 0.0, minimum=0.0))
+        stereo = _stereo_pose(st, pair, cameras)
         st.finish()
+    pair_ids = None if stereo is None else (stereo.left, stereo.right)
+    baselines = v.baselines(top.raw("baselines", []), "baselines", seen, pair_ids, strict=True)
     scene = _scene(top.section("scene", required=False))
     sync = _sync(top.section("sync")) if top.data.get("sync") is not None else None
     top.used.add("sync")
     top.finish()
-    return Rig(name=name, cameras=cameras, stereo=stereo, scene=scene, source=source, sync=sync)
+    return Rig(name=name, cameras=cameras, stereo=stereo, scene=scene, source=source, sync=sync, baselines=baselines)
 
 
 def _stereo_pose(st: _Section, pair: Stereo, cameras: tuple[CameraEntry, ...]) -> Stereo:

@@ -9,11 +9,13 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Collection
 from typing import Any
 
 import numpy as np
 
 from camnet.errors import InputError
+from camnet.geometry.model import Baseline
 
 # R R^T = I to this, per entry: loose enough for a rotation typed into a rig file with
 # six decimals, tight enough that a scaled or sheared matrix is refused.
@@ -164,3 +166,44 @@ def rotation(value: Any, path: str) -> np.ndarray:
     if not np.allclose(R @ R.T, np.eye(3), atol=ROTATION_TOLERANCE) or np.linalg.det(R) <= 0:
         raise fail(path, "not a rotation matrix (R R^T = I, det R = 1)")
     return R
+
+
+BASELINE_KEYS = ("cameras", "baseline_m", "sigma_m")
+
+
+def baselines(
+    value: Any, path: str, camera_ids: Collection[str], stereo: tuple[str, str] | None, *, strict: bool = False
+) -> tuple[Baseline, ...]:
+    """Known distances between camera centres: a list of ``{cameras: [a, b], baseline_m, sigma_m}``.
+
+    sigma_m (metres, optional, absent or null: 0, exact). camera_ids: the
+    cameras they may name; stereo: the stereo pair (left, right), whose
+    distance is given by the stereo section; strict: refuse unknown keys (rig
+    files) instead of ignoring them (JSON documents).
+    """
+    given = {frozenset(stereo): "stereo.baseline_m"} if stereo is not None else {}
+    out = []
+    for i, entry in enumerate(array(value, path)):
+        here = f"{path}[{i}]"
+        mapping(entry, here)
+        unknown = sorted(set(entry) - set(BASELINE_KEYS), key=str) if strict else []
+        if unknown:
+            raise fail(f"{here}.{unknown[0]}", f"unknown key (known: {', '.join(BASELINE_KEYS)})")
+        cameras = require(entry, "cameras", here)
+        if not isinstance(cameras, list) or len(cameras) != 2:
+            raise fail(f"{here}.cameras", f"expected [a, b], two camera ids, got {show(cameras)}")
+        a, b = (string(c, f"{here}.cameras[{j}]") for j, c in enumerate(cameras))
+        for cam_id in (a, b):
+            if cam_id not in camera_ids:
+                raise fail(f"{here}.cameras", f"unknown camera {cam_id!r}")
+        if a == b:
+            raise fail(f"{here}.cameras", f"the same camera {a!r} twice; a distance needs two cameras")
+        if frozenset((a, b)) in given:
+            raise fail(f"{here}.cameras", f"the distance of {a!r} and {b!r} is already given by "
+                       f"{given[frozenset((a, b))]}; give it once")
+        given[frozenset((a, b))] = here
+        distance_m = number(require(entry, "baseline_m", here), f"{here}.baseline_m", positive=True)
+        sigma = entry.get("sigma_m")
+        sigma_m = 0.0 if sigma is None else number(sigma, f"{here}.sigma_m", minimum=0.0)
+        out.append(Baseline(a, b, distance_m, sigma_m))
+    return tuple(out)

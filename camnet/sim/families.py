@@ -9,9 +9,10 @@ the scene that faces it (`observe(..., normals=)`).
 - ``ring``: 8 cameras on a full ring of radius 2 m around a person-sized
   elliptic cylinder (0.5 x 1.7 x 0.34 m), a parallel head (0.12 m) taking the
   place of one of them, so the cameras opposite see none of the pair's points.
-- ``two_heads``: the ring with a second parallel head opposite the first.
+- ``two_heads``: the ring with a second parallel head opposite the first, its
+  baseline a further known distance.
 - ``tape_pair``: the ring with no head: two single cameras 45 degrees apart
-  (1.53 m) are the pair, their distance measured with a tape.
+  (1.53 m) are the pair, their distance measured with a tape (sigma 2 mm).
 - ``wide``: the paper's four cameras with 100 degree lenses (k1 -0.28,
   k2 0.09) looking at a scene that fills their images.
 """
@@ -22,13 +23,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from camnet.geometry.model import Camera
+from camnet.geometry.model import Baseline, Camera
 from camnet.geometry.projection import look_at
 from camnet.sim.simulate import HEIGHT, WIDTH, SimRig, make_rig
 
 FAMILIES = ("ring", "two_heads", "tape_pair", "wide")
 RING_RADIUS_M = 2.0
 HEAD_BASELINE_M = 0.12
+TAPE_SIGMA_M = 0.002  # a tape measure's 1 sigma over 1.5 m
 PERSON_SEMI_AXES_M = (0.25, 0.17)  # x, z of the elliptic cylinder
 PERSON_HEIGHT_M = 1.7
 RING_FOCAL_PX = 950.0  # a 1.7 m person fills 1024 rows at 2 m
@@ -84,12 +86,14 @@ def ring(*, seed: int = 0, n_points: int = 600, heads: int = 1) -> FamilyRig:
         right = Camera(f"head{k}_right", WIDTH, HEIGHT, _K(RING_FOCAL_PX, rng), np.zeros(5), left.R,
                        -left.R @ right_centre)
         cameras += [left, right]
+    # Every head after the first is a further known distance.
+    known = tuple(Baseline(f"head{k}_left", f"head{k}_right", HEAD_BASELINE_M) for k in range(1, len(head_slots)))
     for slot in range(8):
         if slot not in head_slots:
             cameras.append(_ring_camera(f"ring{slot}", angles[slot], rng))
     points, normals = _person(n_points, rng)
     cameras, points, normals = _in_left_frame(cameras, points, normals)
-    return FamilyRig(SimRig(cameras, HEAD_BASELINE_M, points), normals)
+    return FamilyRig(SimRig(cameras, HEAD_BASELINE_M, points, baselines=known), normals)
 
 
 def tape_pair(*, seed: int = 0, n_points: int = 600) -> FamilyRig:
@@ -100,7 +104,9 @@ def tape_pair(*, seed: int = 0, n_points: int = 600) -> FamilyRig:
     points, normals = _person(n_points, rng)
     cameras, points, normals = _in_left_frame(cameras, points, normals)
     distance_m = float(np.linalg.norm(cameras[1].centre - cameras[0].centre))
-    return FamilyRig(SimRig(cameras, distance_m, points), normals)
+    # The tape's reading: off by a draw of its sigma (a generator of its own keeps the rig's draws as they were).
+    taped_m = distance_m + np.random.default_rng(seed + 1).normal(scale=TAPE_SIGMA_M)
+    return FamilyRig(SimRig(cameras, taped_m, points, stereo_sigma_m=TAPE_SIGMA_M), normals)
 
 
 def wide(*, seed: int = 0, n_points: int = 400) -> FamilyRig:

@@ -13,7 +13,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from camnet.geometry.model import Camera, CameraInfo, Observations, Stereo
+from camnet.geometry.model import Baseline, Camera, CameraInfo, Observations, Stereo
 from camnet.geometry.projection import look_at, rotation_exp
 
 WIDTH, HEIGHT = 1280, 1024
@@ -27,10 +27,12 @@ class SimRig:
     cameras: list[Camera]  # cameras[0] is the left stereo camera, cameras[1] the right
     baseline_m: float
     points: np.ndarray  # (N, 3) metres
+    baselines: tuple[Baseline, ...] = ()  # further known distances the observations carry
+    stereo_sigma_m: float = 0.0  # 1 sigma of baseline_m (a taped distance); 0: exact
 
     @property
     def stereo(self) -> Stereo:
-        return Stereo(self.cameras[0].id, self.cameras[1].id, self.baseline_m)
+        return Stereo(self.cameras[0].id, self.cameras[1].id, self.baseline_m, sigma_m=self.stereo_sigma_m)
 
 
 def _K(f: float, pp_offset: np.ndarray) -> np.ndarray:
@@ -89,6 +91,17 @@ def make_rig(
         R, t = look_at(np.array(centre), OBJECT_CENTRE + rng.normal(scale=0.01, size=3))
         cameras.append(Camera(name, WIDTH, HEIGHT, _K(f, pp()), dist, R, t))
     return SimRig(cameras, PAPER_BASELINE_M, points)
+
+
+def with_head(rig: SimRig, camera_id: str, *, baseline_m: float = PAPER_BASELINE_M, sigma_m: float = 0.0) -> SimRig:
+    """The rig with a second parallel head: camera `camera_id` its left camera, a new one
+    (``<camera_id>_right``, the same K and orientation) `baseline_m` to its right, and their
+    distance among the rig's known ones (sigma_m: its 1 sigma, 0: exact)."""
+    left = next(c for c in rig.cameras if c.id == camera_id)
+    centre = left.centre + baseline_m * left.R[0]  # the left camera's x axis, in the world
+    right = replace(left, id=f"{camera_id}_right", t=-left.R @ centre)
+    known = Baseline(left.id, right.id, baseline_m, sigma_m)
+    return replace(rig, cameras=[*rig.cameras, right], baselines=(*rig.baselines, known))
 
 
 def move_camera(rig: SimRig, camera_id: str, *, shift_m: float, angle_deg: float, seed: int = 0) -> SimRig:
@@ -176,5 +189,6 @@ def observe(
         cam_index=cam_index,
         track_index=track_index,
         uv=uv,
+        baselines=rig.baselines,
     )
     return SimObservations(obs, outlier, noise_px)

@@ -1,0 +1,29 @@
+"""What `camnet up` takes from the calibration key: only calibrations, whoever publishes there."""
+
+import json
+
+from camnet.bus import keys
+from camnet.commands.up import LatestCalibration
+from camnet.geometry.calibrate import calibrate
+from camnet.io.formats import calibration_to_doc
+from camnet.sim.simulate import make_rig, observe
+from tests.conftest import matched_publisher, wait_for
+
+
+def test_anything_but_a_calibration_is_counted_and_never_kept(zenoh_pair):
+    """Measured before: two bytes, {}, on the calibration key stopped camnet up and its six nodes."""
+    a, b = zenoh_pair
+    listener = LatestCalibration()
+    subscriber = a.declare_subscriber(keys.calibration("uptest"), listener)
+    try:
+        publisher = matched_publisher(b, keys.calibration("uptest"))
+        for junk in (b"{}", b"[" * 100_000, b"\xff\xfe", json.dumps({"format": "camnet.calibration/1"}).encode()):
+            publisher.put(junk)
+        assert wait_for(lambda: sum(listener.malformed.counts.values()) == 4, 10.0), listener.malformed.counts
+        assert "doc" not in listener.latest and not listener.arrived.is_set()
+        good = calibration_to_doc(calibrate(observe(make_rig(seed=1), seed=1).observations).calibration)
+        publisher.put(json.dumps(good).encode())
+        assert wait_for(listener.arrived.is_set, 10.0)
+        assert listener.latest["doc"]["cameras"] == good["cameras"]
+    finally:
+        subscriber.undeclare()
