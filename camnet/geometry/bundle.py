@@ -25,7 +25,14 @@ import scipy.linalg
 import scipy.sparse as sp
 
 from camnet.geometry.model import Loss
-from camnet.geometry.projection import N_INTRINSICS, project_points, project_with_jacobians, rotation_exp
+from camnet.geometry.projection import (
+    FISHEYE_INTRINSIC_NAMES,
+    INTRINSIC_NAMES,
+    N_INTRINSICS,
+    project_points,
+    project_with_jacobians,
+    rotation_exp,
+)
 
 # Local parameter slots of a camera: intrinsics (9), rotation (3), centre (3).
 ROT = slice(N_INTRINSICS, N_INTRINSICS + 3)
@@ -66,7 +73,8 @@ class Problem:
     ``cam[k]``, ``pt[k]``, ``uv[k]``: observation k is point ``pt[k]`` seen at
     pixel ``uv[k]`` by camera ``cam[k]``. ``intr_free`` (M, 9) and
     ``rot_free`` (M, 3) mark free intrinsics and rotation axes; ``centre_mode``
-    (M,) holds `CentreMode` values.
+    (M,) holds `CentreMode` values; ``fisheye`` (M,) bool marks the cameras
+    with the fisheye lens model (None: every camera is a pinhole).
     """
 
     cam: np.ndarray
@@ -77,6 +85,15 @@ class Problem:
     centre_mode: np.ndarray
     baseline_m: float
     n_points: int
+    fisheye: np.ndarray | None = None
+
+    def fisheye_rows(self, cam: np.ndarray) -> np.ndarray | None:
+        """Per observation of cameras `cam`, whether its camera is a fisheye (None: none is)."""
+        return None if self.fisheye is None else self.fisheye[cam]
+
+    def intrinsic_names(self, m: int) -> tuple[str, ...]:
+        """The names of camera m's intrinsic slots: its lens model's."""
+        return FISHEYE_INTRINSIC_NAMES if self.fisheye is not None and self.fisheye[m] else INTRINSIC_NAMES
 
     @property
     def n_cameras(self) -> int:
@@ -166,7 +183,7 @@ def _rho(z: np.ndarray, loss: Loss) -> tuple[np.ndarray, np.ndarray]:
 def residuals(problem: Problem, state: State) -> np.ndarray:
     """Reprojection residuals (n, 2), predicted minus observed, in pixels."""
     c = problem.cam
-    uv, _ = project_points(state.intr[c], state.R[c], state.C[c], state.X[problem.pt])
+    uv, _ = project_points(state.intr[c], state.R[c], state.C[c], state.X[problem.pt], problem.fisheye_rows(c))
     return uv - problem.uv
 
 
@@ -215,7 +232,9 @@ def normal_equations(problem: Problem, state: State, *, loss: str = "linear", sc
     """Gauss-Newton normal equations at `state`, rows weighted by the robust loss."""
     c, p = problem.cam, problem.pt
     n, N = len(c), problem.n_points
-    uv, J_intr, J_rot, J_cen, J_pt = project_with_jacobians(state.intr[c], state.R[c], state.C[c], state.X[p])
+    uv, J_intr, J_rot, J_cen, J_pt = project_with_jacobians(
+        state.intr[c], state.R[c], state.C[c], state.X[p], problem.fisheye_rows(c)
+    )
     r = uv - problem.uv
     z = np.sum(r * r, axis=1) / scale_px**2
     rho, drho = _rho(z, loss)

@@ -34,8 +34,9 @@ log = logging.getLogger(__name__)
 # costs a factor of 5 in focal sigma and biased every focal length alike by
 # 0.25%; with this set the focal errors stay within 0.15%. Lenses with
 # visible distortion need their dist given, or
-# `--free f,k1,k2,stereo_rotation,stereo_direction`.
-LIVE_FREE = frozenset({"f", "stereo_rotation", "stereo_direction"})
+# `--free f,k1,k2,stereo_rotation,stereo_direction`. A fisheye camera's four
+# coefficients move unless given (`fisheye`, camnet.geometry.free_rule): they are its lens.
+LIVE_FREE = frozenset({"f", "fisheye", "stereo_rotation", "stereo_direction"})
 
 
 @dataclass(frozen=True)
