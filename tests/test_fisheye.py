@@ -1,16 +1,24 @@
 """The fisheye lens model (OpenCV's fisheye / Kannala-Brandt): projection against cv2.fisheye,
-analytic derivatives against finite differences, and a seeded fisheye rig calibrated within its sigmas."""
+analytic derivatives against finite differences, a seeded fisheye rig calibrated within its sigmas,
+and the model in the documents and the rig file."""
+
+import json
+import subprocess
+import sys
 
 import cv2
 import numpy as np
 import pytest
 
+from camnet.errors import InputError
 from camnet.geometry.calibrate import calibrate
 from camnet.geometry.evaluate import compare
-from camnet.geometry.model import Camera, LensModel
+from camnet.geometry.model import Calibration, Camera, LensModel
 from camnet.geometry.projection import normalised, project_points, project_with_jacobians, rotation_exp
+from camnet.io.formats import calibration_to_doc, observations_to_doc, parse_calibration, parse_observations
+from camnet.io.rig import parse_rig
 from camnet.sim.families import FISHEYE_DIST, family
-from camnet.sim.simulate import observe
+from camnet.sim.simulate import make_rig, observe
 
 K = np.array([[515.0, 0.0, 641.3], [0.0, 517.0, 509.8], [0.0, 0.0, 1.0]])
 
@@ -99,3 +107,94 @@ def test_the_fisheye_family_calibrates_within_its_sigmas(seed):
     assert cal.rms_reprojection_px < 0.8
     free = cal.report.free.intrinsics
     assert all({"k1", "k2", "k3", "k4"} <= set(free[cam.id]) for cam in cal.cameras), free
+
+
+# ---------------------------------------------------------------- the documents and the rig file
+
+
+def fisheye_observations(seed: int = 0):
+    drawn = family("fisheye", seed=seed)
+    return drawn, observe(drawn.rig, noise_px=0.5, seed=seed, normals=drawn.normals, with_intrinsics=True).observations
+
+
+def test_observations_carry_the_model_and_its_dist():
+    _, obs = fisheye_observations()
+    doc = observations_to_doc(obs)
+    assert doc["cameras"][0]["model"] == "fisheye" and doc["cameras"][0]["dist"] == list(FISHEYE_DIST)
+    back = parse_observations(json.loads(json.dumps(doc)))
+    for cam, orig in zip(back.cameras, obs.cameras, strict=True):
+        assert cam.model == LensModel.FISHEYE
+        np.testing.assert_array_equal(cam.dist, orig.dist)
+    # A pinhole camera says nothing of its model (the default), and reads back as one.
+    pinhole = observations_to_doc(observe(make_rig(seed=1), with_intrinsics=True).observations)
+    assert "model" not in pinhole["cameras"][0] and len(pinhole["cameras"][0]["dist"]) == 5
+    assert parse_observations(pinhole).cameras[0].model == LensModel.PINHOLE
+
+
+FISHEYE_DIST_ERROR = r"cameras\[1\]\.dist: a fisheye's dist is \[k1, k2, k3, k4\]: expected 4 numbers"
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"model": "kannala"}, r"cameras\[1\]\.model: unknown value 'kannala' \(expected pinhole, fisheye\)"),
+        ({"model": "fisheye", "dist": [0.1, 0.0, 0.0, 0.0, 0.0]}, FISHEYE_DIST_ERROR),
+        ({"model": "fisheye", "dist": [0.1, 0.0]}, FISHEYE_DIST_ERROR),
+        ({"dist": [0.1, 0.0, 0.0, 0.0, 0.0, 0.2]}, r"cameras\[1\]\.dist: a pinhole.s dist is at most \[k1, k2, p1, p2"),
+    ],
+)
+def test_a_wrong_model_or_dist_is_one_line_naming_the_field(change, message):
+    _, obs = fisheye_observations()
+    doc = observations_to_doc(obs)
+    doc["cameras"][1].pop("model")
+    doc["cameras"][1].update(change)
+    with pytest.raises(InputError, match=message) as caught:
+        parse_observations(doc)
+    assert "\n" not in str(caught.value)
+
+
+def test_a_fisheye_calibration_document_reads_back():
+    drawn, _ = fisheye_observations()
+    ids = np.arange(len(drawn.rig.points), dtype=np.int64)
+    cal = Calibration(tuple(drawn.rig.cameras), ids, drawn.rig.points, 0.5, "left")
+    doc = json.loads(json.dumps(calibration_to_doc(cal)))
+    assert [c["model"] for c in doc["cameras"]] == ["fisheye"] * 4
+    back = parse_calibration(doc)
+    for cam, orig in zip(back.cameras, cal.cameras, strict=True):
+        assert cam.model == LensModel.FISHEYE
+        np.testing.assert_array_equal(cam.dist, orig.dist)
+        np.testing.assert_array_equal(cam.project(cal.points), orig.project(cal.points))
+    doc["cameras"][2]["dist"] = doc["cameras"][2]["dist"] + [0.0]
+    with pytest.raises(InputError, match=r"cameras\[2\]\.dist: a fisheye's dist"):
+        parse_calibration(doc)
+
+
+def test_a_rig_file_gives_a_camera_the_fisheye_model():
+    camera = {"id": "a", "driver": "sim", "model": "fisheye",
+              "sim": {"width": 64, "height": 48, "f_px": 20, "dist": list(FISHEYE_DIST)},
+              "intrinsics": {"dist": list(FISHEYE_DIST), "fixed": []}}
+    rig = parse_rig({"rig": "r", "cameras": [camera, {**camera, "id": "b"}]}, source="rig.yaml")
+    entry = rig.camera("a")
+    assert entry.model == LensModel.FISHEYE and entry.intrinsics.dist.tolist() == list(FISHEYE_DIST)
+    cam = entry.config.camera("a")
+    assert cam.model == LensModel.FISHEYE and cam.dist.tolist() == list(FISHEYE_DIST)
+    camera["sim"]["dist"] = [0.1, 0.0, 0.0, 0.0, 0.0]
+    with pytest.raises(InputError, match=r"rig\.yaml: cameras\[0\]\.sim\.dist: a fisheye's dist"):
+        parse_rig({"rig": "r", "cameras": [camera]}, source="rig.yaml")
+    with pytest.raises(InputError, match=r"cameras\[0\]\.model: unknown value 'wide'"):
+        parse_rig({"rig": "r", "cameras": [{**camera, "model": "wide"}]}, source="rig.yaml")
+
+
+def test_camnet_calibrate_solves_a_fisheye_document(tmp_path):
+    drawn = family("fisheye", seed=2)
+    obs = observe(drawn.rig, noise_px=0.5, seed=2, normals=drawn.normals).observations
+    src, out = tmp_path / "obs.json", tmp_path / "cal.json"
+    src.write_text(json.dumps(observations_to_doc(obs)))
+    proc = subprocess.run([sys.executable, "-m", "camnet", "calibrate", str(src), "-o", str(out)],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    cal = parse_calibration(json.loads(out.read_text()))
+    assert all(cam.model == LensModel.FISHEYE and cam.dist.shape == (4,) for cam in cal.cameras)
+    truth = {c.id: c for c in drawn.rig.cameras}
+    for cam in cal.cameras:
+        np.testing.assert_allclose(cam.dist, truth[cam.id].dist, atol=0.03)

@@ -205,7 +205,7 @@ def stereo_head(obs: Observations, R: np.ndarray, t: np.ndarray) -> Calibration 
         info = obs.cameras[obs.index_of(cam_id)]
         if info.K is None:
             return None
-        dist = np.zeros(5) if info.dist is None else info.dist
-        cameras.append(Camera(cam_id, info.width, info.height, info.K, dist, R_cam, t_cam))
+        dist = np.zeros(info.model.dist_size) if info.dist is None else info.dist
+        cameras.append(Camera(cam_id, info.width, info.height, info.K, dist, R_cam, t_cam, info.model))
     return Calibration(cameras=tuple(cameras), point_ids=np.empty(0, dtype=np.int64), points=np.empty((0, 3)),
                        rms_reprojection_px=float("nan"), world_frame=obs.stereo.left)

@@ -17,7 +17,7 @@ from enum import StrEnum
 
 import numpy as np
 
-from camnet.geometry.projection import DIST_SIZE, FISHEYE_DIST_SIZE, project
+from camnet.geometry.projection import DIST_SIZE, FISHEYE_DIST_SIZE, normalised, project
 
 
 class LensModel(StrEnum):
@@ -80,6 +80,10 @@ class Camera:
         return project(
             points_world, K=self.K, dist=self.dist, R=self.R, t=self.t, fisheye=self.model == LensModel.FISHEYE
         )
+
+    def normalised(self, uv: np.ndarray) -> np.ndarray:
+        """Undistorted normalised coordinates (n, 2) of pixels (n, 2); see camnet.geometry.projection.normalised."""
+        return normalised(uv, K=self.K, dist=self.dist, fisheye=self.model == LensModel.FISHEYE)
 
 
 FIXABLE = ("K", "dist")  # what observations may hold as given (CameraInfo.fixed)
