@@ -118,10 +118,11 @@ def rig_options(rig: Rig) -> dict:
 
 def camera_info(rig: Rig, camera_id: str, width: int, height: int) -> CameraInfo:
     """What the observations say of a camera: its size and the intrinsics the rig file knows."""
-    known = rig.camera(camera_id).intrinsics
+    entry = rig.camera(camera_id)
+    known = entry.intrinsics
     if known is None:
-        return CameraInfo(camera_id, width, height)
-    return CameraInfo(camera_id, width, height, K=known.K, dist=known.dist, fixed=known.fixed)
+        return CameraInfo(camera_id, width, height, model=entry.model)
+    return CameraInfo(camera_id, width, height, K=known.K, dist=known.dist, fixed=known.fixed, model=entry.model)
 
 
 def _configured_size(rig: Rig, camera_id: str) -> tuple[int, int] | None:

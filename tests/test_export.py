@@ -17,6 +17,7 @@ from camnet.errors import InputError
 from camnet.geometry.model import Calibration, Camera
 from camnet.io.export import colmap_model, export, kalibr_camchain, opencv_yaml, ros_camera_info
 from camnet.io.formats import calibration_to_doc, observations_to_doc
+from camnet.sim.families import family
 from camnet.sim.simulate import make_rig, observe
 
 # Per camera [k1, k2, p1, p2, k3]: none, OpenCV's four, and all five (COLMAP's three models).
@@ -323,3 +324,88 @@ def test_command_bad_input_is_one_line_and_writes_nothing(tmp_path, files):
     assert not out.exists()
     assert blocker.read_text() == "keep me"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["blocker", "broken.json", "cal.json", "obs.json"]
+
+
+# ---------------------------------------------------------------- the fisheye model in every export
+
+
+def fisheye_calibration() -> Calibration:
+    """The fisheye family's true cameras (160-degree lenses) with fx != fy and off-centre principal points."""
+    rig = family("fisheye", seed=3).rig
+    cameras = []
+    for k, cam in enumerate(rig.cameras):
+        K = cam.K.copy()
+        K[1, 1] *= 1.002
+        K[:2, 2] += [3.0 * k - 4.0, 2.0 - k]
+        cameras.append(replace(cam, K=K))
+    return Calibration(tuple(cameras), np.arange(len(rig.points)) + 10, rig.points.copy(), 0.5, "left")
+
+
+def in_image(cam: Camera, X: np.ndarray) -> np.ndarray:
+    """The points of X (n, 3) that `cam` sees inside its image: the ones an export must reproject."""
+    uv = cam.project(X)
+    inside = np.all((uv >= 0) & (uv <= [cam.width - 1, cam.height - 1]), axis=1)
+    assert inside.sum() > 100
+    return X[inside]
+
+
+def test_fisheye_opencv_yaml_projects_with_cv2_fisheye():
+    cal = fisheye_calibration()
+    fs = cv2.FileStorage(opencv_yaml(cal), cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
+    for i, cam in enumerate(cal.cameras):
+        c = fs.getNode("cameras").at(i)
+        assert c.getNode("distortion_model").string() == "fisheye"
+        K, D, R, t = (c.getNode(k).mat() for k in ("K", "dist", "R", "t"))
+        assert D.shape == (1, 4)
+        X = in_image(cam, cal.points)
+        uv, _ = cv2.fisheye.projectPoints(X.reshape(-1, 1, 3), cv2.Rodrigues(R)[0], t, K, D)
+        np.testing.assert_allclose(uv.reshape(-1, 2), cam.project(X), atol=1e-6)
+    assert cv2.FileStorage(opencv_yaml(rig_calibration()[0]), cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY).getNode(
+        "cameras").at(0).getNode("distortion_model").string() == "pinhole"
+
+
+def test_fisheye_colmap_camera_is_opencv_fisheye_read_by_pycolmap(tmp_path):
+    cal = fisheye_calibration()
+    rec = write_model(tmp_path, colmap_model(cal))
+    for k, cam in enumerate(cal.cameras):
+        ccam = rec.cameras[k + 1]
+        assert ccam.model.name == "OPENCV_FISHEYE"
+        np.testing.assert_array_equal(ccam.params[4:], cam.dist)
+        X = in_image(cam, cal.points)
+        pose = rec.images[k + 1].cam_from_world()
+        colmap_uv = ccam.img_from_cam(np.array([pose * x for x in X]))
+        np.testing.assert_allclose(colmap_uv - 0.5, cam.project(X), atol=1e-6)
+
+
+def test_fisheye_ros_camera_info_is_equidistant():
+    cal = fisheye_calibration()
+    files = ros_camera_info(cal)
+    for cam in cal.cameras:
+        doc = yaml.safe_load(files[f"{cam.id}.yaml"])
+        assert doc["distortion_model"] == "equidistant"
+        assert (doc["distortion_coefficients"]["rows"], doc["distortion_coefficients"]["cols"]) == (1, 4)
+        K, D, R, P = (
+            np.array(doc[key]["data"]).reshape(doc[key]["rows"], doc[key]["cols"])
+            for key in ("camera_matrix", "distortion_coefficients", "rectification_matrix", "projection_matrix")
+        )
+        # image_geometry's equidistant rectification (cv2.fisheye with K, D, R, P) of camnet's pixel is P x_cam.
+        X = in_image(cam, cal.points)
+        criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12)
+        rect = cv2.fisheye.undistortPoints(cam.project(X).reshape(-1, 1, 2), K, D, R=R, P=P, criteria=criteria)
+        h = np.hstack([X @ cam.R.T + cam.t, np.ones((len(X), 1))]) @ P.T
+        np.testing.assert_allclose(rect.reshape(-1, 2), h[:, :2] / h[:, 2:], rtol=1e-6)
+
+
+def test_fisheye_kalibr_camera_is_pinhole_equi():
+    cal = fisheye_calibration()
+    doc = yaml.safe_load(kalibr_camchain(cal))
+    for n, cam in enumerate(cal.cameras):
+        entry = doc[f"cam{n}"]
+        assert (entry["camera_model"], entry["distortion_model"]) == ("pinhole", "equidistant")
+        fu, fv, pu, pv = entry["intrinsics"]
+        K = np.array([[fu, 0.0, pu], [0.0, fv, pv], [0.0, 0.0, 1.0]])
+        X = in_image(cam, cal.points)
+        x_cam = X @ cam.R.T + cam.t
+        uv, _ = cv2.fisheye.projectPoints(x_cam.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), K,
+                                          np.array(entry["distortion_coeffs"]))
+        np.testing.assert_allclose(uv.reshape(-1, 2), cam.project(X), atol=1e-6)

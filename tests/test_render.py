@@ -1,12 +1,15 @@
 """The renderer puts known 3-D points on the pixels the ground truth projects them to."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
-from camnet.geometry.model import Camera
-from camnet.geometry.projection import look_at
+from camnet.geometry.model import Camera, LensModel
+from camnet.geometry.projection import look_at, rotation_exp
 from camnet.io.rig import load_rig
-from camnet.sim.render import Quad, Renderer
+from camnet.sim.families import FISHEYE_DIST
+from camnet.sim.render import Quad, Renderer, distortion_map
 from camnet.sim.scene import Scene
 from tests.test_rig import CONFIG
 
@@ -63,6 +66,32 @@ def test_known_points_land_on_projected_pixels(name):
     assert errors.max() < 0.1, f"max error {errors.max():.3f} px"
 
 
+def test_a_fisheye_puts_points_on_its_pixels_across_the_seams_of_its_faces():
+    # 160 degrees across the diagonal; a wall to the right from 37 to 77 degrees off the axis,
+    # across the seam at 45 degrees between the front face and the right one.
+    camera = Camera("fish", 1280, 1024, np.array([[550.0, 0, 642.3], [0, 551.0, 508.9], [0, 0, 1]]),
+                    dist=np.array(FISHEYE_DIST), R=rotation_exp(np.array([0.02, -0.03, 0.01])), t=np.zeros(3),
+                    model=LensModel.FISHEYE)
+    rng = np.random.default_rng(4)
+    size = 600
+    grid = np.stack(np.meshgrid(np.linspace(30, size - 30, 12), np.linspace(30, size - 30, 12)),
+                    axis=-1).reshape(-1, 2)
+    dots = grid + rng.uniform(-0.5, 0.5, grid.shape)
+    quad = Quad(np.array([0.45, -0.25, 0.1]), np.array([0.0, 0.0, 0.5]), np.array([0.0, 0.5, 0.0]),
+                dot_texture(size, dots))
+    image = Renderer(camera).render([quad])
+    points = np.array([quad.point(a, b) for a, b in dots])
+    expected = camera.project(points)
+    inside = np.all((expected > 10) & (expected < [camera.width - 11, camera.height - 11]), axis=1)
+    angle = np.degrees(np.arccos((points @ camera.R.T)[:, 2] / np.linalg.norm(points, axis=1)))
+    assert np.any(inside & (angle < 44)) and np.any(inside & (angle > 46))
+    errors = np.array([np.linalg.norm(centroid(image, e, radius_px=5) - e) for e in expected[inside]])
+    assert errors.max() < 0.1, f"max error {errors.max():.3f} px"
+    # Where cv2.fisheye's inverse ends (90 degrees distorted), the corners of a wider lens look up nothing.
+    wider = distortion_map(replace(camera, K=np.array([[380.0, 0, 639.5], [0, 380.0, 511.5], [0, 0, 1]])))
+    assert wider.map_x[0, 0] == wider.map_y[0, 0] == -1 and wider.map_x[512, 640] >= 0
+
+
 def test_default_rig_every_camera_sees_texture():
     rig = load_rig(CONFIG / "sim.yaml")
     scene = Scene(rig.scene)
@@ -72,6 +101,16 @@ def test_default_rig_every_camera_sees_texture():
         for block in (image[:512, :640], image[:512, 640:], image[512:, :640], image[512:, 640:]):
             assert block.std() > 20, entry.id
         assert (image == 0).mean() < 0.01
+
+
+def test_the_fisheye_rig_fills_its_wide_view():
+    rig = load_rig(CONFIG / "fisheye.yaml")
+    camera = rig.camera("left").config.camera("left")
+    assert camera.model == LensModel.FISHEYE
+    image = Renderer(camera).render(Scene(rig.scene).quads(0.0))
+    for block in (image[:512, :640], image[:512, 640:], image[512:, :640], image[512:, 640:]):
+        assert block.std() > 20
+    assert (image == 0).mean() < 0.05
 
 
 def test_box_turns_over_time_and_background_stays():

@@ -55,7 +55,7 @@ def test_default_sim_rig_is_the_papers():
     assert rig.scene.box_centre_m == (0.0625, 0.0, 0.65)
 
 
-@pytest.mark.parametrize("name", ["sim.yaml", "aravis-example.yaml", "v4l2-example.yaml"])
+@pytest.mark.parametrize("name", ["sim.yaml", "fisheye.yaml", "aravis-example.yaml", "v4l2-example.yaml"])
 def test_example_rigs_load(name):
     rig = load_rig(CONFIG / name)
     assert rig.cameras

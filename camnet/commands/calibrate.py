@@ -10,7 +10,7 @@ from camnet.geometry.model import Loss, Method
 
 FREE_HELP = (
     "intrinsics to estimate: 'auto' (default: focal lengths, then whatever the data "
-    "determine) or a comma list of f, aspect, pp, k1, k2, stereo_rotation, stereo_direction"
+    "determine) or a comma list of f, aspect, pp, k1, k2, fisheye, stereo_rotation, stereo_direction"
 )
 
 

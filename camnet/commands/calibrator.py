@@ -7,7 +7,7 @@ import os
 from pathlib import Path
 
 # camnet.geometry.live.LIVE_FREE, spelled out so that building the parser imports no numpy.
-DEFAULT_FREE = "f,stereo_rotation,stereo_direction"
+DEFAULT_FREE = "f,fisheye,stereo_rotation,stereo_direction"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -22,10 +22,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(default: $XDG_STATE_HOME/camnet/<rig>/calibration.json)")
     parser.add_argument("--no-state", action="store_true", help="neither resume nor persist")
     parser.add_argument("--free", default=DEFAULT_FREE,
-                        help="intrinsics to estimate: a comma list of f, aspect, pp, k1, k2, stereo_rotation, "
-                             "stereo_direction, or 'auto' for the engine's rule (default: %(default)s; principal "
-                             "points and distortion are held as given, see camnet/geometry/live.py; a rig file "
-                             "with the pair's pose, stereo.R and stereo.t, holds the pair: default f)")
+                        help="intrinsics to estimate: a comma list of f, aspect, pp, k1, k2, fisheye, "
+                             "stereo_rotation, stereo_direction, or 'auto' for the engine's rule (default: "
+                             "%(default)s; principal points and pinhole distortion are held as given, see "
+                             "camnet/geometry/live.py; a rig file with the pair's pose, stereo.R and stereo.t, "
+                             "holds the pair: default f,fisheye)")
     parser.add_argument("--loss", choices=tuple(loss.value for loss in Loss), default=Loss.CAUCHY.value,
                         help="robust loss of the adjustment (default cauchy)")
     parser.add_argument("--max-rms-px", type=float, default=3.0,
@@ -80,7 +81,7 @@ def run(args: argparse.Namespace) -> int:
     if rig is not None and rig.stereo is not None and rig.stereo.R is not None:
         stereo_pose = (rig.stereo.R, rig.stereo.t)
         if args.free == DEFAULT_FREE:  # a factory head: its pose is known, only the scene's cameras move
-            free = frozenset({"f"})
+            free = frozenset({"f", "fisheye"})
     live = LiveConfig(options=Options(free=free, loss=args.loss), stereo_pose=stereo_pose,
                       max_rms_px=args.max_rms_px, max_scale_rel=args.max_scale_rel)
     config = CalibratorConfig(live=live, state_path=state)

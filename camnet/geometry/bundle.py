@@ -25,8 +25,15 @@ import scipy.linalg
 import scipy.sparse as sp
 
 from camnet.geometry.distances import Distances
-from camnet.geometry.model import Loss
-from camnet.geometry.projection import N_INTRINSICS, project_points, project_with_jacobians, rotation_exp
+from camnet.geometry.projection import (
+    FISHEYE_INTRINSIC_NAMES,
+    INTRINSIC_NAMES,
+    N_INTRINSICS,
+    project_points,
+    project_with_jacobians,
+    rotation_exp,
+)
+from camnet.geometry.robust import robust_loss
 
 # Local parameter slots of a camera: intrinsics (9), rotation (3), centre (3).
 ROT = slice(N_INTRINSICS, N_INTRINSICS + 3)
@@ -67,9 +74,11 @@ class Problem:
     ``cam[k]``, ``pt[k]``, ``uv[k]``: observation k is point ``pt[k]`` seen at
     pixel ``uv[k]`` by camera ``cam[k]``. ``intr_free`` (M, 9) and
     ``rot_free`` (M, 3) mark free intrinsics and rotation axes; ``centre_mode``
-    (M,) holds `CentreMode` values. ``distances``: known distances between
-    camera centres, residual rows weighted by ``distance_sigma_px`` (the
-    pixel noise sigma, camnet.geometry.distances).
+    (M,) holds `CentreMode` values; ``fisheye`` (M,) bool marks the cameras
+    with the fisheye lens model (None: every camera is a pinhole).
+    ``distances``: known distances between camera centres, residual rows
+    weighted by ``distance_sigma_px`` (the pixel noise sigma,
+    camnet.geometry.distances).
     """
 
     cam: np.ndarray
@@ -82,6 +91,15 @@ class Problem:
     n_points: int
     distances: Distances = field(default_factory=Distances.none)
     distance_sigma_px: float = 1.0
+    fisheye: np.ndarray | None = None
+
+    def fisheye_rows(self, cam: np.ndarray) -> np.ndarray | None:
+        """Per observation of cameras `cam`, whether its camera is a fisheye (None: none is)."""
+        return None if self.fisheye is None else self.fisheye[cam]
+
+    def intrinsic_names(self, m: int) -> tuple[str, ...]:
+        """The names of camera m's intrinsic slots: its lens model's."""
+        return FISHEYE_INTRINSIC_NAMES if self.fisheye is not None and self.fisheye[m] else INTRINSIC_NAMES
 
     @property
     def n_cameras(self) -> int:
@@ -146,39 +164,20 @@ class SolveInfo:
     normal: NormalEquations | None = None  # at the final state, weighted by the loss (solve's `report`)
 
 
-# ---------------------------------------------------------------- robust losses
-
-
-def _rho(z: np.ndarray, loss: Loss) -> tuple[np.ndarray, np.ndarray]:
-    """SciPy's robust losses of a squared, scaled residual z: (rho(z), rho'(z))."""
-    if loss == Loss.LINEAR:
-        return z, np.ones_like(z)
-    if loss == Loss.HUBER:
-        big = z > 1.0
-        s = np.sqrt(np.where(big, z, 1.0))
-        return np.where(big, 2.0 * s - 1.0, z), np.where(big, 1.0 / s, 1.0)
-    if loss == Loss.SOFT_L1:
-        s = np.sqrt(1.0 + z)
-        return 2.0 * (s - 1.0), 1.0 / s
-    if loss == Loss.CAUCHY:
-        return np.log1p(z), 1.0 / (1.0 + z)
-    raise ValueError(f"unknown loss {loss!r}; expected one of {tuple(x.value for x in Loss)}")
-
-
 # ---------------------------------------------------------------- model evaluation
 
 
 def residuals(problem: Problem, state: State) -> np.ndarray:
     """Reprojection residuals (n, 2), predicted minus observed, in pixels."""
     c = problem.cam
-    uv, _ = project_points(state.intr[c], state.R[c], state.C[c], state.X[problem.pt])
+    uv, _ = project_points(state.intr[c], state.R[c], state.C[c], state.X[problem.pt], problem.fisheye_rows(c))
     return uv - problem.uv
 
 
 def _cost(problem: Problem, state: State, loss: str, scale_px: float) -> float:
     r = residuals(problem, state)
     z = np.sum(r * r, axis=1) / scale_px**2
-    rho, _ = _rho(z, loss)
+    rho, _ = robust_loss(z, loss)
     if not np.all(np.isfinite(rho)):
         return np.inf
     distance_px = problem.distances.weights_px_per_m(problem.distance_sigma_px) * problem.distances.errors_m(state.C)
@@ -249,10 +248,12 @@ def normal_equations(problem: Problem, state: State, *, loss: str = "linear", sc
     """Gauss-Newton normal equations at `state`, rows weighted by the robust loss."""
     c, p = problem.cam, problem.pt
     n, N = len(c), problem.n_points
-    uv, J_intr, J_rot, J_cen, J_pt = project_with_jacobians(state.intr[c], state.R[c], state.C[c], state.X[p])
+    uv, J_intr, J_rot, J_cen, J_pt = project_with_jacobians(
+        state.intr[c], state.R[c], state.C[c], state.X[p], problem.fisheye_rows(c)
+    )
     r = uv - problem.uv
     z = np.sum(r * r, axis=1) / scale_px**2
-    rho, drho = _rho(z, loss)
+    rho, drho = robust_loss(z, loss)
     sw = np.sqrt(drho)[:, None]
     r = r * sw
 

@@ -141,6 +141,7 @@ def _problem(obs, order, rows_kept, track_rows, intr_free, rot_free, right_centr
         centre_mode=centre_mode,
         baseline_m=obs.stereo.baseline_m,
         n_points=len(track_rows),
+        fisheye=obs.fisheye(order),
     )
 
 
@@ -269,7 +270,7 @@ def _full_problem(obs, order, start: Start, options: Options, initial: Calibrati
     track_rows = np.flatnonzero(has_X)
     keep_obs = has_X[obs.track_index]
     names = free_names(options.free)
-    intr_free = free_mask(M, names, held_K, held_dist)
+    intr_free = free_mask(M, names, held_K, held_dist, fisheye=obs.fisheye(order))
     rot_free = np.zeros((M, 3), dtype=bool)
     rot_free[2:] = True  # every camera outside the stereo pair turns freely
     if "stereo_rotation" in names or options.method == Method.UNCONSTRAINED:
@@ -278,8 +279,8 @@ def _full_problem(obs, order, start: Start, options: Options, initial: Calibrati
     if initial is not None and options.free == "auto" and initial.report is not None:
         restored = initial.report.free
     if restored is not None:
-        ids = [obs.cameras[i].id for i in order]
-        restore_free(restored, ids, intr_free, rot_free, fixed_K=held_K, fixed_dist=held_dist)
+        cameras = [obs.cameras[i] for i in order]
+        restore_free(restored, cameras, intr_free, rot_free, fixed_K=held_K, fixed_dist=held_dist)
     if options.method == Method.UNCONSTRAINED or obs.stereo.sigma_m > 0:  # soft: held by its distance row
         right_centre = CentreMode.FREE
     elif "stereo_direction" in names or (restored is not None and restored.stereo_direction):
@@ -470,13 +471,12 @@ def _result(
 ) -> Result:
     cameras: list[Camera | None] = [None] * len(order)
     for m, i in enumerate(order):
-        info_cam = obs.cameras[i]
-        R = state.R[m]
+        info_cam, R, model = obs.cameras[i], state.R[m], obs.cameras[i].model
         K = K_from_intrinsics(state.intr[m])
-        cameras[i] = Camera(info_cam.id, info_cam.width, info_cam.height, K, state.intr[m, _DIST].copy(), R.copy(),
-                            -R @ state.C[m])
+        dist = state.intr[m, _DIST][: model.dist_size].copy()
+        cameras[i] = Camera(info_cam.id, info_cam.width, info_cam.height, K, dist, R.copy(), -R @ state.C[m], model)
     c = problem.cam
-    uv, xc = project_points(state.intr[c], state.R[c], state.C[c], state.X[problem.pt])
+    uv, xc = project_points(state.intr[c], state.R[c], state.C[c], state.X[problem.pt], problem.fisheye_rows(c))
     r = uv - problem.uv
     kept, dropped = reported_points(problem, state, cov, camera_points=xc)
     rms = float(np.sqrt(np.mean(np.sum(r * r, axis=1)))) if len(r) else float("nan")

@@ -38,7 +38,7 @@ class MoveRule:
 
 def _normalised(camera: Camera, uv: np.ndarray) -> np.ndarray:
     """Undistorted normalised image coordinates (n, 2) of pixels (n, 2)."""
-    return cv2.undistortPoints(uv.reshape(-1, 1, 2), camera.K, camera.dist).reshape(-1, 2)
+    return camera.normalised(uv)
 
 
 def stereo_points(calibration: Calibration, obs: Observations, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -116,7 +116,7 @@ def free_parameters(problem: Problem, camera_ids: list[str]) -> FreeSet:
     """Which intrinsics and stereo rotation axes moved: reused by warm starts."""
     return FreeSet(
         intrinsics={
-            cam_id: tuple(n for n, free in zip(INTRINSIC_NAMES, problem.intr_free[m], strict=True) if free)
+            cam_id: tuple(n for n, free in zip(problem.intrinsic_names(m), problem.intr_free[m], strict=True) if free)
             for m, cam_id in enumerate(camera_ids)
         },
         stereo_rotation_axes=tuple(ax for ax, free in zip("xyz", problem.rot_free[1], strict=True) if free),

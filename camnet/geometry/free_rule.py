@@ -11,6 +11,13 @@ stands, so the network is solved again after each block that is freed. A
 camera block the cameras ask for together, but none alone, is freed for all
 of them; the cameras still held are then tried again (a 100 degree lens's k2
 shows in one camera only once the others' is free).
+
+The name `fisheye` frees the four coefficients k1..k4 of every fisheye
+camera (the blocks `k1`, `k2` alone free the first two of either model).
+The automatic rule frees them from the start, as it frees f: a fisheye's
+polynomial is its lens, never a small correction, and holding k3 and k4 at
+zero while k1 and k2 move biases a 170-degree fisheye's focal length by
+several sigmas.
 """
 
 from __future__ import annotations
@@ -22,37 +29,45 @@ import numpy as np
 from camnet.errors import SolveError
 from camnet.geometry import bundle
 from camnet.geometry.bundle import CEN, ROT, CentreMode, Problem, State
-from camnet.geometry.model import FreeSet
-from camnet.geometry.projection import INTRINSIC_NAMES, N_INTRINSICS
+from camnet.geometry.model import CameraInfo, FreeSet, LensModel
+from camnet.geometry.projection import FISHEYE_DIST_SIZE, FISHEYE_INTRINSIC_NAMES, INTRINSIC_NAMES, N_INTRINSICS
 from camnet.geometry.uncertainty import Covariance, covariance, residual_dof
 
-FREE_NAMES = ("f", "aspect", "pp", "k1", "k2", "stereo_rotation", "stereo_direction")
+FREE_NAMES = ("f", "aspect", "pp", "k1", "k2", "fisheye", "stereo_rotation", "stereo_direction")
 CANDIDATES = ("stereo_pitch_roll", "stereo_direction", "stereo_yaw", "pp", "k1", "k2")
 
 _SLOT = {name: i for i, name in enumerate(INTRINSIC_NAMES)}  # a camera's intrinsic columns
 _SLOTS = {"pp": (_SLOT["cx"], _SLOT["cy"]), "k1": (_SLOT["k1"],), "k2": (_SLOT["k2"],)}
 _PITCH, _YAW, _ROLL = ROT.start, ROT.start + 1, ROT.start + 2  # rotation about x, y, z
 _DIRECTION = (CEN.start, CEN.start + 1)  # the two tangent slots of a centre on the baseline sphere
+_FISHEYE_K = slice(_SLOT["k1"], _SLOT["k1"] + FISHEYE_DIST_SIZE)  # a fisheye camera's coefficients
 
 
 def free_names(free: str | frozenset[str]) -> frozenset[str]:
-    """The names freed from the start: only f for "auto", else the explicit set, checked."""
+    """The names freed from the start: f and fisheye for "auto", else the explicit set, checked."""
     if free == "auto":
-        return frozenset({"f"})
+        return frozenset({"f", "fisheye"})
     unknown = set(free) - set(FREE_NAMES)
     if unknown:
         raise SolveError(f"free: unknown parameter(s) {sorted(unknown)}; expected some of {FREE_NAMES}")
     return frozenset(free)
 
 
-def free_mask(problem_cams: int, names: frozenset[str], fixed_K: np.ndarray, fixed_dist: np.ndarray) -> np.ndarray:
-    """(M, N_INTRINSICS) bool: the intrinsics `names` frees, except those held by the observations."""
+def free_mask(
+    problem_cams: int, names: frozenset[str], fixed_K: np.ndarray, fixed_dist: np.ndarray, *, fisheye=None
+) -> np.ndarray:
+    """(M, N_INTRINSICS) bool: the intrinsics `names` frees, except those held by the observations.
+
+    fisheye (M,) bool: the fisheye cameras, whose four coefficients the name `fisheye` frees.
+    """
     intr_free = np.zeros((problem_cams, N_INTRINSICS), dtype=bool)
     intr_free[:, _SLOT["f"]] = "f" in names
     intr_free[:, _SLOT["a"]] = "aspect" in names
     intr_free[:, list(_SLOTS["pp"])] = "pp" in names
     intr_free[:, _SLOT["k1"]] = "k1" in names
     intr_free[:, _SLOT["k2"]] = "k2" in names
+    if fisheye is not None:
+        intr_free[fisheye, _FISHEYE_K] |= "fisheye" in names
     _hold_given(intr_free, fixed_K, fixed_dist)
     return intr_free
 
@@ -64,13 +79,14 @@ def _hold_given(intr_free: np.ndarray, fixed_K: np.ndarray, fixed_dist: np.ndarr
 
 
 def restore_free(
-    free: FreeSet, ids: list[str], intr_free: np.ndarray, rot_free: np.ndarray, *, fixed_K, fixed_dist
+    free: FreeSet, cameras: list[CameraInfo], intr_free: np.ndarray, rot_free: np.ndarray, *, fixed_K, fixed_dist
 ) -> None:
     """Take the free set of a previous solve (in place) for the cameras it knew; what is fixed stays held."""
-    for m, cam_id in enumerate(ids):
-        names = free.intrinsics.get(cam_id)
+    for m, cam in enumerate(cameras):
+        names = free.intrinsics.get(cam.id)
         if names is not None:
-            intr_free[m] = [n in names for n in INTRINSIC_NAMES]
+            slots = FISHEYE_INTRINSIC_NAMES if cam.model == LensModel.FISHEYE else INTRINSIC_NAMES
+            intr_free[m] = [n in names for n in slots]
     rot_free[1] = [a in free.stereo_rotation_axes for a in "xyz"]
     _hold_given(intr_free, fixed_K, fixed_dist)
 

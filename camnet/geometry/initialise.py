@@ -17,8 +17,8 @@ import numpy as np
 
 from camnet.errors import SolveError
 from camnet.geometry import paper
-from camnet.geometry.model import Calibration, Observations
-from camnet.geometry.projection import DIST_SIZE, K_from_intrinsics, intrinsics_from_K
+from camnet.geometry.model import Calibration, LensModel, Observations
+from camnet.geometry.projection import K_from_intrinsics, full_dist, intrinsics_from_K, normalised
 
 log = logging.getLogger(__name__)
 
@@ -55,7 +55,7 @@ def initial_intrinsics(obs: Observations, order: list[int]) -> np.ndarray:
     intr = np.zeros((len(order), 9))
     for m, i in enumerate(order):
         cam = obs.cameras[i]
-        dist = np.zeros(DIST_SIZE) if cam.dist is None else cam.dist
+        dist = full_dist(cam.dist)  # a fisheye's four padded with a zero
         if cam.K is not None:
             intr[m] = intrinsics_from_K(cam.K, dist)
         else:
@@ -64,18 +64,20 @@ def initial_intrinsics(obs: Observations, order: list[int]) -> np.ndarray:
 
 
 def centred(obs: Observations, order: list[int], intr: np.ndarray) -> np.ndarray:
-    """Observed pixels relative to each camera's principal point, undistorted where known."""
-    import cv2
+    """Observed pixels relative to each camera's principal point, undistorted where known.
 
+    A fisheye camera's pixels are made pinhole ones (of the same K) wherever its focal length is known.
+    """
     m_of = np.empty(len(obs.cameras), dtype=int)
     m_of[order] = np.arange(len(order))
     m = m_of[obs.cam_index]
     xy = obs.uv - intr[m, 2:4]
-    for mm in np.flatnonzero(np.any(intr[:, 4:] != 0, axis=1) & np.isfinite(intr[:, 0])):
+    fisheye = np.array([obs.cameras[i].model == LensModel.FISHEYE for i in order])
+    for mm in np.flatnonzero((np.any(intr[:, 4:] != 0, axis=1) | fisheye) & np.isfinite(intr[:, 0])):
         rows = m == mm
         K = K_from_intrinsics(intr[mm])
-        und = cv2.undistortPoints(obs.uv[rows].reshape(-1, 1, 2), K, intr[mm, 4:], P=K)
-        xy[rows] = und.reshape(-1, 2) - intr[mm, 2:4]
+        dist = intr[mm, 4 : 4 + obs.cameras[order[mm]].model.dist_size]
+        xy[rows] = normalised(obs.uv[rows], K=K, dist=dist, fisheye=fisheye[mm]) * np.diag(K)[:2]
     return xy
 
 
@@ -193,7 +195,7 @@ def warm_start(
         if cam is None:
             continue
         intr[m, :4] = cam.K[0, 0], cam.K[1, 1] / cam.K[0, 0], cam.K[0, 2], cam.K[1, 2]
-        intr[m, 4:] = cam.dist
+        intr[m, 4:] = full_dist(cam.dist)
         f[m] = cam.K[0, 0]
         if m not in reset:
             R[m], C[m] = cam.R, cam.centre

@@ -34,8 +34,9 @@ log = logging.getLogger(__name__)
 # costs a factor of 5 in focal sigma and biased every focal length alike by
 # 0.25%; with this set the focal errors stay within 0.15%. Lenses with
 # visible distortion need their dist given, or
-# `--free f,k1,k2,stereo_rotation,stereo_direction`.
-LIVE_FREE = frozenset({"f", "stereo_rotation", "stereo_direction"})
+# `--free f,k1,k2,stereo_rotation,stereo_direction`. A fisheye camera's four
+# coefficients move unless given (`fisheye`, camnet.geometry.free_rule): they are its lens.
+LIVE_FREE = frozenset({"f", "fisheye", "stereo_rotation", "stereo_direction"})
 
 
 @dataclass(frozen=True)
@@ -204,7 +205,7 @@ def stereo_head(obs: Observations, R: np.ndarray, t: np.ndarray) -> Calibration 
         info = obs.cameras[obs.index_of(cam_id)]
         if info.K is None:
             return None
-        dist = np.zeros(5) if info.dist is None else info.dist
-        cameras.append(Camera(cam_id, info.width, info.height, info.K, dist, R_cam, t_cam))
+        dist = np.zeros(info.model.dist_size) if info.dist is None else info.dist
+        cameras.append(Camera(cam_id, info.width, info.height, info.K, dist, R_cam, t_cam, info.model))
     return Calibration(cameras=tuple(cameras), point_ids=np.empty(0, dtype=np.int64), points=np.empty((0, 3)),
                        rms_reprojection_px=float("nan"), world_frame=obs.stereo.left)

@@ -5,7 +5,8 @@ Pure values, no I/O: the JSON codec of these types is camnet.io.formats, and
 docs/calibration-keys.md documents the report's keys. Conventions are those of
 camnet.geometry.projection: ``x_cam = R @ X_world + t``, lengths in metres, pixels
 with ``u`` right, ``v`` down, origin at the centre of the top-left pixel, ``K``
-in pixels and ``dist`` in OpenCV's order ``[k1, k2, p1, p2, k3]``.
+in pixels and ``dist`` in OpenCV's order: ``[k1, k2, p1, p2, k3]`` for the pinhole
+lens model, ``[k1, k2, k3, k4]`` for the fisheye.
 """
 
 from __future__ import annotations
@@ -16,7 +17,19 @@ from enum import StrEnum
 
 import numpy as np
 
-from camnet.geometry.projection import DIST_SIZE, project
+from camnet.geometry.projection import DIST_SIZE, FISHEYE_DIST_SIZE, normalised, project
+
+
+class LensModel(StrEnum):
+    """A camera's lens model (camnet.geometry.projection): its `dist` is in that model's order."""
+
+    PINHOLE = "pinhole"  # OpenCV's radial-tangential distortion, dist [k1, k2, p1, p2, k3]
+    FISHEYE = "fisheye"  # OpenCV's fisheye (Kannala-Brandt), dist [k1, k2, k3, k4]
+
+    @property
+    def dist_size(self) -> int:
+        """How many coefficients the model's `dist` has."""
+        return FISHEYE_DIST_SIZE if self == LensModel.FISHEYE else DIST_SIZE
 
 
 class Method(StrEnum):
@@ -46,7 +59,7 @@ class StartKind(StrEnum):
 
 @dataclass(frozen=True)
 class Camera:
-    """One calibrated camera: intrinsics, distortion and pose in the world frame."""
+    """One calibrated camera: intrinsics, distortion (in `model`'s order) and pose in the world frame."""
 
     id: str
     width: int
@@ -55,6 +68,7 @@ class Camera:
     dist: np.ndarray = field(default_factory=lambda: np.zeros(DIST_SIZE))
     R: np.ndarray = field(default_factory=lambda: np.eye(3))
     t: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    model: LensModel = LensModel.PINHOLE
 
     @property
     def centre(self) -> np.ndarray:
@@ -63,7 +77,13 @@ class Camera:
 
     def project(self, points_world: np.ndarray) -> np.ndarray:
         """Pixels (n, 2) of world points (n, 3); see camnet.geometry.projection.project."""
-        return project(points_world, K=self.K, dist=self.dist, R=self.R, t=self.t)
+        return project(
+            points_world, K=self.K, dist=self.dist, R=self.R, t=self.t, fisheye=self.model == LensModel.FISHEYE
+        )
+
+    def normalised(self, uv: np.ndarray) -> np.ndarray:
+        """Undistorted normalised coordinates (n, 2) of pixels (n, 2); see camnet.geometry.projection.normalised."""
+        return normalised(uv, K=self.K, dist=self.dist, fisheye=self.model == LensModel.FISHEYE)
 
 
 FIXABLE = ("K", "dist")  # what observations may hold as given (CameraInfo.fixed)
@@ -77,8 +97,9 @@ class CameraInfo:
     width: int
     height: int
     K: np.ndarray | None = None  # 3x3, pixels, if known
-    dist: np.ndarray | None = None  # [k1, k2, p1, p2, k3], if known
+    dist: np.ndarray | None = None  # in `model`'s order (pinhole [k1, k2, p1, p2, k3]), if known
     fixed: frozenset[str] = frozenset()  # subset of {"K", "dist"} to hold as given
+    model: LensModel = LensModel.PINHOLE
 
 
 @dataclass(frozen=True)
@@ -133,6 +154,10 @@ class Observations:
 
     def index_of(self, camera_id: str) -> int:
         return self.camera_ids.index(camera_id)
+
+    def fisheye(self, order: list[int]) -> np.ndarray:
+        """(len(order),) bool: whether camera ``cameras[order[m]]`` has the fisheye lens model."""
+        return np.array([self.cameras[i].model == LensModel.FISHEYE for i in order], dtype=bool)
 
 
 # ---------------------------------------------------------------- the solve report
@@ -196,6 +221,7 @@ class FreeSet:
     """Which parameters moved in a solve (reused by warm starts).
 
     intrinsics: per camera id, the names of camnet.geometry.projection.INTRINSIC_NAMES
+    (FISHEYE_INTRINSIC_NAMES for a fisheye camera)
     that were free; stereo_rotation_axes: of "xyz", the right stereo camera's
     free rotation axes; stereo_direction: whether its baseline could turn.
     """

@@ -5,7 +5,9 @@ the `export` command writes the files. camnet's conventions (see
 camnet/geometry/projection.py): ``x_cam = R @ X_world + t`` with the world the left stereo
 camera's frame, lengths in metres, ``K`` in pixels with the origin at the
 centre of the top-left pixel, distortion in OpenCV's order
-``[k1, k2, p1, p2, k3]``. Each exporter's docstring says what it changes.
+``[k1, k2, p1, p2, k3]``, or ``[k1, k2, k3, k4]`` for a camera with the
+fisheye lens model (OpenCV's fisheye, which COLMAP calls OPENCV_FISHEYE,
+ROS and Kalibr equidistant). Each exporter's docstring says what it changes.
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ import re
 import numpy as np
 
 from camnet.errors import InputError
-from camnet.geometry.model import Calibration, Observations
+from camnet.geometry.model import Calibration, LensModel, Observations
 
 FORMATS = ("opencv", "colmap", "ros", "kalibr")
 # COLMAP puts the pixel origin at the top-left corner of the top-left pixel, camnet at its centre.
@@ -78,10 +80,13 @@ def opencv_yaml(cal: Calibration) -> str:
     """OpenCV FileStorage YAML (``%YAML:1.0``), written by OpenCV itself.
 
     Per camera (a sequence ``cameras``): ``id``, ``image_width``,
-    ``image_height``, ``K`` (3x3, pixels, origin at the centre of the top-left
-    pixel, as OpenCV), ``dist`` (1x5, ``[k1, k2, p1, p2, k3]``), ``R`` (3x3)
-    and ``t`` (3x1, m) with ``x_cam = R X + t``: the world-to-camera transform
-    that ``cv2.projectPoints(X, cv2.Rodrigues(R)[0], t, K, dist)`` expects.
+    ``image_height``, ``distortion_model`` (``pinhole`` or ``fisheye``), ``K``
+    (3x3, pixels, origin at the centre of the top-left pixel, as OpenCV),
+    ``dist`` (1x5, ``[k1, k2, p1, p2, k3]``; a fisheye's 1x4, ``[k1, k2, k3,
+    k4]``), ``R`` (3x3) and ``t`` (3x1, m) with ``x_cam = R X + t``: the
+    world-to-camera transform that ``cv2.projectPoints(X,
+    cv2.Rodrigues(R)[0], t, K, dist)`` expects (``cv2.fisheye.projectPoints``
+    for a fisheye).
     Also ``points`` (Nx3, m, world frame), ``point_ids`` (Nx1) and the
     calibration's ``world_frame`` and ``rms_reprojection_px``. No conversion:
     camnet uses OpenCV's conventions.
@@ -103,6 +108,7 @@ def opencv_yaml(cal: Calibration) -> str:
         fs.write("id", cam.id)
         fs.write("image_width", int(cam.width))
         fs.write("image_height", int(cam.height))
+        fs.write("distortion_model", cam.model.value)
         fs.write("K", np.asarray(cam.K, dtype=np.float64))
         fs.write("dist", np.asarray(cam.dist, dtype=np.float64).reshape(1, -1))
         fs.write("R", np.asarray(cam.R, dtype=np.float64))
@@ -118,16 +124,19 @@ def opencv_yaml(cal: Calibration) -> str:
 # ---------------------------------------------------------------- COLMAP
 
 
-def colmap_camera(K: np.ndarray, dist: np.ndarray) -> tuple[str, list[float]]:
-    """COLMAP camera model and parameters for `K` and OpenCV `dist`.
+def colmap_camera(K: np.ndarray, dist: np.ndarray, model: LensModel = LensModel.PINHOLE) -> tuple[str, list[float]]:
+    """COLMAP camera model and parameters for `K` and OpenCV `dist` of the lens `model`.
 
     PINHOLE ``fx fy cx cy`` without distortion, OPENCV ``... k1 k2 p1 p2``
     when k3 is zero, FULL_OPENCV ``... k1 k2 p1 p2 k3 k4 k5 k6`` (k4..k6 = 0)
-    otherwise. The principal point moves by +0.5 px: COLMAP's pixel origin
-    is the top-left corner of the top-left pixel.
+    otherwise; a fisheye is OPENCV_FISHEYE ``... k1 k2 k3 k4``, the same
+    model. The principal point moves by +0.5 px: COLMAP's pixel origin is
+    the top-left corner of the top-left pixel.
     """
     fx, fy = float(K[0, 0]), float(K[1, 1])
     cx, cy = float(K[0, 2]) + COLMAP_PIXEL_SHIFT, float(K[1, 2]) + COLMAP_PIXEL_SHIFT
+    if model == LensModel.FISHEYE:
+        return "OPENCV_FISHEYE", [fx, fy, cx, cy, *(float(x) for x in dist)]
     k1, k2, p1, p2, k3 = (float(x) for x in dist)
     if not any((k1, k2, p1, p2, k3)):
         return "PINHOLE", [fx, fy, cx, cy]
@@ -170,7 +179,7 @@ def colmap_model(
 
     cams = [f"# Camera list: CAMERA_ID MODEL WIDTH HEIGHT PARAMS[]\n# Number of cameras: {len(cal.cameras)}\n"]
     for k, cam in enumerate(cal.cameras):
-        model, params = colmap_camera(cam.K, cam.dist)
+        model, params = colmap_camera(cam.K, cam.dist, cam.model)
         cams.append(f"{k + 1} {model} {cam.width} {cam.height} {' '.join(_num(p) for p in params)}\n")
 
     points2d: list[list[str]] = [[] for _ in cal.cameras]
@@ -233,7 +242,8 @@ def ros_camera_info(cal: Calibration) -> dict[str, str]:
 
     ``camera_matrix`` is K and ``distortion_coefficients`` the plumb_bob
     ``[k1, k2, p1, p2, k3]``, both as camnet (ROS shares OpenCV's pixel
-    convention). Each camera is described alone, as a monocular calibration:
+    convention); a fisheye's are the ``equidistant`` model's ``[k1, k2, k3,
+    k4]`` (image_geometry undistorts them with cv2.fisheye). Each camera is described alone, as a monocular calibration:
     ``rectification_matrix`` is the identity and ``projection_matrix`` is
     ``[K | 0]``. The poses are not part of camera_info (ROS keeps them in tf).
     """
@@ -246,8 +256,8 @@ def ros_camera_info(cal: Calibration) -> dict[str, str]:
             "image_height": int(cam.height),
             "camera_name": name,
             "camera_matrix": _ros_matrix(3, 3, cam.K),
-            "distortion_model": "plumb_bob",
-            "distortion_coefficients": _ros_matrix(1, 5, cam.dist),
+            "distortion_model": "equidistant" if cam.model == LensModel.FISHEYE else "plumb_bob",
+            "distortion_coefficients": _ros_matrix(1, len(cam.dist), cam.dist),
             "rectification_matrix": _ros_matrix(3, 3, np.eye(3)),
             "projection_matrix": _ros_matrix(3, 4, np.hstack([cam.K, np.zeros((3, 1))])),
         }
@@ -292,7 +302,9 @@ def kalibr_camchain(cal: Calibration) -> str:
     Per camera: ``camera_model: pinhole``, ``intrinsics: [fu, fv, pu, pv]``
     (pixels, OpenCV's pixel convention as camnet), ``distortion_model:
     radtan`` with ``distortion_coeffs: [k1, k2, r1, r2]`` (OpenCV's k1 k2 p1
-    p2; radtan has no k3, so a non-zero k3 is an error), ``resolution: [w,
+    p2; radtan has no k3, so a non-zero k3 is an error), or for a fisheye
+    ``equidistant`` (Kalibr's pinhole-equi, OpenCV's fisheye model) with
+    ``[k1, k2, k3, k4]``, ``resolution: [w,
     h]``, ``rostopic: /<id>/image_raw`` and ``cam_overlaps`` (see
     `overlapping_cameras`). From cam1 on, ``T_cn_cnm1`` is the 4x4 transform
     taking a point from the previous camera's frame to this camera's frame
@@ -305,12 +317,13 @@ def kalibr_camchain(cal: Calibration) -> str:
     overlaps = overlapping_cameras(cal)
     chain = {}
     for n, cam in enumerate(cal.cameras):
-        if cam.dist[4] != 0.0:
+        fisheye = cam.model == LensModel.FISHEYE
+        if not fisheye and cam.dist[4] != 0.0:
             raise InputError(f"cameras[{n}].dist: k3 = {cam.dist[4]:g} has no place in Kalibr's radtan model")
         entry = {
             "camera_model": "pinhole",
             "intrinsics": [float(cam.K[0, 0]), float(cam.K[1, 1]), float(cam.K[0, 2]), float(cam.K[1, 2])],
-            "distortion_model": "radtan",
+            "distortion_model": "equidistant" if fisheye else "radtan",
             "distortion_coeffs": [float(x) for x in cam.dist[:4]],
             "resolution": [int(cam.width), int(cam.height)],
             "rostopic": f"/{names[n]}/image_raw",

@@ -18,8 +18,16 @@ from typing import Any
 import numpy as np
 
 from camnet.errors import InputError
-from camnet.geometry.model import FIXABLE, Baseline, Calibration, Camera, CameraInfo, Observations, Stereo
-from camnet.geometry.projection import full_dist
+from camnet.geometry.model import (
+    FIXABLE,
+    Baseline,
+    Calibration,
+    Camera,
+    CameraInfo,
+    LensModel,
+    Observations,
+    Stereo,
+)
 from camnet.io import validate as v
 from camnet.io.solve_report import parse_report, report_to_doc
 
@@ -54,7 +62,8 @@ def _parse_camera(value: Any, path: str) -> CameraInfo:
     K = v.matrix(value["K"], 3, 3, f"{path}.K") if "K" in value else None
     if K is not None and (K[0, 0] <= 0 or K[1, 1] <= 0):
         raise v.fail(f"{path}.K", "focal lengths must be positive")
-    dist = full_dist(v.vector(value["dist"], f"{path}.dist", max_size=5)) if "dist" in value else None
+    model = v.lens_model(value["model"], f"{path}.model") if "model" in value else LensModel.PINHOLE
+    dist = v.lens_dist(value["dist"], model, f"{path}.dist") if "dist" in value else None
     fixed_raw = value.get("fixed", [])
     if not isinstance(fixed_raw, list):
         raise v.fail(f"{path}.fixed", f"expected a list drawn from {list(FIXABLE)}")
@@ -63,7 +72,7 @@ def _parse_camera(value: Any, path: str) -> CameraInfo:
             raise v.fail(f"{path}.fixed[{i}]", f"unknown {json.dumps(name)[:30]}; expected one of {list(FIXABLE)}")
         if value.get(name) is None:
             raise v.fail(f"{path}.fixed[{i}]", f"{name} is fixed but not given")
-    return CameraInfo(cam_id, width, height, K, dist, frozenset(fixed_raw))
+    return CameraInfo(cam_id, width, height, K, dist, frozenset(fixed_raw), model)
 
 
 def _parse_stereo(stereo_raw: Any, index: dict[str, int]) -> Stereo:
@@ -139,6 +148,8 @@ def observations_to_doc(obs: Observations) -> dict:
     cameras = []
     for c in obs.cameras:
         entry: dict[str, Any] = {"id": c.id, "width": c.width, "height": c.height}
+        if c.model != LensModel.PINHOLE:  # the default stays implicit
+            entry["model"] = c.model.value
         if c.K is not None:
             entry["K"] = np.asarray(c.K).tolist()
         if c.dist is not None:
@@ -175,11 +186,13 @@ def calibration_to_doc(cal: Calibration) -> dict:
     """The ``camnet.calibration/1`` document of `cal`; its report adds the further keys."""
     cameras = []
     for cam in cal.cameras:
+        model = {} if cam.model == LensModel.PINHOLE else {"model": cam.model.value}  # the default stays implicit
         cameras.append(
             {
                 "id": cam.id,
                 "width": cam.width,
                 "height": cam.height,
+                **model,
                 "K": np.asarray(cam.K).tolist(),
                 "dist": np.asarray(cam.dist).tolist(),
                 "R": np.asarray(cam.R).tolist(),
@@ -204,14 +217,16 @@ def calibration_to_doc(cal: Calibration) -> dict:
 
 def _parse_camera_pose(c: Any, path: str) -> Camera:
     t = v.vector(v.require(c, "t", path), f"{path}.t", size=3)
+    model = v.lens_model(c["model"], f"{path}.model") if "model" in c else LensModel.PINHOLE
     return Camera(
         id=v.string(v.require(c, "id", path), f"{path}.id"),
         width=v.integer(v.require(c, "width", path), f"{path}.width", positive=True),
         height=v.integer(v.require(c, "height", path), f"{path}.height", positive=True),
         K=v.matrix(v.require(c, "K", path), 3, 3, f"{path}.K"),
-        dist=full_dist(v.vector(c.get("dist", []), f"{path}.dist", max_size=5)),
+        dist=v.lens_dist(c["dist"], model, f"{path}.dist") if "dist" in c else np.zeros(model.dist_size),
         R=v.rotation(v.require(c, "R", path), f"{path}.R"),
         t=t,
+        model=model,
     )
 
 

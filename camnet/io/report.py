@@ -192,11 +192,10 @@ def frustum_xz(cam, depth_m: float) -> np.ndarray:
     to the world by ``X = R.T @ (x_cam - t)``. Returns (3, 2): centre, left
     edge, right edge.
     """
-    import cv2
 
     cy = cam.K[1, 2]
     border = np.array([[[-0.5, cy]], [[cam.width - 0.5, cy]]])
-    xn = cv2.undistortPoints(border, cam.K, cam.dist).reshape(-1, 2)
+    xn = cam.normalised(border.reshape(-1, 2))
     rays = np.hstack([xn, np.ones((2, 1))]) * depth_m
     world = (rays - cam.t) @ cam.R
     return np.vstack([cam.centre, world])[:, [0, 2]]

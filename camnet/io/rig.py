@@ -16,8 +16,7 @@ from typing import Any
 import numpy as np
 
 from camnet.errors import InputError
-from camnet.geometry.model import Baseline, Camera, Stereo
-from camnet.geometry.projection import full_dist
+from camnet.geometry.model import Baseline, Camera, LensModel, Stereo
 from camnet.ids import validate_id
 from camnet.io import validate as v
 from camnet.sim.config import SceneConfig, SimConfig
@@ -76,7 +75,8 @@ class KnownIntrinsics:
     """What is known of a camera's intrinsics before calibrating (the observations' K, dist, fixed).
 
     K in pixels (pixel origin at the centre of the top-left pixel), dist in
-    OpenCV's order [k1, k2, p1, p2, k3]; `fixed` names what the solver holds.
+    the camera's lens model's order (pinhole [k1, k2, p1, p2, k3], fisheye
+    [k1, k2, k3, k4]); `fixed` names what the solver holds.
     """
 
     K: np.ndarray | None
@@ -98,6 +98,7 @@ class CameraEntry:
     driver: str
     config: SimConfig | AravisConfig | V4l2Config
     intrinsics: KnownIntrinsics | None = None
+    model: LensModel = LensModel.PINHOLE  # the lens model of its distortion (the sim's and the intrinsics')
 
 
 @dataclass(frozen=True)
@@ -187,9 +188,9 @@ class _Section:
     def rotation(self, key: str, default: Any = ...) -> np.ndarray:
         return self._read(key, default, v.rotation)
 
-    def dist(self, key: str, default: Any = ...) -> np.ndarray:
-        """OpenCV distortion: up to 5 numbers [k1, k2, p1, p2, k3]."""
-        return self._read(key, default, lambda value, path: v.vector(value, path, max_size=5))
+    def dist(self, key: str, model: LensModel, default: Any = ...) -> np.ndarray:
+        """OpenCV distortion in `model`'s order (camnet.io.validate.lens_dist)."""
+        return self._read(key, default, lambda value, path: v.lens_dist(value, model, path))
 
     def vector(self, key: str, size: int, default: Any = ...) -> tuple[float, ...]:
         return self._read(key, default, lambda value, path: tuple(v.vector(value, path, size=size).tolist()))
@@ -202,13 +203,13 @@ class _Section:
                              f"(known: {', '.join(sorted(self.used))})")
 
 
-def _sim(s: _Section) -> SimConfig:
+def _sim(s: _Section, model: LensModel = LensModel.PINHOLE) -> SimConfig:
     if "f_px" in s.data:
         fx = fy = s.number("f_px", positive=True)
     else:
         fx, fy = s.number("fx_px", positive=True), s.number("fy_px", positive=True)
     width, height = s.integer("width", positive=True), s.integer("height", positive=True)
-    dist = s.dist("dist", np.zeros(0))
+    dist = s.dist("dist", model, np.zeros(model.dist_size))
     config = SimConfig(
         width=width, height=height,
         encoding=s.string("encoding", "mono8", choices=SIM_ENCODINGS),
@@ -221,6 +222,7 @@ def _sim(s: _Section) -> SimConfig:
         look_at_m=s.vector("look_at_m", 3, None),
         up=s.vector("up", 3, (0.0, -1.0, 0.0)),
         noise_sigma_dn=s.number("noise_sigma_dn", 2.0, minimum=0.0),
+        model=model,
     )
     s.finish()
     return config
@@ -298,14 +300,13 @@ def _frame_range(s: _Section) -> tuple[int, int] | None:
     return int(value[0]), int(value[1])
 
 
-def _intrinsics(s: _Section) -> KnownIntrinsics:
+def _intrinsics(s: _Section, model: LensModel) -> KnownIntrinsics:
     K = s.matrix("K", 3, 3, None)
     upper_triangular = K is None or (K[0, 0] > 0 and K[1, 1] > 0 and K[1, 0] == 0 and np.array_equal(K[2], [0, 0, 1]))
     if not upper_triangular:
         raise InputError(f"{s.field('K')}: expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with "
                          f"fx, fy > 0, got {K.tolist()}")
-    dist = s.dist("dist", None)
-    dist = full_dist(dist) if dist is not None else None
+    dist = s.dist("dist", model, None)
     given = [name for name, value in (("K", K), ("dist", dist)) if value is not None]
     if not given:
         raise InputError(f"{s.path}: give K, dist or both")
@@ -336,11 +337,13 @@ def _camera(s: _Section) -> CameraEntry:
     if driver not in DRIVERS:
         raise InputError(f"{s.field('driver')}: unknown driver {driver!r} "
                          f"(expected {', '.join(DRIVERS)})")
-    config = _DRIVER_PARSERS[driver](s.section(driver))
-    intrinsics = _intrinsics(s.section("intrinsics")) if s.data.get("intrinsics") is not None else None
+    model = LensModel(s.string("model", LensModel.PINHOLE.value, choices=tuple(LensModel)))
+    section = s.section(driver)
+    config = _sim(section, model) if driver == "sim" else _DRIVER_PARSERS[driver](section)
+    intrinsics = _intrinsics(s.section("intrinsics"), model) if s.data.get("intrinsics") is not None else None
     s.used.add("intrinsics")
     s.finish()
-    return CameraEntry(id=camera_id, driver=driver, config=config, intrinsics=intrinsics)
+    return CameraEntry(id=camera_id, driver=driver, config=config, intrinsics=intrinsics, model=model)
 
 
 def _range(s: _Section, key: str, default: tuple[float, float]) -> tuple[float, float]:

@@ -15,7 +15,8 @@ from typing import Any
 import numpy as np
 
 from camnet.errors import InputError
-from camnet.geometry.model import Baseline
+from camnet.geometry.model import Baseline, LensModel
+from camnet.geometry.projection import full_dist
 
 # R R^T = I to this, per entry: loose enough for a rotation typed into a rig file with
 # six decimals, tight enough that a scaled or sheared matrix is refused.
@@ -145,6 +146,24 @@ def vector(value: Any, path: str, *, size: int | None = None, max_size: int | No
     if max_size is not None and len(value) > max_size:
         raise fail(path, f"expected a list of at most {max_size} numbers, got {show(value)}")
     return np.array([number(x, f"{path}[{i}]") for i, x in enumerate(value)], dtype=float)
+
+
+def lens_model(value: Any, path: str) -> LensModel:
+    """A camera's lens model by name (pinhole or fisheye)."""
+    return LensModel(string(value, path, choices=tuple(LensModel)))
+
+
+def lens_dist(value: Any, model: LensModel, path: str) -> np.ndarray:
+    """A camera's distortion in `model`'s order: a fisheye's exactly [k1, k2, k3, k4], a pinhole's
+    at most [k1, k2, p1, p2, k3] (padded with zeros)."""
+    if model == LensModel.FISHEYE:
+        if not isinstance(value, list | tuple) or len(value) != model.dist_size:
+            raise fail(path, f"a fisheye's dist is [k1, k2, k3, k4]: expected 4 numbers, got {show(value)}")
+        return vector(value, path)
+    if isinstance(value, list | tuple) and len(value) > model.dist_size:
+        raise fail(path, f"a pinhole's dist is at most [k1, k2, p1, p2, k3], got {len(value)} numbers "
+                         '(a fisheye lens: give "model": "fisheye" and [k1, k2, k3, k4])')
+    return full_dist(vector(value, path))
 
 
 def matrix(value: Any, rows: int, cols: int, path: str) -> np.ndarray:

@@ -84,7 +84,7 @@ def with_known_intrinsics(
         if c.id in known:
             cam = known[c.id]
             K = np.array(cam.K, dtype=float) if "K" in given else c.K
-            dist = full_dist(cam.dist) if "dist" in given else c.dist
-            c = replace(c, K=K, dist=dist, fixed=frozenset(fixed))
+            dist = full_dist(cam.dist, cam.model.dist_size) if "dist" in given else c.dist
+            c = replace(c, K=K, dist=dist, fixed=frozenset(fixed), model=cam.model)
         cameras.append(c)
     return replace(obs, cameras=tuple(cameras))

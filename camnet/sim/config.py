@@ -11,14 +11,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from camnet.geometry.model import Camera
-from camnet.geometry.projection import look_at
+from camnet.geometry.model import Camera, LensModel
+from camnet.geometry.projection import full_dist, look_at
 
 
 @dataclass(frozen=True)
 class SimConfig:
     """A simulated camera: ideal pinhole + OpenCV distortion, pose from its centre and target.
 
+    `dist` is in `model`'s order (pinhole [k1, k2, p1, p2, k3], fisheye [k1, k2, k3, k4]).
     With `look_at_m` absent the camera has R = I (axes along the world's).
     `noise_sigma_dn` is the std of additive Gaussian sensor noise in digital numbers.
     """
@@ -36,6 +37,7 @@ class SimConfig:
     look_at_m: tuple[float, float, float] | None
     up: tuple[float, float, float]
     noise_sigma_dn: float
+    model: LensModel = LensModel.PINHOLE
 
     def camera(self, camera_id: str) -> Camera:
         """The ground-truth camnet.geometry.model.Camera of this simulated camera."""
@@ -46,9 +48,8 @@ class SimConfig:
             t = -centre
         else:
             R, t = look_at(centre, np.array(self.look_at_m), np.array(self.up))
-        dist = np.zeros(5)
-        dist[: len(self.dist)] = self.dist
-        return Camera(id=camera_id, width=self.width, height=self.height, K=K, dist=dist, R=R, t=t)
+        dist = full_dist(self.dist, self.model.dist_size)
+        return Camera(id=camera_id, width=self.width, height=self.height, K=K, dist=dist, R=R, t=t, model=self.model)
 
 
 @dataclass(frozen=True)

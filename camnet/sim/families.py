@@ -15,19 +15,22 @@ the scene that faces it (`observe(..., normals=)`).
   (1.53 m) are the pair, their distance measured with a tape (sigma 2 mm).
 - ``wide``: the paper's four cameras with 100 degree lenses (k1 -0.28,
   k2 0.09) looking at a scene that fills their images.
+- ``fisheye``: the paper's four cameras with fisheye lenses (OpenCV's
+  fisheye model, 160 degrees across the image diagonal, 127 across its
+  width) in a room whose points surround them to 85 degrees off the axis.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from camnet.geometry.model import Baseline, Camera
-from camnet.geometry.projection import look_at
+from camnet.geometry.model import Baseline, Camera, LensModel
+from camnet.geometry.projection import distort_fisheye, look_at
 from camnet.sim.simulate import HEIGHT, WIDTH, SimRig, make_rig
 
-FAMILIES = ("ring", "two_heads", "tape_pair", "wide")
+FAMILIES = ("ring", "two_heads", "tape_pair", "wide", "fisheye")
 RING_RADIUS_M = 2.0
 HEAD_BASELINE_M = 0.12
 TAPE_SIGMA_M = 0.002  # a tape measure's 1 sigma over 1.5 m
@@ -36,6 +39,15 @@ PERSON_HEIGHT_M = 1.7
 RING_FOCAL_PX = 950.0  # a 1.7 m person fills 1024 rows at 2 m
 WIDE_FOCAL_PX = (WIDTH / 2) / np.tan(np.radians(50.0))  # 100 degrees across the image
 WIDE_DIST = (-0.28, 0.09)
+FISHEYE_DIST = (0.05, -0.01, 0.002, -0.0005)  # k1..k4, as a real fisheye's
+# Within OpenCV's fisheye inverse (cv2.fisheye.undistortPoints), which ends at a distorted angle of 90 degrees.
+FISHEYE_DIAGONAL_DEG = 160.0
+# The focal length that puts a ray FISHEYE_DIAGONAL_DEG / 2 off the axis at the image's corner.
+FISHEYE_FOCAL_PX = float(
+    np.hypot(WIDTH, HEIGHT) / 2 / distort_fisheye(np.array([[np.tan(np.radians(FISHEYE_DIAGONAL_DEG / 2)), 0.0]]),
+                                                  np.array(FISHEYE_DIST))[0, 0]
+)
+FISHEYE_MAX_ANGLE_DEG = 85.0  # the room's points lie within this of the left camera's axis (beyond the corners)
 
 
 @dataclass(frozen=True)
@@ -70,7 +82,7 @@ def _ring_camera(name: str, angle: float, rng: np.random.Generator) -> Camera:
 def _in_left_frame(cameras: list[Camera], points: np.ndarray, normals: np.ndarray) -> tuple:
     """Cameras, points and normals re-expressed in cameras[0]'s frame."""
     R0, t0 = cameras[0].R, cameras[0].t
-    moved = [Camera(c.id, c.width, c.height, c.K, c.dist, c.R @ R0.T, c.t - c.R @ R0.T @ t0) for c in cameras]
+    moved = [replace(c, R=c.R @ R0.T, t=c.t - c.R @ R0.T @ t0) for c in cameras]
     return moved, points @ R0.T + t0, normals @ R0.T
 
 
@@ -121,6 +133,23 @@ def wide(*, seed: int = 0, n_points: int = 400) -> FamilyRig:
     return FamilyRig(SimRig(cameras, rig.baseline_m, points), np.full((n_points, 3), np.nan))
 
 
+def fisheye(*, seed: int = 0, n_points: int = 600) -> FamilyRig:
+    """The paper's rig with fisheye lenses in a room: points 0.8 to 3 m away, up to 85 degrees off the axis."""
+    rig = make_rig(seed=seed)
+    rng = np.random.default_rng(seed + 1)
+    cameras = [
+        replace(c, K=_K(FISHEYE_FOCAL_PX, rng), dist=np.array(FISHEYE_DIST), model=LensModel.FISHEYE)
+        for c in rig.cameras
+    ]
+    # Directions uniform on the cap within FISHEYE_MAX_ANGLE_DEG of the optical axis.
+    cos_theta = rng.uniform(np.cos(np.radians(FISHEYE_MAX_ANGLE_DEG)), 1.0, n_points)
+    phi = rng.uniform(0.0, 2.0 * np.pi, n_points)
+    sin_theta = np.sqrt(1.0 - cos_theta**2)
+    rays = np.column_stack([sin_theta * np.cos(phi), sin_theta * np.sin(phi), cos_theta])
+    points = rays * rng.uniform(0.8, 3.0, n_points)[:, None]
+    return FamilyRig(SimRig(cameras, rig.baseline_m, points), np.full((n_points, 3), np.nan))
+
+
 def family(name: str, *, seed: int = 0) -> FamilyRig:
     """The family `name` (one of FAMILIES) drawn with `seed`."""
     if name == "ring":
@@ -131,4 +160,6 @@ def family(name: str, *, seed: int = 0) -> FamilyRig:
         return tape_pair(seed=seed)
     if name == "wide":
         return wide(seed=seed)
+    if name == "fisheye":
+        return fisheye(seed=seed)
     raise ValueError(f"unknown family {name!r}; expected one of {FAMILIES}")

@@ -6,8 +6,9 @@ homography ``K [R u/w | R v/h | R p0 + t]`` (cv2.warpPerspective), masked by
 its polygon clipped to the space in front of the camera. Quads are drawn in
 painter's order: by layer (background first), then far to near; the box's
 back faces are culled, so a convex object needs no depth buffer. Lens
-distortion is applied afterwards by remapping the ideal pinhole image, then
-sensor noise is added.
+distortion is applied afterwards by remapping the ideal pinhole image (for a
+fisheye, five pinhole faces of a cube about its centre), then sensor noise
+is added.
 
 Texel centres follow the pixel convention: texel (a, b) covers the square
 around integer (a, b) and its centre lies at ``p0 + (a + 0.5)/w u + (b + 0.5)/h v``.
@@ -20,8 +21,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from camnet.geometry.model import Camera
-from camnet.geometry.projection import distort, full_dist, lens_terms
+from camnet.geometry.model import Camera, LensModel
+from camnet.geometry.projection import distort, full_dist, lens_terms, rotation_exp
 
 _NEAR_M = 0.01  # near clipping plane in camera z
 
@@ -120,38 +121,79 @@ def render_ideal(quads: list[Quad], *, K: np.ndarray, R: np.ndarray, t: np.ndarr
 
 
 @dataclass(frozen=True, eq=False)
+class Face:
+    """An ideal pinhole canvas at the camera's centre, turned by R (``x_face = R x_cam``), with its K and size.
+
+    Its rows start at `row` in the atlas that the distorted image looks up.
+    """
+
+    R: np.ndarray
+    K: np.ndarray
+    size: tuple[int, int]
+    row: int
+
+
+@dataclass(frozen=True, eq=False)
 class DistortionMap:
-    """cv2.remap maps from the distorted image to an ideal canvas, and that canvas's K."""
+    """cv2.remap maps from the distorted image into an atlas of ideal canvases (faces), stacked by rows."""
 
     map_x: np.ndarray
     map_y: np.ndarray
-    canvas_K: np.ndarray
-    canvas_size: tuple[int, int]
+    faces: tuple[Face, ...]
+    atlas_size: tuple[int, int]
+
+
+# A fisheye sees more than any one pinhole canvas can hold: the faces of a cube, but the back one
+# (cv2.fisheye's inverse ends at 90 degrees off the axis anyway).
+_FISHEYE_FACES = tuple(
+    rotation_exp(np.array(w)) for w in ([0, 0, 0], [0, np.pi / 2, 0], [0, -np.pi / 2, 0], [np.pi / 2, 0, 0],
+                                        [-np.pi / 2, 0, 0])
+)
 
 
 def distortion_map(camera: Camera) -> DistortionMap | None:
-    """Maps for `camera`'s distortion, or None when it has none (identity)."""
-    if not np.any(camera.dist):
+    """Maps for `camera`'s lens, or None when it has none (a pinhole without distortion: identity).
+
+    Every pixel's ray (OpenCV's inverse of the lens: cv2.fisheye.undistortPoints
+    for a fisheye) looks up the face it is most central in, in an ideal canvas
+    of the camera's own K; pixels without a ray stay black.
+    """
+    fisheye = camera.model == LensModel.FISHEYE
+    if not fisheye and not np.any(camera.dist):
         return None
-    u, v = np.meshgrid(np.arange(camera.width, dtype=np.float64),
-                       np.arange(camera.height, dtype=np.float64))
+    u, v = np.meshgrid(np.arange(camera.width, dtype=np.float64), np.arange(camera.height, dtype=np.float64))
+    pixels = np.stack([u.ravel(), v.ravel()], axis=1)
     K = camera.K
-    distorted = np.stack([(u.ravel() - K[0, 2] - K[0, 1] * (v.ravel() - K[1, 2]) / K[1, 1])
-                          / K[0, 0], (v.ravel() - K[1, 2]) / K[1, 1]], axis=1)
-    normalised = undistort_normalised(distorted, camera.dist)
-    ideal = np.stack([K[0, 0] * normalised[:, 0] + K[0, 1] * normalised[:, 1] + K[0, 2],
-                      K[1, 1] * normalised[:, 1] + K[1, 2]], axis=1)
-    # The ideal canvas covers every pixel the distorted image looks up (plus a margin).
-    lo = np.floor(ideal.min(axis=0)) - 2
-    hi = np.ceil(ideal.max(axis=0)) + 2
-    canvas_K = camera.K.copy()
-    canvas_K[0, 2] -= lo[0]
-    canvas_K[1, 2] -= lo[1]
-    canvas = ideal - lo
-    size = (int(hi[0] - lo[0]) + 1, int(hi[1] - lo[1]) + 1)
+    if fisheye:
+        normalised = camera.normalised(pixels)
+    else:
+        distorted = np.stack([(pixels[:, 0] - K[0, 2] - K[0, 1] * (pixels[:, 1] - K[1, 2]) / K[1, 1]) / K[0, 0],
+                              (pixels[:, 1] - K[1, 2]) / K[1, 1]], axis=1)
+        normalised = undistort_normalised(distorted, camera.dist)
+    rays = np.column_stack([normalised, np.ones(len(normalised))])
+    rotations = _FISHEYE_FACES if fisheye else (np.eye(3),)
+    face_of = np.argmax(np.stack([rays @ R[2] for R in rotations]), axis=0)
+    has_ray = np.all(np.isfinite(rays), axis=1)
+    map_xy = np.full((len(rays), 2), -1.0)
+    faces, row = [], 0
+    for f, R in enumerate(rotations):
+        mine = has_ray & (face_of == f)
+        if not mine.any():
+            continue
+        local = rays[mine] @ R.T
+        ideal = (local / local[:, 2:]) @ K[:2].T
+        # The canvas covers every pixel the distorted image looks up (plus a margin).
+        lo = np.floor(ideal.min(axis=0)) - 2
+        hi = np.ceil(ideal.max(axis=0)) + 2
+        canvas_K = K.copy()
+        canvas_K[:2, 2] -= lo
+        size = (int(hi[0] - lo[0]) + 1, int(hi[1] - lo[1]) + 1)
+        map_xy[mine] = ideal - lo + [0, row]
+        faces.append(Face(R, canvas_K, size, row))
+        row += size[1]
     shape = (camera.height, camera.width)
-    return DistortionMap(canvas[:, 0].reshape(shape).astype(np.float32),
-                         canvas[:, 1].reshape(shape).astype(np.float32), canvas_K, size)
+    return DistortionMap(map_xy[:, 0].reshape(shape).astype(np.float32), map_xy[:, 1].reshape(shape).astype(np.float32),
+                         tuple(faces), (max(face.size[0] for face in faces), row))
 
 
 def undistort_normalised(xd: np.ndarray, dist: np.ndarray, iterations: int = 40) -> np.ndarray:
@@ -187,9 +229,13 @@ class Renderer:
             image = render_ideal(quads, K=cam.K, R=cam.R, t=cam.t, size=(cam.width, cam.height))
         else:
             d = self.distortion
-            ideal = render_ideal(quads, K=d.canvas_K, R=cam.R, t=cam.t, size=d.canvas_size)
-            image = cv2.remap(ideal, d.map_x, d.map_y, cv2.INTER_LINEAR,
-                              borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+            atlas = np.zeros((d.atlas_size[1], d.atlas_size[0]), dtype=np.uint8)
+            for face in d.faces:
+                width, height = face.size
+                atlas[face.row : face.row + height, :width] = render_ideal(
+                    quads, K=face.K, R=face.R @ cam.R, t=face.R @ cam.t, size=face.size
+                )
+            image = cv2.remap(atlas, d.map_x, d.map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
         if noise_sigma_dn > 0:
             image = add_noise(image, noise_sigma_dn, rng or np.random.default_rng())
         return image

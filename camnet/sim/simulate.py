@@ -141,7 +141,8 @@ def observe(
     visibility: the share of tracks each non-stereo camera sees (the stereo
     cameras see every point). outlier_fraction: the share of tracks one of
     whose observations is replaced by a uniformly random pixel.
-    with_intrinsics: include each camera's true K and distortion (not fixed).
+    with_intrinsics: include each camera's true K and distortion (not fixed);
+    each camera's lens model is always given.
     normals (N, 3): outward surface normals of the points (NaN rows: seen
     from everywhere); a camera sees a point only from the side it faces.
     """
@@ -177,9 +178,9 @@ def observe(
         outlier[k] = True
 
     cameras = tuple(
-        CameraInfo(c.id, c.width, c.height, c.K.copy(), c.dist.copy())
+        CameraInfo(c.id, c.width, c.height, c.K.copy(), c.dist.copy(), model=c.model)
         if with_intrinsics
-        else CameraInfo(c.id, c.width, c.height)
+        else CameraInfo(c.id, c.width, c.height, model=c.model)
         for c in rig.cameras
     )
     obs = Observations(
