@@ -74,6 +74,7 @@ class MatcherNodeConfig:
     max_tracks: int = 5000  # pool bound
     max_features: int = 4000  # per image
     max_image_side_px: int | None = None  # detect on a downscaled copy above this size
+    normalise_contrast: bool = True  # stretch and equalise each image before detection
     stats_period_s: float = 1.0
     lockstep: bool = False  # frames come from `camnet replay --lockstep`, one step at a time
 
@@ -94,7 +95,7 @@ class MatcherNodeConfig:
 
     def matcher_config(self) -> MatcherConfig:
         return MatcherConfig(detector=self.detector, max_features=self.max_features,
-                             max_image_side_px=self.max_image_side_px)
+                             max_image_side_px=self.max_image_side_px, normalise_contrast=self.normalise_contrast)
 
     def pool_config(self) -> PoolConfig:
         return PoolConfig(max_tracks=self.max_tracks)
@@ -171,6 +172,7 @@ class MatcherNode:
         self._pool_id = ""
         self.rejected = Tally(log)  # frames decoded but not usable, and malformed steps, by kind
         self.failures = Tally(log)  # handlers that raised (matching a frame set, say), by what and type
+        self.few_features = Tally(log)  # images with too few keypoints, by camera
         self._process_safely = guarded(self.process, self.failures, "matching a frame set")
         self.frame_sets_matched = 0
         self.frame_sets_pooled = 0
@@ -274,7 +276,11 @@ class MatcherNode:
             self._sizes[camera_id] = (frame.width, frame.height)
         pool = self._ensure_pool()
         images = {c: to_grey(f.image, encoding=f.encoding) for c, f in frame_set.frames.items()}
-        tracks = build_tracks(match_frame_set(images, self._matcher_config, stereo=self.stereo))
+        matches = match_frame_set(images, self._matcher_config, stereo=self.stereo)
+        for camera_id, features in zip(matches.camera_ids, matches.features, strict=True):
+            if features.shortage is not None:
+                self.few_features.count(f"few features: {camera_id}", "camera %r: %s", camera_id, features.shortage)
+        tracks = build_tracks(matches)
         update = pool.add(tracks, frame_seq=self.frame_sets_matched)
         self.last_match_s = time.perf_counter() - start_s
         self.frame_sets_matched += 1
@@ -385,7 +391,7 @@ class MatcherNode:
                                                            congestion_control=zenoh.CongestionControl.BLOCK)
             declared.append(declare_liveliness(self.session, keys.lockstep_ack(rig, NODE_KIND)))
         presence = Presence(self.session, rig=rig, kind=NODE_KIND, node_id=NODE_ID, report=self.activity,
-                            tallies=(self.receiver.malformed, self.rejected, self.failures),
+                            tallies=(self.receiver.malformed, self.rejected, self.failures, self.few_features),
                             period_s=self.config.stats_period_s)
         log.info("matching %s (stereo %s-%s), publishing %s%s", ", ".join(self.camera_ids), self.stereo.left,
                  self.stereo.right, keys.observations(rig), " in lockstep" if self._inbox is not None else "")

@@ -50,11 +50,12 @@ def test_matches_obey_known_homography(detector, max_err_px):
     assert len(m) >= 200
     err = np.linalg.norm(apply_homography(H_TRUE, fa.uv[m.index_a]) - fb.uv[m.index_b], axis=1)
     # F-RANSAC cannot see errors along epipolar lines, so a few poorly
-    # localised large-scale keypoints survive; no gross mismatches may.
+    # localised large-scale keypoints survive, and a rare mismatch that lies on
+    # its epipolar line (6 in 15000 over six textures, with or without CLAHE).
     if detector is Detector.SIFT:
         assert np.mean(err < max_err_px) >= 0.99
         assert np.median(err) < 0.15
-        assert np.max(err) < 5.0
+        assert np.mean(err > 5.0) <= 0.002
     else:
         # ORB keypoints sit on pyramid-level pixel grids: coarser.
         assert np.median(err) < max_err_px
@@ -154,3 +155,20 @@ def test_orb_brute_force_path_equals_dense_path():
     same = set(zip(*fast, strict=True)) & set(zip(*dense, strict=True))
     assert len(fast[0]) > 300
     assert len(same) >= 0.98 * max(len(fast[0]), len(dense[0]))
+
+
+def test_too_few_features_say_why():
+    config = MatcherConfig(normalise_contrast=False)
+    sharp = textured_image(3)
+    cases = {
+        "blurred or uniform": cv2.normalize(cv2.GaussianBlur(sharp, (0, 0), 12), None, 0, 255, cv2.NORM_MINMAX),
+        "dark (median grey 8 of 255)": (sharp // 16).astype(np.uint8),
+        "low contrast": (100 + sharp // 10).astype(np.uint8),
+    }
+    for reason, image in cases.items():
+        features = detect(image, config)
+        assert len(features) < config.few_features, reason
+        assert reason in features.shortage
+    assert detect(sharp, config).shortage is None
+    flat = np.full((480, 640), 128, np.uint8)
+    assert "low contrast (1-99% of grey levels span 0 of 255)" in detect(flat).shortage
