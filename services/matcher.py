@@ -106,7 +106,7 @@ def rig_stereo(rig: Rig) -> Stereo:
     if rig.stereo is None:
         raise InputError(f"{rig.source}: rig {rig.name!r} has no stereo pair; the matcher needs one "
                          "(add a 'stereo:' section with left, right and baseline_m)")
-    return Stereo(rig.stereo.left, rig.stereo.right, rig.stereo.baseline_m)
+    return Stereo(rig.stereo.left, rig.stereo.right, rig.stereo.baseline_m, parallel=rig.stereo.parallel)
 
 
 def rig_options(rig: Rig) -> dict:
@@ -393,8 +393,9 @@ class MatcherNode:
         presence = Presence(self.session, rig=rig, kind=NODE_KIND, node_id=NODE_ID, report=self.activity,
                             tallies=(self.receiver.malformed, self.rejected, self.failures, self.few_features),
                             period_s=self.config.stats_period_s)
-        log.info("matching %s (stereo %s-%s), publishing %s%s", ", ".join(self.camera_ids), self.stereo.left,
-                 self.stereo.right, keys.observations(rig), " in lockstep" if self._inbox is not None else "")
+        log.info("matching %s (stereo %s-%s, %s), publishing %s%s", ", ".join(self.camera_ids), self.stereo.left,
+                 self.stereo.right, "a parallel head: matched along rows" if self.stereo.parallel else
+                 "matched like any pair", keys.observations(rig), " in lockstep" if self._inbox is not None else "")
         try:
             with stop_on_signals(self.stop), presence:
                 while not self.stop.is_set():

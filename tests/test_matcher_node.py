@@ -45,7 +45,7 @@ def rig_document(name: str, *, v4l2_camera: str | None = None) -> dict:
             continue
         sim = {"width": 640, "height": 512, "fps": FPS, "cx_px": 319.5, "cy_px": 255.5, **geometry}
         cameras.append({"id": camera_id, "driver": "sim", "sim": sim})
-    return {"rig": name, "stereo": {"left": "left", "right": "right", "baseline_m": 0.125},
+    return {"rig": name, "stereo": {"left": "left", "right": "right", "baseline_m": 0.125, "parallel": True},
             "scene": {"box_rotation_deg_per_s": 20.0}, "cameras": cameras}
 
 

@@ -116,7 +116,7 @@ def test_stereo_prior_is_applied_with_left_first_whatever_the_order():
     scene = textured_image(4, 480, 664)
     left, right = scene[:, 12:652], scene[:, 24:664]
     config = MatcherConfig(row_tolerance_px=2.0)
-    stereo = Stereo("L", "R", 0.1)
+    stereo = Stereo("L", "R", 0.1, parallel=True)
     for images in ({"L": left, "R": right}, {"R": right, "L": left}):
         matches = match_frame_set(images, config, stereo=stereo)
         (pair,) = matches.pairs
@@ -128,8 +128,11 @@ def test_stereo_prior_is_applied_with_left_first_whatever_the_order():
         forward = len(pair)
     # With the prior reversed (R taken as left) every true match has negative
     # disparity; the in-band best is then a random feature, and must be dropped.
-    matches = match_frame_set({"L": left, "R": right}, config, stereo=Stereo("R", "L", 0.1))
+    matches = match_frame_set({"L": left, "R": right}, config, stereo=Stereo("R", "L", 0.1, parallel=True))
     assert len(matches.pairs[0]) <= 0.02 * forward
+    # A pair that is not a parallel head is matched like any pair: no prior, whatever its order.
+    matches = match_frame_set({"L": left, "R": right}, config, stereo=Stereo("R", "L", 0.1))
+    assert len(matches.pairs[0]) >= 0.9 * forward
 
 
 def test_config_validation():

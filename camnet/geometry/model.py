@@ -87,6 +87,9 @@ class Stereo:
 
     R, t (when known, a factory-calibrated head): the right camera's pose in
     the left's frame, ``x_right = R x_left + t``, t in metres, |t| = baseline_m.
+    `parallel`: the pair is a near-parallel head (optical axes nearly parallel,
+    the right camera to the left's right), so the matcher may search its
+    matches along image rows; otherwise it is matched like any other pair.
     """
 
     left: str
@@ -94,6 +97,7 @@ class Stereo:
     baseline_m: float
     R: np.ndarray | None = None
     t: np.ndarray | None = None
+    parallel: bool = False
 
 
 @dataclass(frozen=True)

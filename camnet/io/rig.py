@@ -402,8 +402,8 @@ def _parse_rig(data: Any, source: str) -> Rig:
                                  f"(have {', '.join(seen)})")
         if left == right:
             raise InputError(f"{st.field('right')}: must differ from stereo.left")
-        stereo = _stereo_pose(st, Stereo(left=left, right=right, baseline_m=st.number("baseline_m", positive=True)),
-                              cameras)
+        stereo = _stereo_pose(st, Stereo(left=left, right=right, baseline_m=st.number("baseline_m", positive=True),
+                                         parallel=st.boolean("parallel", False)), cameras)
         st.finish()
     scene = _scene(top.section("scene", required=False))
     sync = _sync(top.section("sync")) if top.data.get("sync") is not None else None

@@ -427,11 +427,12 @@ def match_frame_set(
 ) -> FrameSetMatches:
     """Detect in every image and match every pair of cameras.
 
-    `images` maps camera id to the image of one trigger. If `stereo` names
-    two of those cameras and `config.use_stereo_prior` is set, the pair
-    (stereo.left, stereo.right) is matched under the near-epipolar prior; all
-    other pairs (each camera against left, right and every other camera) are
-    matched without it. The prior is optional: converging views need none.
+    `images` maps camera id to the image of one trigger. If `stereo` is a
+    parallel head (`stereo.parallel`) of two of those cameras and
+    `config.use_stereo_prior` is set, the pair (stereo.left, stereo.right) is
+    matched under the near-epipolar prior; all other pairs (each camera
+    against left, right and every other camera), and a pair that is not a
+    parallel head, are matched without it.
     OpenCV's RNG of the calling thread is seeded with `seed` first, so the
     matches are a function of the images alone.
     """
@@ -444,7 +445,8 @@ def match_frame_set(
         raise ValueError(f"duplicate camera ids in frame set: {camera_ids}")
     features = tuple(detect(img, config) for _, img in items)
     prior_pair = None
-    if stereo is not None and config.use_stereo_prior and {stereo.left, stereo.right} <= set(camera_ids):
+    use_prior = stereo is not None and stereo.parallel and config.use_stereo_prior
+    if use_prior and {stereo.left, stereo.right} <= set(camera_ids):
         prior_pair = (camera_ids.index(stereo.left), camera_ids.index(stereo.right))
     pairs = []
     for i in range(len(items)):
