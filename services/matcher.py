@@ -125,7 +125,7 @@ def camera_info(rig: Rig, camera_id: str, width: int, height: int) -> CameraInfo
     return CameraInfo(camera_id, width, height, K=known.K, dist=known.dist, fixed=known.fixed)
 
 
-def _configured_size(rig: Rig, camera_id: str) -> tuple[int, int] | None:
+def configured_size(rig: Rig, camera_id: str) -> tuple[int, int] | None:
     """(width, height) the rig file gives for a camera, if it gives one."""
     config = rig.camera(camera_id).config
     width, height = getattr(config, "width", None), getattr(config, "height", None)
@@ -167,7 +167,7 @@ class MatcherNode:
                                        tolerance_ns=round(config.sync_tolerance_ms * 1e6),
                                        max_wait_s=config.max_wait_s,
                                        frames_per_camera=config.frames_per_camera)
-        self._sizes = {c: s for c in self.camera_ids if (s := _configured_size(rig, c)) is not None}
+        self._sizes = {c: s for c in self.camera_ids if (s := configured_size(rig, c)) is not None}
         self._pool: TrackPool | None = None
         self._pool_id = ""
         self.rejected = Tally(log)  # frames decoded but not usable, and malformed steps, by kind

@@ -94,9 +94,11 @@ class SyncSettings:
 
 @dataclass(frozen=True)
 class CameraEntry:
+    """One camera; `driver` and `config` are None for a camera known only from its images (`camnet match`)."""
+
     id: str
-    driver: str
-    config: SimConfig | AravisConfig | V4l2Config
+    driver: str | None
+    config: SimConfig | AravisConfig | V4l2Config | None
     intrinsics: KnownIntrinsics | None = None
 
 
@@ -331,11 +333,11 @@ def _camera(s: _Section) -> CameraEntry:
     if not isinstance(camera_id, str):
         raise InputError(f"{s.field('id')}: expected a string, got {camera_id!r}")
     validate_id(camera_id, what=s.field("id"))
-    driver = s.raw("driver", required=True)
-    if driver not in DRIVERS:
+    driver = s.raw("driver", None)
+    if driver is not None and driver not in DRIVERS:
         raise InputError(f"{s.field('driver')}: unknown driver {driver!r} "
                          f"(expected {', '.join(DRIVERS)})")
-    config = _DRIVER_PARSERS[driver](s.section(driver))
+    config = _DRIVER_PARSERS[driver](s.section(driver)) if driver is not None else None
     intrinsics = _intrinsics(s.section("intrinsics")) if s.data.get("intrinsics") is not None else None
     s.used.add("intrinsics")
     s.finish()
