@@ -73,7 +73,7 @@ def main() -> None:
     source = "Strecha fountain 0004-0007, 1280x1024, no stereo prior"
     if images is None:
         images = synthetic_frame_set()
-        stereo = Stereo("left", "right", 0.1)
+        stereo = Stereo("left", "right", 0.1, parallel=True)
         source = "synthetic seeded texture, 1280x1024, stereo prior on left/right"
     print(f"frame set: 4 cameras, {source}; {args.repeats} repeats; {cv2.getNumThreads()} threads")
     header = ("detector", "median s", "p90 s", "detect s", "tracks", "4-view")

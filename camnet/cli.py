@@ -13,6 +13,7 @@ from camnet.errors import CamnetError
 # name -> module in camnet.commands; order is the order shown in --help.
 COMMANDS = {
     "up": "Run the whole network (drivers, matcher, calibrator) on this machine; default: the simulated rig.",
+    "match": "Match one synchronised image per camera into an observations file.",
     "calibrate": "Solve a calibration offline from an observations file.",
     "simulate": "Write the observations of a simulated rig (and its ground truth).",
     "driver": "Run one camera driver (sim, aravis, v4l2) and publish its frames.",

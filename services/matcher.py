@@ -74,6 +74,7 @@ class MatcherNodeConfig:
     max_tracks: int = 5000  # pool bound
     max_features: int = 4000  # per image
     max_image_side_px: int | None = None  # detect on a downscaled copy above this size
+    normalise_contrast: bool = True  # stretch and equalise each image before detection
     stats_period_s: float = 1.0
     lockstep: bool = False  # frames come from `camnet replay --lockstep`, one step at a time
 
@@ -94,7 +95,7 @@ class MatcherNodeConfig:
 
     def matcher_config(self) -> MatcherConfig:
         return MatcherConfig(detector=self.detector, max_features=self.max_features,
-                             max_image_side_px=self.max_image_side_px)
+                             max_image_side_px=self.max_image_side_px, normalise_contrast=self.normalise_contrast)
 
     def pool_config(self) -> PoolConfig:
         return PoolConfig(max_tracks=self.max_tracks)
@@ -105,7 +106,8 @@ def rig_stereo(rig: Rig) -> Stereo:
     if rig.stereo is None:
         raise InputError(f"{rig.source}: rig {rig.name!r} has no stereo pair; the matcher needs one "
                          "(add a 'stereo:' section with left, right and baseline_m)")
-    return Stereo(rig.stereo.left, rig.stereo.right, rig.stereo.baseline_m, sigma_m=rig.stereo.sigma_m)
+    return Stereo(rig.stereo.left, rig.stereo.right, rig.stereo.baseline_m, sigma_m=rig.stereo.sigma_m,
+                  parallel=rig.stereo.parallel)
 
 
 def rig_options(rig: Rig) -> dict:
@@ -125,7 +127,7 @@ def camera_info(rig: Rig, camera_id: str, width: int, height: int) -> CameraInfo
     return CameraInfo(camera_id, width, height, K=known.K, dist=known.dist, fixed=known.fixed, model=entry.model)
 
 
-def _configured_size(rig: Rig, camera_id: str) -> tuple[int, int] | None:
+def configured_size(rig: Rig, camera_id: str) -> tuple[int, int] | None:
     """(width, height) the rig file gives for a camera, if it gives one."""
     config = rig.camera(camera_id).config
     width, height = getattr(config, "width", None), getattr(config, "height", None)
@@ -161,18 +163,19 @@ class MatcherNode:
         self.camera_ids = tuple(c.id for c in rig.cameras)
         self.stop = threading.Event()
         # Frames of other cameras or sizes are refused from their header, before decoding.
-        self.receiver = FrameReceiver({c: _configured_size(rig, c) for c in self.camera_ids})
+        self.receiver = FrameReceiver({c: configured_size(rig, c) for c in self.camera_ids})
         self._matcher_config = config.matcher_config()
         self._ready = threading.Condition()
         self._sync = FrameSynchronizer(self.camera_ids, required=(self.stereo.left, self.stereo.right),
                                        tolerance_ns=round(config.sync_tolerance_ms * 1e6),
                                        max_wait_s=config.max_wait_s,
                                        frames_per_camera=config.frames_per_camera)
-        self._sizes = {c: s for c in self.camera_ids if (s := _configured_size(rig, c)) is not None}
+        self._sizes = {c: s for c in self.camera_ids if (s := configured_size(rig, c)) is not None}
         self._pool: TrackPool | None = None
         self._pool_id = ""
         self.rejected = Tally(log)  # frames decoded but not usable, and malformed steps, by kind
         self.failures = Tally(log)  # handlers that raised (matching a frame set, say), by what and type
+        self.few_features = Tally(log)  # images with too few keypoints, by camera
         self._process_safely = guarded(self.process, self.failures, "matching a frame set")
         self.frame_sets_matched = 0
         self.frame_sets_pooled = 0
@@ -276,7 +279,11 @@ class MatcherNode:
             self._sizes[camera_id] = (frame.width, frame.height)
         pool = self._ensure_pool()
         images = {c: to_grey(f.image, encoding=f.encoding) for c, f in frame_set.frames.items()}
-        tracks = build_tracks(match_frame_set(images, self._matcher_config, stereo=self.stereo))
+        matches = match_frame_set(images, self._matcher_config, stereo=self.stereo)
+        for camera_id, features in zip(matches.camera_ids, matches.features, strict=True):
+            if features.shortage is not None:
+                self.few_features.count(f"few features: {camera_id}", "camera %r: %s", camera_id, features.shortage)
+        tracks = build_tracks(matches)
         update = pool.add(tracks, frame_seq=self.frame_sets_matched)
         self.last_match_s = time.perf_counter() - start_s
         self.frame_sets_matched += 1
@@ -387,10 +394,11 @@ class MatcherNode:
                                                            congestion_control=zenoh.CongestionControl.BLOCK)
             declared.append(declare_liveliness(self.session, keys.lockstep_ack(rig, NODE_KIND)))
         presence = Presence(self.session, rig=rig, kind=NODE_KIND, node_id=NODE_ID, report=self.activity,
-                            tallies=(self.receiver.malformed, self.rejected, self.failures),
+                            tallies=(self.receiver.malformed, self.rejected, self.failures, self.few_features),
                             period_s=self.config.stats_period_s)
-        log.info("matching %s (stereo %s-%s), publishing %s%s", ", ".join(self.camera_ids), self.stereo.left,
-                 self.stereo.right, keys.observations(rig), " in lockstep" if self._inbox is not None else "")
+        log.info("matching %s (stereo %s-%s, %s), publishing %s%s", ", ".join(self.camera_ids), self.stereo.left,
+                 self.stereo.right, "a parallel head: matched along rows" if self.stereo.parallel else
+                 "matched like any pair", keys.observations(rig), " in lockstep" if self._inbox is not None else "")
         try:
             with stop_on_signals(self.stop), presence:
                 while not self.stop.is_set():

@@ -36,8 +36,8 @@ def fundamental(cam_a: Camera, cam_b: Camera) -> np.ndarray:
 
 def undistort_px(uv: np.ndarray, cam: Camera) -> np.ndarray:
     """Raw pixels (n, 2) to undistorted pixels under the same K."""
-    if not np.any(cam.dist):
-        return np.asarray(uv, dtype=float)
+    if not np.any(cam.dist) or len(uv) == 0:  # OpenCV returns None for no points
+        return np.asarray(uv, dtype=float).reshape(-1, 2)
     pts = np.asarray(uv, dtype=np.float64).reshape(-1, 1, 2)
     return cv2.undistortPoints(pts, cam.K, cam.dist, P=cam.K).reshape(-1, 2)
 

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import json
+import logging
 import subprocess
 import sys
 import threading
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -20,7 +22,7 @@ from camnet.bus.stats import NodeStats
 from camnet.bus.sync import FrameSet
 from camnet.io.formats import parse_observations
 from camnet.io.rig import parse_rig
-from camnet.matching.features import Detector, to_grey
+from camnet.matching.features import Detector, to_8bit, to_grey
 from tests._groundtruth import epipolar_distance_px
 from tests.conftest import free_port, wait_for
 
@@ -43,7 +45,7 @@ def rig_document(name: str, *, v4l2_camera: str | None = None) -> dict:
             continue
         sim = {"width": 640, "height": 512, "fps": FPS, "cx_px": 319.5, "cy_px": 255.5, **geometry}
         cameras.append({"id": camera_id, "driver": "sim", "sim": sim})
-    return {"rig": name, "stereo": {"left": "left", "right": "right", "baseline_m": 0.125},
+    return {"rig": name, "stereo": {"left": "left", "right": "right", "baseline_m": 0.125, "parallel": True},
             "scene": {"box_rotation_deg_per_s": 20.0}, "cameras": cameras}
 
 
@@ -234,7 +236,8 @@ def test_grey_from_every_frame_encoding():
         demosaiced = to_grey(mosaic, encoding=f"bayer_{pattern}8").astype(int)
         assert np.abs(demosaiced - grey)[4:-4, 4:-4].mean() < 3, pattern
     grey16 = grey.astype(np.uint16) << 4  # 12-bit data in 16-bit words
-    assert np.array_equal(to_grey(grey16, encoding="mono16"), grey)
+    assert np.array_equal(to_grey(grey16, encoding="mono16"), grey16)  # detection decides how 16 bits become 8
+    assert np.array_equal(to_8bit(to_grey(grey16, encoding="mono16")), grey)
 
 
 def camnet(*args: str) -> subprocess.CompletedProcess:
@@ -254,7 +257,8 @@ def test_command_help_defaults_and_bad_rigs(tmp_path):
     for field in fields(MatcherNodeConfig):
         flag = "--" + field.name.replace("_", "-")
         assert flag in help_text
-        assert f"(default: {field.default}" in help_text.split(flag, 2)[-1].split(" --")[0], flag
+        after = help_text.split(flag, 2)[-1].removeprefix(f", --no-{flag[2:]}")  # a boolean flag's negation
+        assert f"(default: {field.default}" in after.split(" --")[0], flag
     args = build_parser().parse_args(["matcher", "--rig", "r.yaml", "--detector", "orb", "--max-tracks", "300"])
     assert node_config_from_args(args) == MatcherNodeConfig(detector=Detector.ORB, max_tracks=300)
 
@@ -271,3 +275,17 @@ def test_command_help_defaults_and_bad_rigs(tmp_path):
     assert result.returncode == 2 and "has no stereo pair" in result.stderr
     result = camnet("matcher", "--rig", str(ROOT / "config" / "sim.yaml"), "--max-tracks", "0")
     assert result.returncode == 2 and "max_tracks: must be at least 1" in result.stderr
+
+
+def test_a_camera_with_too_few_features_is_warned_about_once_then_counted(caplog):
+    rig = parse_rig(rig_document("dim"))
+    node = MatcherNode(None, rig, config=MatcherNodeConfig(normalise_contrast=False))
+    for k in (1, 2):
+        frame_set = render_set(rig, k * 1_000_000_000, tuple(CAMERAS))
+        dim = frame_set.frames["mono_a"]
+        frames = {**frame_set.frames, "mono_a": replace(dim, image=(dim.image // 12).astype(np.uint8))}
+        with caplog.at_level(logging.WARNING, logger="camnet.services.matcher"):
+            node.process(replace(frame_set, frames=frames))
+    warnings = [r.getMessage() for r in caplog.records if "features" in r.getMessage()]
+    assert len(warnings) == 1 and "camera 'mono_a'" in warnings[0] and "dark (median grey" in warnings[0]
+    assert node.few_features.counts == {"few features: mono_a": 2}

@@ -50,11 +50,12 @@ def test_matches_obey_known_homography(detector, max_err_px):
     assert len(m) >= 200
     err = np.linalg.norm(apply_homography(H_TRUE, fa.uv[m.index_a]) - fb.uv[m.index_b], axis=1)
     # F-RANSAC cannot see errors along epipolar lines, so a few poorly
-    # localised large-scale keypoints survive; no gross mismatches may.
+    # localised large-scale keypoints survive, and a rare mismatch that lies on
+    # its epipolar line (6 in 15000 over six textures, with or without CLAHE).
     if detector is Detector.SIFT:
         assert np.mean(err < max_err_px) >= 0.99
         assert np.median(err) < 0.15
-        assert np.max(err) < 5.0
+        assert np.mean(err > 5.0) <= 0.002
     else:
         # ORB keypoints sit on pyramid-level pixel grids: coarser.
         assert np.median(err) < max_err_px
@@ -115,7 +116,7 @@ def test_stereo_prior_is_applied_with_left_first_whatever_the_order():
     scene = textured_image(4, 480, 664)
     left, right = scene[:, 12:652], scene[:, 24:664]
     config = MatcherConfig(row_tolerance_px=2.0)
-    stereo = Stereo("L", "R", 0.1)
+    stereo = Stereo("L", "R", 0.1, parallel=True)
     for images in ({"L": left, "R": right}, {"R": right, "L": left}):
         matches = match_frame_set(images, config, stereo=stereo)
         (pair,) = matches.pairs
@@ -127,8 +128,11 @@ def test_stereo_prior_is_applied_with_left_first_whatever_the_order():
         forward = len(pair)
     # With the prior reversed (R taken as left) every true match has negative
     # disparity; the in-band best is then a random feature, and must be dropped.
-    matches = match_frame_set({"L": left, "R": right}, config, stereo=Stereo("R", "L", 0.1))
+    matches = match_frame_set({"L": left, "R": right}, config, stereo=Stereo("R", "L", 0.1, parallel=True))
     assert len(matches.pairs[0]) <= 0.02 * forward
+    # A pair that is not a parallel head is matched like any pair: no prior, whatever its order.
+    matches = match_frame_set({"L": left, "R": right}, config, stereo=Stereo("R", "L", 0.1))
+    assert len(matches.pairs[0]) >= 0.9 * forward
 
 
 def test_config_validation():
@@ -154,3 +158,20 @@ def test_orb_brute_force_path_equals_dense_path():
     same = set(zip(*fast, strict=True)) & set(zip(*dense, strict=True))
     assert len(fast[0]) > 300
     assert len(same) >= 0.98 * max(len(fast[0]), len(dense[0]))
+
+
+def test_too_few_features_say_why():
+    config = MatcherConfig(normalise_contrast=False)
+    sharp = textured_image(3)
+    cases = {
+        "blurred or uniform": cv2.normalize(cv2.GaussianBlur(sharp, (0, 0), 12), None, 0, 255, cv2.NORM_MINMAX),
+        "dark (median grey 8 of 255)": (sharp // 16).astype(np.uint8),
+        "low contrast": (100 + sharp // 10).astype(np.uint8),
+    }
+    for reason, image in cases.items():
+        features = detect(image, config)
+        assert len(features) < config.few_features, reason
+        assert reason in features.shortage
+    assert detect(sharp, config).shortage is None
+    flat = np.full((480, 640), 128, np.uint8)
+    assert "low contrast (1-99% of grey levels span 0 of 255)" in detect(flat).shortage

@@ -47,7 +47,7 @@ def rig_file(tmp_path, n_cameras: int) -> str:
                         "sim": sim_camera(600 + 40 * i, centre.round(4).tolist(), look_at=BOX_CENTRE)})
     doc = {
         "rig": f"net{n_cameras}",
-        "stereo": {"left": "left", "right": "right", "baseline_m": 0.125},
+        "stereo": {"left": "left", "right": "right", "baseline_m": 0.125, "parallel": True},
         "scene": {"seed": 7, "box_centre_m": BOX_CENTRE, "box_size_m": [0.10, 0.17, 0.08],
                   "box_rotation_deg_per_s": 20.0, "wall_z_m": 1.2, "wall_x_range_m": [-1.5, 1.6],
                   "wall_y_range_m": [-0.8, 0.25], "floor_y_m": 0.25, "floor_z_range_m": [0.2, 1.2]},

@@ -55,7 +55,7 @@ def small_rig():
     cameras = [{"id": cid, "driver": "sim", "sim": {**sim, "centre_m": centres[cid]}}
                for cid in CAMERAS]
     cameras[2]["sim"]["look_at_m"] = [0.0625, 0.0, 0.65]
-    return parse_rig({"rig": RIG, "stereo": {"left": "left", "right": "right", "baseline_m": 0.125},
+    return parse_rig({"rig": RIG, "stereo": {"left": "left", "right": "right", "baseline_m": 0.125, "parallel": True},
                       "scene": {"seed": 3}, "cameras": cameras})
 
 

@@ -130,3 +130,14 @@ def test_a_known_stereo_pose_is_read_and_checked():
     refused(lambda d: (with_head(d), d["stereo"].pop("t")), r"stereo\.t: missing; a known stereo pose needs both")
     refused(lambda d: (with_head(d), d["cameras"][1].pop("intrinsics")),
             r"stereo\.R: a known stereo pose needs intrinsics\.K of camera 'b'")
+
+
+def test_a_stereo_pair_is_a_parallel_head_only_when_the_rig_says_so():
+    assert parse_rig(base()).stereo.parallel is False
+    data = base()
+    data["stereo"]["parallel"] = True
+    assert parse_rig(data).stereo.parallel is True
+    # The shipped rigs are parallel heads.
+    for name in ("sim.yaml", "kitti.yaml", "aravis-example.yaml"):
+        assert load_rig(CONFIG / name).stereo.parallel, name
+    refused(lambda d: d["stereo"].update(parallel="yes"), r"stereo\.parallel: expected true or false")

@@ -25,6 +25,9 @@ def _node_flags() -> tuple[tuple[str, dict], ...]:
         ("--max-features", dict(type=int, metavar="N", help="features per image (default: 4000)")),
         ("--max-image-side-px", dict(type=int, metavar="PX",
                                      help="detect on a downscaled copy of larger images (default: None, full size)")),
+        ("--normalise-contrast", dict(action=argparse.BooleanOptionalAction,
+                                      help="stretch and equalise (CLAHE) each image before detection, for dark or "
+                                           "flat images (default: True)")),
         ("--stats-period-s", dict(type=float, metavar="S",
                                   help="seconds between statistics messages (default: 1.0)")),
         ("--lockstep", dict(action="store_true",

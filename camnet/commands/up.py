@@ -49,6 +49,10 @@ def _checked_rig(args: argparse.Namespace):
     rig = load_rig(rig_path)
     if rig.stereo is None:
         raise InputError(f"{rig_path}: the rig has no stereo pair; camnet needs one with a known baseline")
+    for i, entry in enumerate(rig.cameras):
+        if entry.driver is None:
+            raise InputError(f"{rig_path}: cameras[{i}] ({entry.id}) has no driver; camnet up runs one per camera "
+                             "(a rig of image files is for camnet match)")
     if not args.duration_s > 0:
         raise InputError(f"--duration-s: must be positive, got {args.duration_s}")
     if args.record and Path(args.record).exists() and not Path(args.record).is_dir():

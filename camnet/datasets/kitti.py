@@ -102,9 +102,9 @@ class KittiExtract:
 
     @property
     def stereo(self) -> Stereo:
-        """The grey pair with its baseline |C_1 - C_0| in metres."""
+        """The grey pair, a parallel head, with its baseline |C_1 - C_0| in metres."""
         left, right = self.cameras[STEREO_LEFT], self.cameras[STEREO_RIGHT]
-        return Stereo(STEREO_LEFT, STEREO_RIGHT, float(np.linalg.norm(right.centre - left.centre)))
+        return Stereo(STEREO_LEFT, STEREO_RIGHT, float(np.linalg.norm(right.centre - left.centre)), parallel=True)
 
     def frames(self) -> list[KittiFrame]:
         """Every frame with at least one image, sorted by name."""

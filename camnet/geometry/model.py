@@ -108,6 +108,9 @@ class Stereo:
 
     R, t (when known, a factory-calibrated head): the right camera's pose in
     the left's frame, ``x_right = R x_left + t``, t in metres, |t| = baseline_m.
+    `parallel`: the pair is a near-parallel head (optical axes nearly parallel,
+    the right camera to the left's right), so the matcher may search its
+    matches along image rows; otherwise it is matched like any other pair.
     """
 
     left: str
@@ -116,6 +119,7 @@ class Stereo:
     R: np.ndarray | None = None
     t: np.ndarray | None = None
     sigma_m: float = 0.0  # 1 sigma of baseline_m, metres (a tape measure); 0: exact
+    parallel: bool = False
 
 
 @dataclass(frozen=True)

@@ -94,9 +94,11 @@ class SyncSettings:
 
 @dataclass(frozen=True)
 class CameraEntry:
+    """One camera; `driver` and `config` are None for a camera known only from its images (`camnet match`)."""
+
     id: str
-    driver: str
-    config: SimConfig | AravisConfig | V4l2Config
+    driver: str | None
+    config: SimConfig | AravisConfig | V4l2Config | None
     intrinsics: KnownIntrinsics | None = None
     model: LensModel = LensModel.PINHOLE  # the lens model of its distortion (the sim's and the intrinsics')
 
@@ -333,13 +335,15 @@ def _camera(s: _Section) -> CameraEntry:
     if not isinstance(camera_id, str):
         raise InputError(f"{s.field('id')}: expected a string, got {camera_id!r}")
     validate_id(camera_id, what=s.field("id"))
-    driver = s.raw("driver", required=True)
-    if driver not in DRIVERS:
+    driver = s.raw("driver", None)
+    if driver is not None and driver not in DRIVERS:
         raise InputError(f"{s.field('driver')}: unknown driver {driver!r} "
                          f"(expected {', '.join(DRIVERS)})")
     model = LensModel(s.string("model", LensModel.PINHOLE.value, choices=tuple(LensModel)))
-    section = s.section(driver)
-    config = _sim(section, model) if driver == "sim" else _DRIVER_PARSERS[driver](section)
+    config = None
+    if driver is not None:
+        section = s.section(driver)
+        config = _sim(section, model) if driver == "sim" else _DRIVER_PARSERS[driver](section)
     intrinsics = _intrinsics(s.section("intrinsics"), model) if s.data.get("intrinsics") is not None else None
     s.used.add("intrinsics")
     s.finish()
@@ -407,7 +411,7 @@ def _parse_rig(data: Any, source: str) -> Rig:
         if left == right:
             raise InputError(f"{st.field('right')}: must differ from stereo.left")
         pair = Stereo(left=left, right=right, baseline_m=st.number("baseline_m", positive=True),
-                      sigma_m=st.number("sigma_m", 0.0, minimum=0.0))
+                      sigma_m=st.number("sigma_m", 0.0, minimum=0.0), parallel=st.boolean("parallel", False))
         stereo = _stereo_pose(st, pair, cameras)
         st.finish()
     pair_ids = None if stereo is None else (stereo.left, stereo.right)

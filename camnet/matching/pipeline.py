@@ -40,13 +40,21 @@ def observations_from_frame_sets(
     any subset of `cameras`. `cameras` lists every camera of the rig, with
     whatever is known of it (K, dist, fixed), which the observations carry.
     `matcher` and `pool` default to MatcherConfig() and PoolConfig().
-    Logs one progress line per frame set.
+    Logs one progress line per frame set, and a warning the first time a
+    camera's image yields too few features, saying why (then only counts them).
     """
     matcher = MatcherConfig() if matcher is None else matcher
     track_pool = TrackPool(cameras, stereo, PoolConfig() if pool is None else pool)
+    short: dict[str, int] = {}  # frame sets in which a camera had too few features
     for seq, images in enumerate(frame_sets):
         t0 = time.perf_counter()
-        tracks = build_tracks(match_frame_set(images, matcher, stereo=stereo))
+        matches = match_frame_set(images, matcher, stereo=stereo)
+        for camera_id, features in zip(matches.camera_ids, matches.features, strict=True):
+            if features.shortage is not None:
+                if camera_id not in short:
+                    log.warning("camera %r: %s", camera_id, features.shortage)
+                short[camera_id] = short.get(camera_id, 0) + 1
+        tracks = build_tracks(matches)
         update = track_pool.add(tracks, frame_seq=seq)
         log.info(
             "frame set %d (cameras %s): %d tracks, %d new, %d re-observed, pool %d (%.1f s)",
@@ -58,6 +66,9 @@ def observations_from_frame_sets(
             len(track_pool),
             time.perf_counter() - t0,
         )
+    for camera_id, count in short.items():
+        if count > 1:
+            log.warning("camera %r: too few features in %d frame sets", camera_id, count)
     return track_pool.observations()
 
 
