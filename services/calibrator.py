@@ -128,7 +128,9 @@ class CalibratorNode:
             self.malformed.count("json", "dropping malformed observations (%s)", exc)
             return None
         try:
-            return parse_observations(doc), doc
+            # The matcher's observations carry the rig file's distances, checked (or deliberately
+            # accepted) when the rig was loaded.
+            return parse_observations(doc, any_distance=True), doc
         except InputError as exc:
             self.malformed.count(str(exc).split(":", 1)[0], "dropping malformed observations (%s)", exc)
             return None

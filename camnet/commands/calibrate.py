@@ -38,6 +38,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="warm start from a previous calibration of the same rig",
     )
     parser.add_argument("--seed", type=int, default=0, help="seed of the RANSAC sampling")
+    parser.add_argument("--accept-any-distance", action="store_true",
+                        help="accept known distances outside 0.005-50 m (refused as a likely unit mistake)")
     parser.add_argument(
         "--pp-prior-rel",
         type=float,
@@ -68,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
     if not 0 <= args.pp_prior_rel < 1:
         raise InputError(f"--pp-prior-rel: must be in [0, 1), got {args.pp_prior_rel}")
     free = parse_free(args.free)
-    obs = parse_observations(load_json(args.observations))
+    obs = parse_observations(load_json(args.observations), any_distance=args.accept_any_distance)
     initial = parse_calibration(load_json(args.initial)) if args.initial else None
     options = Options(method=Method(args.method), loss=Loss(args.loss), loss_scale_px=args.loss_scale_px, free=free,
                       seed=args.seed, pp_prior_rel=args.pp_prior_rel)

@@ -47,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
     if args.max_error_px is not None and not args.max_error_px > 0:
         raise InputError(f"--max-error-px: must be positive, got {args.max_error_px}")
     cal = parse_calibration(load_json(args.calibration))
-    obs = parse_observations(load_json(args.observations)) if args.observations else None
+    obs = parse_observations(load_json(args.observations), any_distance=True) if args.observations else None
     files = export(cal, args.to, observations=obs, max_error_px=args.max_error_px)
     if is_multi_file(args.to):
         written = write_directory_atomic(args.output, files)

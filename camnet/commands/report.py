@@ -27,7 +27,7 @@ def run(args: argparse.Namespace) -> int:
     from camnet.io.report import render_report
 
     cal = parse_calibration(load_json(args.calibration))
-    obs = parse_observations(load_json(args.observations)) if args.observations else None
+    obs = parse_observations(load_json(args.observations), any_distance=True) if args.observations else None
     page = render_report(cal, obs, title=f"camnet calibration: {Path(args.calibration).name}")
     path = write_text_atomic(args.output, page, default_name="report.html")
     print(json.dumps({"output": str(path), "bytes": len(page.encode())}), file=sys.stdout)

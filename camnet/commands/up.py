@@ -230,7 +230,8 @@ def calibrate_live(rig_path: str | Path, *, run_dir: Path, endpoint: str, max_tr
                 with lock:
                     source = observed.get((doc.get("frame_sets"), doc.get("latest_capture_ns")))
                 if cameras == want and doc.get("frame_sets", 0) >= min_frame_sets and source is not None:
-                    return parse_calibration(doc), parse_observations(source), time.monotonic() - start_s
+                    observations = parse_observations(source, any_distance=True)  # the rig's, checked at load
+                    return parse_calibration(doc), observations, time.monotonic() - start_s
     raise CamnetError(f"no calibration of cameras {sorted(want)} from {min_frame_sets} frame sets in "
                       f"{timeout_s:.0f} s; the nodes' logs are in {run_dir}")
 

@@ -30,6 +30,7 @@ MIN_PARALLAX_DEG = 2.0
 COPLANAR_RATIO = 0.02
 POOR_FOCAL_REL = 0.05
 POOR_SCALE_REL = 0.01
+MAX_DEPTH_BASELINES = 1000.0  # a scene farther than this many baselines has next to no disparity
 
 
 def _camera_sigmas(m: int, problem, state, cov) -> CameraSigmas:
@@ -215,7 +216,20 @@ def _geometry_warnings(obs, order, problem, state, parallax: np.ndarray, kept: n
     sv = np.linalg.svd(body - body.mean(axis=0), compute_uv=False) if len(body) >= 3 else np.ones(3)
     if sv[2] < COPLANAR_RATIO * sv[0]:
         warnings.append("the points are nearly coplanar; focal lengths and poses trade off")
+    if len(body):
+        warnings += far_scene_warning(float(np.median(np.linalg.norm(body - state.C[0], axis=1))),
+                                      obs.stereo.baseline_m)
     return warnings + _held_disparity_warning(obs, order, problem, state)
+
+
+def far_scene_warning(median_depth_m: float, baseline_m: float) -> list[str]:
+    """A warning when the scene's median point is more than MAX_DEPTH_BASELINES baselines away."""
+    ratio = median_depth_m / baseline_m
+    if ratio <= MAX_DEPTH_BASELINES:
+        return []
+    return [f"the median point is {ratio:.0f} baselines away ({median_depth_m:.3g} m for {baseline_m:.3g} m): "
+            "at that ratio the scale is barely determined; check the baseline's unit (metres) and that the "
+            "cameras see a common scene nearby"]
 
 
 def solve_report(

@@ -75,7 +75,7 @@ def _parse_camera(value: Any, path: str) -> CameraInfo:
     return CameraInfo(cam_id, width, height, K, dist, frozenset(fixed_raw), model)
 
 
-def _parse_stereo(stereo_raw: Any, index: dict[str, int]) -> Stereo:
+def _parse_stereo(stereo_raw: Any, index: dict[str, int], any_distance: bool) -> Stereo:
     """The `stereo` section; `index`: the camera ids."""
     left = v.string(v.require(stereo_raw, "left", "stereo"), "stereo.left")
     right = v.string(v.require(stereo_raw, "right", "stereo"), "stereo.right")
@@ -87,13 +87,18 @@ def _parse_stereo(stereo_raw: Any, index: dict[str, int]) -> Stereo:
     baseline = v.number(v.require(stereo_raw, "baseline_m", "stereo"), "stereo.baseline_m")
     if baseline <= 0:
         raise v.fail("stereo.baseline_m", f"must be positive, got {baseline:g}")
+    v.plausible_distance(baseline, "stereo.baseline_m", any_distance=any_distance)
     sigma = stereo_raw.get("sigma_m")
     stereo_sigma_m = 0.0 if sigma is None else v.number(sigma, "stereo.sigma_m", minimum=0.0)
     return Stereo(left, right, baseline, sigma_m=stereo_sigma_m)
 
 
-def parse_observations(doc: Any) -> Observations:
-    """Validate a ``camnet.observations/1`` document and return flat arrays."""
+def parse_observations(doc: Any, *, any_distance: bool = False) -> Observations:
+    """Validate a ``camnet.observations/1`` document and return flat arrays.
+
+    any_distance: accept known distances outside the plausible range for
+    camera rigs (validate.PLAUSIBLE_DISTANCE_M), which are refused otherwise.
+    """
     _check_format(doc, OBSERVATIONS_FORMAT)
     cams_raw = v.non_empty_list(v.require(doc, "cameras", ""), "cameras")
     cameras = tuple(_parse_camera(c, f"cameras[{i}]") for i, c in enumerate(cams_raw))
@@ -103,8 +108,9 @@ def parse_observations(doc: Any) -> Observations:
             raise v.fail(f"cameras[{i}].id", f"duplicate camera id {cam_id!r}")
     index = {cam_id: i for i, cam_id in enumerate(ids)}
 
-    stereo = _parse_stereo(v.require(doc, "stereo", ""), index)
-    baselines = v.baselines(doc.get("baselines", []), "baselines", index, (stereo.left, stereo.right))
+    stereo = _parse_stereo(v.require(doc, "stereo", ""), index, any_distance)
+    baselines = v.baselines(doc.get("baselines", []), "baselines", index, (stereo.left, stereo.right),
+                            any_distance=any_distance)
 
     tracks_raw = v.require(doc, "tracks", "")
     if not isinstance(tracks_raw, list):

@@ -386,6 +386,7 @@ def parse_rig(data: Any, *, source: str = "<memory>") -> Rig:
 
 def _parse_rig(data: Any, source: str) -> Rig:
     top = _Section(data, "")
+    any_distance = top.boolean(v.ANY_DISTANCE_FLAG, False)
     name = top.raw("rig", required=True)
     if not isinstance(name, str):
         raise InputError(f"rig: expected a string, got {name!r}")
@@ -410,12 +411,15 @@ def _parse_rig(data: Any, source: str) -> Rig:
                                  f"(have {', '.join(seen)})")
         if left == right:
             raise InputError(f"{st.field('right')}: must differ from stereo.left")
-        pair = Stereo(left=left, right=right, baseline_m=st.number("baseline_m", positive=True),
+        baseline_m = v.plausible_distance(st.number("baseline_m", positive=True), st.field("baseline_m"),
+                                          any_distance=any_distance)
+        pair = Stereo(left=left, right=right, baseline_m=baseline_m,
                       sigma_m=st.number("sigma_m", 0.0, minimum=0.0), parallel=st.boolean("parallel", False))
         stereo = _stereo_pose(st, pair, cameras)
         st.finish()
     pair_ids = None if stereo is None else (stereo.left, stereo.right)
-    baselines = v.baselines(top.raw("baselines", []), "baselines", seen, pair_ids, strict=True)
+    baselines = v.baselines(top.raw("baselines", []), "baselines", seen, pair_ids, strict=True,
+                            any_distance=any_distance)
     scene = _scene(top.section("scene", required=False))
     sync = _sync(top.section("sync")) if top.data.get("sync") is not None else None
     top.used.add("sync")
