@@ -112,3 +112,12 @@ def test_camnet_simulate_draws_a_second_head():
     assert np.linalg.norm(C["mono_b_right"] - C["mono_b"]) == pytest.approx(PAPER_BASELINE_M)
     with pytest.raises(InputError, match="--second-head"):
         simulate_from_args(parser.parse_args(["-o", "x.json", "--second-head", "--cameras", "3"]))
+
+
+def test_a_distance_the_scene_contradicts_is_reported(rig):
+    obs = observe(rig, noise_px=0.5, seed=2).observations
+    assert not [w for w in calibrate(obs).calibration.warnings if "the scene puts them" in w]
+    wrong = calibrate(replace(obs, baselines=(Baseline(*HEAD, 1.5 * PAPER_BASELINE_M),)))
+    said = [w for w in wrong.calibration.warnings if "the scene puts them" in w]
+    assert len(said) == 1 and said[0].startswith("cameras mono_b and mono_b_right: the scene puts them 0.1")
+    assert "not the given 0.1875 m" in said[0]
