@@ -7,7 +7,12 @@ that faces it). A solve is "silent" when it returns a calibration whose scale
 or some focal length is off by more than 3 of its reported sigmas (or whose
 sigma is missing): the failure the user cannot see. Prints one row per family.
 
-    python benchmarks/bench_rigs.py [--seeds 20] [--families ring,wide]
+Then what a second head buys: the same seeded observations solved with the
+second head's baseline and with it ignored, on the `two_heads` ring and on
+the paper's rig with a parallel partner for mono_b; the ratio of the
+reported scale sigmas, per seed where both solved.
+
+    python benchmarks/bench_rigs.py [--seeds 20] [--families ring,wide] [--heads-only]
 """
 
 from __future__ import annotations
@@ -16,6 +21,7 @@ import argparse
 import sys
 import time
 from collections import Counter
+from dataclasses import replace
 
 import numpy as np
 
@@ -23,7 +29,9 @@ from camnet.errors import CamnetError
 from camnet.geometry.calibrate import calibrate
 from camnet.geometry.evaluate import compare
 from camnet.sim.families import FAMILIES, family
-from camnet.sim.simulate import observe
+from camnet.sim.simulate import make_rig, observe, with_head
+
+HEAD_VARIANTS = ("two_heads", "paper + head")
 
 
 def run_seed(name: str, seed: int) -> tuple[str, dict]:
@@ -47,11 +55,56 @@ def run_seed(name: str, seed: int) -> tuple[str, dict]:
     }
 
 
+def head_pair(variant: str, seed: int) -> tuple[dict | None, dict | None]:
+    """(one head, two heads): the solve's scale error and sigma with the second head's baseline ignored and
+    used, on the same observations; None where refused."""
+    if variant == "two_heads":
+        drawn = family("two_heads", seed=seed)
+        rig, normals = drawn.rig, drawn.normals
+    else:
+        rig, normals = with_head(make_rig(seed=seed, n_points=120), "mono_b"), None
+    obs = observe(rig, noise_px=0.5, seed=seed, normals=normals).observations
+    out = []
+    for used in (replace(obs, baselines=()), obs):
+        try:
+            cal = calibrate(used).calibration
+        except CamnetError:
+            out.append(None)
+            continue
+        with np.errstate(all="ignore"):
+            c = compare(cal, rig.cameras, rig.points)
+        out.append({"scale_rel": c.scale_rel, "scale_sigma_rel": c.scale_sigma_rel})
+    return out[0], out[1]
+
+
+def _median_pct(solves: list[dict], key: str) -> float:
+    return 100 * float(np.median([abs(s[key]) for s in solves])) if solves else float("nan")
+
+
+def print_head_table(seeds: int) -> None:
+    print("\n| rig | seeds solved both ways | median scale σ % one head | two heads | median ratio | "
+          "ratio <= 0.75 | median scale err % one head | two heads |")
+    print("|---|---|---|---|---|---|---|---|")
+    for variant in HEAD_VARIANTS:
+        pairs = [head_pair(variant, seed) for seed in range(seeds)]
+        ones = [one for one, two in pairs if one is not None and two is not None]
+        twos = [two for one, two in pairs if one is not None and two is not None]
+        ratios = [two["scale_sigma_rel"] / one["scale_sigma_rel"] for one, two in zip(ones, twos, strict=True)]
+        sigmas = f"{_median_pct(ones, 'scale_sigma_rel'):.2f} | {_median_pct(twos, 'scale_sigma_rel'):.2f}"
+        print(f"| {variant} | {len(ones)} of {seeds} | {sigmas} | {np.median(ratios) if ratios else np.nan:.2f} "
+              f"| {sum(r <= 0.75 for r in ratios)} | {_median_pct(ones, 'scale_rel'):.2f} "
+              f"| {_median_pct(twos, 'scale_rel'):.2f} |", flush=True)
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=20)
     parser.add_argument("--families", default=",".join(FAMILIES))
+    parser.add_argument("--heads-only", action="store_true", help="only the one-head / two-heads table")
     args = parser.parse_args()
+    if args.heads_only:
+        print_head_table(args.seeds)
+        return 0
     rows = []
     for name in args.families.split(","):
         t0 = time.perf_counter()
@@ -75,6 +128,7 @@ def main() -> int:
     for r in rows:
         print(f"| {r[0]} | {r[1]} | {r[2]} | {r[3]} | {r[4]:.2f} | {r[5]:.2f} | {r[6]:.1f} | {r[7]:.2f} | {r[8]} "
               f"| {r[9]:.0f} |")
+    print_head_table(args.seeds)
     return 0
 
 

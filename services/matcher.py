@@ -301,7 +301,10 @@ class MatcherNode:
 
     def document(self) -> dict:
         """The observations document of the pool now (contract keys plus the node's own)."""
-        doc = observations_to_doc(replace(self._ensure_pool().observations(), baselines=self.rig.baselines))
+        obs = self._ensure_pool().observations()
+        # The rig's further known distances, of the cameras pooled so far (one of unknown size joins later).
+        baselines = tuple(b for b in self.rig.baselines if {b.a, b.b} <= set(obs.camera_ids))
+        doc = observations_to_doc(replace(obs, baselines=baselines))
         doc.update(rig=self.rig.name, pool_id=self._pool_id, frame_sets=self.frame_sets_pooled,
                    latest_capture_ns=self.latest_capture_ns, published_ns=time.time_ns())
         return doc

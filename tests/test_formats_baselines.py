@@ -150,3 +150,14 @@ def test_the_matchers_observations_carry_the_rigs_distances():
     assert doc["baselines"] == rig_doc()["baselines"]
     obs = parse_observations(doc)
     assert [b.a for b in obs.baselines] == ["c", "a"]
+
+
+def test_a_distance_to_a_camera_not_yet_pooled_waits_for_it():
+    from camnet.services.matcher import MatcherNode, MatcherNodeConfig
+
+    data = rig_doc()
+    data["cameras"][3] = {"id": "d", "driver": "v4l2", "v4l2": {"source": "unused.mp4"}}  # size known when it sends
+    doc = MatcherNode(None, parse_rig(data), config=MatcherNodeConfig()).document()
+    assert [c["id"] for c in doc["cameras"]] == ["a", "b", "c"]
+    assert doc["baselines"] == [rig_doc()["baselines"][1]]
+    parse_observations(doc)

@@ -195,13 +195,16 @@ def _centre_derivative(problem: Problem, state: State, m: int) -> np.ndarray:
     return D
 
 
-def distance_rows(problem: Problem, state: State) -> tuple[np.ndarray, np.ndarray]:
+def distance_rows(
+    problem: Problem, state: State, *, columns: tuple[np.ndarray, int] | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """The known distances' weighted residuals (B,), pixels, and their Jacobian (B, Pc) in the camera columns.
 
-    Not robust: a known distance is no outlier.
+    Not robust: a known distance is no outlier. columns: another column
+    layout (``Problem.columns()`` of a wider problem) to place the Jacobian in.
     """
     known = problem.distances
-    cols, n_cols = problem.columns()
+    cols, n_cols = problem.columns() if columns is None else columns
     w = known.weights_px_per_m(problem.distance_sigma_px)
     u = known.directions(state.C)
     J = np.zeros((len(known), n_cols))

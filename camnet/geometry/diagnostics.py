@@ -23,7 +23,7 @@ from camnet.geometry.model import (
 )
 from camnet.geometry.projection import INTRINSIC_NAMES, project_points
 from camnet.geometry.residual_structure import structure_warnings
-from camnet.geometry.uncertainty import Covariance, scale_sigma, scale_weights
+from camnet.geometry.uncertainty import Covariance, distance_checks, scale_sigma, scale_weights
 
 MIN_CAMERA_OBSERVATIONS = 12
 MIN_PARALLAX_DEG = 2.0
@@ -31,6 +31,7 @@ COPLANAR_RATIO = 0.02
 POOR_FOCAL_REL = 0.05
 POOR_SCALE_REL = 0.01
 MAX_DEPTH_BASELINES = 1000.0  # a scene farther than this many baselines has next to no disparity
+DISTANCE_SIGMAS = 3.0  # a known distance this many sigmas from where the scene puts it is reported
 
 
 def _camera_sigmas(m: int, problem, state, cov) -> CameraSigmas:
@@ -168,6 +169,7 @@ def _uncertainty(ids: list[str], problem, state, cov: Covariance, kept, warnings
     if undetermined_scale:
         scale = None
     per_cam = {cam_id: _camera_sigmas(m, problem, state, cov) for m, cam_id in enumerate(ids)}
+    warnings += _distance_warnings(ids, problem, state, cov)
     for m, cam_id in enumerate(ids):
         unknown = _undetermined_names(per_cam[cam_id])
         if unknown:
@@ -202,6 +204,21 @@ def _uncertainty(ids: list[str], problem, state, cov: Covariance, kept, warnings
         cameras=per_cam,
         point_weights=weights[kept],
     )
+
+
+def _distance_warnings(ids: list[str], problem, state, cov: Covariance) -> list[str]:
+    """Known distances that the scene (every other row) contradicts."""
+    if not len(problem.distances):
+        return []
+    scene_m, sigma_m = distance_checks(problem, state, cov)
+    known = problem.distances
+    z = np.abs(scene_m - known.metres) / np.hypot(sigma_m, known.sigma_m)
+    return [
+        f"cameras {ids[a]} and {ids[b]}: the scene puts them {scene_m[k]:.4f} m apart (1 sigma "
+        f"{1e3 * sigma_m[k]:.1f} mm), not the given {known.metres[k]:.4f} m ({z[k]:.0f} sigma): check that "
+        "distance and the cameras it names"
+        for k, (a, b) in enumerate(known.cams) if z[k] > DISTANCE_SIGMAS
+    ]
 
 
 def _geometry_warnings(obs, order, problem, state, parallax: np.ndarray, kept: np.ndarray) -> list[str]:

@@ -21,9 +21,9 @@ from camnet.geometry.model import Observations
 # An exact distance (sigma_m 0) is held by a row this stiff rather than by a parametrisation:
 # tying one camera's centre to another's would couple their blocks of the normal equations,
 # which are block diagonal in the cameras. 1 micrometre is a thousandth of what a factory
-# calibration or a tape knows, so the pixels move the distance by a negligible share of their
-# own sigma (0.1-1 mm on a centre), while the normal equations lose at most 4-6 of their 16
-# digits (the weight squared against the centres' information from the pixels).
+# calibration or a tape knows, and far below what the pixels fix a centre to (0.1-1 mm): the
+# reported scale sigma is the same to 1e-4 for 1e-5 to 1e-7 m, while a row of 1e-8 m leaves
+# the normal equations too ill-conditioned for the adjustment to converge.
 EXACT_SIGMA_M = 1e-6
 # Pixels fitted to rounding (a simulation without noise) would give the distances no weight at all.
 MIN_SIGMA_PX = 0.01

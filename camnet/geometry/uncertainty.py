@@ -16,7 +16,16 @@ from functools import cached_property
 import numpy as np
 import scipy.linalg
 
-from camnet.geometry.bundle import NormalEquations, Problem, State, normal_equations, residuals, times_block_diag
+from camnet.geometry.bundle import (
+    NormalEquations,
+    Problem,
+    State,
+    distance_rows,
+    normal_equations,
+    residuals,
+    times_block_diag,
+)
+from camnet.geometry.projection import N_INTRINSICS
 
 # A point block whose smallest eigenvalue is below this fraction of its largest leaves
 # the point undetermined along that direction (in metres, so the ratio has meaning).
@@ -39,6 +48,7 @@ class Covariance:
     # camera directions no observation fixes; S_inv is the pseudo-inverse on the rest.
     null: np.ndarray | None = None
     unit: np.ndarray | None = None  # (Pc,) the scaling to unit-diagonal coordinates
+    S: np.ndarray | None = None  # (Pc, Pc) the Schur complement itself (unscaled)
 
     @property
     def cameras(self) -> np.ndarray:
@@ -122,7 +132,35 @@ def covariance(
     S_inv, null, unit = inverse_spd(S)
     if sigma_px is None:
         sigma_px = float(np.sqrt(2.0 * ne.cost / max(residual_dof(problem), 1)))
-    return Covariance(sigma_px, S_inv, ne.W, V_inv, ne.V, problem.columns()[0], null, unit)
+    return Covariance(sigma_px, S_inv, ne.W, V_inv, ne.V, problem.columns()[0], null, unit, S)
+
+
+def distance_checks(problem: Problem, state: State, cov: Covariance) -> tuple[np.ndarray, np.ndarray]:
+    """What the rest of the data say each known distance is: (metres (B,), their 1 sigma (B,)).
+
+    Each distance's row is taken out of the Schur complement (exactly: it
+    touches camera columns only), and a Newton step on the other rows from
+    `state` moves the solution to where they put it. The step starts from
+    the pixels' own gradient, not from the row's residual, which for a
+    stiff row is rounding. Infinite sigma: nothing else fixes the distance.
+    `cov`: the covariance of `problem`, or of it with more intrinsics free.
+    """
+    wider = replace(problem, intr_free=cov.columns[:, :N_INTRINSICS] >= 0)  # cov's column layout
+    ne = normal_equations(wider, state)
+    r, J = distance_rows(wider, state)
+    gradient = ne.gc - times_block_diag(ne.W, cov.V_inv) @ ne.gp.reshape(-1)  # points eliminated
+    known = problem.distances
+    w = known.weights_px_per_m(problem.distance_sigma_px)
+    scene_m = known.metres + known.errors_m(state.C)
+    sigma_m = np.full(len(known), np.inf)
+    for k, j in enumerate(J):
+        try:
+            factor = scipy.linalg.cho_factor(cov.S - np.outer(j, j))
+        except np.linalg.LinAlgError:  # the other rows leave it free
+            continue
+        scene_m[k] -= j @ scipy.linalg.cho_solve(factor, gradient - j * r[k]) / w[k]
+        sigma_m[k] = cov.sigma_px * np.sqrt(j @ scipy.linalg.cho_solve(factor, j)) / w[k]
+    return scene_m, sigma_m
 
 
 def residual_dof(problem: Problem) -> int:
