@@ -90,7 +90,7 @@ def _mutations(doc: dict):
     yield (
         "three shared tracks",
         mutate(lambda d: [t["observations"].pop(k, None) for t in d["tracks"][3:] for k in ("mono_a", "mono_b")]),
-        "need at least 4",
+        "need at least 6",
     )
     yield "duplicate camera", mutate(lambda d: d["cameras"].append(dict(d["cameras"][0]))), "duplicate camera id"
     yield "nested 100k deep", "[" * 100_000 + "]" * 100_000, "nested too deeply"

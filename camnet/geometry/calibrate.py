@@ -42,6 +42,7 @@ import numpy as np
 from camnet.errors import SolveError
 from camnet.geometry import bundle, distances
 from camnet.geometry.bundle import CentreMode, Problem, State
+from camnet.geometry.cold_start import check_solvable, cold_start, without_cameras
 from camnet.geometry.diagnostics import refuse_undetermined, reported_points, solve_report
 from camnet.geometry.free_rule import choose_free, free_mask, free_names, restore_free
 from camnet.geometry.initialise import (
@@ -50,7 +51,6 @@ from camnet.geometry.initialise import (
     centred,
     initial_intrinsics,
     observation_rows,
-    paper_start,
     warm_start,
 )
 from camnet.geometry.model import Calibration, Camera, Loss, Method, Observations, StartKind
@@ -59,7 +59,6 @@ from camnet.geometry.uncertainty import Covariance, covariance_with_pp_prior, pi
 
 log = logging.getLogger(__name__)
 
-MIN_SHARED_TRACKS = 4  # eq. 15: N >= 4 points seen by the pair and another camera
 MIN_CAMERA_INLIERS = 6  # fewer observations cannot fix a camera's pose and focal length
 # The median length of a 2-D residual with Gaussian noise of sigma per axis (Rayleigh):
 # sqrt(2 ln 2) sigma. Dividing a median residual by it gives a sigma that outliers barely move.
@@ -97,26 +96,6 @@ class Result:
     converged: bool
     reason: str
     timings_s: dict[str, float]
-
-
-# ---------------------------------------------------------------- validation
-
-
-def check_solvable(obs: Observations) -> None:
-    """Refuse observations that cannot determine a metric network (eq. 15)."""
-    if len(obs.cameras) < 3:
-        raise SolveError(f"cameras: {len(obs.cameras)} given; a metric solve needs at least 3 (eq. 15)")
-    order = camera_order(obs)
-    seen = np.zeros((len(obs.track_ids), len(obs.cameras)), dtype=bool)
-    seen[obs.track_index, obs.cam_index] = True
-    pair = seen[:, order[0]] & seen[:, order[1]]
-    shared = pair & seen[:, order[2:]].any(axis=1)
-    if shared.sum() < MIN_SHARED_TRACKS:
-        raise SolveError(
-            f"tracks: only {int(shared.sum())} tracks are seen by the stereo pair "
-            f"({obs.stereo.left}, {obs.stereo.right}) and another camera; need at least "
-            f"{MIN_SHARED_TRACKS}"
-        )
 
 
 # ---------------------------------------------------------------- the adjustment
@@ -206,14 +185,19 @@ def _calibrate(
         initial = None
     intr = initial_intrinsics(obs, order)
     held_K = np.array([obs.cameras[i].K is not None and "K" in obs.cameras[i].fixed for i in order])
-    held_dist = np.array([obs.cameras[i].dist is not None and "dist" in obs.cameras[i].fixed for i in order])
     xy = centred(obs, order, intr)
     rows = observation_rows(obs)
     if initial is not None:
         start = warm_start(obs, order, intr, xy, rows, initial, seed=options.seed, reset=reset)
     else:
-        max_tracks = None if options.method == Method.PAPER else 150
-        start = paper_start(obs, order, intr, xy, rows, options.seed, max_tracks=max_tracks)
+        paper_only = options.method == Method.PAPER
+        start = cold_start(obs, order, intr, xy, rows, seed=options.seed, max_tracks=None if paper_only else 150,
+                           held_K=held_K, loss_scale_px=options.loss_scale_px, paper_only=paper_only)
+    if start.left_out:  # the calibration holds the cameras placed; the report names the others
+        obs, intr, start = without_cameras(obs, order, intr, start)
+        order, rows = camera_order(obs), observation_rows(obs)
+    held_K = np.array([obs.cameras[i].K is not None and "K" in obs.cameras[i].fixed for i in order])
+    held_dist = np.array([obs.cameras[i].dist is not None and "dist" in obs.cameras[i].fixed for i in order])
     intr[:, 0] = np.where(np.isfinite(intr[:, 0]) & held_K, intr[:, 0], start.f)
     timings["initialise"] = time.perf_counter() - t0
     if options.method == Method.PAPER:
@@ -229,7 +213,8 @@ def _calibrate(
         near = _near_solution(full, state, options)
         start_kind = StartKind.WARM if near else StartKind.WARM_ROBUST
     if not near:
-        state = _robust_passes(full, state, options, cold=initial is None, held_K=held_K, held_dist=held_dist)
+        state = _robust_passes(full, state, options, cold=initial is None, held_K=held_K, held_dist=held_dist,
+                               hold_pair=start.parallel)
     inliers = _reject_outliers(full, state, options)
     full = replace(full, distance_sigma_px=pixel_sigma(full.subset(inliers), state))  # the distances' weight
     problem = full.subset(inliers)
@@ -238,7 +223,8 @@ def _calibrate(
     decisions: list[str] = []
     if options.free == "auto" and initial is None and options.method != Method.UNCONSTRAINED:
         t2 = time.perf_counter()
-        problem, state, decisions = _apply_free_rule(obs, order, problem, state, options, held_K, held_dist)
+        problem, state, decisions = _apply_free_rule(obs, order, problem, state, options, held_K, held_dist,
+                                                     ideal_pair=start.parallel)
         full = replace(full, intr_free=problem.intr_free, rot_free=problem.rot_free, centre_mode=problem.centre_mode)
         timings["choose_free"] = time.perf_counter() - t2
 
@@ -273,7 +259,7 @@ def _full_problem(obs, order, start: Start, options: Options, initial: Calibrati
     intr_free = free_mask(M, names, held_K, held_dist, fisheye=obs.fisheye(order))
     rot_free = np.zeros((M, 3), dtype=bool)
     rot_free[2:] = True  # every camera outside the stereo pair turns freely
-    if "stereo_rotation" in names or options.method == Method.UNCONSTRAINED:
+    if "stereo_rotation" in names or options.method == Method.UNCONSTRAINED or not start.parallel:
         rot_free[1] = True
     restored = None
     if initial is not None and options.free == "auto" and initial.report is not None:
@@ -283,7 +269,7 @@ def _full_problem(obs, order, start: Start, options: Options, initial: Calibrati
         restore_free(restored, cameras, intr_free, rot_free, fixed_K=held_K, fixed_dist=held_dist)
     if options.method == Method.UNCONSTRAINED or obs.stereo.sigma_m > 0:  # soft: held by its distance row
         right_centre = CentreMode.FREE
-    elif "stereo_direction" in names or (restored is not None and restored.stereo_direction):
+    elif "stereo_direction" in names or (restored is not None and restored.stereo_direction) or not start.parallel:
         right_centre = CentreMode.ON_BASELINE
     else:
         right_centre = CentreMode.FIXED
@@ -292,13 +278,14 @@ def _full_problem(obs, order, start: Start, options: Options, initial: Calibrati
     return replace(full, distances=known), track_rows
 
 
-def _apply_free_rule(obs, order, problem: Problem, state: State, options: Options, held_K, held_dist):
-    """(problem, state, decisions): the automatic free set, chosen at the ideal pair's least-squares solution."""
+def _apply_free_rule(obs, order, problem: Problem, state: State, options: Options, held_K, held_dist, *, ideal_pair):
+    """(problem, state, decisions): the automatic free set, chosen at the least-squares solution (of the ideal
+    pair where the pair started as the paper's)."""
     widths = [obs.cameras[i].width for i in order]
     heights = [obs.cameras[i].height for i in order]
     # The rule starts from the ideal pair: its rotation held at the identity.
     R = state.R.copy()
-    R[1] = np.eye(3)
+    R[1] = np.eye(3) if ideal_pair else R[1]
     state, _ = bundle.solve(problem, State(state.intr, R, state.C, state.X), max_iterations=options.max_iterations)
     return choose_free(
         problem,
@@ -357,11 +344,13 @@ def _reset_indices(obs: Observations, order: list[int], reset_cameras: Collectio
     return {ids.index(c) for c in reset_cameras}
 
 
-def _robust_passes(full: Problem, state: State, options: Options, *, cold: bool, held_K, held_dist) -> State:
+def _robust_passes(full: Problem, state: State, options: Options, *, cold: bool, held_K, held_dist,
+                   hold_pair: bool) -> State:
     """The robust adjustment of every parameter that moves, from a rough start.
 
-    Of the known distances only the stereo pair's: the start knows no other, and held to one
-    far from it a network tears; they enter the least squares that follows.
+    hold_pair: the stereo pair held as the ideal pair in the first pass. Of the
+    known distances only the stereo pair's: the start knows no other, and held
+    to one far from it a network tears; they enter the least squares that follows.
     """
     full = replace(full, distances=full.distances.between(0, 1))
     robust = dict(loss=options.loss, scale_px=options.loss_scale_px, max_iterations=options.max_iterations)
@@ -371,11 +360,12 @@ def _robust_passes(full: Problem, state: State, options: Options, *, cold: bool,
         # principal points or distortion far from the solution lets the adjustment
         # settle in a wrong valley.
         M = full.n_cameras
+        pair = (np.arange(M) == 1) & hold_pair
         first = replace(
             full,
             intr_free=full.intr_free & free_mask(M, frozenset({"f"}), held_K, held_dist),
-            rot_free=full.rot_free & (np.arange(M) != 1)[:, None],
-            centre_mode=np.where(np.arange(M) == 1, CentreMode.FIXED, full.centre_mode),
+            rot_free=full.rot_free & ~pair[:, None],
+            centre_mode=np.where(pair, CentreMode.FIXED, full.centre_mode),
         )
         state, _ = bundle.solve(first, state, **robust)
     if cold and options.free == "auto" and options.method == "refined":

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Collection
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -35,6 +35,8 @@ class Start:
     registered: np.ndarray  # (M,) bool
     P0: np.ndarray  # (T, 3) the paper's stereo cloud (f_left = 1, unit baseline); NaN where unknown
     k: float  # f_right / f_left
+    parallel: bool = True  # the pair is the paper's ideal parallel pair, to start with
+    left_out: dict[str, str] = field(default_factory=dict)  # camera id -> why it could not be placed
 
 
 def camera_order(obs: Observations) -> list[int]:
@@ -95,11 +97,13 @@ def paper_start(
     rows: np.ndarray,
     seed: int,
     max_tracks: int | None = None,
+    register_rest: bool = True,
 ) -> Start:
     """The paper's unknowns from nothing but the observations, then every camera and track.
 
     max_tracks: use at most this many tracks per camera in eq. 13, which is
     plenty for a starting point; None uses all (the paper's method itself).
+    register_rest: place the other cameras and every track, else the caller does.
     """
     M, T = len(order), len(obs.track_ids)
     left, right = rows[:, order[0]], rows[:, order[1]]
@@ -162,7 +166,8 @@ def paper_start(
         f[0], f[1] = f_left, k * f_left
         X = P0 * np.array([1.0, 1.0, f_left])
         registered[others] = True
-    register_and_triangulate(obs, order, xy, rows, f, R, C, X, registered, seed=seed)
+    if register_rest:
+        register_and_triangulate(obs, order, xy, rows, f, R, C, X, registered, seed=seed)
     return Start(f, R, C, X, registered, P0, k)
 
 

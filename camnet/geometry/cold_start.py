@@ -1,0 +1,242 @@
+"""A solve's start from nothing but the observations: the scale pair, then the view graph.
+
+Any two cameras with a known distance can be the scale pair. Their relative
+pose comes from the essential matrix (focal lengths from the fundamental
+matrix or a sweep, camnet.geometry.two_view); when it shows the paper's
+ideal pair (hardly turned, the baseline across the images), the paper's
+solver starts the solve as it always did. Otherwise the second camera is
+placed by that pose, its translation scaled to the known distance. Every
+other camera is then placed through the cameras that share its tracks
+(camnet.geometry.register); one that cannot be is left out, by name, with
+the reason, and the rest is solved.
+
+Cameras are in problem order (the pair first), pixels centred, poses
+``x_cam = R (X - C)`` in the left camera's frame, metres.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import replace
+
+import numpy as np
+
+from camnet.errors import SolveError
+from camnet.geometry.initialise import (
+    Start,
+    camera_order,
+    paper_start,
+    register_and_triangulate,
+    triangulate_missing,
+)
+from camnet.geometry.model import Observations
+from camnet.geometry.register import MIN_RESECTION_POINTS, register_over_graph, resect
+from camnet.geometry.two_view import (
+    MIN_PAIR_POINTS,
+    RelativePose,
+    focal_grid,
+    pair_focals,
+    relative_pose,
+    row_and_epipolar_errors,
+)
+
+log = logging.getLogger(__name__)
+
+MIN_CAMERAS = 3  # two views of unknown focal length need a third (eq. 15)
+# The paper's pair, to start with: its matches on rows that match (eq. 4) within this many times their
+# distance from a general pair's epipolar lines, plus a floor for exact data; most of its tracks in front of
+# it by the paper's triangulation.
+PARALLEL_ROWS_RATIO = 3.0
+PARALLEL_ROWS_FLOOR_PX = 0.1
+PARALLEL_IN_FRONT = 0.8
+
+
+def check_solvable(obs: Observations) -> None:
+    """Refuse observations that cannot determine a metric network: too few cameras, or a pair that shares too little."""
+    if len(obs.cameras) < MIN_CAMERAS:
+        raise SolveError(f"cameras: {len(obs.cameras)} given; a metric solve needs at least {MIN_CAMERAS} (eq. 15)")
+    order = camera_order(obs)
+    seen = np.zeros((len(obs.track_ids), len(obs.cameras)), dtype=bool)
+    seen[obs.track_index, obs.cam_index] = True
+    shared = int(np.sum(seen[:, order[0]] & seen[:, order[1]]))
+    if shared < MIN_PAIR_POINTS:
+        raise SolveError(
+            f"tracks: the stereo pair ({obs.stereo.left}, {obs.stereo.right}) shares only {shared} tracks; "
+            f"need at least {MIN_PAIR_POINTS} (choose two cameras that see the same part of the scene)"
+        )
+
+
+def threshold_px(obs: Observations, order: list[int]) -> float:
+    """RANSAC inlier threshold: 1% of the left image's diagonal (a start, not a fit)."""
+    left = obs.cameras[order[0]]
+    return 0.01 * float(np.hypot(left.width, left.height))
+
+
+def is_parallel(rows_px: float, epipolar_px: float) -> bool:
+    """Whether a pair is the paper's parallel pair, from `two_view.row_and_epipolar_errors`.
+
+    The essential matrix cannot tell: with a short baseline, or a small
+    object, its rotation and translation trade off.
+    """
+    return rows_px <= PARALLEL_ROWS_RATIO * epipolar_px + PARALLEL_ROWS_FLOOR_PX
+
+
+def _pair_rows(order: list[int], rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The pair's observation rows (left, right) of the tracks both see."""
+    left, right = rows[:, order[0]], rows[:, order[1]]
+    both = (left >= 0) & (right >= 0)
+    return left[both], right[both]
+
+
+def _essential_start(obs, order, xy, rows, f_pair, pose: RelativePose) -> Start:
+    """The pair placed by its relative pose, the translation scaled to the known distance, its tracks triangulated."""
+    M, T = len(order), len(obs.track_ids)
+    f = np.full(M, np.nan)
+    f[:2] = f_pair
+    R = np.tile(np.eye(3), (M, 1, 1))
+    C = np.zeros((M, 3))
+    R[1], C[1] = pose.R, obs.stereo.baseline_m * pose.centre_direction
+    X = np.full((T, 3), np.nan)
+    registered = np.arange(M) < 2
+    triangulate_missing(order, xy, rows, f, R, C, X, registered)
+    return Start(f, R, C, X, registered, np.full((T, 3), np.nan), f[1] / f[0], parallel=False)
+
+
+def _focal_candidates(obs, order, intr, xy, rows) -> list[tuple[float, float]]:
+    """The pair's focal lengths to try: as given, else a sweep and Bougnoux's from the fundamental matrix."""
+    given = intr[:2, 0]
+    if np.all(np.isfinite(given)):
+        return [(given[0], given[1])]
+    grid = focal_grid(obs.cameras[order[0]].width)
+    candidates = [tuple(np.where(np.isfinite(given), given, f)) for f in grid]
+    left, right = _pair_rows(order, rows)
+    from_F = pair_focals(xy[left], xy[right], threshold_px=threshold_px(obs, order))
+    bougnoux = np.where(np.isfinite(given), given, from_F)
+    if np.all((grid[0] <= bougnoux) & (bougnoux <= grid[-1])):
+        candidates.append(tuple(bougnoux))
+    return candidates
+
+
+def _essential_by_third_view(obs, order, intr, xy, rows) -> Start:
+    """The essential-matrix start at the pair's focal lengths that the camera sharing most of its tracks fits best.
+
+    Two cameras that look at one object hardly fix their focal lengths
+    (their optical axes nearly meet); a third view of the pair's
+    triangulated points does.
+    """
+    left, right = _pair_rows(order, rows)
+    both = np.flatnonzero((rows[:, order[0]] >= 0) & (rows[:, order[1]] >= 0))
+    shared = [len(np.flatnonzero(rows[both, order[m]] >= 0)) for m in range(2, len(order))]
+    third = 2 + int(np.argmax(shared))
+    if max(shared) < MIN_RESECTION_POINTS:
+        raise SolveError(
+            f"tracks: no camera shares more than {max(shared)} tracks with the stereo pair ({obs.stereo.left}, "
+            f"{obs.stereo.right}); need at least {MIN_RESECTION_POINTS} seen by the pair and another camera"
+        )
+    candidates = _focal_candidates(obs, order, intr, xy, rows)
+    threshold = threshold_px(obs, order)
+    best: tuple[float, Start | None] = (np.inf, None)
+    for f_pair in candidates:
+        pose = relative_pose(xy[left], xy[right], *f_pair, threshold_px=threshold)
+        if pose is None or pose.inliers.sum() < MIN_PAIR_POINTS:
+            continue
+        start = _essential_start(obs, order, xy, rows, f_pair, pose)
+        if len(candidates) == 1:
+            return start
+        trk = np.flatnonzero(np.all(np.isfinite(start.X), axis=1) & (rows[:, order[third]] >= 0))
+        got = resect(start.X[trk], xy[rows[trk, order[third]]], f_px=intr[third, 0] if np.isfinite(intr[third, 0])
+                     else None, width_px=obs.cameras[order[third]].width, threshold_px=threshold)
+        if not isinstance(got, str) and got.median_error_px < best[0]:
+            best = (got.median_error_px, start)
+    if best[1] is None:
+        raise SolveError(
+            f"cameras: {obs.cameras[order[third]].id} does not agree with the stereo pair ({obs.stereo.left}, "
+            f"{obs.stereo.right}) at any focal length, so the pair's are not determined; check the pair's matches"
+        )
+    log.info("the pair's focal lengths from a third view: %.0f, %.0f px (%.2f px)", *best[1].f[:2], best[0])
+    return best[1]
+
+
+def _paper_pair(obs, order, intr, xy, rows, seed, max_tracks) -> Start | None:
+    """The paper's start (pair, and every camera it places when it places all); None when it finds none."""
+    try:
+        start = paper_start(obs, order, intr, xy, rows, seed, max_tracks=max_tracks, register_rest=False)
+    except SolveError as exc:
+        log.info("the paper's solver gives no start (%s): starting from the essential matrix", exc)
+        return None
+    grid = focal_grid(obs.cameras[order[0]].width)
+    in_front = np.mean(np.isfinite(start.P0[(rows[:, order[0]] >= 0) & (rows[:, order[1]] >= 0), 0]))
+    if not (grid[0] <= start.f[0] <= grid[-1] and in_front >= PARALLEL_IN_FRONT):
+        log.info("the paper's solver puts the left focal length at %.0f px and %.0f%% of the pair's tracks in "
+                 "front: starting from the essential matrix", start.f[0], 100 * in_front)
+        return None
+    if start.registered.all():
+        register_and_triangulate(obs, order, xy, rows, start.f, start.R, start.C, start.X, start.registered,
+                                 seed=seed)
+    else:
+        # Cameras that share few stereo tracks see them from the side, where the stereo cloud's
+        # depth error shows most: they are placed again through the graph, on better points.
+        start.registered[2:] = False
+        start.f[2:] = np.nan
+    return start
+
+
+def cold_start(
+    obs: Observations, order: list[int], intr: np.ndarray, xy: np.ndarray, rows: np.ndarray, *, seed: int,
+    max_tracks: int | None, held_K: np.ndarray, loss_scale_px: float, paper_only: bool = False,
+) -> Start:
+    """The start of a solve with no previous calibration; `Start.left_out` names the cameras it could not place.
+
+    intr (M, 9): the given intrinsics (f NaN where unknown); held_K (M,):
+    cameras whose K is held. paper_only: the paper's method, which needs a
+    parallel pair and every camera sharing six stereo tracks (raises if not).
+    """
+    left, right = _pair_rows(order, rows)
+    rows_px, epipolar_px = row_and_epipolar_errors(xy[left], xy[right], threshold_px=threshold_px(obs, order))
+    parallel = is_parallel(rows_px, epipolar_px)
+    log.info("the stereo pair's matches lie %.2f px off matching rows, %.2f px off epipolar lines: %s", rows_px,
+             epipolar_px, "parallel" if parallel else "not parallel")
+    if paper_only:
+        if not parallel:
+            raise SolveError(
+                f"method paper: the stereo pair's matches lie {rows_px:.1f} px off matching rows, so it is not "
+                "parallel as the paper's method needs; use the refined method"
+            )
+        return paper_start(obs, order, intr, xy, rows, seed, max_tracks=max_tracks)
+    start = _paper_pair(obs, order, intr, xy, rows, seed, max_tracks) if parallel else None
+    if start is None:
+        start = _essential_by_third_view(obs, order, intr, xy, rows)
+    if start.registered.all():
+        return start
+    aspect = np.where(np.isfinite(intr[:, 1]), intr[:, 1], 1.0)
+    widths = np.array([obs.cameras[i].width for i in order])
+    reasons = register_over_graph(
+        start.f, start.R, start.C, start.X, start.registered, order=order, rows=rows, xy=xy, widths=widths,
+        aspect=aspect, held_K=held_K, parallel=start.parallel, baseline_m=obs.stereo.baseline_m,
+        threshold_px=threshold_px(obs, order), loss_scale_px=loss_scale_px,
+    )
+    triangulate_missing(order, xy, rows, start.f, start.R, start.C, start.X, start.registered)
+    start.left_out = {obs.cameras[order[m]].id: reasons[m] for m in np.flatnonzero(~start.registered)}
+    if start.registered.sum() < MIN_CAMERAS:
+        raise SolveError(
+            f"cameras: only {int(start.registered.sum())} could be placed; a metric solve needs at least "
+            f"{MIN_CAMERAS} (" + "; ".join(f"{c}: {r}" for c, r in start.left_out.items()) + ")"
+        )
+    return start
+
+
+def without_cameras(obs: Observations, order: list[int], intr: np.ndarray, start: Start):
+    """(obs, intr, start) with only the cameras the start placed; the same tracks, the problem order kept."""
+    keep = np.flatnonzero(start.registered)
+    kept = np.isin(np.arange(len(obs.cameras)), [order[m] for m in keep])
+    new_index = np.cumsum(kept) - 1
+    rows = kept[obs.cam_index]
+    cameras = tuple(c for c, k in zip(obs.cameras, kept, strict=True) if k)
+    ids = {c.id for c in cameras}
+    obs = replace(
+        obs, cameras=cameras, baselines=tuple(b for b in obs.baselines if {b.a, b.b} <= ids),
+        cam_index=new_index[obs.cam_index[rows]], track_index=obs.track_index[rows], uv=obs.uv[rows],
+    )
+    start = Start(start.f[keep], start.R[keep], start.C[keep], start.X, start.registered[keep], start.P0, start.k,
+                  start.parallel, start.left_out)
+    return obs, intr[keep], start

@@ -1,0 +1,184 @@
+"""Registration over the view graph: every camera placed through the cameras that share its tracks.
+
+From the scale pair's start (camnet.geometry.initialise's paper solver for a
+parallel pair, the essential matrix for any other, see `cold_start`), the
+camera that sees the most placed points is resected next (PnP over a sweep
+of focal lengths, then the focal length refined by OpenCV), the tracks it
+newly sees twice are triangulated, and a short robust adjustment of every
+placed camera and point keeps errors from adding up before the next one.
+Cameras that share nothing with the pair are placed through their
+neighbours; one that cannot be placed is left out with the reason.
+
+Cameras are in problem order (the pair first), pixels centred, poses
+``x_cam = R (X - C)``, metres, focal lengths in pixels.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from camnet.geometry import bundle
+from camnet.geometry.bundle import CentreMode, Problem, State
+from camnet.geometry.model import Loss
+from camnet.geometry.projection import N_INTRINSICS
+from camnet.geometry.two_view import focal_grid
+
+log = logging.getLogger(__name__)
+
+MIN_RESECTION_POINTS = 6  # a pose and a focal length: 7 unknowns, and a margin for RANSAC
+MIN_INLIER_SHARE = 0.3  # fewer agreeing points than this share: the pose found is chance
+LOCAL_ITERATIONS = 30  # a start for the next camera, not the solution
+LOCAL_FTOL = 1e-4
+
+
+@dataclass(frozen=True)
+class Resection:
+    """A camera placed on known points: focal length (px), pose, and the points that agree."""
+
+    f_px: float
+    R: np.ndarray
+    C: np.ndarray
+    inliers: np.ndarray  # (n,) bool over the points given
+    median_error_px: float  # of every point given
+
+
+def _msac(X: np.ndarray, xy: np.ndarray, f: float, rvec, tvec, threshold_px: float) -> tuple[float, np.ndarray]:
+    """(MSAC cost, per-point error px) of a pose at focal length f; points behind the camera count as misses."""
+    import cv2
+
+    R = cv2.Rodrigues(rvec)[0]
+    xc = X @ R.T + tvec.ravel()
+    with np.errstate(divide="ignore", invalid="ignore"):
+        err = np.linalg.norm(f * xc[:, :2] / xc[:, 2:3] - xy, axis=1)
+    err = np.where((xc[:, 2] > 0) & np.isfinite(err), err, np.inf)
+    return float(np.sum(np.minimum(err, threshold_px) ** 2)), err
+
+
+def resect(X: np.ndarray, xy: np.ndarray, *, f_px: float | None, width_px: int, threshold_px: float) -> Resection | str:
+    """Place a camera on known points X (n, 3) seen at centred pixels xy (n, 2); a reason when it cannot.
+
+    f_px: the focal length when known; else every focal length of
+    `focal_grid` is tried with PnP RANSAC (which, unlike a DLT, also works
+    on nearly planar points), and the best by MSAC is refined with its pose
+    on its inliers (`_refine`).
+    """
+    import cv2
+
+    n = len(X)
+    if n < MIN_RESECTION_POINTS:
+        return f"it shares only {n} tracks with the cameras placed before it (need at least {MIN_RESECTION_POINTS})"
+    X, xy = np.ascontiguousarray(X, np.float64), np.ascontiguousarray(xy, np.float64)
+    best = (np.inf, None)
+    for f in [f_px] if f_px is not None else focal_grid(width_px):
+        ok, rvec, tvec, _ = cv2.solvePnPRansac(
+            X, xy, np.diag([f, f, 1.0]), None, reprojectionError=threshold_px, iterationsCount=100,
+            flags=cv2.SOLVEPNP_EPNP,
+        )
+        if ok:
+            cost, err = _msac(X, xy, f, rvec, tvec, threshold_px)
+            if cost < best[0]:
+                best = (cost, (f, rvec.ravel(), tvec.ravel(), err < threshold_px))
+    enough = max(MIN_RESECTION_POINTS, MIN_INLIER_SHARE * n)
+    failed = f"no consistent pose among the {n} tracks it shares with the cameras placed before it"
+    if best[1] is None or best[1][3].sum() < enough:
+        return failed
+    f, rvec, tvec = _refine(X[best[1][3]], xy[best[1][3]], *best[1][:3], f_free=f_px is None,
+                            threshold_px=threshold_px)
+    _, err = _msac(X, xy, f, rvec, tvec, threshold_px)
+    if np.sum(err < threshold_px) < enough:
+        return failed
+    R = cv2.Rodrigues(rvec)[0]
+    return Resection(f, R, -R.T @ tvec, err < threshold_px, float(np.median(err)))
+
+
+def _refine(X, xy, f, rvec, tvec, *, f_free: bool, threshold_px: float) -> tuple[float, np.ndarray, np.ndarray]:
+    """(f, rvec, tvec) refined by robust least squares on the reprojection error."""
+    import cv2
+    from scipy.optimize import least_squares
+
+    def residuals(p: np.ndarray) -> np.ndarray:
+        focal = np.exp(p[0]) if f_free else f
+        uv = cv2.projectPoints(X, p[1:4], p[4:7], np.diag([focal, focal, 1.0]), None)[0]
+        return (uv.reshape(-1, 2) - xy).ravel()
+
+    x0 = np.concatenate([[np.log(f)], rvec, tvec])
+    fit = least_squares(residuals, x0, loss="soft_l1", f_scale=threshold_px / 4, x_scale="jac")
+    return (float(np.exp(fit.x[0])) if f_free else f), fit.x[1:4], fit.x[4:7]
+
+
+def local_adjustment(
+    f: np.ndarray, R: np.ndarray, C: np.ndarray, X: np.ndarray, *, aspect: np.ndarray, xy_rows: np.ndarray,
+    xy: np.ndarray, placed: np.ndarray, held_K: np.ndarray, parallel: bool, baseline_m: float, loss_scale_px: float,
+) -> None:
+    """A short robust adjustment, in place, of the placed cameras and the points they see twice.
+
+    f, aspect (M,), R, C (M, ...), X (T, 3): problem-order arrays; xy_rows
+    (T, M): each track's observation row per camera (-1 none); xy: centred
+    pixels. The gauge is the final adjustment's first pass: the left camera
+    fixed, the right one held as the ideal parallel pair when `parallel`,
+    else turning and on the baseline's sphere.
+    """
+    cams = np.flatnonzero(placed)
+    seen = xy_rows[:, cams] >= 0
+    tracks = np.flatnonzero(np.all(np.isfinite(X), axis=1) & (seen.sum(axis=1) >= 2))
+    local_pt, local_cam = np.nonzero(seen[tracks])
+    obs_rows = xy_rows[tracks[local_pt], cams[local_cam]]
+    M = len(cams)
+    intr = np.zeros((M, N_INTRINSICS))  # centred pixels: principal points at the origin, no distortion
+    intr[:, 0], intr[:, 1] = f[cams], aspect[cams]
+    intr_free = np.zeros_like(intr, dtype=bool)
+    intr_free[:, 0] = ~held_K[cams]
+    rot_free = np.ones((M, 3), dtype=bool)
+    rot_free[0] = False
+    rot_free[1] = not parallel
+    centre_mode = np.full(M, CentreMode.FREE)
+    centre_mode[0] = CentreMode.FIXED
+    centre_mode[1] = CentreMode.FIXED if parallel else CentreMode.ON_BASELINE
+    problem = Problem(local_cam, local_pt, xy[obs_rows], intr_free, rot_free, centre_mode, baseline_m, len(tracks))
+    state, info = bundle.solve(
+        problem, State(intr, R[cams], C[cams], X[tracks]), loss=Loss.CAUCHY, scale_px=loss_scale_px,
+        max_iterations=LOCAL_ITERATIONS, ftol=LOCAL_FTOL,
+    )
+    log.debug("local adjustment of %d cameras, %d points: %s", M, len(tracks), info.reason)
+    f[cams] = state.intr[:, 0]
+    R[cams], C[cams], X[tracks] = state.R, state.C, state.X
+
+
+def register_over_graph(
+    f: np.ndarray, R: np.ndarray, C: np.ndarray, X: np.ndarray, placed: np.ndarray, *, order: list[int],
+    rows: np.ndarray, xy: np.ndarray, widths: np.ndarray, aspect: np.ndarray, held_K: np.ndarray, parallel: bool,
+    baseline_m: float, threshold_px: float, loss_scale_px: float,
+) -> dict[int, str]:
+    """Place, in place, every camera the view graph reaches; {problem index: reason} for the others.
+
+    f, R, C, placed (M,...) and X (T, 3) as in initialise.Start (f NaN
+    where not known, unless held_K); rows (T, cameras): observation row of
+    each track per observations camera; widths (M,) image widths, px.
+    """
+    from camnet.geometry.initialise import triangulate_missing
+
+    xy_rows = rows[:, order]
+    reasons: dict[int, str] = {}
+    triangulate_missing(order, xy, rows, f, R, C, X, placed)
+    while not placed.all():
+        known = np.all(np.isfinite(X), axis=1)
+        shared = {int(m): np.flatnonzero(known & (xy_rows[:, m] >= 0)) for m in np.flatnonzero(~placed)}
+        for m in sorted(shared, key=lambda m: -len(shared[m])):
+            trk = shared[m]
+            got = resect(X[trk], xy[xy_rows[trk, m]], f_px=f[m] if held_K[m] else None, width_px=int(widths[m]),
+                         threshold_px=threshold_px)
+            if isinstance(got, str):
+                reasons[m] = got
+                continue
+            f[m], R[m], C[m], placed[m] = got.f_px, got.R, got.C, True
+            reasons.pop(m, None)
+            triangulate_missing(order, xy, rows, f, R, C, X, placed)
+            local_adjustment(f, R, C, X, aspect=aspect, xy_rows=xy_rows, xy=xy, placed=placed, held_K=held_K,
+                             parallel=parallel, baseline_m=baseline_m, loss_scale_px=loss_scale_px)
+            break
+        else:
+            break  # no camera left that the placed ones reach
+    return reasons
