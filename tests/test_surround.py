@@ -32,3 +32,16 @@ def test_ring_neighbours_share_true_matches(record_property):
         for head_camera in ("head_left", "head_right"):
             count, on_line = found[head_camera, neighbour]
             assert count >= 60 and on_line >= 0.9, (head_camera, neighbour, count, on_line)
+
+
+def test_a_pair_with_a_handful_of_inliers_contributes_nothing():
+    # Views 90 degrees apart across the person: what F-RANSAC keeps of them is mostly false.
+    rig = load_rig(CONFIG / "surround.yaml")
+    truth = {c.id: c for c in rig.simulated_truth()}
+    images = {c: create_camera(rig.camera(c), rig).render(4) for c in ("ring1", "ring7")}
+    few = match_frame_set(images, MatcherConfig(min_matches=8))
+    (pair,) = few.pairs
+    d = epipolar_distance_px(few.features[0].uv[pair.index_a], few.features[1].uv[pair.index_b],
+                             truth["ring1"], truth["ring7"])
+    assert 8 <= len(pair) < MatcherConfig().min_matches and np.mean(d < 1.0) < 0.5
+    assert len(match_frame_set(images, MatcherConfig()).pairs[0]) == 0
