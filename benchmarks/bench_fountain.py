@@ -3,7 +3,7 @@
 Matches the views as one frame set (SIFT on copies downscaled to at most
 --max-image-side-px, keypoints mapped back to the full 3072 x 2048 pixels, so
 the published K applies unchanged), takes a converging pair with its published
-centre distance as the known baseline (default 0004-0005, 1.8243 m, 16 degrees
+centre distance as the known baseline (default 0004-0005, 1.8243 m, 11 degrees
 apart) and calibrates at default options, twice: `scene`, nothing known, and
 `all-K`, every camera's published K given and held. Prints Markdown tables:
 what each solve gave or why it was refused, and per camera the focal length,

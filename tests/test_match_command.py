@@ -93,3 +93,24 @@ def test_a_rig_of_images_is_refused_by_camnet_up(tmp_path):
     result = camnet("up", str(rig), "--duration-s", "1")
     assert result.returncode == 2
     assert "cameras[0] (0004) has no driver; camnet up runs one per camera" in result.stderr
+
+
+def test_dark_images_are_matched_once_normalised_and_refused_with_the_reason_otherwise(tmp_path):
+    # A real rig's short exposure: fountain views at a third of their size, scaled to median grey 20.
+    root = require(STRECHA_ROOT)
+    rig = tmp_path / "rig.yaml"
+    rig.write_text(RIG)
+    images = []
+    for view in VIEWS:
+        grey = cv2.resize(cv2.imread(str(image_path(root, view)), cv2.IMREAD_GRAYSCALE), (1024, 683),
+                          interpolation=cv2.INTER_AREA)
+        images.append(str(tmp_path / f"{view}.png"))
+        cv2.imwrite(images[-1], np.clip(grey * (20.0 / np.median(grey)), 0, 255).astype(np.uint8))
+    out = tmp_path / "obs.json"
+    raw = camnet("match", *images, "--rig", str(rig), "-o", str(out), "--no-normalise-contrast")
+    assert raw.returncode == 2 and not out.exists()
+    assert raw.stderr.count("dark (median grey 20 of 255); raise the exposure or gain") == len(VIEWS)
+    assert raw.stderr.strip().splitlines()[-1].startswith("camnet match: error: no tracks")
+    normalised = camnet("match", *images, "--rig", str(rig), "-o", str(out))
+    assert normalised.returncode == 0, normalised.stderr
+    assert json.loads(normalised.stdout)["tracks"] >= 1500

@@ -121,3 +121,27 @@ def test_box_turns_over_time_and_background_stays():
     changed = np.abs(first.astype(int) - later) > 0
     assert changed[400:600, 600:760].mean() > 0.5  # on the box
     assert changed[:150, :300].mean() == 0  # far wall, top left
+
+
+def test_the_person_is_an_upright_elliptic_cylinder_of_its_size():
+    rig = load_rig(CONFIG / "surround.yaml")
+    person = [q for q in Scene(rig.scene).quads(0.0) if q.layer == 1]
+    half_width, height, half_depth = np.array(rig.scene.box_size_m) / [2, 1, 2]
+    phi = np.linspace(0, 2 * np.pi, 3601)
+    for camera_id in ("head_left", "ring2", "ring3"):
+        camera = rig.camera(camera_id).config.camera(camera_id)
+        image = Renderer(camera).render(person)
+        # The silhouette at mid-height: the extreme projections of the rim there.
+        rim = np.stack([half_width * np.cos(phi), np.zeros_like(phi), half_depth * np.sin(phi)], axis=1)
+        uv = camera.project(rim)
+        row = image[int(round(uv[:, 1].mean()))]
+        drawn = np.flatnonzero(row > 0)
+        assert abs(drawn.min() - uv[:, 0].min()) < 1.5 and abs(drawn.max() - uv[:, 0].max()) < 1.5, camera_id
+        # Top and bottom at the centre column: the rims' outermost crossings of it.
+        col = int(round(uv[:, 0].mean()))
+        column = np.flatnonzero(image[:, col] > 0)
+        top, bottom = (camera.project(rim + [0.0, y, 0.0]) for y in (-height / 2, height / 2))
+        expected_top = top[np.abs(top[:, 0] - col) < 0.5, 1].min()
+        expected_bottom = bottom[np.abs(bottom[:, 0] - col) < 0.5, 1].max()
+        assert abs(column.min() - expected_top) < 1.5 and abs(column.max() - expected_bottom) < 1.5, camera_id
+        assert 0.9 < (row > 0).mean() * camera.width / np.ptp(uv[:, 0]) <= 1.02  # textured all across

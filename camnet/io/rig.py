@@ -371,6 +371,7 @@ def _scene(s: _Section) -> SceneConfig:
         wall_y_range_m=_range(s, "wall_y_range_m", (-0.8, 0.25)),
         floor_y_m=s.number("floor_y_m", 0.25),
         floor_z_range_m=_range(s, "floor_z_range_m", (0.2, 1.2)),
+        object=s.string("object", "box", choices=("box", "person")),
     )
     s.finish()
     return scene

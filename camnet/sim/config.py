@@ -58,6 +58,9 @@ class SceneConfig:
 
     World frame = the left camera's: x right, y down, z forward. The box
     turns about the vertical axis through its centre at `box_rotation_deg_per_s`.
+    `object` "person" puts a person-sized upright elliptic cylinder of extents
+    `box_size_m` (width, height, depth) in the box's place, turning the same
+    way, and leaves the wall out: cameras stand all around it.
     """
 
     seed: int
@@ -69,3 +72,4 @@ class SceneConfig:
     wall_y_range_m: tuple[float, float]
     floor_y_m: float
     floor_z_range_m: tuple[float, float]
+    object: str = "box"  # "box" or "person"

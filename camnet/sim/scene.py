@@ -1,9 +1,14 @@
-"""The simulated scene of a rig file: textured box, wall and floor as render.Quads.
+"""The simulated scene of a rig file: textured box (or person), wall and floor as render.Quads.
 
 Textures are procedural and seeded (multi-scale value noise plus random
 shapes), so every run of a rig sees the same feature-rich scene. Texel sizes
-are about 1 mm on the box and 1.5 mm on the wall and floor, close to the
-pixel footprint of the paper's cameras at those depths, to limit aliasing.
+are 0.5 mm on the box, 1 mm on the person and 1.5 mm on the wall and floor,
+close to the pixel footprint of the cameras meant to see them, to limit aliasing.
+
+The person (scene `object: person`) is an upright elliptic cylinder of
+narrow flat strips, each a Quad with its outward normal, so that culling
+back faces draws the convex surface with no depth buffer; one texture is
+cut into the strips, so the surface shows no seam between them.
 """
 
 from __future__ import annotations
@@ -17,7 +22,9 @@ from camnet.sim.config import SceneConfig
 from camnet.sim.render import Quad
 
 BOX_TEXEL_M = 0.0005
+PERSON_TEXEL_M = 0.001  # ring cameras 2 m away see about 2 mm per pixel
 BACKGROUND_TEXEL_M = 0.0015
+PERSON_STRIPS = 72  # 5 degrees each: 1.7 mm at most between a strip and the ellipse it cuts
 
 
 def procedural_texture(width_px: int, height_px: int, rng: np.random.Generator) -> np.ndarray:
@@ -52,6 +59,29 @@ def _texture_for(u: np.ndarray, v: np.ndarray, texel_m: float, rng) -> np.ndarra
     return procedural_texture(w, h, rng)
 
 
+def _person_faces(size: np.ndarray, rng) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+    """Strips (p0, u, v, texture) of an upright elliptic cylinder about the origin, normals u x v outwards.
+
+    `size`: width (x), height (y, down) and depth (z) in metres. The strips'
+    corners lie on the ellipse; texture columns run once around it.
+    """
+    a, height, c = size[0] / 2, size[1], size[2] / 2
+    phi = np.linspace(0.0, 2.0 * np.pi, PERSON_STRIPS + 1)
+    rim = np.stack([a * np.cos(phi), np.full_like(phi, -height / 2), c * np.sin(phi)], axis=1)
+    chords = np.diff(rim, axis=0)
+    widths_px = np.maximum(1, np.round(np.linalg.norm(chords, axis=1) / PERSON_TEXEL_M)).astype(int)
+    texture = procedural_texture(int(widths_px.sum()), int(round(height / PERSON_TEXEL_M)), rng)
+    edges = np.concatenate([[0], np.cumsum(widths_px)])
+    v = np.array([0.0, height, 0.0])
+    faces = []
+    for k in range(PERSON_STRIPS):
+        # Walking the rim backwards makes u x v point away from the axis (y is down).
+        p0, u = rim[k + 1], -chords[k]
+        strip = np.ascontiguousarray(texture[:, edges[-1] - edges[k + 1]:edges[-1] - edges[k]])
+        faces.append((p0, u, v, strip))
+    return faces
+
+
 def _rot_y(angle_rad: float) -> np.ndarray:
     c, s = math.cos(angle_rad), math.sin(angle_rad)
     return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
@@ -66,15 +96,18 @@ class Scene:
         (x0, x1), (y0, y1) = config.wall_x_range_m, config.wall_y_range_m
         wall_u = np.array([x1 - x0, 0.0, 0.0])
         wall_v = np.array([0.0, y1 - y0, 0.0])
-        # Normal u x v = -z: the wall faces the cameras.
-        self.wall = Quad(np.array([x0, y0, config.wall_z_m]), wall_u, wall_v,
-                         _texture_for(wall_u, wall_v, BACKGROUND_TEXEL_M, rng), layer=0)
+        self.background: list[Quad] = []
+        if config.object == "box":
+            # Normal u x v = -z: the wall faces the cameras.
+            self.background.append(Quad(np.array([x0, y0, config.wall_z_m]), wall_u, wall_v,
+                                        _texture_for(wall_u, wall_v, BACKGROUND_TEXEL_M, rng), layer=0))
         z0, z1 = config.floor_z_range_m
         floor_u = np.array([x1 - x0, 0.0, 0.0])
         floor_v = np.array([0.0, 0.0, z1 - z0])
-        self.floor = Quad(np.array([x0, config.floor_y_m, z0]), floor_u, floor_v,
-                          _texture_for(floor_u, floor_v, BACKGROUND_TEXEL_M, rng), layer=0)
-        self._box_faces = self._make_box_faces(np.array(config.box_size_m), rng)
+        self.background.append(Quad(np.array([x0, config.floor_y_m, z0]), floor_u, floor_v,
+                                    _texture_for(floor_u, floor_v, BACKGROUND_TEXEL_M, rng), layer=0))
+        size = np.array(config.box_size_m)
+        self._box_faces = self._make_box_faces(size, rng) if config.object == "box" else _person_faces(size, rng)
 
     @staticmethod
     def _make_box_faces(size: np.ndarray, rng) -> list[tuple[np.ndarray, np.ndarray, np.ndarray,
@@ -102,4 +135,4 @@ class Scene:
         centre = np.array(self.config.box_centre_m)
         box = [Quad(centre + R @ p0, R @ u, R @ v, tex, layer=1, cull_back=True)
                for p0, u, v, tex in self._box_faces]
-        return [self.wall, self.floor, *box]
+        return [*self.background, *box]
