@@ -5,6 +5,7 @@ and the model in the documents and the rig file."""
 import json
 import subprocess
 import sys
+from dataclasses import replace
 
 import cv2
 import numpy as np
@@ -13,6 +14,13 @@ import pytest
 from camnet.errors import InputError
 from camnet.geometry.calibrate import calibrate
 from camnet.geometry.evaluate import compare
+from camnet.geometry.initialise import (
+    FISHEYE_START_CORNER_RAD,
+    camera_order,
+    centred,
+    initial_intrinsics,
+    with_guessed_fisheye_focal,
+)
 from camnet.geometry.model import Calibration, Camera, LensModel
 from camnet.geometry.projection import normalised, project_points, project_with_jacobians, rotation_exp
 from camnet.io.formats import calibration_to_doc, observations_to_doc, parse_calibration, parse_observations
@@ -198,3 +206,25 @@ def test_camnet_calibrate_solves_a_fisheye_document(tmp_path):
     truth = {c.id: c for c in drawn.rig.cameras}
     for cam in cal.cameras:
         np.testing.assert_allclose(cam.dist, truth[cam.id].dist, atol=0.03)
+
+
+def test_a_fisheye_start_makes_its_pixels_pinhole_ones_with_a_guessed_focal_length():
+    drawn = family("fisheye", seed=1)
+    cameras = list(drawn.rig.cameras)
+    cameras[3] = replace(cameras[3], model=LensModel.PINHOLE, dist=np.zeros(5))  # a pinhole among them
+    obs = observe(replace(drawn.rig, cameras=cameras), noise_px=0.0, seed=1).observations
+    order = camera_order(obs)
+    intr = initial_intrinsics(obs, order)
+    guessed = with_guessed_fisheye_focal(obs, order, intr)
+    g = np.hypot(1280, 1024) / 2 / FISHEYE_START_CORNER_RAD
+    np.testing.assert_array_equal(guessed[:, 0], [g, g, g, np.nan])
+    np.testing.assert_array_equal(guessed[:, 1:], intr[:, 1:])
+    xy = centred(obs, order, guessed)
+    # An equidistant lens of focal length g: a pixel r from the centre is g tan(r / g) from it in the pinhole image.
+    m_of = np.argsort(order)[obs.cam_index]
+    for m in range(4):
+        rows = m_of == m
+        r = np.linalg.norm(obs.uv[rows] - intr[m, 2:4], axis=1)
+        expected = g * np.tan(r / g) if m < 3 else r
+        np.testing.assert_allclose(np.linalg.norm(xy[rows], axis=1), expected, rtol=1e-6)
+    assert np.isnan(intr[:, 0]).all()  # the guess is for the start's pixels only
