@@ -228,3 +228,18 @@ def test_a_fisheye_start_makes_its_pixels_pinhole_ones_with_a_guessed_focal_leng
         expected = g * np.tan(r / g) if m < 3 else r
         np.testing.assert_allclose(np.linalg.norm(xy[rows], axis=1), expected, rtol=1e-6)
     assert np.isnan(intr[:, 0]).all()  # the guess is for the start's pixels only
+
+
+def test_a_warm_start_from_a_fisheye_calibration_document_keeps_its_free_set():
+    drawn, _ = fisheye_observations(seed=4)
+    obs = observe(drawn.rig, noise_px=0.5, seed=4, normals=drawn.normals).observations
+    cold = calibrate(obs).calibration
+    initial = parse_calibration(json.loads(json.dumps(calibration_to_doc(cold))))
+    assert initial.report.free.intrinsics["left"][-4:] == ("k1", "k2", "k3", "k4")
+    warm = calibrate(obs, initial=initial).calibration
+    assert warm.report.start.value == "warm"
+    assert warm.report.free.intrinsics == cold.report.free.intrinsics
+    for a, b in zip(warm.cameras, cold.cameras, strict=True):
+        assert a.model == LensModel.FISHEYE
+        np.testing.assert_allclose(a.K, b.K, rtol=1e-6)
+        np.testing.assert_allclose(a.dist, b.dist, atol=1e-4)  # to the solves' tolerance: the polynomial is flat
