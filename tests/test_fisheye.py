@@ -62,8 +62,11 @@ def test_projection_matches_cv2_fisheye():
 
 
 def test_a_point_behind_a_fisheye_has_no_pixel():
-    cam = Camera("fish", 1280, 1024, K, np.array(FISHEYE_DIST), model=LensModel.FISHEYE)
+    cam = Camera("fish", 1280, 1024, K, model=LensModel.FISHEYE)  # no dist given: the equidistant lens
+    assert cam.dist.tolist() == [0.0] * 4
     assert np.all(np.isnan(cam.project(np.array([[0.1, 0.2, -1.0], [0.3, 0.0, 0.0]]))))
+    with pytest.raises(ValueError, match=r"'fish': a fisheye's dist is \[k1, k2, k3, k4\]"):
+        Camera("fish", 1280, 1024, K, np.array([0.1, 0.0, 0.0, 0.0, 0.0]), model=LensModel.FISHEYE)
 
 
 def test_fisheye_jacobians_match_finite_differences():
