@@ -222,7 +222,7 @@ def test_a_fisheye_start_makes_its_pixels_pinhole_ones_with_a_guessed_focal_leng
     g = np.hypot(1280, 1024) / 2 / FISHEYE_START_CORNER_RAD
     np.testing.assert_array_equal(guessed[:, 0], [g, g, g, np.nan])
     np.testing.assert_array_equal(guessed[:, 1:], intr[:, 1:])
-    xy = centred(obs, order, guessed)
+    xy = centred(obs, order, intr)  # guesses the same itself
     # An equidistant lens of focal length g: a pixel r from the centre is g tan(r / g) from it in the pinhole image.
     m_of = np.argsort(order)[obs.cam_index]
     for m in range(4):

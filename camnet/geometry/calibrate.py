@@ -52,7 +52,6 @@ from camnet.geometry.initialise import (
     observation_rows,
     paper_start,
     warm_start,
-    with_guessed_fisheye_focal,
 )
 from camnet.geometry.model import Calibration, Camera, Loss, Method, Observations, StartKind
 from camnet.geometry.projection import INTRINSIC_NAMES, N_INTRINSICS, K_from_intrinsics, project_points
@@ -208,7 +207,7 @@ def _calibrate(
     intr = initial_intrinsics(obs, order)
     held_K = np.array([obs.cameras[i].K is not None and "K" in obs.cameras[i].fixed for i in order])
     held_dist = np.array([obs.cameras[i].dist is not None and "dist" in obs.cameras[i].fixed for i in order])
-    xy = centred(obs, order, with_guessed_fisheye_focal(obs, order, intr))
+    xy = centred(obs, order, intr)
     rows = observation_rows(obs)
     if initial is not None:
         start = warm_start(obs, order, intr, xy, rows, initial, seed=options.seed, reset=reset)

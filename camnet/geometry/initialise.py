@@ -66,8 +66,10 @@ def initial_intrinsics(obs: Observations, order: list[int]) -> np.ndarray:
 def centred(obs: Observations, order: list[int], intr: np.ndarray) -> np.ndarray:
     """Observed pixels relative to each camera's principal point, undistorted where known.
 
-    A fisheye camera's pixels are made pinhole ones (of the same K) wherever its focal length is known.
+    A fisheye camera's pixels are made pinhole ones (of the same K), with a
+    guessed focal length where none is known (`with_guessed_fisheye_focal`).
     """
+    intr = with_guessed_fisheye_focal(obs, order, intr)
     m_of = np.empty(len(obs.cameras), dtype=int)
     m_of[order] = np.arange(len(order))
     m = m_of[obs.cam_index]
@@ -94,7 +96,7 @@ def with_guessed_fisheye_focal(obs: Observations, order: list[int], intr: np.nda
     as good a fit). Made pinhole by an equidistant lens of the guessed focal
     length (half the image diagonal over FISHEYE_START_CORNER_RAD), they start it
     in the right one, even with the guess 25% off. The start estimates the focal
-    lengths itself: the guess only undistorts.
+    lengths itself: the guess only undistorts (`centred` uses it).
     """
     guessed = intr.copy()
     for m, i in enumerate(order):
