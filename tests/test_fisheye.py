@@ -5,6 +5,7 @@ and the model in the documents and the rig file."""
 import json
 import subprocess
 import sys
+from dataclasses import replace
 
 import cv2
 import numpy as np
@@ -13,6 +14,13 @@ import pytest
 from camnet.errors import InputError
 from camnet.geometry.calibrate import calibrate
 from camnet.geometry.evaluate import compare
+from camnet.geometry.initialise import (
+    FISHEYE_START_CORNER_RAD,
+    camera_order,
+    centred,
+    initial_intrinsics,
+    with_guessed_fisheye_focal,
+)
 from camnet.geometry.model import Calibration, Camera, LensModel
 from camnet.geometry.projection import normalised, project_points, project_with_jacobians, rotation_exp
 from camnet.io.formats import calibration_to_doc, observations_to_doc, parse_calibration, parse_observations
@@ -54,8 +62,11 @@ def test_projection_matches_cv2_fisheye():
 
 
 def test_a_point_behind_a_fisheye_has_no_pixel():
-    cam = Camera("fish", 1280, 1024, K, np.array(FISHEYE_DIST), model=LensModel.FISHEYE)
+    cam = Camera("fish", 1280, 1024, K, model=LensModel.FISHEYE)  # no dist given: the equidistant lens
+    assert cam.dist.tolist() == [0.0] * 4
     assert np.all(np.isnan(cam.project(np.array([[0.1, 0.2, -1.0], [0.3, 0.0, 0.0]]))))
+    with pytest.raises(ValueError, match=r"'fish': a fisheye's dist is \[k1, k2, k3, k4\]"):
+        Camera("fish", 1280, 1024, K, np.array([0.1, 0.0, 0.0, 0.0, 0.0]), model=LensModel.FISHEYE)
 
 
 def test_fisheye_jacobians_match_finite_differences():
@@ -198,3 +209,40 @@ def test_camnet_calibrate_solves_a_fisheye_document(tmp_path):
     truth = {c.id: c for c in drawn.rig.cameras}
     for cam in cal.cameras:
         np.testing.assert_allclose(cam.dist, truth[cam.id].dist, atol=0.03)
+
+
+def test_a_fisheye_start_makes_its_pixels_pinhole_ones_with_a_guessed_focal_length():
+    drawn = family("fisheye", seed=1)
+    cameras = list(drawn.rig.cameras)
+    cameras[3] = replace(cameras[3], model=LensModel.PINHOLE, dist=np.zeros(5))  # a pinhole among them
+    obs = observe(replace(drawn.rig, cameras=cameras), noise_px=0.0, seed=1).observations
+    order = camera_order(obs)
+    intr = initial_intrinsics(obs, order)
+    guessed = with_guessed_fisheye_focal(obs, order, intr)
+    g = np.hypot(1280, 1024) / 2 / FISHEYE_START_CORNER_RAD
+    np.testing.assert_array_equal(guessed[:, 0], [g, g, g, np.nan])
+    np.testing.assert_array_equal(guessed[:, 1:], intr[:, 1:])
+    xy = centred(obs, order, intr)  # guesses the same itself
+    # An equidistant lens of focal length g: a pixel r from the centre is g tan(r / g) from it in the pinhole image.
+    m_of = np.argsort(order)[obs.cam_index]
+    for m in range(4):
+        rows = m_of == m
+        r = np.linalg.norm(obs.uv[rows] - intr[m, 2:4], axis=1)
+        expected = g * np.tan(r / g) if m < 3 else r
+        np.testing.assert_allclose(np.linalg.norm(xy[rows], axis=1), expected, rtol=1e-6)
+    assert np.isnan(intr[:, 0]).all()  # the guess is for the start's pixels only
+
+
+def test_a_warm_start_from_a_fisheye_calibration_document_keeps_its_free_set():
+    drawn, _ = fisheye_observations(seed=4)
+    obs = observe(drawn.rig, noise_px=0.5, seed=4, normals=drawn.normals).observations
+    cold = calibrate(obs).calibration
+    initial = parse_calibration(json.loads(json.dumps(calibration_to_doc(cold))))
+    assert initial.report.free.intrinsics["left"][-4:] == ("k1", "k2", "k3", "k4")
+    warm = calibrate(obs, initial=initial).calibration
+    assert warm.report.start.value == "warm"
+    assert warm.report.free.intrinsics == cold.report.free.intrinsics
+    for a, b in zip(warm.cameras, cold.cameras, strict=True):
+        assert a.model == LensModel.FISHEYE
+        np.testing.assert_allclose(a.K, b.K, rtol=1e-6)
+        np.testing.assert_allclose(a.dist, b.dist, atol=1e-4)  # to the solves' tolerance: the polynomial is flat

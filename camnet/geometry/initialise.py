@@ -68,8 +68,10 @@ def initial_intrinsics(obs: Observations, order: list[int]) -> np.ndarray:
 def centred(obs: Observations, order: list[int], intr: np.ndarray) -> np.ndarray:
     """Observed pixels relative to each camera's principal point, undistorted where known.
 
-    A fisheye camera's pixels are made pinhole ones (of the same K) wherever its focal length is known.
+    A fisheye camera's pixels are made pinhole ones (of the same K), with a
+    guessed focal length where none is known (`with_guessed_fisheye_focal`).
     """
+    intr = with_guessed_fisheye_focal(obs, order, intr)
     m_of = np.empty(len(obs.cameras), dtype=int)
     m_of[order] = np.arange(len(order))
     m = m_of[obs.cam_index]
@@ -81,6 +83,29 @@ def centred(obs: Observations, order: list[int], intr: np.ndarray) -> np.ndarray
         dist = intr[mm, 4 : 4 + obs.cameras[order[mm]].model.dist_size]
         xy[rows] = normalised(obs.uv[rows], K=K, dist=dist, fisheye=fisheye[mm]) * np.diag(K)[:2]
     return xy
+
+
+# A fisheye's guessed focal length puts its image's corner this far off the axis (rad): a pinhole
+# image of the pixels then stays finite (tan 1.2 = 2.6) whatever the lens's true field of view.
+FISHEYE_START_CORNER_RAD = 1.2
+
+
+def with_guessed_fisheye_focal(obs: Observations, order: list[int], intr: np.ndarray) -> np.ndarray:
+    """`intr` (M, 9) with a focal length guessed for each fisheye camera that has none, for `centred`.
+
+    Raw fisheye pixels are no pinhole image: the paper's start on them lands the
+    adjustment in a wrong valley (a live fisheye rig's focal lengths 12% off with
+    as good a fit). Made pinhole by an equidistant lens of the guessed focal
+    length (half the image diagonal over FISHEYE_START_CORNER_RAD), they start it
+    in the right one, even with the guess 25% off. The start estimates the focal
+    lengths itself: the guess only undistorts (`centred` uses it).
+    """
+    guessed = intr.copy()
+    for m, i in enumerate(order):
+        cam = obs.cameras[i]
+        if cam.model == LensModel.FISHEYE and not np.isfinite(intr[m, 0]):
+            guessed[m, 0] = np.hypot(cam.width, cam.height) / 2 / FISHEYE_START_CORNER_RAD
+    return guessed
 
 
 def _threshold_px(obs: Observations, order: list[int]) -> float:

@@ -70,6 +70,12 @@ class Camera:
     t: np.ndarray = field(default_factory=lambda: np.zeros(3))
     model: LensModel = LensModel.PINHOLE
 
+    def __post_init__(self) -> None:
+        if self.model == LensModel.FISHEYE and len(self.dist) != FISHEYE_DIST_SIZE:
+            if np.any(self.dist):
+                raise ValueError(f"camera {self.id!r}: a fisheye's dist is [k1, k2, k3, k4], got {list(self.dist)}")
+            object.__setattr__(self, "dist", np.zeros(FISHEYE_DIST_SIZE))  # the default: no distortion
+
     @property
     def centre(self) -> np.ndarray:
         """Camera centre in world coordinates (m)."""
