@@ -23,7 +23,7 @@ COMMANDS = {
     "record": "Record everything a rig publishes into an MCAP session file.",
     "replay": "Publish a recorded session's frames on the live keys.",
     "status": "List the live nodes of a rig with their frame rates and drops.",
-    "export": "Write a calibration for OpenCV, COLMAP, ROS or Kalibr.",
+    "export": "Write a calibration for OpenCV, COLMAP, ROS, Kalibr, anipose, or its points as PLY.",
     "report": "Write an HTML report of a calibration: errors, uncertainty, layout.",
 }
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+import tomllib
 from dataclasses import replace
 
 import cv2
@@ -15,7 +16,8 @@ import yaml
 
 from camnet.errors import InputError
 from camnet.geometry.model import Calibration, Camera
-from camnet.io.export import colmap_model, export, kalibr_camchain, opencv_yaml, ros_camera_info
+from camnet.io.export import export, kalibr_camchain, opencv_yaml, ros_camera_info
+from camnet.io.export_colmap import colmap_binary, colmap_model, colmap_text
 from camnet.io.formats import calibration_to_doc, observations_to_doc
 from camnet.sim.families import family
 from camnet.sim.simulate import make_rig, observe
@@ -82,19 +84,34 @@ def test_opencv_yaml_reads_back_with_filestorage():
     np.testing.assert_array_equal(fs.getNode("point_ids").mat().ravel(), cal.point_ids)
 
 
+def test_opencv_yaml_says_its_conventions_in_a_comment():
+    cal, _ = rig_calibration()
+    comments = [line for line in opencv_yaml(cal).splitlines() if line.startswith("#")]
+    assert any("x_cam = R X + t" in c for c in comments)
+    assert any("metres" in c for c in comments)
+    assert any("world frame: the left stereo camera's (left)" in c for c in comments)
+
+
 # ---------------------------------------------------------------- COLMAP
 
 
-def write_model(tmp_path, files: dict[str, str]):
+ENCODINGS = {"text": colmap_text, "binary": colmap_binary}
+
+
+def write_model(tmp_path, files: dict[str, str | bytes]):
     pycolmap = pytest.importorskip("pycolmap", reason="pycolmap (the test extra) is not installed")
-    for name, text in files.items():
-        (tmp_path / name).write_text(text)
+    for name, content in files.items():
+        if isinstance(content, bytes):
+            (tmp_path / name).write_bytes(content)
+        else:
+            (tmp_path / name).write_text(content)
     return pycolmap.Reconstruction(str(tmp_path))
 
 
-def test_colmap_model_reads_back_with_pycolmap(tmp_path):
+@pytest.mark.parametrize("encoding", ENCODINGS)
+def test_colmap_model_reads_back_with_pycolmap(tmp_path, encoding):
     cal, _ = rig_calibration()
-    rec = write_model(tmp_path, colmap_model(cal))
+    rec = write_model(tmp_path, ENCODINGS[encoding](colmap_model(cal)))
     assert len(rec.cameras) == len(rec.images) == len(cal.cameras)
     expected_models = ["PINHOLE", "OPENCV", "FULL_OPENCV", "OPENCV"]
     for k, cam in enumerate(cal.cameras):
@@ -123,12 +140,13 @@ def test_colmap_model_reads_back_with_pycolmap(tmp_path):
         assert point.track.length() == 0
 
 
-def test_colmap_tracks_link_the_observations_within_the_threshold(tmp_path):
+@pytest.mark.parametrize("encoding", ENCODINGS)
+def test_colmap_tracks_link_the_observations_within_the_threshold(tmp_path, encoding):
     cal, rig = rig_calibration(seed=6)
     obs = observe(rig, noise_px=0.5, seed=6, outlier_fraction=0.1).observations
     obs = replace(obs, track_ids=obs.track_ids + 10)  # the calibration's point ids
     limit = 1.5
-    rec = write_model(tmp_path, colmap_model(cal, obs, max_error_px=limit))
+    rec = write_model(tmp_path, ENCODINGS[encoding](colmap_model(cal, obs, max_error_px=limit)))
     # Independently: which observations lie within the limit of their point's OpenCV projection.
     expected_tracks: dict[int, set] = {int(p): set() for p in cal.point_ids}
     expected_points2d = [[] for _ in cal.cameras]
@@ -172,6 +190,19 @@ def test_colmap_rejects_skew_and_negative_ids():
         colmap_model(skewed)
     with pytest.raises(InputError, match="non-negative"):
         colmap_model(replace(cal, point_ids=cal.point_ids - 100))
+
+
+def test_colmap_binary_is_byte_for_byte_what_colmap_writes(tmp_path):
+    """COLMAP's own binary writer, given the text model, writes exactly the bytes of the binary export."""
+    cal, rig = rig_calibration(seed=6)
+    obs = observe(rig, noise_px=0.5, seed=6, outlier_fraction=0.1).observations
+    model = colmap_model(cal, replace(obs, track_ids=obs.track_ids + 10))
+    (tmp_path / "text").mkdir()
+    rec = write_model(tmp_path / "text", colmap_text(model))
+    assert rec.num_points3D() == len(cal.points) and sum(len(rec.images[k + 1].points2D) for k in range(4)) > 200
+    rec.write_binary(str(tmp_path))
+    for name, content in colmap_binary(model).items():
+        assert (tmp_path / name).read_bytes() == content, name
 
 
 # ---------------------------------------------------------------- ROS
@@ -289,13 +320,22 @@ def test_command_writes_every_format(tmp_path, files):
         ("kalibr", [], ["cal.yaml"]),
         ("ros", [], [f"{c.id}.yaml" for c in cal.cameras]),
         ("colmap", ["--observations", str(obs_path)], ["cameras.txt", "images.txt", "points3D.txt"]),
+        ("colmap-bin", ["--observations", str(obs_path)], ["cameras.bin", "images.bin", "points3D.bin"]),
+        ("anipose", ["--unit", "mm"], ["calibration.toml"]),
+        ("ply", [], ["points.ply"]),
     ]:
-        out = tmp_path / fmt / ("cal.yaml" if fmt in ("opencv", "kalibr") else "model")
+        one_file = {"opencv": "cal.yaml", "kalibr": "cal.yaml", "anipose": "calibration.toml", "ply": "points.ply"}
+        out = tmp_path / fmt / one_file.get(fmt, "model")
         out.parent.mkdir()
         proc = run_camnet("export", str(cal_path), "--to", fmt, "-o", str(out), *extra)
         assert proc.returncode == 0, proc.stderr
         assert sorted(p.name for p in (out.parent if out.suffix else out).iterdir()) == sorted(expected)
     assert "4 OPENCV" in (tmp_path / "colmap" / "model" / "cameras.txt").read_text()
+    rec = write_model(tmp_path / "colmap-bin" / "model", {})
+    assert rec.num_points3D() == len(cal.points) and rec.cameras[4].model.name == "OPENCV"
+    anipose = tomllib.loads((tmp_path / "anipose" / "calibration.toml").read_text())
+    np.testing.assert_allclose(anipose["cam_1"]["translation"], 1000.0 * cal.cameras[1].t, rtol=1e-15)
+    assert (tmp_path / "ply" / "points.ply").read_bytes().startswith(b"ply\nformat binary_little_endian 1.0\n")
     # An existing directory as -o of a one-file format gets the default name.
     proc = run_camnet("export", str(cal_path), "--to", "kalibr", "-o", str(tmp_path / "kalibr"))
     assert proc.returncode == 0, proc.stderr
@@ -314,6 +354,8 @@ def test_command_bad_input_is_one_line_and_writes_nothing(tmp_path, files):
         (["--to", "opencv", "-o", str(out), "--observations", str(obs_path)], "--observations"),
         (["--to", "colmap", "-o", str(blocker)], "exists and is not a directory"),
         (["--to", "colmap", "-o", str(tmp_path / "missing" / "model")], "does not exist"),
+        (["--to", "ply", "-o", str(out), "--unit", "mm"], "--unit: only the anipose export uses it"),
+        (["--to", "anipose", "-o", str(out), "--max-error-px", "2"], "--max-error-px: only the colmap exports"),
     ]
     for args, message in cases:
         proc = run_camnet("export", str(cal_path), *args)
@@ -366,7 +408,7 @@ def test_fisheye_opencv_yaml_projects_with_cv2_fisheye():
 
 def test_fisheye_colmap_camera_is_opencv_fisheye_read_by_pycolmap(tmp_path):
     cal = fisheye_calibration()
-    rec = write_model(tmp_path, colmap_model(cal))
+    rec = write_model(tmp_path, colmap_binary(colmap_model(cal)))
     for k, cam in enumerate(cal.cameras):
         ccam = rec.cameras[k + 1]
         assert ccam.model.name == "OPENCV_FISHEYE"

@@ -216,6 +216,7 @@ def _uncertainty(ids: list[str], problem, state, cov: Covariance, kept, warnings
         ),
         cameras=per_cam,
         point_weights=weights[kept],
+        point_sigma_m=cov.point_sigmas_m()[kept],
     )
 
 

@@ -208,7 +208,9 @@ class Uncertainty:
     scale_rel: relative 1 sigma of the network's scale (weighted by
     `point_weights`); scale_rel_if_pp_exact: the same were the guessed
     principal points exactly right; point_weights (N,): per reported point,
-    its weight in the scale, None when not given.
+    its weight in the scale; point_sigma_m (N,): per reported point, its
+    1-sigma position error in metres (RMS over the three axes); each None
+    when not given.
     """
 
     sigma_px: float
@@ -216,6 +218,7 @@ class Uncertainty:
     scale_rel_if_pp_exact: Sigma
     cameras: Mapping[str, CameraSigmas]
     point_weights: np.ndarray | None
+    point_sigma_m: np.ndarray | None = None
 
 
 @dataclass(frozen=True)

@@ -20,12 +20,12 @@ def _parent(path: Path) -> Path:
     return parent
 
 
-def _write_replace(path: Path, text: str) -> None:
+def _write_replace(path: Path, text: str | bytes) -> None:
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
         # mkstemp makes the file private; an output file gets the usual mode, or keeps the one it had.
         os.fchmod(fd, path.stat().st_mode & 0o777 if path.exists() else NEW_FILE_MODE)
-        with os.fdopen(fd, "w") as f:
+        with os.fdopen(fd, "wb" if isinstance(text, bytes) else "w") as f:
             f.write(text)
             f.flush()
             os.fsync(f.fileno())
@@ -35,8 +35,8 @@ def _write_replace(path: Path, text: str) -> None:
         raise
 
 
-def write_text_atomic(path: str | Path, text: str, *, default_name: str | None = None) -> Path:
-    """Write `text` to `path` (temp file + rename) and return where it went.
+def write_text_atomic(path: str | Path, text: str | bytes, *, default_name: str | None = None) -> Path:
+    """Write `text` (or bytes, as they are) to `path` (temp file + rename) and return where it went.
 
     An existing directory `path` gets the file `default_name` inside it.
     """
@@ -50,8 +50,8 @@ def write_text_atomic(path: str | Path, text: str, *, default_name: str | None =
     return path
 
 
-def write_directory_atomic(path: str | Path, files: dict[str, str]) -> list[Path]:
-    """Write ``{name: text}`` into the directory `path` and return the files' paths.
+def write_directory_atomic(path: str | Path, files: dict[str, str | bytes]) -> list[Path]:
+    """Write ``{name: text or bytes}`` into the directory `path` and return the files' paths.
 
     A new directory appears whole (written beside it, then renamed); in an
     existing one each file is replaced atomically and other files are left
@@ -67,8 +67,11 @@ def write_directory_atomic(path: str | Path, files: dict[str, str]) -> list[Path
     tmp = Path(tempfile.mkdtemp(dir=_parent(path), prefix=f".{path.name}.", suffix=".tmp"))
     try:
         tmp.chmod(NEW_DIRECTORY_MODE)
-        for name, text in files.items():
-            (tmp / name).write_text(text)
+        for name, content in files.items():
+            if isinstance(content, bytes):
+                (tmp / name).write_bytes(content)
+            else:
+                (tmp / name).write_text(content)
         os.rename(tmp, path)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)

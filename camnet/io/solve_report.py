@@ -90,6 +90,8 @@ def _uncertainty_to_doc(u: Uncertainty) -> dict:
     }
     if u.point_weights is not None:
         out["point_weights"] = np.asarray(u.point_weights, dtype=float).tolist()
+    if u.point_sigma_m is not None:
+        out["point_sigma_m"] = np.asarray(u.point_sigma_m, dtype=float).tolist()
     return out
 
 
@@ -172,6 +174,7 @@ def _parse_uncertainty(value: Any, path: str) -> Uncertainty:
     if sigma_px is None:
         raise v.fail(f"{path}.sigma_px", "expected a number, got null")
     weights = u.get("point_weights")
+    point_sigma = u.get("point_sigma_m")
     return Uncertainty(
         sigma_px=sigma_px,
         scale_rel=_sigma(u.get("scale_rel"), f"{path}.scale_rel"),
@@ -181,6 +184,7 @@ def _parse_uncertainty(value: Any, path: str) -> Uncertainty:
             for cam_id, s in v.mapping(u.get("cameras", {}), f"{path}.cameras").items()
         },
         point_weights=None if weights is None else v.vector(weights, f"{path}.point_weights"),
+        point_sigma_m=None if point_sigma is None else v.vector(point_sigma, f"{path}.point_sigma_m"),
     )
 
 
