@@ -5,7 +5,11 @@ For every family and seed, `camnet calibrate`'s engine at default options on
 seeded observations (0.5 px noise; a camera sees only the side of the scene
 that faces it). A solve is "silent" when it returns a calibration whose scale
 or some focal length is off by more than 3 of its reported sigmas (or whose
-sigma is missing): the failure the user cannot see. Prints one row per family.
+sigma is missing): the failure the user cannot see. Prints one row per family,
+with, beside it, what a user does today on the same tracks from the same
+start: COLMAP's bundle adjustment (pycolmap), the scale then fixed from the
+known distance (benchmarks/colmap_anchor.py); both scale errors with equal
+point weights.
 
 Then what a second head buys: the same seeded observations solved with the
 second head's baseline and with it ignored, on the `two_heads` ring and on
@@ -24,10 +28,12 @@ from collections import Counter
 from dataclasses import replace
 
 import numpy as np
+from colmap_anchor import colmap_adjust
 
 from camnet.errors import CamnetError
 from camnet.geometry.calibrate import calibrate
 from camnet.geometry.evaluate import compare
+from camnet.geometry.metrics import scale_error
 from camnet.sim.families import FAMILIES, family
 from camnet.sim.simulate import make_rig, observe, with_head
 
@@ -46,7 +52,10 @@ def run_seed(name: str, seed: int) -> tuple[str, dict]:
         c = compare(result.calibration, drawn.rig.cameras, drawn.rig.points)
     focal_z = max(abs(e.focal_rel) / e.focal_sigma_rel if e.focal_sigma_rel > 0 else np.inf for e in c.cameras)
     scale_z = abs(c.scale_rel) / c.scale_sigma_rel if c.scale_sigma_rel > 0 else np.inf
+    anchor = colmap_adjust(obs, seed)  # the same tracks and start; the scale from the known distance
     return "solved", {
+        "scale_equal_rel": scale_error(result.calibration.points, drawn.rig.points[result.calibration.point_ids]),
+        "colmap_scale_rel": scale_error(anchor.points, drawn.rig.points[anchor.track_ids]),
         "scale_rel": c.scale_rel,
         "scale_sigma_rel": c.scale_sigma_rel,
         "focal_rel": max(abs(e.focal_rel) for e in c.cameras),
@@ -118,16 +127,19 @@ def main() -> int:
             print(f"  {name} seed {seed}: {kind}", file=sys.stderr, flush=True)
         silent = sum(not s["within_3_sigma"] for s in solved)
         med = {key: float(np.median([abs(s[key]) for s in solved])) if solved else float("nan")
-               for key in ("scale_rel", "scale_sigma_rel", "focal_rel", "rms_px")}
+               for key in ("scale_rel", "scale_sigma_rel", "focal_rel", "rms_px", "scale_equal_rel",
+                           "colmap_scale_rel")}
         rows.append((name, len(solved), sum(refused.values()), silent, 100 * med["scale_rel"],
                      100 * med["scale_sigma_rel"], 100 * med["focal_rel"], med["rms_px"],
+                     100 * med["scale_equal_rel"], 100 * med["colmap_scale_rel"],
                      "; ".join(f"{n}x {r}" for r, n in refused.most_common(2)), time.perf_counter() - t0))
     print("| family | solved | refused | wrong in silence (> 3 sigma) | median scale err % | median scale sigma % "
-          "| median max focal err % | median RMS px | main refusals | time s |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+          "| median max focal err % | median RMS px | scale err %, equal weights: camnet | pycolmap BA + distance "
+          "| pycolmap / camnet | main refusals | time s |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
-        print(f"| {r[0]} | {r[1]} | {r[2]} | {r[3]} | {r[4]:.2f} | {r[5]:.2f} | {r[6]:.1f} | {r[7]:.2f} | {r[8]} "
-              f"| {r[9]:.0f} |")
+        print(f"| {r[0]} | {r[1]} | {r[2]} | {r[3]} | {r[4]:.2f} | {r[5]:.2f} | {r[6]:.1f} | {r[7]:.2f} | {r[8]:.2f} "
+              f"| {r[9]:.2f} | {r[9] / r[8]:.1f} | {r[10]} | {r[11]:.0f} |")
     print_head_table(args.seeds)
     return 0
 
