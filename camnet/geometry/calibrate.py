@@ -183,15 +183,14 @@ def _calibrate(
         log.info("a stereo camera is reset: solving from scratch")
         initial = None
     intr = initial_intrinsics(obs, order)
-    held_K = np.array([obs.cameras[i].K is not None and "K" in obs.cameras[i].fixed for i in order])
     xy = centred(obs, order, intr)
     rows = observation_rows(obs)
     if initial is not None:
-        start = warm_start(obs, order, intr, xy, rows, initial, seed=options.seed, reset=reset)
+        start = warm_start(obs, order, intr, xy, rows, initial, reset=reset)
     else:
         paper_only = options.method == Method.PAPER
         start = cold_start(obs, order, intr, xy, rows, seed=options.seed, max_tracks=None if paper_only else 150,
-                           held_K=held_K, loss_scale_px=options.loss_scale_px, paper_only=paper_only)
+                           paper_only=paper_only)
     if start.left_out:  # the calibration holds the cameras placed; the report names the others
         obs, intr, start = without_cameras(obs, order, intr, start)
         order, rows = camera_order(obs), observation_rows(obs)
@@ -239,7 +238,8 @@ def _calibrate(
     timings["uncertainty"] = time.perf_counter() - t4
     timings["total"] = time.perf_counter() - t0
     return _result(
-        obs, order, problem, state, track_rows, inliers, info, cov, decisions, options.method, timings, start=start_kind
+        obs, order, problem, state, track_rows, inliers, info, cov, decisions, options.method, timings,
+        start=start_kind, left_out=start.left_out,
     )
 
 
@@ -456,7 +456,7 @@ def _paper_result(obs, order, intr, rows, start: Start, timings) -> Result:
 
 def _result(
     obs, order, problem, state, track_rows, inliers, info, cov, decisions, method: Method, timings, *,
-    start: StartKind = StartKind.COLD,
+    start: StartKind = StartKind.COLD, left_out: dict[str, str] | None = None,
 ) -> Result:
     cameras: list[Camera | None] = [None] * len(order)
     for m, i in enumerate(order):
@@ -474,6 +474,9 @@ def _result(
         obs, order, problem, state, cov, inliers, info, method=method, decisions=decisions, timings_s=timings,
         kept=kept, dropped=dropped, residuals_px=r, start=start,
     )
+    if left_out:  # the user must see them: warnings are printed
+        warned = tuple(f"camera {cam_id} left out: {why}" for cam_id, why in left_out.items())
+        report = replace(report, cameras_left_out=dict(left_out), warnings=report.warnings + warned)
     calibration = Calibration(
         cameras=tuple(cameras),
         point_ids=obs.track_ids[track_rows[kept]],

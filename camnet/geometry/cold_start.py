@@ -26,11 +26,15 @@ from camnet.geometry.initialise import (
     Start,
     camera_order,
     paper_start,
-    register_and_triangulate,
-    triangulate_missing,
 )
 from camnet.geometry.model import Observations
-from camnet.geometry.register import MIN_RESECTION_POINTS, register_over_graph, resect
+from camnet.geometry.register import (
+    MIN_RESECTION_POINTS,
+    register_over_graph,
+    resect,
+    threshold_px,
+    triangulate_missing,
+)
 from camnet.geometry.two_view import (
     MIN_PAIR_POINTS,
     RelativePose,
@@ -64,12 +68,6 @@ def check_solvable(obs: Observations) -> None:
             f"tracks: the stereo pair ({obs.stereo.left}, {obs.stereo.right}) shares only {shared} tracks; "
             f"need at least {MIN_PAIR_POINTS} (choose two cameras that see the same part of the scene)"
         )
-
-
-def threshold_px(obs: Observations, order: list[int]) -> float:
-    """RANSAC inlier threshold: 1% of the left image's diagonal (a start, not a fit)."""
-    left = obs.cameras[order[0]]
-    return 0.01 * float(np.hypot(left.width, left.height))
 
 
 def is_parallel(rows_px: float, epipolar_px: float) -> bool:
@@ -170,10 +168,7 @@ def _paper_pair(obs, order, intr, xy, rows, seed, max_tracks) -> Start | None:
         log.info("the paper's solver puts the left focal length at %.0f px and %.0f%% of the pair's tracks in "
                  "front: starting from the essential matrix", start.f[0], 100 * in_front)
         return None
-    if start.registered.all():
-        register_and_triangulate(obs, order, xy, rows, start.f, start.R, start.C, start.X, start.registered,
-                                 seed=seed)
-    else:
+    if not start.registered.all():
         # Cameras that share few stereo tracks see them from the side, where the stereo cloud's
         # depth error shows most: they are placed again through the graph, on better points.
         start.registered[2:] = False
@@ -183,12 +178,12 @@ def _paper_pair(obs, order, intr, xy, rows, seed, max_tracks) -> Start | None:
 
 def cold_start(
     obs: Observations, order: list[int], intr: np.ndarray, xy: np.ndarray, rows: np.ndarray, *, seed: int,
-    max_tracks: int | None, held_K: np.ndarray, loss_scale_px: float, paper_only: bool = False,
+    max_tracks: int | None, paper_only: bool = False,
 ) -> Start:
     """The start of a solve with no previous calibration; `Start.left_out` names the cameras it could not place.
 
-    intr (M, 9): the given intrinsics (f NaN where unknown); held_K (M,):
-    cameras whose K is held. paper_only: the paper's method, which needs a
+    intr (M, 9): the given intrinsics (f NaN where unknown). paper_only:
+    the paper's method, which needs a
     parallel pair and every camera sharing six stereo tracks (raises if not).
     """
     left, right = _pair_rows(order, rows)
@@ -206,16 +201,8 @@ def cold_start(
     start = _paper_pair(obs, order, intr, xy, rows, seed, max_tracks) if parallel else None
     if start is None:
         start = _essential_by_third_view(obs, order, intr, xy, rows)
-    if start.registered.all():
-        return start
-    aspect = np.where(np.isfinite(intr[:, 1]), intr[:, 1], 1.0)
-    widths = np.array([obs.cameras[i].width for i in order])
-    reasons = register_over_graph(
-        start.f, start.R, start.C, start.X, start.registered, order=order, rows=rows, xy=xy, widths=widths,
-        aspect=aspect, held_K=held_K, parallel=start.parallel, baseline_m=obs.stereo.baseline_m,
-        threshold_px=threshold_px(obs, order), loss_scale_px=loss_scale_px,
-    )
-    triangulate_missing(order, xy, rows, start.f, start.R, start.C, start.X, start.registered)
+    reasons = register_over_graph(obs, order, xy, rows, intr, start.f, start.R, start.C, start.X, start.registered,
+                                  hold_pair=start.parallel)
     start.left_out = {obs.cameras[order[m]].id: reasons[m] for m in np.flatnonzero(~start.registered)}
     if start.registered.sum() < MIN_CAMERAS:
         raise SolveError(
