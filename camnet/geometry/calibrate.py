@@ -4,10 +4,12 @@ Methods:
 
 - ``paper``: the paper's solver alone (stereo triangulation, eq. 13); the
   principal points as given or at the image centre, no distortion.
-- ``refined`` (default): the paper's solution, extended to every camera and
-  track, then a bundle adjustment that keeps the stereo pair rigid with its
-  baseline exactly ``baseline_m``, with a robust loss, outlier rejection
-  and the free-intrinsics rule below.
+- ``refined`` (default): a start from the data (camnet.geometry.cold_start:
+  the paper's solution for a parallel pair, else the essential matrix, then
+  every camera through the view graph; cameras it cannot place are left
+  out and named in the report), then a bundle adjustment that keeps the
+  stereo pair rigid with its baseline exactly ``baseline_m``, with a robust
+  loss, outlier rejection and the free-intrinsics rule below.
 - ``unconstrained``: the same adjustment with the right camera free in 3-D,
   as classical structure from motion: the scale is left to the optimiser.
 
@@ -18,9 +20,10 @@ determine it or ask for it (camnet.geometry.free_rule): the right stereo
 camera's pitch and roll, the direction of its baseline, its yaw, the
 principal points, k1, k2 (the last three camera by camera). A block that is
 neither is held at its given value (K and dist in the observations) or the
-ideal (image centre, no distortion, a parallel pair). Outliers are judged
-before the rule with the stereo pair free to turn. An explicit ``free`` set
-replaces the rule.
+ideal (image centre, no distortion, a parallel pair; a pair that did not
+start as the paper's turns and moves on the baseline's sphere from the
+start). Outliers are judged before the rule with the stereo pair free to
+turn. An explicit ``free`` set replaces the rule.
 
 Warm starts (``initial=``) reuse the previous solution's points and free
 parameters; when every camera still fits its observations only the new

@@ -1,14 +1,15 @@
 """A solve's start from nothing but the observations: the scale pair, then the view graph.
 
-Any two cameras with a known distance can be the scale pair. Their relative
-pose comes from the essential matrix (focal lengths from the fundamental
-matrix or a sweep, camnet.geometry.two_view); when it shows the paper's
-ideal pair (hardly turned, the baseline across the images), the paper's
-solver starts the solve as it always did. Otherwise the second camera is
-placed by that pose, its translation scaled to the known distance. Every
-other camera is then placed through the cameras that share its tracks
-(camnet.geometry.register); one that cannot be is left out, by name, with
-the reason, and the rest is solved.
+Any two cameras with a known distance can be the scale pair. Where their
+matches lie on matching rows as closely as on any epipolar lines, the pair
+is the paper's parallel pair and the paper's solver starts the solve as it
+always did. Otherwise (or where that solver finds no plausible start) the
+second camera is placed by the relative pose of the essential matrix
+(camnet.geometry.two_view), its translation scaled to the known distance,
+at the focal lengths (given, Bougnoux's or a sweep's) that a third camera
+agrees with best. Every other camera is then placed through the cameras
+that share its tracks (camnet.geometry.register); one that cannot be is
+left out, by name, with the reason, and the rest is solved.
 
 Cameras are in problem order (the pair first), pixels centred, poses
 ``x_cam = R (X - C)`` in the left camera's frame, metres.
@@ -22,11 +23,7 @@ from dataclasses import replace
 import numpy as np
 
 from camnet.errors import SolveError
-from camnet.geometry.initialise import (
-    Start,
-    camera_order,
-    paper_start,
-)
+from camnet.geometry.initialise import Start, camera_order, paper_start
 from camnet.geometry.model import Observations
 from camnet.geometry.register import (
     MIN_RESECTION_POINTS,
@@ -183,8 +180,8 @@ def cold_start(
     """The start of a solve with no previous calibration; `Start.left_out` names the cameras it could not place.
 
     intr (M, 9): the given intrinsics (f NaN where unknown). paper_only:
-    the paper's method, which needs a
-    parallel pair and every camera sharing six stereo tracks (raises if not).
+    the paper's method, which needs a parallel pair and every camera
+    sharing six stereo tracks (raises if not).
     """
     left, right = _pair_rows(order, rows)
     rows_px, epipolar_px = row_and_epipolar_errors(xy[left], xy[right], threshold_px=threshold_px(obs, order))

@@ -1,11 +1,11 @@
 """Registration over the view graph: every camera placed through the cameras that share its tracks.
 
-From the scale pair's start (camnet.geometry.initialise's paper solver for a
-parallel pair, the essential matrix for any other, see `cold_start`), the
-camera that sees the most placed points is resected next (PnP over a sweep
-of focal lengths, then the focal length refined by OpenCV), the tracks it
-newly sees twice are triangulated, and a short robust adjustment of every
-placed camera and point keeps errors from adding up before the next one.
+From the scale pair's start (camnet.geometry.cold_start) or a previous
+calibration, the camera that sees the most placed points is resected next
+(PnP RANSAC over a sweep of focal lengths, then the focal length and pose
+refined by SciPy's robust least squares), the tracks it newly sees twice
+are triangulated, and a short robust adjustment of every placed camera and
+point keeps errors from adding up before the next one.
 Cameras that share nothing with the pair are placed through their
 neighbours; one that cannot be placed is left out with the reason.
 
