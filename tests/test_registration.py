@@ -10,6 +10,7 @@ from camnet.geometry.calibrate import Options, calibrate, check_solvable
 from camnet.geometry.cold_start import cold_start, is_parallel
 from camnet.geometry.evaluate import compare
 from camnet.geometry.initialise import camera_order, centred, initial_intrinsics, observation_rows
+from camnet.geometry.live import LiveConfig, judge
 from camnet.geometry.projection import look_at, rotation_exp, skew
 from camnet.geometry.register import resect
 from camnet.geometry.two_view import bougnoux_focals, row_and_epipolar_errors
@@ -118,3 +119,21 @@ def test_the_papers_method_refuses_a_pair_that_is_not_parallel():
     _, obs = family_observations("tape_pair", 0)
     with pytest.raises(SolveError, match="method paper: .* not parallel"):
         calibrate(obs, Options(method="paper"))
+
+
+def test_a_warm_start_places_a_camera_new_to_it_through_the_graph():
+    rig, obs = family_observations("ring", 1)
+    without = calibrate(_isolated(obs, "ring4")).calibration
+    assert "ring4" not in [c.id for c in without.cameras]
+    result = calibrate(obs, initial=without)
+    assert not result.calibration.report.cameras_left_out
+    c = compare(result.calibration, rig.cameras, rig.points)
+    assert {e.id for e in c.cameras} == {cam.id for cam in rig.cameras}
+    assert max(abs(e.focal_rel) for e in c.cameras) < 0.02
+
+
+def test_the_live_calibrator_says_why_a_camera_is_missing():
+    _, obs = family_observations("ring", 1)
+    cal = calibrate(_isolated(obs, "ring4")).calibration
+    why = judge(cal, obs, LiveConfig(max_scale_rel=1.0))
+    assert why.startswith("cameras ['ring4'] not calibrated (ring4: it shares only 0 tracks")
