@@ -123,12 +123,13 @@ def _essential_by_third_view(obs, order, intr, xy, rows) -> Start:
     both = np.flatnonzero((rows[:, order[0]] >= 0) & (rows[:, order[1]] >= 0))
     shared = [len(np.flatnonzero(rows[both, order[m]] >= 0)) for m in range(2, len(order))]
     third = 2 + int(np.argmax(shared))
-    if max(shared) < MIN_RESECTION_POINTS:
+    candidates = _focal_candidates(obs, order, intr, xy, rows)
+    if len(candidates) > 1 and max(shared) < MIN_RESECTION_POINTS:
         raise SolveError(
             f"tracks: no camera shares more than {max(shared)} tracks with the stereo pair ({obs.stereo.left}, "
-            f"{obs.stereo.right}); need at least {MIN_RESECTION_POINTS} seen by the pair and another camera"
+            f"{obs.stereo.right}); need at least {MIN_RESECTION_POINTS} seen by the pair and another camera "
+            "(or give the pair's K)"
         )
-    candidates = _focal_candidates(obs, order, intr, xy, rows)
     threshold = threshold_px(obs, order)
     best: tuple[float, Start | None] = (np.inf, None)
     for f_pair in candidates:
