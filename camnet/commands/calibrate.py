@@ -85,6 +85,7 @@ def run(args: argparse.Namespace) -> int:
         "points": len(cal.points),
         "rms_reprojection_px": round(cal.rms_reprojection_px, 4),
         "scale_sigma_rel": cal.uncertainty.scale_rel.value if cal.uncertainty is not None else None,
+        "cameras_left_out": dict(cal.report.cameras_left_out) if cal.report is not None else {},
         "warnings": list(cal.warnings),
     }
     print(json.dumps(summary), file=sys.stdout)

@@ -4,10 +4,13 @@ Methods:
 
 - ``paper``: the paper's solver alone (stereo triangulation, eq. 13); the
   principal points as given or at the image centre, no distortion.
-- ``refined`` (default): the paper's solution, extended to every camera and
-  track, then a bundle adjustment that keeps the stereo pair rigid with its
-  baseline ``baseline_m`` (and every further known distance), with a robust
-  loss, outlier rejection and the free-intrinsics rule below.
+- ``refined`` (default): a start from the data (camnet.geometry.cold_start:
+  the paper's solution for a parallel pair, else the essential matrix, then
+  every camera through the view graph; cameras it cannot place are left
+  out and named in the report), then a bundle adjustment that keeps the
+  stereo pair rigid with its baseline ``baseline_m`` (and every further
+  known distance), with a robust loss, outlier rejection and the
+  free-intrinsics rule below.
 - ``unconstrained``: the same adjustment with the right camera free in 3-D and
   no known distance, as structure from motion: the scale is left to the optimiser.
 
@@ -18,9 +21,10 @@ determine it or ask for it (camnet.geometry.free_rule): the right stereo
 camera's pitch and roll, the direction of its baseline, its yaw, the
 principal points, k1, k2 (the last three camera by camera). A block that is
 neither is held at its given value (K and dist in the observations) or the
-ideal (image centre, no distortion, a parallel pair). Outliers are judged
-before the rule with the stereo pair free to turn. An explicit ``free`` set
-replaces the rule.
+ideal (image centre, no distortion, a parallel pair; a pair that did not
+start as the paper's turns and moves on the baseline's sphere from the
+start). Outliers are judged before the rule with the stereo pair free to
+turn. An explicit ``free`` set replaces the rule.
 
 Warm starts (``initial=``) reuse the previous solution's points and free
 parameters; when every camera still fits its observations only the new
@@ -184,15 +188,14 @@ def _calibrate(
         log.info("a stereo camera is reset: solving from scratch")
         initial = None
     intr = initial_intrinsics(obs, order)
-    held_K = np.array([obs.cameras[i].K is not None and "K" in obs.cameras[i].fixed for i in order])
     xy = centred(obs, order, intr)
     rows = observation_rows(obs)
     if initial is not None:
-        start = warm_start(obs, order, intr, xy, rows, initial, seed=options.seed, reset=reset)
+        start = warm_start(obs, order, intr, xy, rows, initial, reset=reset)
     else:
         paper_only = options.method == Method.PAPER
         start = cold_start(obs, order, intr, xy, rows, seed=options.seed, max_tracks=None if paper_only else 150,
-                           held_K=held_K, loss_scale_px=options.loss_scale_px, paper_only=paper_only)
+                           paper_only=paper_only)
     if start.left_out:  # the calibration holds the cameras placed; the report names the others
         obs, intr, start = without_cameras(obs, order, intr, start)
         order, rows = camera_order(obs), observation_rows(obs)
@@ -241,7 +244,8 @@ def _calibrate(
     timings["uncertainty"] = time.perf_counter() - t4
     timings["total"] = time.perf_counter() - t0
     return _result(
-        obs, order, problem, state, track_rows, inliers, info, cov, decisions, options.method, timings, start=start_kind
+        obs, order, problem, state, track_rows, inliers, info, cov, decisions, options.method, timings,
+        start=start_kind, left_out=start.left_out,
     )
 
 
@@ -457,7 +461,7 @@ def _paper_result(obs, order, intr, rows, start: Start, timings) -> Result:
 
 def _result(
     obs, order, problem, state, track_rows, inliers, info, cov, decisions, method: Method, timings, *,
-    start: StartKind = StartKind.COLD,
+    start: StartKind = StartKind.COLD, left_out: dict[str, str] | None = None,
 ) -> Result:
     cameras: list[Camera | None] = [None] * len(order)
     for m, i in enumerate(order):
@@ -474,6 +478,9 @@ def _result(
         obs, order, problem, state, cov, inliers, info, method=method, decisions=decisions, timings_s=timings,
         kept=kept, dropped=dropped, residuals_px=r, start=start,
     )
+    if left_out:  # the user must see them: warnings are printed
+        warned = tuple(f"camera {cam_id} left out: {why}" for cam_id, why in left_out.items())
+        report = replace(report, cameras_left_out=dict(left_out), warnings=report.warnings + warned)
     refuse_undetermined(report)
     calibration = Calibration(
         cameras=tuple(cameras),

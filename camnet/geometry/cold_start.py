@@ -1,14 +1,15 @@
 """A solve's start from nothing but the observations: the scale pair, then the view graph.
 
-Any two cameras with a known distance can be the scale pair. Their relative
-pose comes from the essential matrix (focal lengths from the fundamental
-matrix or a sweep, camnet.geometry.two_view); when it shows the paper's
-ideal pair (hardly turned, the baseline across the images), the paper's
-solver starts the solve as it always did. Otherwise the second camera is
-placed by that pose, its translation scaled to the known distance. Every
-other camera is then placed through the cameras that share its tracks
-(camnet.geometry.register); one that cannot be is left out, by name, with
-the reason, and the rest is solved.
+Any two cameras with a known distance can be the scale pair. Where their
+matches lie on matching rows as closely as on any epipolar lines, the pair
+is the paper's parallel pair and the paper's solver starts the solve as it
+always did. Otherwise (or where that solver finds no plausible start) the
+second camera is placed by the relative pose of the essential matrix
+(camnet.geometry.two_view), its translation scaled to the known distance,
+at the focal lengths (given, Bougnoux's or a sweep's) that a third camera
+agrees with best. Every other camera is then placed through the cameras
+that share its tracks (camnet.geometry.register); one that cannot be is
+left out, by name, with the reason, and the rest is solved.
 
 Cameras are in problem order (the pair first), pixels centred, poses
 ``x_cam = R (X - C)`` in the left camera's frame, metres.
@@ -22,15 +23,15 @@ from dataclasses import replace
 import numpy as np
 
 from camnet.errors import SolveError
-from camnet.geometry.initialise import (
-    Start,
-    camera_order,
-    paper_start,
-    register_and_triangulate,
+from camnet.geometry.initialise import Start, camera_order, paper_start
+from camnet.geometry.model import Observations
+from camnet.geometry.register import (
+    MIN_RESECTION_POINTS,
+    register_over_graph,
+    resect,
+    threshold_px,
     triangulate_missing,
 )
-from camnet.geometry.model import Observations
-from camnet.geometry.register import MIN_RESECTION_POINTS, register_over_graph, resect
 from camnet.geometry.two_view import (
     MIN_PAIR_POINTS,
     RelativePose,
@@ -64,12 +65,6 @@ def check_solvable(obs: Observations) -> None:
             f"tracks: the stereo pair ({obs.stereo.left}, {obs.stereo.right}) shares only {shared} tracks; "
             f"need at least {MIN_PAIR_POINTS} (choose two cameras that see the same part of the scene)"
         )
-
-
-def threshold_px(obs: Observations, order: list[int]) -> float:
-    """RANSAC inlier threshold: 1% of the left image's diagonal (a start, not a fit)."""
-    left = obs.cameras[order[0]]
-    return 0.01 * float(np.hypot(left.width, left.height))
 
 
 def is_parallel(rows_px: float, epipolar_px: float) -> bool:
@@ -128,12 +123,13 @@ def _essential_by_third_view(obs, order, intr, xy, rows) -> Start:
     both = np.flatnonzero((rows[:, order[0]] >= 0) & (rows[:, order[1]] >= 0))
     shared = [len(np.flatnonzero(rows[both, order[m]] >= 0)) for m in range(2, len(order))]
     third = 2 + int(np.argmax(shared))
-    if max(shared) < MIN_RESECTION_POINTS:
+    candidates = _focal_candidates(obs, order, intr, xy, rows)
+    if len(candidates) > 1 and max(shared) < MIN_RESECTION_POINTS:
         raise SolveError(
             f"tracks: no camera shares more than {max(shared)} tracks with the stereo pair ({obs.stereo.left}, "
-            f"{obs.stereo.right}); need at least {MIN_RESECTION_POINTS} seen by the pair and another camera"
+            f"{obs.stereo.right}); need at least {MIN_RESECTION_POINTS} seen by the pair and another camera "
+            "(or give the pair's K)"
         )
-    candidates = _focal_candidates(obs, order, intr, xy, rows)
     threshold = threshold_px(obs, order)
     best: tuple[float, Start | None] = (np.inf, None)
     for f_pair in candidates:
@@ -170,10 +166,7 @@ def _paper_pair(obs, order, intr, xy, rows, seed, max_tracks) -> Start | None:
         log.info("the paper's solver puts the left focal length at %.0f px and %.0f%% of the pair's tracks in "
                  "front: starting from the essential matrix", start.f[0], 100 * in_front)
         return None
-    if start.registered.all():
-        register_and_triangulate(obs, order, xy, rows, start.f, start.R, start.C, start.X, start.registered,
-                                 seed=seed)
-    else:
+    if not start.registered.all():
         # Cameras that share few stereo tracks see them from the side, where the stereo cloud's
         # depth error shows most: they are placed again through the graph, on better points.
         start.registered[2:] = False
@@ -183,13 +176,13 @@ def _paper_pair(obs, order, intr, xy, rows, seed, max_tracks) -> Start | None:
 
 def cold_start(
     obs: Observations, order: list[int], intr: np.ndarray, xy: np.ndarray, rows: np.ndarray, *, seed: int,
-    max_tracks: int | None, held_K: np.ndarray, loss_scale_px: float, paper_only: bool = False,
+    max_tracks: int | None, paper_only: bool = False,
 ) -> Start:
     """The start of a solve with no previous calibration; `Start.left_out` names the cameras it could not place.
 
-    intr (M, 9): the given intrinsics (f NaN where unknown); held_K (M,):
-    cameras whose K is held. paper_only: the paper's method, which needs a
-    parallel pair and every camera sharing six stereo tracks (raises if not).
+    intr (M, 9): the given intrinsics (f NaN where unknown). paper_only:
+    the paper's method, which needs a parallel pair and every camera
+    sharing six stereo tracks (raises if not).
     """
     left, right = _pair_rows(order, rows)
     rows_px, epipolar_px = row_and_epipolar_errors(xy[left], xy[right], threshold_px=threshold_px(obs, order))
@@ -206,16 +199,8 @@ def cold_start(
     start = _paper_pair(obs, order, intr, xy, rows, seed, max_tracks) if parallel else None
     if start is None:
         start = _essential_by_third_view(obs, order, intr, xy, rows)
-    if start.registered.all():
-        return start
-    aspect = np.where(np.isfinite(intr[:, 1]), intr[:, 1], 1.0)
-    widths = np.array([obs.cameras[i].width for i in order])
-    reasons = register_over_graph(
-        start.f, start.R, start.C, start.X, start.registered, order=order, rows=rows, xy=xy, widths=widths,
-        aspect=aspect, held_K=held_K, parallel=start.parallel, baseline_m=obs.stereo.baseline_m,
-        threshold_px=threshold_px(obs, order), loss_scale_px=loss_scale_px,
-    )
-    triangulate_missing(order, xy, rows, start.f, start.R, start.C, start.X, start.registered)
+    reasons = register_over_graph(obs, order, xy, rows, intr, start.f, start.R, start.C, start.X, start.registered,
+                                  hold_pair=start.parallel)
     start.left_out = {obs.cameras[order[m]].id: reasons[m] for m in np.flatnonzero(~start.registered)}
     if start.registered.sum() < MIN_CAMERAS:
         raise SolveError(

@@ -30,6 +30,7 @@ MIN_PARALLAX_DEG = 2.0
 COPLANAR_RATIO = 0.02
 POOR_FOCAL_REL = 0.05
 POOR_SCALE_REL = 0.01
+UNDETERMINED_SCALE = "not determined by the observations"
 MAX_LINEAR_FOCAL_REL = 0.15  # a stereo focal length's relative sigma beyond which the scale has no linear sigma
 MAX_DEPTH_BASELINES = 1000.0  # a scene farther than this many baselines has next to no disparity
 DISTANCE_SIGMAS = 3.0  # a known distance this many sigmas from where the scene puts it is reported
@@ -193,7 +194,7 @@ def _uncertainty(ids: list[str], problem, state, cov: Covariance, kept, warnings
     prior_columns = cov.columns[:, 2:4][(cov.columns[:, 2:4] >= 0) & ~problem.intr_free[:, 2:4]]
     if scale is not None and len(prior_columns):
         scale_if_pp = scale_sigma(cov, state.X, weights, given=prior_columns)
-    unknown_scale = "not determined by the observations"
+    unknown_scale = UNDETERMINED_SCALE
     if nonlinear:
         unknown_scale = (f"the stereo cameras' focal lengths are known to {100 * pair_focal_rel:.0f}% only (1 sigma); "
                          "give their K")
@@ -315,12 +316,13 @@ def refuse_undetermined(report: SolveReport) -> None:
     """Refuse a solution whose scale the observations do not determine: it is no calibration.
 
     Parameters the data leave free elsewhere are reported (sigma null, a
-    warning naming them); without a scale nothing of the network is known.
+    warning naming them); without a scale nothing of the network is known. A
+    scale beyond the linear range (stereo focal lengths known to tens of
+    percent) is a calibration with its scale sigma null and a warning saying why.
     """
     u = report.uncertainty
-    if u is not None and u.scale_rel.value is None:
+    if u is not None and u.scale_rel.reason == UNDETERMINED_SCALE:
         cameras = [w.split(":")[0].removeprefix("camera ") for w in report.warnings if "not determined by" in w]
         also = f" (nor cameras {cameras})" if cameras else ""
-        why = u.scale_rel.reason if "focal" in u.scale_rel.reason else (
-            "too few points agree with one solution; check the tracks and that the cameras see a common scene")
-        raise SolveError(f"the observations do not determine the scale{also}: {why}")
+        raise SolveError(f"the observations do not determine the scale{also}: too few points agree with one "
+                         "solution; check the tracks and that the cameras see a common scene")

@@ -19,6 +19,7 @@ from camnet.errors import SolveError
 from camnet.geometry import paper
 from camnet.geometry.model import Calibration, LensModel, Observations
 from camnet.geometry.projection import K_from_intrinsics, full_dist, intrinsics_from_K, normalised
+from camnet.geometry.register import register_over_graph, threshold_px, triangulate_missing
 
 log = logging.getLogger(__name__)
 
@@ -108,12 +109,6 @@ def with_guessed_fisheye_focal(obs: Observations, order: list[int], intr: np.nda
     return guessed
 
 
-def _threshold_px(obs: Observations, order: list[int]) -> float:
-    """RANSAC inlier threshold: 1% of the left image's diagonal (a start, not a fit)."""
-    left = obs.cameras[order[0]]
-    return 0.01 * float(np.hypot(left.width, left.height))
-
-
 def paper_start(
     obs: Observations,
     order: list[int],
@@ -143,7 +138,7 @@ def paper_start(
     P0[np.flatnonzero(pair)[valid]] = P0_pair[valid]
     has_P0 = np.all(np.isfinite(P0), axis=1)
 
-    threshold = _threshold_px(obs, order)
+    threshold = threshold_px(obs, order)
     stretched = {}  # camera -> (DLT matrix on P0, its inlier tracks)
     for m in range(2, M):
         trk = np.flatnonzero(has_P0 & (rows[:, order[m]] >= 0))
@@ -204,7 +199,6 @@ def warm_start(
     rows: np.ndarray,
     initial: Calibration,
     *,
-    seed: int,
     reset: Collection[int] = (),
 ) -> Start:
     """Start from a previous calibration: its cameras, its points, new tracks triangulated.
@@ -212,7 +206,9 @@ def warm_start(
     `intr` and `xy` are updated in place with the previous intrinsics.
     reset: problem indices of non-stereo cameras whose previous pose is not
     trusted; they keep their intrinsics and are registered again, by PnP
-    RANSAC, on the points the other cameras determine.
+    RANSAC, on the points the other cameras determine. Cameras new to
+    `initial` are placed through the view graph; `Start.left_out` names
+    those it cannot place.
     """
     by_id = {c.id: c for c in initial.cameras}
     M = len(order)
@@ -242,10 +238,11 @@ def warm_start(
         if not np.isfinite(f[m]):
             continue  # not in `initial` either: registered below like any new camera
         # Points the moved camera helped to place are still fine: the other cameras hold them.
-        R[m], C[m] = register_pnp(X, xy, rows[:, order[m]], f[m], obs.cameras[order[m]].id, _threshold_px(obs, order))
+        R[m], C[m] = register_pnp(X, xy, rows[:, order[m]], f[m], obs.cameras[order[m]].id, threshold_px(obs, order))
         registered[m] = True
-    register_and_triangulate(obs, order, xy, rows, f, R, C, X, registered, seed=seed)
-    return Start(f, R, C, X, registered, np.full_like(X, np.nan), f[1] / f[0])
+    reasons = register_over_graph(obs, order, xy, rows, intr, f, R, C, X, registered, hold_pair=True)
+    left_out = {obs.cameras[order[m]].id: reasons[m] for m in np.flatnonzero(~registered)}
+    return Start(f, R, C, X, registered, np.full_like(X, np.nan), f[1] / f[0], left_out=left_out)
 
 
 def register_pnp(
@@ -286,7 +283,7 @@ def register_pnp(
 def register_and_triangulate(obs, order, xy, rows, f, R, C, X, registered, *, seed: int) -> None:
     """Alternately register cameras (DLT on known points) and triangulate tracks, in place."""
     M = len(order)
-    threshold = _threshold_px(obs, order)
+    threshold = threshold_px(obs, order)
     while True:
         progress = False
         for m in np.flatnonzero(~registered):
@@ -308,29 +305,3 @@ def register_and_triangulate(obs, order, xy, rows, f, R, C, X, registered, *, se
             f"(need at least {MIN_REGISTRATION_POINTS})"
         )
     triangulate_missing(order, xy, rows, f, R, C, X, registered)
-
-
-def triangulate_missing(order, xy, rows, f, R, C, X, registered) -> int:
-    """Midpoint triangulation, in place, of tracks without a point seen by >= 2 placed cameras."""
-    todo = ~np.all(np.isfinite(X), axis=1)
-    A = np.zeros((len(X), 3, 3))
-    b = np.zeros((len(X), 3))
-    count = np.zeros(len(X), dtype=int)
-    for m in np.flatnonzero(registered):
-        trk = np.flatnonzero(todo & (rows[:, order[m]] >= 0))
-        if not len(trk):
-            continue
-        p = xy[rows[trk, order[m]]] / f[m]
-        d = np.concatenate([p, np.ones((len(trk), 1))], axis=1) @ R[m]  # rays in the world
-        d /= np.linalg.norm(d, axis=1, keepdims=True)
-        Pm = np.eye(3) - d[:, :, None] * d[:, None, :]
-        A[trk] += Pm
-        b[trk] += Pm @ C[m]
-        count[trk] += 1
-    ok = todo & (count >= 2)
-    if not ok.any():
-        return 0
-    det = np.linalg.det(A[ok])
-    good = np.flatnonzero(ok)[det > 1e-9]
-    X[good] = np.linalg.solve(A[good], b[good][:, :, None])[:, :, 0]
-    return len(good)

@@ -89,7 +89,8 @@ def judge(cal: Calibration, obs: Observations, config: LiveConfig) -> str:
         return f"scale uncertain ({scale_rel} > {config.max_scale_rel})"
     missing = set(obs.camera_ids) - {c.id for c in cal.cameras}
     if missing:
-        return f"cameras {sorted(missing)} not calibrated"
+        why = "; ".join(f"{c}: {r}" for c, r in cal.report.cameras_left_out.items() if c in missing)
+        return f"cameras {sorted(missing)} not calibrated" + (f" ({why})" if why else "")
     return ""
 
 

@@ -1,11 +1,11 @@
 """Registration over the view graph: every camera placed through the cameras that share its tracks.
 
-From the scale pair's start (camnet.geometry.initialise's paper solver for a
-parallel pair, the essential matrix for any other, see `cold_start`), the
-camera that sees the most placed points is resected next (PnP over a sweep
-of focal lengths, then the focal length refined by OpenCV), the tracks it
-newly sees twice are triangulated, and a short robust adjustment of every
-placed camera and point keeps errors from adding up before the next one.
+From the scale pair's start (camnet.geometry.cold_start) or a previous
+calibration, the camera that sees the most placed points is resected next
+(PnP RANSAC over a sweep of focal lengths, then the focal length and pose
+refined by SciPy's robust least squares), the tracks it newly sees twice
+are triangulated, and a short robust adjustment of every placed camera and
+point keeps errors from adding up before the next one.
 Cameras that share nothing with the pair are placed through their
 neighbours; one that cannot be placed is left out with the reason.
 
@@ -22,7 +22,7 @@ import numpy as np
 
 from camnet.geometry import bundle
 from camnet.geometry.bundle import CentreMode, Problem, State
-from camnet.geometry.model import Loss
+from camnet.geometry.model import Loss, Observations
 from camnet.geometry.projection import N_INTRINSICS
 from camnet.geometry.two_view import focal_grid
 
@@ -32,6 +32,13 @@ MIN_RESECTION_POINTS = 6  # a pose and a focal length: 7 unknowns, and a margin 
 MIN_INLIER_SHARE = 0.3  # fewer agreeing points than this share: the pose found is chance
 LOCAL_ITERATIONS = 30  # a start for the next camera, not the solution
 LOCAL_FTOL = 1e-4
+LOCAL_LOSS_SCALE_PX = 2.0  # the robust loss bends here, as in the final adjustment's default
+
+
+def threshold_px(obs: Observations, order: list[int]) -> float:
+    """RANSAC inlier threshold: 1% of the left image's diagonal (a start, not a fit)."""
+    left = obs.cameras[order[0]]
+    return 0.01 * float(np.hypot(left.width, left.height))
 
 
 @dataclass(frozen=True)
@@ -69,7 +76,8 @@ def resect(X: np.ndarray, xy: np.ndarray, *, f_px: float | None, width_px: int, 
 
     n = len(X)
     if n < MIN_RESECTION_POINTS:
-        return f"it shares only {n} tracks with the cameras placed before it (need at least {MIN_RESECTION_POINTS})"
+        return (f"it shares only {n} tracks with the cameras placed (need at least "
+                f"{MIN_RESECTION_POINTS}): give it a view of what its neighbours see")
     X, xy = np.ascontiguousarray(X, np.float64), np.ascontiguousarray(xy, np.float64)
     best = (np.inf, None)
     for f in [f_px] if f_px is not None else focal_grid(width_px):
@@ -82,7 +90,8 @@ def resect(X: np.ndarray, xy: np.ndarray, *, f_px: float | None, width_px: int, 
             if cost < best[0]:
                 best = (cost, (f, rvec.ravel(), tvec.ravel(), err < threshold_px))
     enough = max(MIN_RESECTION_POINTS, MIN_INLIER_SHARE * n)
-    failed = f"no consistent pose among the {n} tracks it shares with the cameras placed before it"
+    failed = (f"no consistent pose among the {n} tracks it shares with the cameras placed: "
+              "check its matches, and that it did not move while they were taken")
     if best[1] is None or best[1][3].sum() < enough:
         return failed
     f, rvec, tvec = _refine(X[best[1][3]], xy[best[1][3]], *best[1][:3], f_free=f_px is None,
@@ -111,15 +120,16 @@ def _refine(X, xy, f, rvec, tvec, *, f_free: bool, threshold_px: float) -> tuple
 
 def local_adjustment(
     f: np.ndarray, R: np.ndarray, C: np.ndarray, X: np.ndarray, *, aspect: np.ndarray, xy_rows: np.ndarray,
-    xy: np.ndarray, placed: np.ndarray, held_K: np.ndarray, parallel: bool, baseline_m: float, loss_scale_px: float,
+    xy: np.ndarray, placed: np.ndarray, held_K: np.ndarray, hold_pair: bool, baseline_m: float,
 ) -> None:
     """A short robust adjustment, in place, of the placed cameras and the points they see twice.
 
     f, aspect (M,), R, C (M, ...), X (T, 3): problem-order arrays; xy_rows
     (T, M): each track's observation row per camera (-1 none); xy: centred
     pixels. The gauge is the final adjustment's first pass: the left camera
-    fixed, the right one held as the ideal parallel pair when `parallel`,
-    else turning and on the baseline's sphere.
+    fixed, the right one held where it is when `hold_pair` (the paper's
+    ideal pair, or a previous calibration's), else turning and on the
+    baseline's sphere.
     """
     cams = np.flatnonzero(placed)
     seen = xy_rows[:, cams] >= 0
@@ -133,13 +143,13 @@ def local_adjustment(
     intr_free[:, 0] = ~held_K[cams]
     rot_free = np.ones((M, 3), dtype=bool)
     rot_free[0] = False
-    rot_free[1] = not parallel
+    rot_free[1] = not hold_pair
     centre_mode = np.full(M, CentreMode.FREE)
     centre_mode[0] = CentreMode.FIXED
-    centre_mode[1] = CentreMode.FIXED if parallel else CentreMode.ON_BASELINE
+    centre_mode[1] = CentreMode.FIXED if hold_pair else CentreMode.ON_BASELINE
     problem = Problem(local_cam, local_pt, xy[obs_rows], intr_free, rot_free, centre_mode, baseline_m, len(tracks))
     state, info = bundle.solve(
-        problem, State(intr, R[cams], C[cams], X[tracks]), loss=Loss.CAUCHY, scale_px=loss_scale_px,
+        problem, State(intr, R[cams], C[cams], X[tracks]), loss=Loss.CAUCHY, scale_px=LOCAL_LOSS_SCALE_PX,
         max_iterations=LOCAL_ITERATIONS, ftol=LOCAL_FTOL,
     )
     log.debug("local adjustment of %d cameras, %d points: %s", M, len(tracks), info.reason)
@@ -148,19 +158,20 @@ def local_adjustment(
 
 
 def register_over_graph(
-    f: np.ndarray, R: np.ndarray, C: np.ndarray, X: np.ndarray, placed: np.ndarray, *, order: list[int],
-    rows: np.ndarray, xy: np.ndarray, widths: np.ndarray, aspect: np.ndarray, held_K: np.ndarray, parallel: bool,
-    baseline_m: float, threshold_px: float, loss_scale_px: float,
+    obs: Observations, order: list[int], xy: np.ndarray, rows: np.ndarray, intr: np.ndarray, f: np.ndarray,
+    R: np.ndarray, C: np.ndarray, X: np.ndarray, placed: np.ndarray, *, hold_pair: bool,
 ) -> dict[int, str]:
     """Place, in place, every camera the view graph reaches; {problem index: reason} for the others.
 
-    f, R, C, placed (M,...) and X (T, 3) as in initialise.Start (f NaN
-    where not known, unless held_K); rows (T, cameras): observation row of
-    each track per observations camera; widths (M,) image widths, px.
+    rows (T, cameras): observation row of each track per observations
+    camera; intr (M, 9): the given intrinsics (a held K's focal length is
+    kept); f, R, C, placed (M, ...) and X (T, 3) as in initialise.Start.
+    hold_pair: hold the stereo pair where it is in the local adjustments.
     """
-    from camnet.geometry.initialise import triangulate_missing
-
     xy_rows = rows[:, order]
+    held_K = np.array([obs.cameras[i].K is not None and "K" in obs.cameras[i].fixed for i in order])
+    aspect = np.where(np.isfinite(intr[:, 1]), intr[:, 1], 1.0)
+    threshold = threshold_px(obs, order)
     reasons: dict[int, str] = {}
     triangulate_missing(order, xy, rows, f, R, C, X, placed)
     while not placed.all():
@@ -168,8 +179,8 @@ def register_over_graph(
         shared = {int(m): np.flatnonzero(known & (xy_rows[:, m] >= 0)) for m in np.flatnonzero(~placed)}
         for m in sorted(shared, key=lambda m: -len(shared[m])):
             trk = shared[m]
-            got = resect(X[trk], xy[xy_rows[trk, m]], f_px=f[m] if held_K[m] else None, width_px=int(widths[m]),
-                         threshold_px=threshold_px)
+            got = resect(X[trk], xy[xy_rows[trk, m]], f_px=intr[m, 0] if held_K[m] else None,
+                         width_px=obs.cameras[order[m]].width, threshold_px=threshold)
             if isinstance(got, str):
                 reasons[m] = got
                 continue
@@ -177,8 +188,35 @@ def register_over_graph(
             reasons.pop(m, None)
             triangulate_missing(order, xy, rows, f, R, C, X, placed)
             local_adjustment(f, R, C, X, aspect=aspect, xy_rows=xy_rows, xy=xy, placed=placed, held_K=held_K,
-                             parallel=parallel, baseline_m=baseline_m, loss_scale_px=loss_scale_px)
+                             hold_pair=hold_pair, baseline_m=obs.stereo.baseline_m)
             break
         else:
             break  # no camera left that the placed ones reach
+    triangulate_missing(order, xy, rows, f, R, C, X, placed)
     return reasons
+
+
+def triangulate_missing(order, xy, rows, f, R, C, X, registered) -> int:
+    """Midpoint triangulation, in place, of tracks without a point seen by >= 2 placed cameras."""
+    todo = ~np.all(np.isfinite(X), axis=1)
+    A = np.zeros((len(X), 3, 3))
+    b = np.zeros((len(X), 3))
+    count = np.zeros(len(X), dtype=int)
+    for m in np.flatnonzero(registered):
+        trk = np.flatnonzero(todo & (rows[:, order[m]] >= 0))
+        if not len(trk):
+            continue
+        p = xy[rows[trk, order[m]]] / f[m]
+        d = np.concatenate([p, np.ones((len(trk), 1))], axis=1) @ R[m]  # rays in the world
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        Pm = np.eye(3) - d[:, :, None] * d[:, None, :]
+        A[trk] += Pm
+        b[trk] += Pm @ C[m]
+        count[trk] += 1
+    ok = todo & (count >= 2)
+    if not ok.any():
+        return 0
+    det = np.linalg.det(A[ok])
+    good = np.flatnonzero(ok)[det > 1e-9]
+    X[good] = np.linalg.solve(A[good], b[good][:, :, None])[:, :, 0]
+    return len(good)

@@ -1,4 +1,5 @@
-"""Two views alone: focal lengths from the fundamental matrix, the relative pose from the essential matrix.
+"""Two views alone: focal lengths from the fundamental matrix, the relative pose from the essential matrix,
+and how well the paper's parallel pair (matching rows) explains their matches.
 
 Pixels are *centred* (relative to each camera's principal point, as in
 camnet.geometry.initialise), so the principal points are the origins.

@@ -41,8 +41,10 @@ def report_to_doc(report: SolveReport) -> dict:
         "observations": report.observations,
         "inliers": report.inliers,
         "cameras": {cam_id: {"rms_px": s.rms_px, "inliers": s.inliers} for cam_id, s in report.cameras.items()},
-        "median_parallax_deg": report.median_parallax_deg,
     }
+    if report.cameras_left_out:
+        diagnostics["cameras_left_out"] = dict(report.cameras_left_out)
+    diagnostics["median_parallax_deg"] = report.median_parallax_deg
     if report.free is not None:
         diagnostics["free"] = {
             "intrinsics": {cam_id: list(names) for cam_id, names in report.free.intrinsics.items()},
@@ -132,6 +134,7 @@ def parse_report(doc: dict) -> SolveReport | None:
         start=StartKind(start) if start is not None else None,
         timings_s={k: v.number(t, f"timings_s.{k}") for k, t in timings.items()},
         uncertainty=_parse_uncertainty(doc["uncertainty"], "uncertainty") if "uncertainty" in doc else None,
+        cameras_left_out=get("cameras_left_out", _parse_left_out, {}),
     )
 
 
@@ -144,6 +147,10 @@ def _parse_camera_stats(value: Any, path: str) -> dict[str, CameraStats]:
             inliers=v.integer(v.require(stats, "inliers", here), f"{here}.inliers"),
         )
     return out
+
+
+def _parse_left_out(value: Any, path: str) -> dict[str, str]:
+    return {cam_id: v.string(why, f"{path}.{cam_id}") for cam_id, why in v.mapping(value, path).items()}
 
 
 def _parse_free(value: Any, path: str) -> FreeSet:
