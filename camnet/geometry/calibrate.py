@@ -4,12 +4,10 @@ Methods:
 
 - ``paper``: the paper's solver alone (stereo triangulation, eq. 13); the
   principal points as given or at the image centre, no distortion.
-- ``refined`` (default): a start from the data (camnet.geometry.cold_start:
-  the paper's solution for a parallel pair, else the essential matrix, then
-  every camera through the view graph; cameras it cannot place are left
-  out and named in the report), then a bundle adjustment that keeps the
-  stereo pair rigid with its baseline exactly ``baseline_m``, with a robust
-  loss, outlier rejection and the free-intrinsics rule below.
+- ``refined`` (default): a start from the data (camnet.geometry.cold_start;
+  cameras it cannot place are left out, by name), then a bundle adjustment
+  that keeps the stereo pair rigid with its baseline exactly ``baseline_m``,
+  with a robust loss, outlier rejection and the free-intrinsics rule below.
 - ``unconstrained``: the same adjustment with the right camera free in 3-D,
   as classical structure from motion: the scale is left to the optimiser.
 
@@ -20,9 +18,8 @@ determine it or ask for it (camnet.geometry.free_rule): the right stereo
 camera's pitch and roll, the direction of its baseline, its yaw, the
 principal points, k1, k2 (the last three camera by camera). A block that is
 neither is held at its given value (K and dist in the observations) or the
-ideal (image centre, no distortion, a parallel pair; a pair that did not
-start as the paper's turns and moves on the baseline's sphere from the
-start). Outliers are judged before the rule with the stereo pair free to
+ideal (image centre, no distortion, a parallel pair; one not started as such
+is free). Outliers are judged before the rule with the stereo pair free to
 turn. An explicit ``free`` set replaces the rule.
 
 Warm starts (``initial=``) reuse the previous solution's points and free
@@ -45,7 +42,7 @@ import numpy as np
 from camnet.errors import SolveError
 from camnet.geometry import bundle
 from camnet.geometry.bundle import CentreMode, Problem, State
-from camnet.geometry.cold_start import check_solvable, cold_start, without_cameras
+from camnet.geometry.cold_start import check_solvable, cold_start, with_cameras_left_out, without_cameras
 from camnet.geometry.diagnostics import reported_points, solve_report
 from camnet.geometry.free_rule import choose_free, free_mask, free_names, restore_free
 from camnet.geometry.initialise import (
@@ -477,9 +474,7 @@ def _result(
         obs, order, problem, state, cov, inliers, info, method=method, decisions=decisions, timings_s=timings,
         kept=kept, dropped=dropped, residuals_px=r, start=start,
     )
-    if left_out:  # the user must see them: warnings are printed
-        warned = tuple(f"camera {cam_id} left out: {why}" for cam_id, why in left_out.items())
-        report = replace(report, cameras_left_out=dict(left_out), warnings=report.warnings + warned)
+    report = with_cameras_left_out(report, left_out or {})
     calibration = Calibration(
         cameras=tuple(cameras),
         point_ids=obs.track_ids[track_rows[kept]],

@@ -24,7 +24,7 @@ import numpy as np
 
 from camnet.errors import SolveError
 from camnet.geometry.initialise import Start, camera_order, paper_start
-from camnet.geometry.model import Observations
+from camnet.geometry.model import Observations, SolveReport
 from camnet.geometry.register import (
     MIN_RESECTION_POINTS,
     register_over_graph,
@@ -232,3 +232,11 @@ def without_cameras(obs: Observations, order: list[int], intr: np.ndarray, start
     start = Start(start.f[keep], start.R[keep], start.C[keep], start.X, start.registered[keep], start.P0, start.k,
                   start.parallel, start.left_out)
     return obs, intr[keep], start
+
+
+def with_cameras_left_out(report: SolveReport, left_out: dict[str, str]) -> SolveReport:
+    """`report` naming the cameras left out, each also in a warning: the user must see them."""
+    if not left_out:
+        return report
+    warned = tuple(f"camera {cam_id} left out: {why}" for cam_id, why in left_out.items())
+    return replace(report, cameras_left_out=dict(left_out), warnings=report.warnings + warned)
