@@ -11,6 +11,7 @@ from camnet.geometry.cold_start import cold_start, is_parallel
 from camnet.geometry.evaluate import compare
 from camnet.geometry.initialise import camera_order, centred, initial_intrinsics, observation_rows
 from camnet.geometry.live import LiveConfig, judge
+from camnet.geometry.model import Stereo
 from camnet.geometry.projection import look_at, rotation_exp, skew
 from camnet.geometry.register import resect
 from camnet.geometry.two_view import bougnoux_focals, row_and_epipolar_errors
@@ -137,3 +138,20 @@ def test_the_live_calibrator_says_why_a_camera_is_missing():
     cal = calibrate(_isolated(obs, "ring4")).calibration
     why = judge(cal, obs, LiveConfig(max_scale_rel=1.0))
     assert why.startswith("cameras ['ring4'] not calibrated (ring4: it shares only 0 tracks")
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_scale_pair_far_apart_is_solved_within_its_sigmas_or_refused(seed):
+    # ring0 and ring3, 135 degrees apart, share about 30 tracks: a weak pair to start from.
+    drawn = family("tape_pair", seed=seed)
+    cams = {c.id: c for c in drawn.rig.cameras}
+    distance_m = float(np.linalg.norm(cams["ring0"].centre - cams["ring3"].centre))
+    obs = observe(drawn.rig, noise_px=0.5, seed=seed, normals=drawn.normals).observations
+    obs = replace(obs, stereo=Stereo("ring0", "ring3", distance_m))
+    try:
+        cal = calibrate(obs).calibration
+    except SolveError:
+        return
+    c = compare(cal, drawn.rig.cameras, drawn.rig.points)
+    assert max(abs(e.focal_rel) for e in c.cameras) < 0.02
+    assert abs(c.scale_rel) < 3 * c.scale_sigma_rel

@@ -21,9 +21,8 @@ determine it or ask for it (camnet.geometry.free_rule): the right stereo
 camera's pitch and roll, the direction of its baseline, its yaw, the
 principal points, k1, k2 (the last three camera by camera). A block that is
 neither is held at its given value (K and dist in the observations) or the
-ideal (image centre, no distortion, a parallel pair; a pair that did not
-start as the paper's turns and moves on the baseline's sphere from the
-start). Outliers are judged before the rule with the stereo pair free to
+ideal (image centre, no distortion, a parallel pair; one not started as such
+is free). Outliers are judged before the rule with the stereo pair free to
 turn. An explicit ``free`` set replaces the rule.
 
 Warm starts (``initial=``) reuse the previous solution's points and free
@@ -46,7 +45,7 @@ import numpy as np
 from camnet.errors import SolveError
 from camnet.geometry import bundle, distances
 from camnet.geometry.bundle import CentreMode, Problem, State
-from camnet.geometry.cold_start import check_solvable, cold_start, without_cameras
+from camnet.geometry.cold_start import check_solvable, cold_start, with_cameras_left_out, without_cameras
 from camnet.geometry.diagnostics import refuse_undetermined, reported_points, solve_report
 from camnet.geometry.free_rule import choose_free, free_mask, free_names, restore_free
 from camnet.geometry.initialise import (
@@ -478,9 +477,7 @@ def _result(
         obs, order, problem, state, cov, inliers, info, method=method, decisions=decisions, timings_s=timings,
         kept=kept, dropped=dropped, residuals_px=r, start=start,
     )
-    if left_out:  # the user must see them: warnings are printed
-        warned = tuple(f"camera {cam_id} left out: {why}" for cam_id, why in left_out.items())
-        report = replace(report, cameras_left_out=dict(left_out), warnings=report.warnings + warned)
+    report = with_cameras_left_out(report, left_out or {})
     refuse_undetermined(report)
     calibration = Calibration(
         cameras=tuple(cameras),

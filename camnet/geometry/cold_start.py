@@ -24,11 +24,12 @@ import numpy as np
 
 from camnet.errors import SolveError
 from camnet.geometry.initialise import Start, camera_order, paper_start
-from camnet.geometry.model import Observations
+from camnet.geometry.model import Observations, SolveReport
 from camnet.geometry.register import (
     MIN_RESECTION_POINTS,
     register_over_graph,
     resect,
+    seed_adjustment,
     threshold_px,
     triangulate_missing,
 )
@@ -50,6 +51,7 @@ MIN_CAMERAS = 3  # two views of unknown focal length need a third (eq. 15)
 PARALLEL_ROWS_RATIO = 3.0
 PARALLEL_ROWS_FLOOR_PX = 0.1
 PARALLEL_IN_FRONT = 0.8
+SEED_TRIALS = 4  # the pair's focal lengths a third view fits best, adjusted with it to choose one
 
 
 def check_solvable(obs: Observations) -> None:
@@ -131,7 +133,7 @@ def _essential_by_third_view(obs, order, intr, xy, rows) -> Start:
             "(or give the pair's K)"
         )
     threshold = threshold_px(obs, order)
-    best: tuple[float, Start | None] = (np.inf, None)
+    placed = []  # (MSAC of the third camera, start with it placed)
     for f_pair in candidates:
         pose = relative_pose(xy[left], xy[right], *f_pair, threshold_px=threshold)
         if pose is None or pose.inliers.sum() < MIN_PAIR_POINTS:
@@ -142,14 +144,21 @@ def _essential_by_third_view(obs, order, intr, xy, rows) -> Start:
         trk = np.flatnonzero(np.all(np.isfinite(start.X), axis=1) & (rows[:, order[third]] >= 0))
         got = resect(start.X[trk], xy[rows[trk, order[third]]], f_px=intr[third, 0] if np.isfinite(intr[third, 0])
                      else None, width_px=obs.cameras[order[third]].width, threshold_px=threshold)
-        if not isinstance(got, str) and got.median_error_px < best[0]:
-            best = (got.median_error_px, start)
-    if best[1] is None:
+        if not isinstance(got, str):
+            start.f[third], start.R[third], start.C[third], start.registered[third] = got.f_px, got.R, got.C, True
+            placed.append((got.msac_px2, start))
+    if not placed:
         raise SolveError(
             f"cameras: {obs.cameras[order[third]].id} does not agree with the stereo pair ({obs.stereo.left}, "
             f"{obs.stereo.right}) at any focal length, so the pair's are not determined; check the pair's matches"
         )
-    log.info("the pair's focal lengths from a third view: %.0f, %.0f px (%.2f px)", *best[1].f[:2], best[0])
+    # Few shared tracks fit a wrong focal length nearly as well: the three views, adjusted, decide.
+    best = (np.inf, None)
+    for _, start in sorted(placed, key=lambda p: p[0])[:SEED_TRIALS]:
+        cost = seed_adjustment(obs, order, xy, rows, intr, start)
+        if cost < best[0]:
+            best = (cost, start)
+    log.info("the pair's focal lengths from a third view: %.0f, %.0f px (%.2f px^2)", *best[1].f[:2], best[0])
     return best[1]
 
 
@@ -225,3 +234,11 @@ def without_cameras(obs: Observations, order: list[int], intr: np.ndarray, start
     start = Start(start.f[keep], start.R[keep], start.C[keep], start.X, start.registered[keep], start.P0, start.k,
                   start.parallel, start.left_out)
     return obs, intr[keep], start
+
+
+def with_cameras_left_out(report: SolveReport, left_out: dict[str, str]) -> SolveReport:
+    """`report` naming the cameras left out, each also in a warning: the user must see them."""
+    if not left_out:
+        return report
+    warned = tuple(f"camera {cam_id} left out: {why}" for cam_id, why in left_out.items())
+    return replace(report, cameras_left_out=dict(left_out), warnings=report.warnings + warned)

@@ -49,7 +49,7 @@ class Resection:
     R: np.ndarray
     C: np.ndarray
     inliers: np.ndarray  # (n,) bool over the points given
-    median_error_px: float  # of every point given
+    msac_px2: float  # mean over every point given of its squared error, capped at the threshold's square
 
 
 def _msac(X: np.ndarray, xy: np.ndarray, f: float, rvec, tvec, threshold_px: float) -> tuple[float, np.ndarray]:
@@ -96,11 +96,11 @@ def resect(X: np.ndarray, xy: np.ndarray, *, f_px: float | None, width_px: int, 
         return failed
     f, rvec, tvec = _refine(X[best[1][3]], xy[best[1][3]], *best[1][:3], f_free=f_px is None,
                             threshold_px=threshold_px)
-    _, err = _msac(X, xy, f, rvec, tvec, threshold_px)
+    cost, err = _msac(X, xy, f, rvec, tvec, threshold_px)
     if np.sum(err < threshold_px) < enough:
         return failed
     R = cv2.Rodrigues(rvec)[0]
-    return Resection(f, R, -R.T @ tvec, err < threshold_px, float(np.median(err)))
+    return Resection(f, R, -R.T @ tvec, err < threshold_px, cost / n)
 
 
 def _refine(X, xy, f, rvec, tvec, *, f_free: bool, threshold_px: float) -> tuple[float, np.ndarray, np.ndarray]:
@@ -121,8 +121,9 @@ def _refine(X, xy, f, rvec, tvec, *, f_free: bool, threshold_px: float) -> tuple
 def local_adjustment(
     f: np.ndarray, R: np.ndarray, C: np.ndarray, X: np.ndarray, *, aspect: np.ndarray, xy_rows: np.ndarray,
     xy: np.ndarray, placed: np.ndarray, held_K: np.ndarray, hold_pair: bool, baseline_m: float,
-) -> None:
-    """A short robust adjustment, in place, of the placed cameras and the points they see twice.
+) -> float:
+    """A short robust adjustment, in place, of the placed cameras and the points they see twice; its final
+    robust cost per observation (px^2).
 
     f, aspect (M,), R, C (M, ...), X (T, 3): problem-order arrays; xy_rows
     (T, M): each track's observation row per camera (-1 none); xy: centred
@@ -155,6 +156,19 @@ def local_adjustment(
     log.debug("local adjustment of %d cameras, %d points: %s", M, len(tracks), info.reason)
     f[cams] = state.intr[:, 0]
     R[cams], C[cams], X[tracks] = state.R, state.C, state.X
+    return info.final_cost / max(len(local_cam), 1)
+
+
+def seed_adjustment(obs: Observations, order: list[int], xy, rows, intr, start) -> float:
+    """The local adjustment of a start's placed cameras, in place, after triangulating what they see; its cost
+    per observation (px^2)."""
+    triangulate_missing(order, xy, rows, start.f, start.R, start.C, start.X, start.registered)
+    held_K = np.array([obs.cameras[i].K is not None and "K" in obs.cameras[i].fixed for i in order])
+    return local_adjustment(
+        start.f, start.R, start.C, start.X, aspect=np.where(np.isfinite(intr[:, 1]), intr[:, 1], 1.0),
+        xy_rows=rows[:, order], xy=xy, placed=start.registered, held_K=held_K, hold_pair=start.parallel,
+        baseline_m=obs.stereo.baseline_m,
+    )
 
 
 def register_over_graph(
