@@ -6,6 +6,7 @@ no or a foreign certificate, never reach the calibrator; the calibration it publ
 from __future__ import annotations
 
 import json
+import logging
 import shutil
 import subprocess
 import sys
@@ -53,9 +54,9 @@ def foreign_secrets(tmp_path_factory) -> Path:
 
 
 @contextmanager
-def router_process(secrets: Path, log_path: Path):
-    """`camnet router --secure` on a free loopback port: (endpoint nodes dial, its log file)."""
-    port = free_port()
+def router_process(secrets: Path, log_path: Path, port: int | None = None):
+    """`camnet router --secure` on `port` of loopback (default: a free one): (endpoint nodes dial, its log)."""
+    port = port or free_port()
     with open(log_path, "wb") as log:
         process = subprocess.Popen(
             [sys.executable, "-m", "camnet.cli", "-v", "router", "--secure", str(secrets),
@@ -305,6 +306,8 @@ def test_only_authorised_identities_reach_the_calibrator(secrets, foreign_secret
                 assert seen["frames"] == [b"frame 0", b"frame 1"], f"forged frames arrived: {seen['frames']}"
                 assert seen["calibrations"] == [published], "a forged calibration arrived"
                 assert node.tracker.solves == 1 and node.mailbox.superseded == 0
+                # The rig's calibration is its owner's alone.
+                assert (tmp_path / "state.json").stat().st_mode & 0o777 == 0o600
         finally:
             for session in (*sessions.values(), stranger):
                 if not isinstance(session, Exception):
@@ -317,3 +320,64 @@ def test_only_authorised_identities_reach_the_calibrator(secrets, foreign_secret
     assert "'camnet-intruder', which names no camnet identity" in log, log
     assert "did not match any configured ACL subject" in log, log
     assert "admitted the calibrator (camnet-calibrator)" in log, log
+
+
+# --- outages and the whole network ---------------------------------------------------------
+
+
+def test_a_node_logs_losing_its_router_and_getting_it_back(secrets, tmp_path, caplog):
+    caplog.set_level(logging.INFO, logger="camnet.bus.session")
+    port = free_port()
+    with router_process(secrets, tmp_path / "router1.log", port) as (endpoint, _):
+        node = client(secrets, "matcher", endpoint)
+    try:
+        assert wait_for(lambda: "lost the router" in caplog.text, 60), caplog.text
+        assert "reached again" not in caplog.text
+        with router_process(secrets, tmp_path / "router2.log", port):
+            # Zenoh retries every few seconds; the new router is up when its process says so.
+            assert wait_for(lambda: "reached again after" in caplog.text, 60), caplog.text
+            assert wait_for(lambda: list(node.info.routers_zid()), 30)
+    finally:
+        node.close()
+    lines = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    assert any(line.startswith("lost the router") for line in lines) and \
+        any(line.startswith("router") and "reached again" in line for line in lines), lines
+
+
+def test_a_secured_network_calibrates_records_and_lists_its_nodes(secrets, tmp_path):
+    """`camnet up --secure`: every node (drivers, matcher, calibrator, recorder) does its job through
+    the router's access control with its own identity, and `camnet status` (an observer) sees them."""
+    from mcap.reader import make_reader
+
+    from tests.test_network import rig_file
+
+    rig_path = rig_file(tmp_path, 4)
+    rig = "net4"
+    directory = tmp_path / "secrets"
+    assert camnet("secure", "init", str(directory), "--rig", rig_path).returncode == 0
+    out, session = tmp_path / "calibration.json", tmp_path / "session.mcap"
+    with router_process(directory, tmp_path / "router.log") as (endpoint, router_log):
+        up = subprocess.Popen([sys.executable, "-m", "camnet.cli", "up", rig_path, "--duration-s", "60", "--run-dir",
+                               str(tmp_path / "run"), "-o", str(out), "--record", str(session),
+                               "--secure", str(directory), "--connect", endpoint],
+                              cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        try:
+            # The calibrator's state file appears with the first good calibration.
+            assert wait_for(lambda: (tmp_path / "run" / "calibration.json").exists() or up.poll() is not None, 150)
+            status = camnet("status", "--rig", rig, "--secure", str(directory), "--connect", endpoint)
+            output, _ = up.communicate(timeout=150)
+        finally:
+            if up.poll() is None:
+                up.terminate()
+                up.wait(timeout=60)
+    logs = "\n".join(p.read_text()[-1500:] for p in (tmp_path / "run").glob("*.log"))
+    assert up.returncode == 0, output + logs + router_log.read_text()
+    assert "final calibration" in output and out.exists()
+    assert status.returncode == 0, status.stderr
+    for kind, node_id in [("driver", "left"), ("driver", "mono_b"), ("matcher", "matcher"),
+                          ("calibrator", "calibrator"), ("recorder", "recorder")]:
+        assert any(line.split()[:2] == [kind, node_id] for line in status.stdout.splitlines()), status.stdout
+    with open(session, "rb") as f:
+        topics = {channel.topic for channel in make_reader(f).get_summary().channels.values()}
+    assert {keys.frame(rig, "left"), keys.observations(rig), keys.calibration(rig)} <= topics
+    assert "names no camnet identity" not in router_log.read_text()

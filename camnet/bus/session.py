@@ -138,7 +138,7 @@ def make_config(options: BusOptions):
 
 
 def _apply_secure(config, options: BusOptions) -> None:
-    from camnet.bus.security import load_secure_dir, zenoh_settings
+    from camnet.bus.security import ROUTER, load_secure_dir, zenoh_settings
     from camnet.errors import InputError
 
     if options.identity is None:
@@ -147,8 +147,9 @@ def _apply_secure(config, options: BusOptions) -> None:
     settings = zenoh_settings(secure, options.identity, connect=options.connect, listen=options.listen)
     for key, value in settings.items():
         _insert(config, key, value)
-    log.info("secured rig %r: joining as %s through %s", secure.rig, options.identity,
-             ", ".join(settings.get("connect/endpoints") or settings.get("listen/endpoints") or ()))
+    if options.identity != ROUTER:
+        log.info("secured rig %r: joining as the %s through %s", secure.rig, options.identity,
+                 ", ".join(settings["connect/endpoints"]))
 
 
 def listen_endpoints(config) -> list[str]:
