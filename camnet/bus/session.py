@@ -105,7 +105,7 @@ def make_config(options: BusOptions):
         return config
     if json.loads(config.get_json("mode")) is None:
         # A mode written in the file wins, e.g. "client" for nodes that may reach the rig
-        # only through its router (docker/zenoh/node.json5).
+        # only through its router.
         _insert(config, "mode", options.mode)
     _insert(config, "scouting/multicast/enabled", options.scouting)
     explicit = bool(options.connect or options.listen or options.zenoh_config)
