@@ -181,6 +181,13 @@ def test_each_key_is_granted_to_the_kinds_whose_job_it_is():
     assert who("liveliness_token ingress", keys.node(RIG, "driver", "left")) == {"driver", "replayer"}
     assert who("put ingress", keys.node_stats(RIG, "calibrator", "calibrator")) == {"calibrator"}
     assert not who("put ingress", keys.frame("otherrig", "left")), "another rig's keys are granted"
+    # Only the recorder subscribes to everything; every publisher learns of it (a client sends
+    # only what a subscriber it knows of wants), and of status's statistics subscriber.
+    everything = f"{keys.rig_prefix(RIG)}/**"
+    assert who("declare_subscriber ingress", everything) == {"recorder"}
+    publishers = {"driver", "replayer", "matcher", "calibrator", "recorder"}
+    assert who("declare_subscriber egress", everything) == who("declare_subscriber egress",
+                                                               keys.all_node_stats(RIG)) == publishers
 
 
 def keys_include(pattern: str, key: str) -> bool:
@@ -374,10 +381,39 @@ def test_a_secured_network_calibrates_records_and_lists_its_nodes(secrets, tmp_p
     assert up.returncode == 0, output + logs + router_log.read_text()
     assert "final calibration" in output and out.exists()
     assert status.returncode == 0, status.stderr
+    rows = {tuple(line.split()[:2]): line for line in status.stdout.splitlines()}
     for kind, node_id in [("driver", "left"), ("driver", "mono_b"), ("matcher", "matcher"),
                           ("calibrator", "calibrator"), ("recorder", "recorder")]:
-        assert any(line.split()[:2] == [kind, node_id] for line in status.stdout.splitlines()), status.stdout
+        # Listed from its liveliness token, with the statistics it published.
+        assert "no statistics" not in rows.get((kind, node_id), "no statistics"), status.stdout
     with open(session, "rb") as f:
         topics = {channel.topic for channel in make_reader(f).get_summary().channels.values()}
     assert {keys.frame(rig, "left"), keys.observations(rig), keys.calibration(rig)} <= topics
     assert "names no camnet identity" not in router_log.read_text()
+
+
+def test_a_lockstep_replay_runs_through_the_access_control(tmp_path):
+    """The replayer's identity (frames as a driver, lockstep steps, the acknowledgements and their
+    liveliness) and the lockstep side of the matcher and calibrator are granted what they use."""
+    from camnet.bus.launch import Launch
+    from tests.test_network import rig_file
+    from tests.test_replay_lockstep import write_session
+
+    rig_path = rig_file(tmp_path, 4)
+    session = tmp_path / "session.mcap"
+    write_session(session, rig_path)
+    directory = tmp_path / "secrets"
+    assert camnet("secure", "init", str(directory), "--rig", rig_path).returncode == 0
+    with router_process(directory, tmp_path / "router.log") as (endpoint, router_log), \
+            Launch(tmp_path / "run") as launch:
+        (tmp_path / "run").mkdir()
+        flags = ["--secure", str(directory), "--connect", endpoint]
+        launch.start("matcher", ["matcher", "--rig", rig_path, "--lockstep", *flags])
+        launch.start("calibrator", ["calibrator", "--rig", rig_path, "--no-state", "--lockstep", *flags])
+        replay = camnet("replay", str(session), "--lockstep", "--wait-s", "120", "--ack-timeout-s", "120", *flags,
+                        timeout_s=400)
+        logs = "\n".join(f"--- {c.name}\n{c.log_tail()}" for c in launch.children)
+    assert replay.returncode == 0, replay.stdout + replay.stderr + logs + router_log.read_text()
+    [line] = [line for line in replay.stdout.splitlines() if line.startswith("lockstep: ")]
+    counts = dict(part.split() for part in line.removeprefix("lockstep: ").split(", "))
+    assert int(counts.get("good", 0)) >= 1, line

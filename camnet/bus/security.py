@@ -69,15 +69,20 @@ class Grants:
 # Zenoh's ACL message types for each action, by direction as seen from the router: ingress is
 # what the identity sends to the router, egress what the router sends on to it.
 _ACTION_MESSAGES: dict[str, tuple[tuple[str, tuple[str, ...]], ...]] = {
-    # Publishers also learn which subscribers match (Publisher.matching_status).
-    "publish": (("ingress", ("put",)), ("egress", ("declare_subscriber",))),
+    "publish": (("ingress", ("put",)),),
     "subscribe": (("ingress", ("declare_subscriber",)), ("egress", ("put",))),
     "serve": (("ingress", ("declare_queryable", "reply")), ("egress", ("query",))),
-    "ask": (("ingress", ("query",)), ("egress", ("reply", "declare_queryable"))),
+    "ask": (("ingress", ("query",)), ("egress", ("reply",))),
     "token": (("ingress", ("liveliness_token",)),),
     "watch": (("ingress", ("declare_liveliness_subscriber", "liveliness_query")),
               ("egress", ("liveliness_token",))),
 }
+# A client sends a sample only once it knows of a subscriber, and a query once it knows of a
+# queryable. The subscribers it must learn of are any whose key expression intersects what it
+# publishes (the recorder's camnet/<rig>/**, status's camnet/<rig>/nodes/*/*/stats), which a
+# rule only covers by including them: publishers and askers learn of every one of the rig's.
+# That says who listens, and lets no one say anything.
+_LEARN_MESSAGES = {"publish": "declare_subscriber", "ask": "declare_queryable"}
 
 
 def grants(rig: str) -> dict[str, Grants]:
@@ -121,22 +126,34 @@ def grants(rig: str) -> dict[str, Grants]:
     }
 
 
+def _allow(rule_id: str, flow: str, messages: tuple[str, ...], key_exprs: tuple[str, ...]) -> dict:
+    return {"id": rule_id, "permission": "allow", "flows": [flow], "messages": list(messages),
+            "key_exprs": list(key_exprs)}
+
+
+def _rules(identity: str, grant: Grants, rig: str) -> list[dict]:
+    """Zenoh ACL rules (allow) for what `grant` lets `identity` do."""
+    rules = []
+    for action, directions in _ACTION_MESSAGES.items():
+        key_exprs = getattr(grant, action)
+        if not key_exprs:
+            continue
+        for flow, messages in directions:
+            rules.append(_allow(f"{identity} {action} {flow}", flow, messages, key_exprs))
+        if action in _LEARN_MESSAGES:
+            rules.append(_allow(f"{identity} {action} learns", "egress", (_LEARN_MESSAGES[action],),
+                                (f"{keys.rig_prefix(rig)}/**",)))
+    return rules
+
+
 def access_control(rig: str) -> dict:
     """The router's Zenoh ``access_control`` section for `rig`: deny, except what `grants` allows."""
     rules, subjects, policies = [], [], []
     for identity, grant in grants(rig).items():
-        rule_ids = []
-        for action, directions in _ACTION_MESSAGES.items():
-            key_exprs = list(getattr(grant, action))
-            if not key_exprs:
-                continue
-            for flow, messages in directions:
-                rule_id = f"{identity} {action} {flow}"
-                rules.append({"id": rule_id, "permission": "allow", "flows": [flow],
-                              "messages": list(messages), "key_exprs": key_exprs})
-                rule_ids.append(rule_id)
+        own = _rules(identity, grant, rig)
+        rules += own
         subjects.append({"id": identity, "cert_common_names": [common_name(identity)]})
-        policies.append({"id": identity, "rules": rule_ids, "subjects": [identity]})
+        policies.append({"id": identity, "rules": [rule["id"] for rule in own], "subjects": [identity]})
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
             "policies": policies}
 
