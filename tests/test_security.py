@@ -417,3 +417,26 @@ def test_a_lockstep_replay_runs_through_the_access_control(tmp_path):
     [line] = [line for line in replay.stdout.splitlines() if line.startswith("lockstep: ")]
     counts = dict(part.split() for part in line.removeprefix("lockstep: ").split(", "))
     assert int(counts.get("good", 0)) >= 1, line
+
+
+def test_a_node_started_before_its_router_waits_for_it_saying_so(secrets, tmp_path, caplog):
+    import threading
+
+    caplog.set_level(logging.WARNING, logger="camnet.bus.session")
+    port = free_port()
+    opened = []
+    # A daemon thread: a node that never connects fails the test below instead of hanging it.
+    waiting = threading.Thread(daemon=True, target=lambda: opened.append(
+        client(secrets, "driver", f"tls/localhost:{port}")))
+    waiting.start()
+    try:
+        # Each try gives up after security.CONNECT_TRY_MS (10 s), says so, and tries again.
+        assert wait_for(lambda: "no router answers at tls/localhost" in caplog.text, 120), caplog.text
+        assert not opened
+        with router_process(secrets, tmp_path / "router.log", port):
+            waiting.join(timeout=120)
+            assert opened, "the node did not join the router that came up"
+            assert wait_for(lambda: list(opened[0].info.routers_zid()), 30)
+    finally:
+        for session in opened:
+            session.close()
