@@ -23,6 +23,7 @@ COMMANDS = {
     "record": "Record everything a rig publishes into an MCAP session file.",
     "replay": "Publish a recorded session's frames on the live keys.",
     "status": "List the live nodes of a rig with their frame rates and drops.",
+    "secure": "Write a rig's CA and certificates, for nodes that join with --secure DIR.",
     "export": "Write a calibration for OpenCV, COLMAP, ROS, Kalibr, anipose, or its points as PLY.",
     "report": "Write an HTML report of a calibration: errors, uncertainty, layout.",
 }

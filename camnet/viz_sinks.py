@@ -8,12 +8,15 @@ Rerun is not imported.
 from __future__ import annotations
 
 import argparse
+import logging
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 from urllib.parse import quote
 
 from camnet.errors import InputError
+
+log = logging.getLogger(__name__)
 
 DEFAULT_GRPC_PORT = 9876  # Rerun's own defaults
 DEFAULT_WEB_PORT = 9090
@@ -111,6 +114,12 @@ def sinks_from_args(args: argparse.Namespace) -> tuple[RerunSink, ...]:
     paths = [Path(s.path).resolve() for s in sinks if s.kind == "save"]
     if len(set(ports)) < len(ports) or len(set(paths)) < len(paths):
         raise InputError("--rerun: two sinks use the same port or file")
+    for sink in sinks:
+        if sink.kind == "serve":
+            # Rerun binds its servers to every interface (0.0.0.0) and offers no other address.
+            log.warning("RERUN SERVES ON 0.0.0.0:%d AND 0.0.0.0:%d, unencrypted and without a login: anyone "
+                        "who reaches these ports sees the rig's images and calibration. Firewall them, or "
+                        "reach them through an ssh tunnel (docs/security.md)", sink.web_port, sink.grpc_port)
     return sinks
 
 

@@ -144,7 +144,7 @@ class CalibratorNode:
                 doc[key] = doc_in[key]
         payload = json.dumps(doc, allow_nan=False).encode()
         if self.config.state_path is not None:
-            write_json_atomic(self.config.state_path, doc)
+            write_json_atomic(self.config.state_path, doc, private=True)  # the rig's layout: not for every user
         with self._lock:
             self.latest_doc = payload
         publisher.put(payload)

@@ -2,13 +2,14 @@
 
 import argparse
 import json
+import logging
 import subprocess
 import sys
 
 import numpy as np
 import pytest
 
-from camnet.bus.session import BusOptions, add_bus_arguments, make_config, options_from_args
+from camnet.bus.session import BusOptions, add_bus_arguments, listen_endpoints, make_config, options_from_args
 from camnet.errors import InputError
 from tests.test_rig import CONFIG
 
@@ -36,6 +37,43 @@ def test_flags_replace_the_defaults():
                                                          "tcp/10.0.0.6:7447"]
     assert config_json(options, "scouting/multicast/enabled") is True
     assert "tcp/127.0.0.1:7447" not in json.dumps(config_json(options, "listen/endpoints"))
+
+
+def test_connect_alone_listens_on_loopback_only():
+    """Zenoh's own default would listen on every interface, plain tcp."""
+    assert config_json(BusOptions(connect=("tcp/10.0.0.5:7447",)), "listen/endpoints") == ["tcp/127.0.0.1:0"]
+    assert config_json(BusOptions(connect=("tcp/10.0.0.5:7447",), mode="router"),
+                       "listen/endpoints") == ["tcp/127.0.0.1:7447"]
+
+def test_a_client_from_a_config_file_listens_on_nothing(tmp_path):
+    client = tmp_path / "client.json5"
+    client.write_text('{ mode: "client", connect: { endpoints: ["tcp/10.0.0.5:7447"] } }')
+    assert listen_endpoints(make_config(BusOptions(zenoh_config=str(client)))) == []
+
+
+@pytest.mark.parametrize(("endpoint", "warns"), [
+    ("tcp/0.0.0.0:7447", True), ("tcp/[::]:7447", True), ("tcp/10.0.0.5:7447", True), ("udp/0.0.0.0:7447", True),
+    ("tcp/rig-host.lan:7447", True), ("tcp/127.0.0.1:7447", False), ("tcp/[::1]:7447", False),
+    ("tcp/localhost:7447", False), ("tls/0.0.0.0:7447", False), ("quic/[::]:7447", False),
+    ("unixsock-stream//tmp/camnet.sock", False),
+])
+def test_listening_beyond_loopback_without_tls_warns_loudly(endpoint, warns, caplog):
+    make_config(BusOptions(listen=(endpoint,)))
+    warnings = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    assert bool(warnings) == warns, warnings
+    if warns:
+        [line] = warnings
+        assert endpoint in line and "WITHOUT TLS" in line and "--secure" in line
+
+
+def test_rerun_served_on_every_interface_warns_loudly(caplog):
+    from camnet.viz_sinks import sinks_from_args
+
+    sinks_from_args(argparse.Namespace(rerun=["save=run.rrd", "connect"]))
+    assert not caplog.records
+    sinks_from_args(argparse.Namespace(rerun=["serve=8080,8081"]))
+    [record] = caplog.records
+    assert record.levelno == logging.WARNING and "0.0.0.0:8080" in record.getMessage()
 
 
 def test_zenoh_config_file_and_its_errors(tmp_path):

@@ -17,6 +17,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from camnet.bus.session import BusOptions
 from camnet.errors import CamnetError
 
 log = logging.getLogger(__name__)
@@ -36,21 +37,22 @@ class Child:
             return ""
 
 
-def bus_flags(*, connect: list[str], listen: list[str], zenoh_config: str | None, scouting: bool) -> list[str]:
-    """Bus flags for children of a node that has these flags.
+def bus_flags(options: BusOptions) -> list[str]:
+    """Bus flags for children of a node with these bus `options`.
 
     Children connect to what the parent listens on (a wildcard address
     becomes loopback) and to what it connects to; with no endpoints at all
-    everyone meets at the default loopback rendezvous.
+    everyone meets at the default loopback rendezvous. On a secured rig
+    (`options.secure`) each child joins the router with its own identity.
     """
-    flags: list[str] = []
-    for endpoint in listen:
+    flags: list[str] = ["--secure", options.secure] if options.secure else []
+    for endpoint in options.listen:
         flags += ["--connect", endpoint.replace("0.0.0.0", "127.0.0.1").replace("[::]", "[::1]")]
-    for endpoint in connect:
+    for endpoint in options.connect:
         flags += ["--connect", endpoint]
-    if zenoh_config:
-        flags += ["--zenoh-config", zenoh_config]
-    if scouting:
+    if options.zenoh_config:
+        flags += ["--zenoh-config", options.zenoh_config]
+    if options.scouting:
         flags.append("--scouting")
     return flags
 

@@ -76,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
     state = None
     if not args.no_state:
         state = Path(args.state) if args.state else default_state_path(name)
-        state.parent.mkdir(parents=True, exist_ok=True)
+        state.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
     free, stereo_pose = parse_free(args.free), None
     if rig is not None and rig.stereo is not None and rig.stereo.R is not None:
         stereo_pose = (rig.stereo.R, rig.stereo.t)

@@ -1,4 +1,10 @@
-"""`camnet router`: an embedded Zenoh router, for multi-host rigs and docker."""
+"""`camnet router`: an embedded Zenoh router, for multi-host rigs and docker.
+
+With --secure DIR it is the router of a secured rig: TLS only, a certificate
+demanded of every node, and the rig's access control (camnet.bus.security).
+Zenoh's own warnings (a peer refused in the TLS handshake among them) and its
+access control's notes go to standard output; RUST_LOG replaces that choice.
+"""
 
 from __future__ import annotations
 
@@ -8,6 +14,9 @@ import threading
 
 log = logging.getLogger(__name__)
 
+# Zenoh's warnings, and the access control's note on a peer no subject matches.
+ZENOH_LOG = "warn,zenoh::net::routing::interceptor::access_control=info"
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from camnet.bus.session import add_bus_arguments
@@ -16,14 +25,27 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from camnet.bus.node import stop_on_signals
-    from camnet.bus.session import open_session, options_from_args
+    import os
+    import sys
 
+    import zenoh
+
+    from camnet.bus.node import stop_on_signals
+    from camnet.bus.security import ROUTER, load_secure_dir, watch_identities
+    from camnet.bus.session import listen_endpoints, make_config, open_session, options_from_args
+
+    if not sys.stdout.isatty():
+        os.environ.setdefault("NO_COLOR", "1")  # Zenoh's log lines without colour codes in a log file
+    zenoh.init_log_from_env_or(ZENOH_LOG)
     options = options_from_args(args, mode="router")
-    with open_session(options) as session, stop_on_signals(threading.Event()) as stop:
-        endpoints = ", ".join(options.listen) or "the loopback rendezvous (tcp/127.0.0.1:7447)"
-        print(f"camnet router {session.info.zid()} listening on {endpoints}; Ctrl-C to stop",
-              flush=True)
+    config = make_config(options)
+    rig = load_secure_dir(options.secure, ROUTER).rig if options.secure else None
+    with open_session(options, config=config) as session, stop_on_signals(threading.Event()) as stop:
+        if rig is not None:
+            watch_identities(session)
+        access = f"; TLS only, access control for rig {rig!r}" if rig is not None else ""
+        print(f"camnet router {session.info.zid()} listening on {', '.join(listen_endpoints(config))}{access}; "
+              "Ctrl-C to stop", flush=True)
         while not stop.wait(1.0):
             pass
         log.info("router stopping")

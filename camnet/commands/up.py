@@ -113,8 +113,7 @@ def run(args: argparse.Namespace) -> int:
     truth = rig.simulated_truth()
     spec = NetworkSpec(
         rig_path=rig_path, rig_name=rig.name, cameras=tuple((e.id, e.driver) for e in rig.cameras),
-        bus=tuple(bus_flags(connect=args.connect, listen=args.listen, zenoh_config=args.zenoh_config,
-                            scouting=args.scouting)),
+        bus=tuple(bus_flags(options_from_args(args))),
         matcher=("--detector", str(args.detector)),
         calibrator=("--state", str(run_dir / "calibration.json"), *(f for v in args.rerun for f in ("--rerun", v))),
         record_path=Path(args.record) if args.record else None)

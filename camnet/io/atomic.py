@@ -10,6 +10,7 @@ from pathlib import Path
 from camnet.errors import InputError
 
 NEW_FILE_MODE = 0o644
+PRIVATE_FILE_MODE = 0o600  # state a node keeps (a rig's calibration): its owner's alone
 NEW_DIRECTORY_MODE = 0o755
 
 
@@ -20,11 +21,12 @@ def _parent(path: Path) -> Path:
     return parent
 
 
-def _write_replace(path: Path, text: str | bytes) -> None:
+def _write_replace(path: Path, text: str | bytes, *, private: bool = False) -> None:
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
         # mkstemp makes the file private; an output file gets the usual mode, or keeps the one it had.
-        os.fchmod(fd, path.stat().st_mode & 0o777 if path.exists() else NEW_FILE_MODE)
+        if not private:
+            os.fchmod(fd, path.stat().st_mode & 0o777 if path.exists() else NEW_FILE_MODE)
         with os.fdopen(fd, "wb" if isinstance(text, bytes) else "w") as f:
             f.write(text)
             f.flush()
@@ -35,10 +37,13 @@ def _write_replace(path: Path, text: str | bytes) -> None:
         raise
 
 
-def write_text_atomic(path: str | Path, text: str | bytes, *, default_name: str | None = None) -> Path:
+def write_text_atomic(path: str | Path, text: str | bytes, *, default_name: str | None = None,
+                      private: bool = False) -> Path:
     """Write `text` (or bytes, as they are) to `path` (temp file + rename) and return where it went.
 
-    An existing directory `path` gets the file `default_name` inside it.
+    An existing directory `path` gets the file `default_name` inside it. A
+    `private` file is readable by its owner only (PRIVATE_FILE_MODE), whatever
+    mode the file it replaces had.
     """
     path = Path(path)
     if path.is_dir():
@@ -46,7 +51,7 @@ def write_text_atomic(path: str | Path, text: str | bytes, *, default_name: str 
             raise InputError(f"{path}: is a directory; name a file")
         path = path / default_name
     _parent(path)
-    _write_replace(path, text)
+    _write_replace(path, text, private=private)
     return path
 
 

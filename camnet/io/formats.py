@@ -256,8 +256,9 @@ def parse_calibration(doc: Any) -> Calibration:
     )
 
 
-def write_json_atomic(path: str | Path, doc: Any) -> None:
-    """Write `doc` as JSON so that `path` holds either the old file or the whole new one."""
+def write_json_atomic(path: str | Path, doc: Any, *, private: bool = False) -> None:
+    """Write `doc` as JSON so that `path` holds either the old file or the whole new one
+    (readable by its owner only when `private`)."""
     from camnet.io.atomic import write_text_atomic
 
-    write_text_atomic(path, json.dumps(doc, indent=1, allow_nan=False) + "\n")
+    write_text_atomic(path, json.dumps(doc, indent=1, allow_nan=False) + "\n", private=private)
