@@ -162,8 +162,9 @@ def reported_points(
     return kept, dropped
 
 
-def _uncertainty(ids: list[str], problem, state, cov: Covariance, kept, warnings: list[str]) -> Uncertainty:
-    """The solution's uncertainty; appends the warnings it gives rise to."""
+def _uncertainty(ids: list[str], problem, state, cov: Covariance, kept, warnings: list[str],
+                 notes: list[str]) -> Uncertainty:
+    """The solution's uncertainty; appends the warnings and notes it gives rise to."""
     weights = scale_weights(cov, state.X, kept)
     scale = scale_sigma(cov, state.X, weights) if kept.any() else None
     undetermined_scale = scale is not None and not np.isfinite(scale)
@@ -204,10 +205,14 @@ def _uncertainty(ids: list[str], problem, state, cov: Covariance, kept, warnings
         warnings.append("no point is determined: the scale is unknown")
     elif scale > POOR_SCALE_REL:
         why = ""
-        if scale_if_pp is not None and scale_if_pp < scale / 2:
+        guess_only = scale_if_pp is not None and scale_if_pp < scale / 2
+        if guess_only:
             why = (f", {100 * scale_if_pp:.2g}% were the principal points exactly at the image centres: "
                    "give the stereo cameras' K")
-        warnings.append(f"the scale is uncertain by {100 * scale:.1f}% (1 sigma){why}")
+        # What a guessed principal point costs is a caveat of every solve nobody gave K, not a fault
+        # of this one: a note while the data alone fix the scale, a warning when they do not.
+        caveat = guess_only and scale_if_pp <= POOR_SCALE_REL
+        (notes if caveat else warnings).append(f"the scale is uncertain by {100 * scale:.1f}% (1 sigma){why}")
     return Uncertainty(
         sigma_px=cov.sigma_px,
         scale_rel=Sigma(scale) if scale is not None else Sigma.unknown(unknown_scale),
@@ -291,7 +296,8 @@ def solve_report(
         observed = np.bincount(obs.cam_index, minlength=len(obs.cameras))[order]
         warnings += structure_warnings(ids, problem.cam, problem.uv, residuals_px, state.intr,
                                        problem.intr_free[:, 4], observed)
-    uncertainty = None if cov is None else _uncertainty(ids, problem, state, cov, kept, warnings)
+    notes: list[str] = []
+    uncertainty = None if cov is None else _uncertainty(ids, problem, state, cov, kept, warnings, notes)
     return SolveReport(
         method=method,
         converged=bool(info.converged),
@@ -308,6 +314,7 @@ def solve_report(
         start=start,
         timings_s=dict(timings_s),
         uncertainty=uncertainty,
+        notes=tuple(notes),
     )
 
 

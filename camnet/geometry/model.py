@@ -259,8 +259,9 @@ class SolveReport:
 
     converged, reason, iterations: the final adjustment's; observations,
     inliers: used and kept after outlier rejection; free_rule: the automatic
-    rule's decisions; warnings: near-degenerate geometry; timings_s: seconds
-    per stage. Fields a document may lack are None (`free`, `start`,
+    rule's decisions; warnings: near-degenerate geometry; notes: what the
+    reader should know of a good solve (what a guessed principal point
+    costs); timings_s: seconds per stage. Fields a document may lack are None (`free`, `start`,
     `points_left_out`, `uncertainty`, `median_parallax_deg`).
     """
 
@@ -279,6 +280,7 @@ class SolveReport:
     start: StartKind | None
     timings_s: Mapping[str, float]
     uncertainty: Uncertainty | None = None
+    notes: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
