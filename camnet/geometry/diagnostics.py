@@ -241,7 +241,7 @@ def _distance_warnings(ids: list[str], problem, state, cov: Covariance) -> list[
 
 
 def _geometry_warnings(obs, order, problem, state, parallax: np.ndarray, kept: np.ndarray) -> list[str]:
-    """Little parallax, coplanar points, a held stereo column offset."""
+    """Little parallax, coplanar points, a scene too far for the baseline."""
     warnings = []
     if len(parallax) and np.median(parallax) < MIN_PARALLAX_DEG:
         warnings.append(
@@ -255,7 +255,7 @@ def _geometry_warnings(obs, order, problem, state, parallax: np.ndarray, kept: n
     if len(body):
         warnings += far_scene_warning(float(np.median(np.linalg.norm(body - state.C[0], axis=1))),
                                       obs.stereo.baseline_m)
-    return warnings + _held_disparity_warning(obs, order, problem, state)
+    return warnings
 
 
 def far_scene_warning(median_depth_m: float, baseline_m: float) -> list[str]:
@@ -298,6 +298,10 @@ def solve_report(
                                        problem.intr_free[:, 4], observed)
     notes: list[str] = []
     uncertainty = None if cov is None else _uncertainty(ids, problem, state, cov, kept, warnings, notes)
+    # The held column offset is priced into the scale's sigma when the principal points entered as
+    # a guess with its prior: then a caveat (a note), else the sigma cannot show it (a warning).
+    priced = uncertainty is not None and uncertainty.scale_rel_if_pp_exact.value is not None
+    (notes if priced else warnings).extend(_held_disparity_warning(obs, order, problem, state))
     return SolveReport(
         method=method,
         converged=bool(info.converged),

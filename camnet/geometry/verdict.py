@@ -273,5 +273,6 @@ def format_verdict(verdict: Verdict) -> list[str]:
              + ", ".join(f"{c.camera} {c.level.value}" for c in verdict.cameras) + ")"]
     for camera, f in verdict.all_findings():
         where = f"camera {camera}" if camera is not None else "rig"
-        lines.append(f"  {f.level.value:<6} {where}: {f.what}; likely {f.cause}; to do: {f.todo}")
+        cause = f"; likely {f.cause}" if f.level == Level.POOR else ""  # usable: what and what to do suffice
+        lines.append(f"  {f.level.value:<6} {where}: {f.what}{cause}; to do: {f.todo}")
     return lines
