@@ -235,10 +235,13 @@ def _scale_findings(report: SolveReport, t: Thresholds) -> list[Finding]:
                         "the stereo pair's disparities do not fix the scale", Action.GIVE_K,
                         "give the stereo cameras' K")]
     level = _level(scale, *t.scale_rel)
+    if_pp = u.scale_rel_if_pp_exact.value
+    guess = if_pp is not None and if_pp < scale / 2  # most of the sigma is what guessed principal points may cost
+    if level == Level.USABLE and guess and if_pp <= t.scale_rel[0]:
+        level = Level.GOOD  # the scene fixes the scale: the guess is a caveat, which the report's notes say
     if level == Level.GOOD:
         return []
-    if_pp = u.scale_rel_if_pp_exact.value
-    if if_pp is not None and if_pp < scale / 2:
+    if guess:
         return [Finding(level, f"scale sigma {100 * scale:.1f}% ({100 * if_pp:.2g}% with the principal points "
                         "known)", "the stereo cameras' principal points are guessed", Action.GIVE_K,
                         "give the stereo cameras' K")]
