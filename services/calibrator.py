@@ -137,7 +137,8 @@ class CalibratorNode:
 
     def _publish(self, publisher, cal: Calibration, doc_in: dict, outcome: Outcome) -> None:
         doc = calibration_to_doc(cal)
-        doc.update({"rig": self.rig_name, "solve": self.tracker.solves, "status": "good",
+        # The status is the verdict's level (camnet.geometry.verdict): a poor result is published, never "good".
+        doc.update({"rig": self.rig_name, "solve": self.tracker.solves, "status": doc["verdict"]["level"],
                     "warm_start": outcome.warm, "moved": list(outcome.moved), "solved_ns": time.time_ns()})
         for key in ("latest_capture_ns", "frame_sets"):
             if key in doc_in:

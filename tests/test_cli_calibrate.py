@@ -140,3 +140,19 @@ def test_a_solve_that_cannot_succeed_is_refused(tmp_path, good_doc):
     src.write_text(json.dumps(good_doc))
     proc = run_camnet("calibrate", str(src), "-o", str(out))
     assert proc.returncode != 0 and len(proc.stderr.strip().splitlines()) == 1 and not out.exists()
+
+
+def test_calibrate_tells_a_person_on_stderr_and_json_only_when_asked(tmp_path, good_doc):
+    src, out = tmp_path / "obs.json", tmp_path / "cal.json"
+    src.write_text(json.dumps(good_doc))
+    proc = run_camnet("calibrate", str(src), "-o", str(out))
+    assert proc.returncode == 0 and proc.stdout == "", proc.stderr
+    lines = proc.stderr.splitlines()
+    assert lines[0] == f"camnet calibrate: wrote {out}"
+    table = {line.split()[0]: line for line in lines if line.split()[:1] in (["left"], ["mono_a"])}
+    assert "given" in table["left"] and re.search(r"\d+\.\d ± \d+\.\d", table["mono_a"]), lines
+    verdict = json.loads(out.read_text())["verdict"]["level"]
+    assert f"verdict: {verdict}" in proc.stderr
+    proc = run_camnet("calibrate", str(src), "-o", str(out), "--json")
+    summary = json.loads(proc.stdout)
+    assert summary["verdict"] == verdict and summary["output"] == str(out)

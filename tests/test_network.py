@@ -70,7 +70,7 @@ def test_simulated_network_calibrates_to_scale_within_a_minute(tmp_path, n_camer
          str(tmp_path / "run"), "-o", str(out), "--listen", endpoint, "--rerun", f"save={rrd}",
          "--record", str(session)],
         capture_output=True, text=True, timeout=180)
-    logs = "\n".join(p.read_text()[-1500:] for p in (tmp_path / "run").glob("*.log"))
+    logs = "\n".join(p.read_text()[-1500:] for p in (tmp_path / "run").rglob("*.log"))
     assert proc.returncode == 0, proc.stdout + proc.stderr + logs
     cal = parse_calibration(json.loads(out.read_text()))
     truth = load_rig(rig_path).simulated_truth()

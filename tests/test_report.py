@@ -107,8 +107,10 @@ def test_html_holds_every_section_and_the_numbers(solved):
         assert f"<td>{cal.uncertainty.cameras[cam.id].f_px:.2f}</td>" in page
         kept = np.isin(obs.track_ids[obs.track_index], cal.point_ids)
         assert f"{cam.id}: {int(np.sum(kept & (obs.cam_index == obs.index_of(cam.id))))} observations" in page
-    sx, sy, sz = 1e3 * np.ptp(cal.points, axis=0)
+    sx, sy, sz = 1e3 * np.subtract(*np.percentile(cal.points, [99, 1], axis=0))  # the cloud's body
     assert f"{sx:.1f} mm x {sy:.1f} mm x {sz:.1f} mm" in page
+    for size in 1e3 * np.ptp(cal.points, axis=0):  # and every point's extent beside it
+        assert f"<td>{size:.1f}</td>" in page
     assert f"<td>{cal.rms_reprojection_px:.3f}</td>" in page
     assert f"<td>{100 * cal.uncertainty.scale_rel.value:.4f}</td>" in page
     assert "a test warning &lt;with markup&gt;" in page

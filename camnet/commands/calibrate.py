@@ -38,6 +38,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="warm start from a previous calibration of the same rig",
     )
     parser.add_argument("--seed", type=int, default=0, help="seed of the RANSAC sampling")
+    parser.add_argument("--json", action="store_true",
+                        help="also print a one-line JSON summary on stdout (the human summary goes to stderr)")
     parser.add_argument("--accept-any-distance", action="store_true",
                         help="accept known distances outside 0.005-50 m (refused as a likely unit mistake)")
     parser.add_argument(
@@ -57,6 +59,7 @@ def parse_free(value: str) -> str | frozenset[str]:
 def run(args: argparse.Namespace) -> int:
     from camnet.errors import InputError, SolveError
     from camnet.geometry.calibrate import Options, calibrate
+    from camnet.geometry.verdict import judge
     from camnet.io.formats import (
         calibration_to_doc,
         load_json,
@@ -64,6 +67,7 @@ def run(args: argparse.Namespace) -> int:
         parse_observations,
         write_json_atomic,
     )
+    from camnet.io.summary import summary_lines
 
     if not args.loss_scale_px > 0:
         raise InputError(f"--loss-scale-px: must be positive, got {args.loss_scale_px}")
@@ -79,6 +83,10 @@ def run(args: argparse.Namespace) -> int:
         raise SolveError(f"the adjustment did not converge: {result.reason}")
     write_json_atomic(args.output, calibration_to_doc(result.calibration))
     cal = result.calibration
+    print("\n".join([f"camnet calibrate: wrote {args.output}", *summary_lines(cal)]), file=sys.stderr)
+    if not args.json:
+        return 0
+    verdict = judge(cal)
     summary = {
         "output": args.output,
         "cameras": len(cal.cameras),
@@ -86,7 +94,9 @@ def run(args: argparse.Namespace) -> int:
         "rms_reprojection_px": round(cal.rms_reprojection_px, 4),
         "scale_sigma_rel": cal.uncertainty.scale_rel.value if cal.uncertainty is not None else None,
         "cameras_left_out": dict(cal.report.cameras_left_out) if cal.report is not None else {},
+        "verdict": verdict.level.value if verdict is not None else None,
         "warnings": list(cal.warnings),
+        "notes": list(cal.report.notes) if cal.report is not None else [],
     }
     print(json.dumps(summary), file=sys.stdout)
     return 0

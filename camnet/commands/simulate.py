@@ -56,14 +56,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import sys
+
     import numpy as np
 
     from camnet.geometry.model import Calibration
     from camnet.io.formats import calibration_to_doc, observations_to_doc, write_json_atomic
 
     rig, sim = simulate_from_args(args)
-    write_json_atomic(args.output, observations_to_doc(sim.observations))
+    obs = sim.observations
+    write_json_atomic(args.output, observations_to_doc(obs))
+    print(f"camnet simulate: wrote {args.output}: {len(obs.cameras)} cameras, {len(obs.track_ids)} tracks, "
+          f"{len(obs.uv)} observations ({int(sim.outlier_obs.sum())} of them false), noise {args.noise_px} px",
+          file=sys.stderr)
     if args.truth:
         truth = Calibration(tuple(rig.cameras), np.arange(len(rig.points)), rig.points, 0.0, rig.cameras[0].id)
         write_json_atomic(args.truth, calibration_to_doc(truth))
+        print(f"camnet simulate: wrote the ground truth to {args.truth}", file=sys.stderr)
+    print(f"next: camnet calibrate {args.output} -o calibration.json", file=sys.stderr)
     return 0

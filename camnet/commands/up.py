@@ -28,8 +28,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--forever", action="store_true", help="run until interrupted")
     parser.add_argument("--detector", type=Detector, choices=list(Detector), default=Detector.SIFT,
                         help="matcher features (default: sift)")
-    parser.add_argument("--run-dir", metavar="DIR",
-                        help="where the nodes' logs and the calibration state go (default: a new temporary one)")
+    parser.add_argument("--out", "--run-dir", dest="out", metavar="DIR",
+                        help="the run directory: the last calibration, its observations, report.html, the exports "
+                             "and the nodes' logs (default: runs/<rig>-<time> under the working directory)")
+    parser.add_argument("--replay", metavar="SESSION.mcap",
+                        help="feed the matcher a recorded session (camnet record) instead of the rig's drivers; "
+                             "the run ends after the session and the calibration of its last frames")
     parser.add_argument("-o", "--output", metavar="CALIBRATION.json", help="also write the final calibration here")
     parser.add_argument("--record", metavar="SESSION.mcap",
                         help="also run the recorder: everything the rig publishes goes into this MCAP file")
@@ -50,13 +54,17 @@ def _checked_rig(args: argparse.Namespace):
     if rig.stereo is None:
         raise InputError(f"{rig_path}: the rig has no stereo pair; camnet needs one with a known baseline")
     for i, entry in enumerate(rig.cameras):
-        if entry.driver is None:
+        if entry.driver is None and not args.replay:
             raise InputError(f"{rig_path}: cameras[{i}] ({entry.id}) has no driver; camnet up runs one per camera "
                              "(a rig of image files is for camnet match)")
     if not args.duration_s > 0:
         raise InputError(f"--duration-s: must be positive, got {args.duration_s}")
     if args.record and Path(args.record).exists() and not Path(args.record).is_dir():
         raise InputError(f"--record: {args.record} exists; camnet never overwrites a session")
+    if args.replay and not Path(args.replay).is_file():
+        raise InputError(f"--replay: {args.replay} is no file")
+    if args.replay and args.record:
+        raise InputError("--record: a replay is recorded already; give --replay or --record, not both")
     sinks_from_args(args)  # refuse a bad --rerun here, before anything is written or started
     return rig_path, rig
 
@@ -93,35 +101,104 @@ class LatestCalibration:
         self.arrived.set()
 
 
-def run(args: argparse.Namespace) -> int:
-    import contextlib
-    import json
-    import tempfile
-    import threading
+class RunFollower:
+    """What `camnet up` follows on the bus: calibrations (progress lines) and the observations behind them."""
+
+    def __init__(self, args: argparse.Namespace, truth) -> None:
+        from camnet.io.run_dir import RecentObservations
+
+        self.args, self.truth = args, truth
+        self.on_calibration = LatestCalibration()
+        self.observations = RecentObservations()
+
+    def on_observations(self, sample) -> None:
+        from camnet.errors import InputError
+        from camnet.io.run_dir import source_key
+        from camnet.io.validate import decode_json
+
+        payload = sample.payload.to_bytes()
+        try:
+            doc = decode_json(payload, str(sample.key_expr))
+        except InputError:
+            return  # no JSON, no observations: the calibrator counts and logs it
+        if isinstance(doc, dict):
+            self.observations.add(source_key(doc), payload)
+
+    def follow(self, launch, stop, start_s: float, run_dir: Path, progress_file) -> None:
+        """Print a line per calibration until the duration is up, Ctrl-C, or a replay's end."""
+        import json
+        import time
+
+        latest, arrived = self.on_calibration.latest, self.on_calibration.arrived
+        next_wait_note = start_s + 10.0
+        replay_done_s = None
+        while (self.args.forever or time.monotonic() - start_s < self.args.duration_s) and not stop.is_set():
+            replay_done_s = replay_done_s or _replay_ended(launch)
+            if replay_done_s is not None and time.monotonic() - replay_done_s > REPLAY_TAIL_S:
+                break  # the matcher's last pool has been solved by now, or never will be
+            launch.check()
+            if arrived.wait(timeout=0.5):
+                arrived.clear()
+                summary = summarise(time.monotonic() - start_s, latest["doc"], self.truth)
+                print(progress_line(summary), flush=True)
+                if progress_file is not None:
+                    progress_file.write(json.dumps(summary) + "\n")
+                    progress_file.flush()
+            elif "doc" not in latest and time.monotonic() >= next_wait_note:
+                print(f"{time.monotonic() - start_s:7.1f} s  waiting for the first calibration "
+                      f"(see {run_dir / 'logs'}/*.log)", flush=True)
+                next_wait_note = time.monotonic() + 10.0
+
+
+REPLAY_TAIL_S = 20.0  # after a replay's last frame, how long its last frame sets may take to be calibrated
+
+
+def _replay_ended(launch) -> float | None:
+    """The time a replay child ended well (then it is no longer a child to check); None while it runs."""
     import time
 
-    from camnet.bus import keys
-    from camnet.bus.launch import Launch, NetworkSpec, bus_flags, start_network
-    from camnet.bus.node import stop_on_signals
-    from camnet.bus.session import open_session, options_from_args
-    from camnet.errors import CamnetError
-    from camnet.io.formats import parse_calibration, write_json_atomic
+    for child in launch.exited():
+        if child.name == "replay" and child.process.returncode == 0:
+            launch.children.remove(child)
+            print("replay: the session has been played to its end", flush=True)
+            return time.monotonic()
+    return None
 
-    rig_path, rig = _checked_rig(args)
-    run_dir = Path(args.run_dir) if args.run_dir else Path(tempfile.mkdtemp(prefix=f"camnet-{rig.name}-"))
-    run_dir.mkdir(parents=True, exist_ok=True)
-    truth = rig.simulated_truth()
-    spec = NetworkSpec(
-        rig_path=rig_path, rig_name=rig.name, cameras=tuple((e.id, e.driver) for e in rig.cameras),
+
+def _network_spec(args: argparse.Namespace, rig_path: Path, rig, run_dir: Path):
+    from camnet.bus.launch import NetworkSpec, bus_flags
+    from camnet.bus.session import options_from_args
+
+    return NetworkSpec(
+        rig_path=rig_path, rig_name=rig.name,
+        cameras=() if args.replay else tuple((e.id, e.driver) for e in rig.cameras),
         bus=tuple(bus_flags(options_from_args(args))),
         matcher=("--detector", str(args.detector)),
         calibrator=("--state", str(run_dir / "calibration.json"), *(f for v in args.rerun for f in ("--rerun", v))),
         record_path=Path(args.record) if args.record else None)
 
-    on_calibration = LatestCalibration()
-    latest, arrived = on_calibration.latest, on_calibration.arrived
 
-    print(f"camnet up: rig {rig.name!r}, {len(rig.cameras)} cameras, logs in {run_dir}", flush=True)
+def run(args: argparse.Namespace) -> int:
+    import contextlib
+    import threading
+    import time
+
+    from camnet.bus import keys
+    from camnet.bus.launch import Launch, start_network
+    from camnet.bus.node import stop_on_signals
+    from camnet.bus.session import open_session, options_from_args
+    from camnet.errors import CamnetError
+    from camnet.io.run_dir import default_run_dir
+
+    rig_path, rig = _checked_rig(args)
+    run_dir = Path(args.out) if args.out else default_run_dir(rig.name)
+    (run_dir / "logs").mkdir(parents=True, exist_ok=True)
+    truth = rig.simulated_truth()
+    spec = _network_spec(args, rig_path, rig, run_dir)
+    follower = RunFollower(args, truth)
+    source = f", replaying {args.replay}" if args.replay else ""
+    print(f"camnet up: rig {rig.name!r}, {len(rig.cameras)} cameras{source}; results and logs in {run_dir}",
+          flush=True)
     with contextlib.ExitStack() as stack:
         # Ctrl-C and a process manager's SIGTERM only ask the loop below to end, so that no
         # exception lands in the middle of starting a node (which would leave it orphaned)
@@ -129,36 +206,58 @@ def run(args: argparse.Namespace) -> int:
         stop = stack.enter_context(stop_on_signals(threading.Event()))
         progress_file = stack.enter_context(open(args.progress_jsonl, "w")) if args.progress_jsonl else None
         session = stack.enter_context(open_session(options_from_args(args)))
-        launch = stack.enter_context(Launch(run_dir))
-        subscriber = session.declare_subscriber(keys.calibration(rig.name), on_calibration)
+        launch = stack.enter_context(Launch(run_dir / "logs"))
+        subscribers = [session.declare_subscriber(keys.calibration(rig.name), follower.on_calibration),
+                       session.declare_subscriber(keys.observations(rig.name), follower.on_observations)]
         start_network(launch, spec)
-        start = time.monotonic()
-        next_wait_note = start + 10.0
-        while (args.forever or time.monotonic() - start < args.duration_s) and not stop.is_set():
-            launch.check()
-            if arrived.wait(timeout=0.5):
-                arrived.clear()
-                summary = summarise(time.monotonic() - start, latest["doc"], truth)
-                print(progress_line(summary), flush=True)
-                if progress_file is not None:
-                    progress_file.write(json.dumps(summary) + "\n")
-                    progress_file.flush()
-            elif "doc" not in latest and time.monotonic() >= next_wait_note:
-                print(f"{time.monotonic() - start:7.1f} s  waiting for the first calibration "
-                      f"(see {run_dir}/*.log)", flush=True)
-                next_wait_note = time.monotonic() + 10.0
+        if args.replay:
+            launch.start("replay", ["replay", str(args.replay), "--rig", rig.name, *spec.bus])
+        follower.follow(launch, stop, time.monotonic(), run_dir, progress_file)
         if stop.is_set():
             print("interrupted", flush=True)
-        subscriber.undeclare()
-    doc = latest.get("doc")
+        for subscriber in subscribers:
+            subscriber.undeclare()
+    doc = follower.on_calibration.latest.get("doc")
     if doc is None and stop.is_set():
         return 130
     if doc is None:
-        raise CamnetError(f"no calibration in {args.duration_s:.0f} s; the nodes' logs are in {run_dir}")
+        raise CamnetError(f"no calibration in {args.duration_s:.0f} s; the nodes' logs are in {run_dir / 'logs'}")
+    print(_finish(args, run_dir, doc, follower, truth))
+    return 0
+
+
+def _finish(args: argparse.Namespace, run_dir: Path, doc: dict, follower: RunFollower, truth) -> str:
+    """Write the run directory's results; the final lines: the calibration, the files, the next commands."""
+    from camnet.io.formats import parse_calibration, write_json_atomic
+    from camnet.io.run_dir import source_key, write_results
+    from camnet.io.validate import decode_json
+
+    payload = follower.observations.get(source_key(doc))
+    observations = decode_json(payload, "observations") if payload is not None else None
+    written = write_results(run_dir, doc, observations)
     if args.output:
         write_json_atomic(args.output, doc)
-    print(final_report(parse_calibration(doc), truth))
-    return 0
+        written.append(Path(args.output))
+    lines = [final_report(parse_calibration(doc), truth), "", f"files in {run_dir}:"]
+    lines += [f"  {p.name + ('/' if p.is_dir() else ''):<20} {_DESCRIBE.get(p.name, '')}".rstrip() for p in written]
+    if observations is None:
+        lines.append("  (the observations behind the last calibration were not received: no observations.json)")
+    cal_path = run_dir / "calibration.json"
+    lines += ["next:", f"  open {run_dir / 'report.html'}",
+              f"  camnet export {cal_path} --to kalibr|ros|anipose|colmap-bin -o OUT"]
+    if observations is not None:  # solve it again offline: with K given, another --free, ...
+        lines.append(f"  camnet calibrate {run_dir / 'observations.json'} -o calibration.json --initial {cal_path}")
+    return "\n".join(lines)
+
+
+_DESCRIBE = {
+    "calibration.json": "the last calibration (camnet.calibration/1)",
+    "observations.json": "the pooled observations it was solved from (camnet.observations/1)",
+    "report.html": "errors, uncertainty, layout, verdict",
+    "calibration.yaml": "OpenCV FileStorage",
+    "colmap": "COLMAP text model",
+    "points.ply": "the points with their sigmas",
+}
 
 
 def calibrate_live(rig_path: str | Path, *, run_dir: Path, endpoint: str, max_tracks: int = 3000,
@@ -278,14 +377,10 @@ def progress_line(s: dict) -> str:
 
 def final_report(cal, truth) -> str:
     from camnet.geometry.evaluate import compare_cameras, format_comparison
+    from camnet.io.summary import summary_lines
 
-    lines = ["", "final calibration:"]
+    lines = ["", "final calibration:", *summary_lines(cal)]
     if truth:
-        lines.append(format_comparison(compare_cameras(cal, truth)))
-        lines.append("(scale and shape from the camera centres against the simulation's ground truth)")
-    else:
-        for cam in cal.cameras:
-            lines.append(f"{cam.id:<10} f {cam.K[0, 0]:9.2f} px  centre {1e3 * cam.centre} mm")
-    for warning in cal.warnings:
-        lines.append(f"warning: {warning}")
+        lines += ["", "against the simulation's ground truth:", format_comparison(compare_cameras(cal, truth)),
+                  "(scale and shape from the camera centres against the simulation's ground truth)"]
     return "\n".join(lines)

@@ -163,8 +163,9 @@ def reported_points(
     return kept, dropped
 
 
-def _uncertainty(ids: list[str], problem, state, cov: Covariance, kept, warnings: list[str]) -> Uncertainty:
-    """The solution's uncertainty; appends the warnings it gives rise to."""
+def _uncertainty(ids: list[str], problem, state, cov: Covariance, kept, warnings: list[str],
+                 notes: list[str]) -> Uncertainty:
+    """The solution's uncertainty; appends the warnings and notes it gives rise to."""
     weights = scale_weights(cov, state.X, kept)
     scale = scale_sigma(cov, state.X, weights) if kept.any() else None
     undetermined_scale = scale is not None and not np.isfinite(scale)
@@ -205,10 +206,14 @@ def _uncertainty(ids: list[str], problem, state, cov: Covariance, kept, warnings
         warnings.append("no point is determined: the scale is unknown")
     elif scale > POOR_SCALE_REL:
         why = ""
-        if scale_if_pp is not None and scale_if_pp < scale / 2:
+        guess_only = scale_if_pp is not None and scale_if_pp < scale / 2
+        if guess_only:
             why = (f", {100 * scale_if_pp:.2g}% were the principal points exactly at the image centres: "
                    "give the stereo cameras' K")
-        warnings.append(f"the scale is uncertain by {100 * scale:.1f}% (1 sigma){why}")
+        # What a guessed principal point costs is a caveat of every solve nobody gave K, not a fault
+        # of this one: a note while the data alone fix the scale, a warning when they do not.
+        caveat = guess_only and scale_if_pp <= POOR_SCALE_REL
+        (notes if caveat else warnings).append(f"the scale is uncertain by {100 * scale:.1f}% (1 sigma){why}")
     return Uncertainty(
         sigma_px=cov.sigma_px,
         scale_rel=Sigma(scale) if scale is not None else Sigma.unknown(unknown_scale),
@@ -237,7 +242,7 @@ def _distance_warnings(ids: list[str], problem, state, cov: Covariance) -> list[
 
 
 def _geometry_warnings(obs, order, problem, state, parallax: np.ndarray, kept: np.ndarray) -> list[str]:
-    """Little parallax, coplanar points, a held stereo column offset."""
+    """Little parallax, coplanar points, a scene too far for the baseline."""
     warnings = []
     if len(parallax) and np.median(parallax) < MIN_PARALLAX_DEG:
         warnings.append(
@@ -251,7 +256,7 @@ def _geometry_warnings(obs, order, problem, state, parallax: np.ndarray, kept: n
     if len(body):
         warnings += far_scene_warning(float(np.median(np.linalg.norm(body - state.C[0], axis=1))),
                                       obs.stereo.baseline_m)
-    return warnings + _held_disparity_warning(obs, order, problem, state)
+    return warnings
 
 
 def far_scene_warning(median_depth_m: float, baseline_m: float) -> list[str]:
@@ -292,7 +297,12 @@ def solve_report(
         observed = np.bincount(obs.cam_index, minlength=len(obs.cameras))[order]
         warnings += structure_warnings(ids, problem.cam, problem.uv, residuals_px, state.intr,
                                        problem.intr_free[:, 4], observed)
-    uncertainty = None if cov is None else _uncertainty(ids, problem, state, cov, kept, warnings)
+    notes: list[str] = []
+    uncertainty = None if cov is None else _uncertainty(ids, problem, state, cov, kept, warnings, notes)
+    # The held column offset is priced into the scale's sigma when the principal points entered as
+    # a guess with its prior: then a caveat (a note), else the sigma cannot show it (a warning).
+    priced = uncertainty is not None and uncertainty.scale_rel_if_pp_exact.value is not None
+    (notes if priced else warnings).extend(_held_disparity_warning(obs, order, problem, state))
     return SolveReport(
         method=method,
         converged=bool(info.converged),
@@ -309,6 +319,7 @@ def solve_report(
         start=start,
         timings_s=dict(timings_s),
         uncertainty=uncertainty,
+        notes=tuple(notes),
     )
 
 

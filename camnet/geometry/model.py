@@ -259,11 +259,12 @@ class SolveReport:
 
     converged, reason, iterations: the final adjustment's; observations,
     inliers: used and kept after outlier rejection; free_rule: the automatic
-    rule's decisions; warnings: near-degenerate geometry; timings_s: seconds
-    per stage; cameras_left_out: camera id -> why the solve could not place
-    it (the calibration holds the others). Fields a document may lack are
-    None (`free`, `start`, `points_left_out`, `uncertainty`,
-    `median_parallax_deg`).
+    rule's decisions; warnings: near-degenerate geometry; notes: what the
+    reader should know of a good solve (what a guessed principal point
+    costs); timings_s: seconds per stage; cameras_left_out: camera id -> why
+    the solve could not place it (the calibration holds the others). Fields
+    a document may lack are None (`free`, `start`, `points_left_out`,
+    `uncertainty`, `median_parallax_deg`).
     """
 
     method: Method
@@ -282,6 +283,7 @@ class SolveReport:
     timings_s: Mapping[str, float]
     uncertainty: Uncertainty | None = None
     cameras_left_out: Mapping[str, str] = field(default_factory=dict)
+    notes: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)

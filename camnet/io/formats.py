@@ -28,8 +28,9 @@ from camnet.geometry.model import (
     Observations,
     Stereo,
 )
+from camnet.geometry.verdict import judge
 from camnet.io import validate as v
-from camnet.io.solve_report import parse_report, report_to_doc
+from camnet.io.solve_report import parse_report, report_to_doc, verdict_to_doc
 
 OBSERVATIONS_FORMAT = "camnet.observations/1"
 CALIBRATION_FORMAT = "camnet.calibration/1"
@@ -218,6 +219,8 @@ def calibration_to_doc(cal: Calibration) -> dict:
     }
     if cal.report is not None:
         doc.update(report_to_doc(cal.report))
+        # Derived from the report (camnet.geometry.verdict), so a reader never parses it back: it judges again.
+        doc["verdict"] = verdict_to_doc(judge(cal))
     return doc
 
 

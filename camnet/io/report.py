@@ -21,10 +21,12 @@ import numpy as np
 
 from camnet.geometry.model import Calibration, CameraSigmas, Observations
 from camnet.geometry.residuals import Residuals, outlier_limit_px, reprojection_residuals
+from camnet.geometry.verdict import judge
 
 SECTIONS = {
     "summary": "Summary",
-    "warnings": "Warnings",
+    "verdict": "Verdict",
+    "warnings": "Warnings and notes",
     "cameras": "Cameras",
     "reprojection": "Reprojection error per point",
     "residuals": "Residual histograms",
@@ -41,6 +43,7 @@ td, th { border: 1px solid #ccc; padding: 3px 8px; text-align: right; }
 th { background: #f0f0f0; } td:first-child, th:first-child { text-align: left; }
 svg { max-width: 100%; height: auto; }
 .note { color: #666; } .warning { color: #a40000; }
+.good { color: #1a7f37; } .usable { color: #9a6700; } .poor { color: #a40000; font-weight: bold; }
 """
 
 
@@ -63,6 +66,39 @@ def bounding_box(points_m: np.ndarray) -> BoundingBox | None:
     if not len(points_m):
         return None
     return BoundingBox(points_m.min(axis=0), points_m.max(axis=0))
+
+
+ROBUST_PERCENTILES = (1.0, 99.0)
+
+
+def robust_box(points_m: np.ndarray) -> BoundingBox | None:
+    """The box of the 1st to 99th percentile along each axis: a few far points (no parallax, a false
+    match) do not stretch it. None for no points."""
+    points_m = np.asarray(points_m, dtype=float).reshape(-1, 3)
+    if not len(points_m):
+        return None
+    lo, hi = np.percentile(points_m, ROBUST_PERCENTILES, axis=0)
+    return BoundingBox(lo, hi)
+
+
+def outside(points_m: np.ndarray, box: BoundingBox) -> np.ndarray:
+    """(N,) bool: the points outside `box` on any axis."""
+    return np.any((points_m < box.min_m) | (points_m > box.max_m), axis=1)
+
+
+def plot_limits(lo: np.ndarray, hi: np.ndarray, margin: float = 0.08) -> tuple[np.ndarray, np.ndarray]:
+    """Axis limits around [lo, hi] with a margin, so that points clipped to the edge stay visible."""
+    pad = margin * np.maximum(hi - lo, 1e-6)
+    return lo - pad, hi + pad
+
+
+def _clipped(ax, x: np.ndarray, y: np.ndarray, lim_x, lim_y, *, colour: str, label: str) -> None:
+    """Points inside the limits as dots; those beyond drawn on the edge as red triangles, counted."""
+    cx, cy = np.clip(x, *lim_x), np.clip(y, *lim_y)
+    far = (cx != x) | (cy != y)
+    ax.plot(cx[~far], cy[~far], ".", color=colour, markersize=3, label=label)
+    if far.any():
+        ax.plot(cx[far], cy[far], "^", color="C3", markersize=5, label=f"{int(far.sum())} beyond, at the edge")
 
 
 def camera_colour(m: int) -> str:
@@ -144,7 +180,7 @@ def plot_residual_histograms(cal: Calibration, res: Residuals, limit_px: float, 
 
 
 def plot_uncertainty(cal: Calibration, per_camera: Mapping[str, CameraSigmas]) -> str:
-    """Per camera, 1-sigma of the intrinsics (px), the centre (mm) and the rotation (deg); held is 0."""
+    """Per camera, 1-sigma of the intrinsics (px), the centre (mm) and the rotation (deg); held: 'given'."""
     panels = [
         ("intrinsics (px)", ["f", "cx", "cy"], lambda u: [u.f_px, u.cx_px, u.cy_px]),
         ("centre (mm)", ["x", "y", "z"], lambda u: [1e3 * v for v in u.centre_m]),
@@ -156,9 +192,14 @@ def plot_uncertainty(cal: Calibration, per_camera: Mapping[str, CameraSigmas]) -
         for m, cam in enumerate(cal.cameras):
             if cam.id not in per_camera:
                 continue
-            heights = values(per_camera[cam.id])
+            heights = np.array(values(per_camera[cam.id]), dtype=float)
             x = np.arange(len(labels)) + (m + 0.5) * width - 0.4
-            ax.bar(x, heights, width=width, color=camera_colour(m), label=cam.id)
+            ax.bar(x, np.where(np.isfinite(heights), heights, 0.0), width=width, color=camera_colour(m), label=cam.id)
+            for xi, h in zip(x, heights, strict=True):
+                if h == 0.0 or not np.isfinite(h):  # held: no bar of height 0 that reads as "known exactly"
+                    ax.annotate("given" if h == 0.0 else "n/d", (xi, 0.0), textcoords="offset points",
+                                xytext=(0, 2), rotation=90, ha="center", va="bottom", fontsize=7,
+                                color=camera_colour(m))
         ax.set_xticks(np.arange(len(labels)), labels)
         ax.set_title(f"1 sigma: {title}", fontsize=10)
         ax.grid(axis="y", alpha=0.3)
@@ -167,21 +208,30 @@ def plot_uncertainty(cal: Calibration, per_camera: Mapping[str, CameraSigmas]) -
 
 
 def plot_bounding_box(cal: Calibration, box: BoundingBox) -> str:
-    """The cloud seen from the front (X-Y) and the side (Z-Y), in mm, with its bounding box."""
+    """The cloud seen from the front (X-Y) and the side (Z-Y), in mm, with its robust box (`box`); the
+    axes end near the box, and points beyond are drawn on the edge."""
+    return _svg(bounding_box_figure(cal, box))
+
+
+def bounding_box_figure(cal: Calibration, box: BoundingBox):
+    """The figure of `plot_bounding_box`."""
     from matplotlib.patches import Rectangle
 
     fig, axes = _figure(2, columns=2, panel_in=(4.6, 4.2))
     P = 1e3 * cal.points
     lo, hi = 1e3 * box.min_m, 1e3 * box.max_m
+    lim_lo, lim_hi = plot_limits(lo, hi)
     for ax, (i, j), name in zip(axes, [(0, 1), (2, 1)], ["front (X-Y)", "side (Z-Y)"], strict=True):
         ax.add_patch(Rectangle((lo[i], lo[j]), hi[i] - lo[i], hi[j] - lo[j], fill=False, color="C3", linewidth=1.5))
-        ax.plot(P[:, i], P[:, j], ".", color="0.2", markersize=3)
+        _clipped(ax, P[:, i], P[:, j], (lim_lo[i], lim_hi[i]), (lim_lo[j], lim_hi[j]), colour="0.2", label="points")
+        ax.set_xlim(lim_lo[i], lim_hi[i])
+        ax.set_ylim(lim_hi[j], lim_lo[j])  # camera y points down
+        ax.set_aspect("equal", adjustable="box")
         ax.set_xlabel(f"{'XYZ'[i]} (mm)")
         ax.set_ylabel(f"{'XYZ'[j]} (mm, down)")
         ax.set_title(f"{name}: {hi[i] - lo[i]:.1f} x {hi[j] - lo[j]:.1f} mm", fontsize=10)
-        ax.invert_yaxis()  # camera y points down
-        ax.set_aspect("equal", adjustable="datalim")
-    return _svg(fig)
+        ax.legend(fontsize=7, loc="upper right")
+    return fig
 
 
 def frustum_xz(cam, depth_m: float) -> np.ndarray:
@@ -201,26 +251,77 @@ def frustum_xz(cam, depth_m: float) -> np.ndarray:
     return np.vstack([cam.centre, world])[:, [0, 2]]
 
 
+def layout_limits(cal: Calibration) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi) in world (x, z), metres, of the view from above: the cameras and the robust box of the points."""
+    centres = np.array([cam.centre for cam in cal.cameras])[:, [0, 2]]
+    box = robust_box(cal.points)
+    span = centres if box is None else np.vstack([centres, box.min_m[[0, 2]], box.max_m[[0, 2]]])
+    lo, hi = span.min(axis=0), span.max(axis=0)
+    side = max(float(np.max(hi - lo)), 1e-3)
+    mid = (lo + hi) / 2  # square, so that the equal aspect keeps these limits
+    return plot_limits(mid - side / 2, mid + side / 2)
+
+
+LABEL_STEP_PT = 11.0  # a label's height, in points: labels closer than this in both directions are moved
+
+
+def label_offsets_pt(anchors_pt: np.ndarray, widths_pt: np.ndarray) -> np.ndarray:
+    """(M, 2) offsets in points for labels at anchors (M, 2) (display points), none of them overlapping.
+
+    Each label sits right of and below its anchor; one that would overlap a label
+    already placed moves a line up or down, alternately and ever farther, until it does not.
+    """
+    placed: list[tuple[float, float, float]] = []  # x, y, width of each placed label's corner
+    offsets = []
+    for (x, y), width in zip(anchors_pt, widths_pt, strict=True):
+        for k in range(len(anchors_pt) * 2 + 1):  # below, above, two below, two above, ...
+            dy = -LABEL_STEP_PT * (1 + (k + 1) // 2) if k % 2 == 0 else LABEL_STEP_PT * ((k + 1) // 2) - 3.0
+            if not any(abs(y + dy - py) < LABEL_STEP_PT and x < px + pw and px < x + width for px, py, pw in placed):
+                break
+        placed.append((x, y + dy, width))
+        offsets.append((4.0, dy))
+    return np.array(offsets).reshape(-1, 2)
+
+
 def plot_layout(cal: Calibration) -> str:
-    """Cameras (frusta) and points in the world X-Z plane, seen from above (X right, Z forward)."""
+    """Cameras (frusta) and points in the world X-Z plane, seen from above (X right, Z forward).
+
+    The view ends near the cameras and the robust box of the points; points beyond are drawn on its
+    edge. Camera labels are moved apart where they would overlap.
+    """
+    return _svg(layout_figure(cal))
+
+
+def layout_figure(cal: Calibration):
+    """The figure of `plot_layout`."""
     fig, axes = _figure(1, columns=1, panel_in=(7.0, 6.0))
     ax = axes[0]
-    centres = np.array([cam.centre for cam in cal.cameras])
-    span = np.vstack([centres, cal.points]) if len(cal.points) else centres
-    depth = 0.25 * max(float(np.ptp(span[:, [0, 2]], axis=0).max()), 1e-3)
+    lo, hi = layout_limits(cal)
+    depth = 0.25 * float(np.max(hi - lo)) / 1.16  # a quarter of the view (the limits carry an 8% margin)
     if len(cal.points):
-        ax.plot(cal.points[:, 0], cal.points[:, 2], ".", color="0.4", markersize=3, label="points")
+        _clipped(ax, cal.points[:, 0], cal.points[:, 2], (lo[0], hi[0]), (lo[1], hi[1]), colour="0.4",
+                 label="points")
     for m, cam in enumerate(cal.cameras):
         c, left, right = frustum_xz(cam, depth)
         ax.fill([c[0], left[0], right[0]], [c[1], left[1], right[1]], color=camera_colour(m), alpha=0.25)
         ax.plot([left[0], c[0], right[0]], [left[1], c[1], right[1]], color=camera_colour(m), linewidth=1.5)
-        ax.annotate(cam.id, c, textcoords="offset points", xytext=(4, -12), fontsize=9, color=camera_colour(m))
+    ax.set_xlim(lo[0], hi[0])
+    ax.set_ylim(lo[1], hi[1])
+    ax.set_aspect("equal", adjustable="box")
+    fig.draw_without_rendering()  # the constrained layout's final axes, so that the anchors are where they end up
+    # Anchors in points of the figure: data to pixels, then 72 points to the inch.
+    centres = np.array([cam.centre[[0, 2]] for cam in cal.cameras])
+    anchors = ax.transData.transform(centres) * 72.0 / fig.dpi
+    widths = np.array([6.0 * len(cam.id) + 4.0 for cam in cal.cameras])  # 9 pt text: about 6 pt a character
+    for m, (cam, offset) in enumerate(zip(cal.cameras, label_offsets_pt(anchors, widths), strict=True)):
+        ax.annotate(cam.id, centres[m], textcoords="offset points", xytext=offset, fontsize=9,
+                    color=camera_colour(m))
     ax.set_xlabel("X (m)")
     ax.set_ylabel("Z (m)")
-    ax.set_aspect("equal", adjustable="datalim")
     ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, loc="upper right")
     ax.set_title(f"world frame: camera {cal.world_frame}", fontsize=10)
-    return _svg(fig)
+    return fig
 
 
 # ---------------------------------------------------------------- tables
@@ -236,6 +337,13 @@ def _fmt(x: Any, digits: int) -> str:
     if isinstance(x, int | float | np.floating) and math.isfinite(x):
         return f"{x:.{digits}f}"
     return _esc(x)
+
+
+def _sigma(x: float, digits: int) -> str:
+    """A 1 sigma as shown: 'given' for a held parameter (its 0 is no measure), 'not determined' for infinity."""
+    if x == 0.0:
+        return '<span class="note">given</span>'
+    return "not determined" if not math.isfinite(x) else f"{x:.{digits}f}"
 
 
 def _table(header: list[str], rows: list[list[str]]) -> str:
@@ -282,8 +390,8 @@ def _camera_table(cal: Calibration) -> str:
                 *(_fmt(x, 1) for x in (cam.K[0, 0], cam.K[1, 1], cam.K[0, 2], cam.K[1, 2])),
                 " ".join(f"{x:.4g}" for x in cam.dist),
                 " ".join(_fmt(1e3 * x, 1) for x in cam.centre),
-                _fmt(u.f_px if u is not None else None, 2),
-                f"{_fmt(u.cx_px, 2)} / {_fmt(u.cy_px, 2)}" if u is not None else "None / None",
+                _sigma(u.f_px, 2) if u is not None else "n/a",
+                f"{_sigma(u.cx_px, 2)} / {_sigma(u.cy_px, 2)}" if u is not None else "n/a",
                 _fmt(d.rms_px if d is not None else None, 3),
                 _esc(d.inliers if d is not None else "n/a"),
             ]
@@ -301,24 +409,45 @@ def _uncertainty_table(cal: Calibration, per_camera: Mapping[str, CameraSigmas])
         rows.append(
             [
                 _esc(cam.id),
-                *(_fmt(x, 3) for x in (u.f_px, u.cx_px, u.cy_px)),
-                *(f"{x:.3g}" for x in (u.k1, u.k2)),
-                " ".join(_fmt(1e3 * x, 3) for x in u.centre_m),
-                " ".join(_fmt(x, 4) for x in u.rotation_deg),
+                *(_sigma(x, 3) for x in (u.f_px, u.cx_px, u.cy_px)),
+                *(_sigma(x, 4) for x in (u.k1, u.k2)),
+                " ".join(_sigma(1e3 * x, 3) for x in u.centre_m),
+                " ".join(_sigma(x, 4) for x in u.rotation_deg),
             ]
         )
     header = ["camera", "f (px)", "cx (px)", "cy (px)", "k1", "k2", "centre X Y Z (mm)", "rotation x y z (deg)"]
     return _table(header, rows)
 
 
-def _bounding_box_text(box: BoundingBox) -> str:
+def _bounding_box_text(points_m: np.ndarray, box: BoundingBox) -> str:
+    full = bounding_box(points_m)
+    far = int(outside(points_m, BoundingBox(*plot_limits(box.min_m, box.max_m))).sum())
     sx, sy, sz = box.size_mm
     lo, hi = 1e3 * box.min_m, 1e3 * box.max_m
-    rows = [[axis, _fmt(lo[i], 1), _fmt(hi[i], 1), _fmt(box.size_mm[i], 1)] for i, axis in enumerate("XYZ")]
+    rows = [[axis, _fmt(lo[i], 1), _fmt(hi[i], 1), _fmt(box.size_mm[i], 1), _fmt(full.size_mm[i], 1)]
+            for i, axis in enumerate("XYZ")]
+    p_lo, p_hi = ROBUST_PERCENTILES
     return (
-        f"<p>The cloud fits inside a box of <b>{sx:.1f} mm x {sy:.1f} mm x {sz:.1f} mm</b> (X x Y x Z), "
-        "axes of the world frame.</p>" + _table(["axis", "min (mm)", "max (mm)", "size (mm)"], rows)
+        f"<p>The body of the cloud ({p_lo:g}th to {p_hi:g}th percentile along each axis) fits inside a box of "
+        f"<b>{sx:.1f} mm x {sy:.1f} mm x {sz:.1f} mm</b> (X x Y x Z), axes of the world frame; {far} of "
+        f"{len(points_m)} points lie far beyond it (drawn on the plots' edges).</p>"
+        + _table(["axis", "min (mm)", "max (mm)", "size (mm)", "all points (mm)"], rows)
     )
+
+
+def _verdict_html(cal: Calibration) -> str:
+    verdict = judge(cal)
+    if verdict is None:
+        return '<p class="note">Nothing was solved: no verdict.</p>'
+    lv = verdict.level.value
+    head = f'<p>The rig: <span class="{lv}">{lv}</span> (docs/calibration-keys.md, "The verdict").</p>'
+    rows = []
+    for camera, f in verdict.all_findings():
+        level = f'<span class="{f.level.value}">{f.level.value}</span>'
+        rows.append([_esc(camera if camera is not None else "rig"), level, _esc(f.what), _esc(f.cause), _esc(f.todo)])
+    levels = [[_esc(c.camera), f'<span class="{c.level.value}">{c.level.value}</span>'] for c in verdict.cameras]
+    findings = _table(["where", "level", "what", "likely cause", "to do"], rows) if rows else ""
+    return head + _table(["camera", "verdict"], levels) + findings
 
 
 # ---------------------------------------------------------------- the page
@@ -329,11 +458,14 @@ def render_report(cal: Calibration, obs: Observations | None = None, *, title: s
     uncertainty = cal.uncertainty
     res = reprojection_residuals(cal, obs) if obs is not None else None
     limit_px = outlier_limit_px(cal)
-    box = bounding_box(cal.points)
+    box = robust_box(cal.points)
     needs_observations = f'<p class="note">{NEEDS_OBSERVATIONS}</p>'
     body = {
         "summary": _summary(cal, res),
-        "warnings": "".join(f'<p class="warning">{_esc(w)}</p>' for w in cal.warnings) or '<p class="note">None.</p>',
+        "verdict": _verdict_html(cal),
+        "warnings": "".join(f'<p class="warning">warning: {_esc(w)}</p>' for w in cal.warnings)
+        + "".join(f'<p class="note">note: {_esc(n)}</p>' for n in (cal.report.notes if cal.report else ()))
+        or '<p class="note">None.</p>',
         "cameras": _camera_table(cal),
         "reprojection": plot_per_point_errors(cal, res, limit_px) if res is not None else needs_observations,
         "residuals": plot_residual_histograms(cal, res, limit_px, uncertainty.sigma_px if uncertainty else None)
@@ -342,7 +474,7 @@ def render_report(cal: Calibration, obs: Observations | None = None, *, title: s
         "uncertainty": _uncertainty_table(cal, uncertainty.cameras) + plot_uncertainty(cal, uncertainty.cameras)
         if uncertainty is not None and uncertainty.cameras
         else '<p class="note">The calibration holds no uncertainty.</p>',
-        "bounding-box": _bounding_box_text(box) + plot_bounding_box(cal, box)
+        "bounding-box": _bounding_box_text(cal.points, box) + plot_bounding_box(cal, box)
         if box is not None
         else '<p class="note">The calibration holds no points.</p>',
         "layout": plot_layout(cal),

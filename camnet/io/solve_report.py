@@ -24,6 +24,7 @@ from camnet.geometry.model import (
     StartKind,
     Uncertainty,
 )
+from camnet.geometry.verdict import Verdict
 from camnet.io import validate as v
 
 # Timings are written to the microsecond: finer digits are noise.
@@ -53,6 +54,7 @@ def report_to_doc(report: SolveReport) -> dict:
         }
     diagnostics["free_rule"] = list(report.free_rule)
     diagnostics["warnings"] = list(report.warnings)
+    diagnostics["notes"] = list(report.notes)
     if report.points_left_out is not None:
         dropped = report.points_left_out
         diagnostics["points_left_out"] = {
@@ -70,6 +72,20 @@ def report_to_doc(report: SolveReport) -> dict:
     if report.uncertainty is not None:
         doc["uncertainty"] = _uncertainty_to_doc(report.uncertainty)
     return doc
+
+
+def verdict_to_doc(verdict: Verdict) -> dict:
+    """The ``verdict`` key: the rig's level and findings, then each camera's (docs/calibration-keys.md)."""
+
+    def findings(items) -> list[dict]:
+        return [{"level": f.level.value, "what": f.what, "cause": f.cause, "action": f.action.value, "todo": f.todo}
+                for f in items]
+
+    return {
+        "level": verdict.level.value,
+        "findings": findings(verdict.findings),
+        "cameras": {c.camera: {"level": c.level.value, "findings": findings(c.findings)} for c in verdict.cameras},
+    }
 
 
 def _uncertainty_to_doc(u: Uncertainty) -> dict:
@@ -130,6 +146,7 @@ def parse_report(doc: dict) -> SolveReport | None:
         free=get("free", _parse_free),
         free_rule=get("free_rule", v.strings, ()),
         warnings=get("warnings", v.strings, ()),
+        notes=get("notes", v.strings, ()),  # older documents have none: their caveats are warnings
         points_left_out=get("points_left_out", _parse_points_left_out),
         start=StartKind(start) if start is not None else None,
         timings_s={k: v.number(t, f"timings_s.{k}") for k, t in timings.items()},

@@ -1,0 +1,71 @@
+"""What a run of the network leaves where its user can see it.
+
+`camnet up` names a run directory (``runs/<rig>-<time>`` under the working
+directory unless told otherwise) and leaves in it: the last calibration, the
+pooled observations it was solved from, an HTML report and the exports of
+`EXPORTS`, beside the nodes' logs (``logs/``).
+"""
+
+from __future__ import annotations
+
+import time
+from collections import OrderedDict
+from pathlib import Path
+
+from camnet.io.atomic import write_directory_atomic, write_text_atomic
+from camnet.io.export import COLMAP_FORMATS, export, is_multi_file
+from camnet.io.formats import parse_calibration, parse_observations, write_json_atomic
+from camnet.io.report import render_report
+
+# (format of `camnet export`, file or directory name in the run directory)
+EXPORTS = (("opencv", "calibration.yaml"), ("colmap", "colmap"), ("ply", "points.ply"))
+KEPT_OBSERVATIONS = 16  # observations messages kept until a calibration names the one it was solved from
+
+
+def default_run_dir(rig_name: str, *, now_s: float | None = None) -> Path:
+    """``runs/<rig>-<local time to the second>``, relative to the working directory."""
+    return Path("runs") / f"{rig_name}-{time.strftime('%Y%m%d-%H%M%S', time.localtime(now_s))}"
+
+
+def source_key(doc: dict) -> tuple[object, object]:
+    """What ties a calibration to the observations it was solved from: both carry these two keys."""
+    return doc.get("frame_sets"), doc.get("latest_capture_ns")
+
+
+class RecentObservations:
+    """The last few observations documents (raw bytes), by `source_key`; older ones are dropped."""
+
+    def __init__(self, keep: int = KEPT_OBSERVATIONS) -> None:
+        self.keep = keep
+        self._docs: OrderedDict[tuple, bytes] = OrderedDict()
+
+    def add(self, key: tuple, payload: bytes) -> None:
+        self._docs[key] = payload
+        self._docs.move_to_end(key)
+        while len(self._docs) > self.keep:
+            self._docs.popitem(last=False)
+
+    def get(self, key: tuple) -> bytes | None:
+        return self._docs.get(key)
+
+
+def write_results(run_dir: Path, calibration_doc: dict, observations_doc: dict | None) -> list[Path]:
+    """Write the calibration, its observations (when known), the report and the exports; the paths written."""
+    run_dir.mkdir(parents=True, exist_ok=True)
+    cal = parse_calibration(calibration_doc)
+    obs = parse_observations(observations_doc, any_distance=True) if observations_doc is not None else None
+    written = [run_dir / "calibration.json"]
+    write_json_atomic(written[0], calibration_doc)
+    if observations_doc is not None:
+        written.append(run_dir / "observations.json")
+        write_json_atomic(written[-1], observations_doc)
+    written.append(write_text_atomic(run_dir / "report.html", render_report(cal, obs, title=f"camnet: {run_dir.name}")))
+    for fmt, name in EXPORTS:
+        files = export(cal, fmt, observations=obs if fmt in COLMAP_FORMATS else None)
+        if is_multi_file(fmt):
+            write_directory_atomic(run_dir / name, files)
+            written.append(run_dir / name)
+        else:
+            ((_, content),) = files.items()
+            written.append(write_text_atomic(run_dir / name, content))
+    return written

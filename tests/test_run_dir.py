@@ -1,0 +1,95 @@
+"""What `camnet up` leaves in its run directory, and the lines that name it."""
+
+import argparse
+import json
+import re
+
+import cv2
+import pytest
+
+from camnet.commands.up import RunFollower, _finish, final_report
+from camnet.geometry.calibrate import Options, calibrate
+from camnet.geometry.live import LIVE_FREE
+from camnet.io.formats import calibration_to_doc, observations_to_doc, parse_calibration
+from camnet.io.run_dir import RecentObservations, default_run_dir, source_key
+from camnet.sim.simulate import make_rig, observe
+
+
+@pytest.fixture(scope="module")
+def live_like():
+    """A calibration document as the calibrator publishes it, and the observations document behind it."""
+    rig = make_rig(n_points=300, seed=4)
+    obs = observe(rig, noise_px=0.3, seed=4).observations
+    obs_doc = {**observations_to_doc(obs), "frame_sets": 7, "latest_capture_ns": 123456789}
+    cal_doc = {**calibration_to_doc(calibrate(obs, Options(free=LIVE_FREE)).calibration),
+               "frame_sets": 7, "latest_capture_ns": 123456789, "solve": 3, "status": "good"}
+    return rig, cal_doc, obs_doc
+
+
+def test_the_default_run_directory_names_the_rig_and_the_time():
+    path = default_run_dir("sim", now_s=0.0)
+    assert path.parts[0] == "runs" and re.fullmatch(r"sim-\d{8}-\d{6}", path.name)
+
+
+def test_recent_observations_keep_the_last_few_by_source():
+    recent = RecentObservations(keep=2)
+    for k in range(3):
+        recent.add((k, k), str(k).encode())
+    assert recent.get((0, 0)) is None and recent.get((2, 2)) == b"2"
+
+
+def test_the_run_directory_holds_the_results_and_the_last_lines_name_them(tmp_path, live_like):
+    rig, cal_doc, obs_doc = live_like
+    follower = RunFollower(argparse.Namespace(), truth=None)
+    follower.observations.add(source_key(obs_doc), json.dumps(obs_doc).encode())
+    follower.observations.add((8, 999), b"{}")  # a newer pool that no calibration was solved from
+    run_dir = tmp_path / "runs" / "sim-1"
+    text = _finish(argparse.Namespace(output=None), run_dir, cal_doc, follower, truth=None)
+    names = sorted(p.name for p in run_dir.iterdir())
+    assert names == ["calibration.json", "calibration.yaml", "colmap", "observations.json", "points.ply",
+                     "report.html"]
+    assert json.loads((run_dir / "observations.json").read_text())["frame_sets"] == 7
+    assert parse_calibration(json.loads((run_dir / "calibration.json").read_text())).report is not None
+    fs = cv2.FileStorage(str(run_dir / "calibration.yaml"), cv2.FILE_STORAGE_READ)
+    assert fs.isOpened()
+    fs.release()
+    assert (run_dir / "colmap" / "points3D.txt").stat().st_size > 0
+    html = (run_dir / "report.html").read_text()
+    assert "Needs the observations" not in html  # the residual plots have them
+    for name in names:
+        assert name in text
+    assert f"open {run_dir / 'report.html'}" in text and "camnet export" in text and "camnet calibrate" in text
+
+
+def test_the_final_lines_are_readable_units_with_sigmas_and_the_verdict(live_like):
+    _, cal_doc, _ = live_like
+    text = final_report(parse_calibration(cal_doc), truth=None)
+    assert "[" not in text, "raw arrays"
+    mono_a = next(line for line in text.splitlines() if line.startswith("mono_a"))
+    assert re.search(r"\d+\.\d ± \d+\.\d", mono_a) and mono_a.split()[-1] in ("good", "usable", "poor")
+    assert "verdict: " in text
+
+
+def test_up_replays_a_recording_into_a_run_directory(tmp_path):
+    """`camnet up RIG --replay SESSION`: no drivers, the recording's frames, results where it says."""
+    import subprocess
+    import sys
+
+    from tests.conftest import free_port
+    from tests.test_network import rig_file
+    from tests.test_replay_lockstep import write_session
+
+    rig_path = rig_file(tmp_path, 4)
+    session = tmp_path / "session.mcap"
+    write_session(session, rig_path)
+    out = tmp_path / "results"
+    proc = subprocess.run(
+        [sys.executable, "-m", "camnet", "up", rig_path, "--replay", str(session), "--out", str(out),
+         "--duration-s", "240", "--listen", f"tcp/127.0.0.1:{free_port()}"],
+        capture_output=True, text=True, timeout=400)
+    logs = "\n".join(p.read_text()[-1500:] for p in out.rglob("*.log"))
+    assert proc.returncode == 0, proc.stdout + proc.stderr + logs
+    assert "replay: the session has been played to its end" in proc.stdout
+    assert not list((out / "logs").glob("driver-*.log")), "a replay starts no driver"
+    assert (out / "calibration.json").exists() and (out / "report.html").exists()
+    assert f"files in {out}:" in proc.stdout
