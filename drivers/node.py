@@ -3,7 +3,8 @@
 Frames go out with congestion control DROP: a slow subscriber or link loses
 frames (seen as sequence gaps) instead of stalling the camera. A camera that
 knows the rig's ground truth (a simulated one) also publishes it on the
-groundtruth key and answers queries on it.
+groundtruth key and answers queries on it. `on_frame`, when given, sees every
+frame published (the feature stage beside the driver takes its frames so).
 """
 
 from __future__ import annotations
@@ -11,11 +12,12 @@ from __future__ import annotations
 import json
 import logging
 import threading
+from collections.abc import Callable
 
 from camnet.drivers.base import Camera, EndOfStream, ReadTimeout
 
 from camnet.bus import keys
-from camnet.bus.frame import Compression, encode_frame
+from camnet.bus.frame import Compression, Frame, encode_frame
 from camnet.bus.node import Presence, stop_on_signals
 from camnet.bus.stats import Activity, RateMeter
 from camnet.io.rig import Rig
@@ -27,13 +29,14 @@ NODE_KIND = "driver"
 
 class DriverNode:
     def __init__(self, session, rig: Rig, camera: Camera, *, compression: Compression = Compression.NONE,
-                 stats_period_s: float = 1.0) -> None:
+                 stats_period_s: float = 1.0, on_frame: Callable[[Frame], None] | None = None) -> None:
         self.session = session
         self.rig = rig
         self.camera = camera
         self.camera_id = camera.camera_id
         self.compression = compression
         self.stats_period_s = stats_period_s
+        self.on_frame = on_frame
         self.stop = threading.Event()
         self.frames_sent = 0
         self._meter = RateMeter()
@@ -74,6 +77,8 @@ class DriverNode:
                         break
                     if frame is not None:
                         publisher.put(encode_frame(frame, compression=self.compression))
+                        if self.on_frame is not None:
+                            self.on_frame(frame)
                         self.frames_sent += 1
                         self._meter.tick()
                     presence.publish_if_due()

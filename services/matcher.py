@@ -21,6 +21,15 @@ With ``lockstep`` the node takes its frames from a lockstep replay
 set, waiting for late cameras and the publish period follow the replayed
 capture times, not the wall clock, and every step is acknowledged.
 
+A camera whose feature stage runs beside its driver (`camnet driver
+--features`) publishes keypoints and descriptors on ``keys.features``; once
+they arrive, its frames are ignored and its features join the frame sets in
+place of frames. The frames of the other cameras are detected here, each
+camera on its own `camnet.matching.edge.FeatureExtractor` (only where the
+image changed since its keyframe), in a thread pool over the cores (OpenCV
+releases the GIL). Pairs are matched by `camnet.matching.reuse.IncrementalMatcher`,
+which matches only what is new since the pair's last whole match.
+
 Cameras are listed with the sizes of their frames (or of the rig file before
 the first frame) and what the rig file's `intrinsics` section knows of them
 (K, dist, fixed); nothing else is passed on, not even a simulated camera's
@@ -31,14 +40,18 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import threading
 import time
 import uuid
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 
 import numpy as np
+from camnet.services.features import from_message
 
 from camnet.bus import keys, lockstep
+from camnet.bus.features_wire import FeaturesError, FeaturesMessage, decode_features
 from camnet.bus.frame import Frame
 from camnet.bus.node import Presence, Tally, guarded, stop_on_signals
 from camnet.bus.receiver import FrameReceiver
@@ -49,8 +62,10 @@ from camnet.errors import InputError
 from camnet.geometry.model import CameraInfo, Stereo
 from camnet.io.formats import observations_to_doc
 from camnet.io.rig import Rig
-from camnet.matching.features import Detector, MatcherConfig, match_frame_set, to_grey
+from camnet.matching.edge import CameraFeatures, EdgeConfig, FeatureExtractor
+from camnet.matching.features import Detector, MatcherConfig, to_grey
 from camnet.matching.pool import PoolConfig, PoolUpdate, TrackPool
+from camnet.matching.reuse import IncrementalMatcher
 from camnet.matching.tracks import FrameTracks, build_tracks
 
 log = logging.getLogger(__name__)
@@ -77,6 +92,7 @@ class MatcherNodeConfig:
     normalise_contrast: bool = True  # stretch and equalise each image before detection
     stats_period_s: float = 1.0
     lockstep: bool = False  # frames come from `camnet replay --lockstep`, one step at a time
+    keyframe_period: int = 30  # frames detected here: whole at least every this many (1: always)
 
     def __post_init__(self) -> None:
         if not isinstance(self.detector, Detector):
@@ -90,6 +106,8 @@ class MatcherNodeConfig:
         for name in ("frames_per_camera", "max_tracks", "max_features"):
             if getattr(self, name) < 1:
                 raise InputError(f"{name}: must be at least 1, got {getattr(self, name)}")
+        if self.keyframe_period < 1:
+            raise InputError(f"keyframe_period: must be at least 1, got {self.keyframe_period}")
         if self.max_image_side_px is not None and self.max_image_side_px < 16:
             raise InputError(f"max_image_side_px: must be at least 16, got {self.max_image_side_px}")
 
@@ -165,6 +183,12 @@ class MatcherNode:
         # Frames of other cameras or sizes are refused from their header, before decoding.
         self.receiver = FrameReceiver({c: configured_size(rig, c) for c in self.camera_ids})
         self._matcher_config = config.matcher_config()
+        edge = EdgeConfig(keyframe_period=config.keyframe_period)
+        self._extractors = {c: FeatureExtractor(c, self._matcher_config, edge) for c in self.camera_ids}
+        self._matcher = IncrementalMatcher(self._matcher_config, stereo=self.stereo)
+        self._workers = ThreadPoolExecutor(max_workers=max(1, min(len(self.camera_ids), os.cpu_count() or 1)),
+                                           thread_name_prefix="detect")
+        self._feature_cameras: set[str] = set()  # cameras whose features come from their own stage
         self._ready = threading.Condition()
         self._sync = FrameSynchronizer(self.camera_ids, required=(self.stereo.left, self.stereo.right),
                                        tolerance_ns=round(config.sync_tolerance_ms * 1e6),
@@ -195,6 +219,9 @@ class MatcherNode:
 
     def on_sample(self, sample) -> None:
         """Subscriber callback: decode, check, hand over; nothing heavy, never raises."""
+        key = str(sample.key_expr)
+        if self._feature_cameras and key.rsplit("/", 2)[-2] in self._feature_cameras:
+            return  # its features come from its own stage: not worth decoding
         frame = self.receiver.accept(sample.payload.to_bytes())
         if frame is None:
             return
@@ -209,6 +236,33 @@ class MatcherNode:
             return
         with self._ready:
             self._sync.add(frame, now_s=time.monotonic())
+            self._ready.notify()
+
+    def on_features(self, sample) -> None:
+        """Subscriber callback of a camera's feature stage: decode, check, hand over; never raises."""
+        key = str(sample.key_expr)
+        try:
+            message = decode_features(sample.payload.to_bytes())
+        except FeaturesError as exc:
+            self.rejected.count(f"features {exc.kind}", "dropping malformed features on %s (%s)", key, exc)
+            return
+        kind = None
+        if message.camera_id not in self.camera_ids:
+            kind = "features unknown-camera"
+        elif key.split("/")[-2] != message.camera_id:
+            kind = "features camera-mismatch"
+        elif message.detector != str(self._matcher_config.detector):
+            kind = "features detector-mismatch"
+        if kind is not None:
+            self.rejected.count(kind, "dropping the features of camera %r (%s; this matcher uses %s)",
+                                message.camera_id, kind, self._matcher_config.detector)
+            return
+        if message.camera_id not in self._feature_cameras:
+            log.info("camera %r: features from its own stage; its frames are no longer detected here",
+                     message.camera_id)
+            self._feature_cameras.add(message.camera_id)
+        with self._ready:
+            self._sync.add(message, now_s=time.monotonic())
             self._ready.notify()
 
     def _check(self, frame: Frame, key: str) -> str | None:
@@ -278,8 +332,8 @@ class MatcherNode:
         for camera_id, frame in frame_set.frames.items():
             self._sizes[camera_id] = (frame.width, frame.height)
         pool = self._ensure_pool()
-        images = {c: to_grey(f.image, encoding=f.encoding) for c, f in frame_set.frames.items()}
-        matches = match_frame_set(images, self._matcher_config, stereo=self.stereo)
+        cameras = list(self._workers.map(self._features, frame_set.frames.values()))
+        matches = self._matcher.match(cameras)
         for camera_id, features in zip(matches.camera_ids, matches.features, strict=True):
             if features.shortage is not None:
                 self.few_features.count(f"few features: {camera_id}", "camera %r: %s", camera_id, features.shortage)
@@ -298,6 +352,13 @@ class MatcherNode:
                  self.frame_sets_matched, len(frame_set.frames), missing, len(tracks),
                  int(np.sum(tracks.views >= 3)), update.added, len(pool), 1e3 * self.last_match_s)
         return update
+
+    def _features(self, item: Frame | FeaturesMessage) -> CameraFeatures:
+        """The features of one camera's part of a frame set: as its stage sent them, or detected here."""
+        if isinstance(item, FeaturesMessage):
+            return from_message(item)
+        image = to_grey(item.image, encoding=item.encoding)
+        return self._extractors[item.camera_id].extract(image, seq=item.seq, timestamp_ns=item.timestamp_ns)
 
     def document(self) -> dict:
         """The observations document of the pool now (contract keys plus the node's own)."""
@@ -387,6 +448,8 @@ class MatcherNode:
                                                    congestion_control=zenoh.CongestionControl.BLOCK)
         declared = [self.session.declare_subscriber(keys.all_frames(rig),
                                                     guarded(self.on_sample, self.failures, "receiving a frame")),
+                    self.session.declare_subscriber(keys.all_features(rig),
+                                                    guarded(self.on_features, self.failures, "receiving features")),
                     self.session.declare_queryable(keys.observations(rig),
                                                    guarded(self._on_query, self.failures, "answering a query"))]
         ack_publisher = None
@@ -413,4 +476,5 @@ class MatcherNode:
         finally:
             for entity in declared:
                 entity.undeclare()
+            self._workers.shutdown()
         return 0

@@ -197,6 +197,11 @@ def channel_kind(rig: str, key: str) -> tuple[str, str]:
         return sf.FRAME_ENCODING, sf.FRAME_SCHEMA
     except InputError:
         pass
+    try:
+        keys.parse_features(key)
+        return sf.FEATURES_ENCODING, ""
+    except InputError:
+        pass
     if key == keys.observations(rig):
         return sf.JSON_ENCODING, "camnet.observations/1"
     if key in (keys.calibration(rig), keys.groundtruth(rig)):

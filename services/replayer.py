@@ -202,6 +202,13 @@ class Replayer:
         routes = {keys.frame(src, cam): keys.frame(dst, cam)
                   for cam in (keys.parse_frame(t)[1] for t in self.file.frame_topics())}
         routes[keys.groundtruth(src)] = keys.groundtruth(dst)
+        # A feature stage's messages go out at their recorded pace, as the frames do.
+        for topic in self.file.topics:
+            try:
+                _, camera_id = keys.parse_features(topic)
+            except InputError:
+                continue
+            routes[topic] = keys.features(dst, camera_id)
         if self.options.include_results:
             routes[keys.observations(src)] = keys.observations(dst)
             routes[keys.calibration(src)] = keys.calibration(dst)

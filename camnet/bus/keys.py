@@ -28,6 +28,16 @@ def all_frames(rig: str) -> str:
     return f"{rig_prefix(rig)}/cam/*/frame"
 
 
+def features(rig: str, camera_id: str) -> str:
+    """Keypoints and descriptors of one camera's frames (binary, see camnet.bus.features_wire)."""
+    return f"{rig_prefix(rig)}/cam/{validate_id(camera_id, what='camera id')}/features"
+
+
+def all_features(rig: str) -> str:
+    """Selector for the features of every camera of a rig."""
+    return f"{rig_prefix(rig)}/cam/*/features"
+
+
 def observations(rig: str) -> str:
     return f"{rig_prefix(rig)}/observations"
 
@@ -89,4 +99,12 @@ def parse_frame(key: str) -> tuple[str, str]:
     parts = str(key).split("/")
     if len(parts) != 5 or parts[0] != ROOT or parts[2] != "cam" or parts[4] != "frame":
         raise InputError(f"not a camnet frame key: {key!r}")
+    return parts[1], parts[3]
+
+
+def parse_features(key: str) -> tuple[str, str]:
+    """(rig, camera_id) of a features key; InputError if it is not one."""
+    parts = str(key).split("/")
+    if len(parts) != 5 or parts[0] != ROOT or parts[2] != "cam" or parts[4] != "features":
+        raise InputError(f"not a camnet features key: {key!r}")
     return parts[1], parts[3]

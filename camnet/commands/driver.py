@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 
 log = logging.getLogger(__name__)
@@ -22,6 +23,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="stop after N frames (default: run until stopped)")
     parser.add_argument("--stats-period-s", type=float, default=1.0, metavar="S",
                         help="seconds between statistics messages (default: 1)")
+    parser.add_argument("--features", action="store_true",
+                        help="also detect features here, on the camera's host, and publish them on "
+                             "camnet/<rig>/cam/<id>/features (the matcher then only matches)")
+    parser.add_argument("--features-period-s", type=float, default=0.25, metavar="S",
+                        help="with --features: detect at capture times on this grid (default: 0.25)")
+    parser.add_argument("--detector", choices=["sift", "orb"], default="sift",
+                        help="with --features: the detector; the matcher must use the same (default: sift)")
     add_bus_arguments(parser)
 
 
@@ -41,6 +49,25 @@ def run(args: argparse.Namespace) -> int:
     with open_session(options_from_args(args)) as session:
         from camnet.drivers.node import DriverNode
 
-        node = DriverNode(session, rig, camera, compression=Compression[args.compression.upper()],
-                          stats_period_s=args.stats_period_s)
-        return node.run(max_frames=args.max_frames)
+        with contextlib.ExitStack() as stack:
+            on_frame = stack.enter_context(_feature_worker(session, rig.name, entry.id, args)).offer \
+                if args.features else None
+            node = DriverNode(session, rig, camera, compression=Compression[args.compression.upper()],
+                              stats_period_s=args.stats_period_s, on_frame=on_frame)
+            return node.run(max_frames=args.max_frames)
+
+
+def _feature_worker(session, rig_name: str, camera_id: str, args: argparse.Namespace):
+    """The feature stage of the camera, publishing beside its driver."""
+    import zenoh
+
+    from camnet.bus import keys
+    from camnet.matching.features import Detector, MatcherConfig
+    from camnet.services.features import FeatureStageConfig, FeatureWorker
+
+    # DROP, as frames: a slow link loses a frame set's features rather than stalling detection.
+    publisher = session.declare_publisher(keys.features(rig_name, camera_id),
+                                          congestion_control=zenoh.CongestionControl.DROP)
+    config = FeatureStageConfig(period_s=args.features_period_s,
+                                matcher=MatcherConfig(detector=Detector(args.detector)))
+    return FeatureWorker(publisher, camera_id, config)

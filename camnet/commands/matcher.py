@@ -28,6 +28,10 @@ def _node_flags() -> tuple[tuple[str, dict], ...]:
         ("--normalise-contrast", dict(action=argparse.BooleanOptionalAction,
                                       help="stretch and equalise (CLAHE) each image before detection, for dark or "
                                            "flat images (default: True)")),
+        ("--keyframe-period", dict(type=int, metavar="N",
+                                   help="frames detected here (a camera without a feature stage) are detected "
+                                        "whole at least every N frames, else only where the image changed since "
+                                        "(1: always whole) (default: 30)")),
         ("--stats-period-s", dict(type=float, metavar="S",
                                   help="seconds between statistics messages (default: 1.0)")),
         ("--lockstep", dict(action="store_true",

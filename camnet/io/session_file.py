@@ -48,6 +48,7 @@ PROFILE = "camnet"
 FRAME_SCHEMA = "camnet.frame/1"
 FRAME_ENCODING = "camnet.frame/1"  # message encoding: the binary frame of docs/frame-format.md
 FRAME_SCHEMA_ENCODING = "camnet.layout+json"
+FEATURES_ENCODING = "camnet.features/1"  # message encoding: the binary features of docs/features-format.md
 JSON_ENCODING = "json"
 JSONSCHEMA_ENCODING = "jsonschema"
 RAW_ENCODING = "application/octet-stream"  # keys camnet does not know (yet)

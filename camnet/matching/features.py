@@ -20,6 +20,14 @@ import cv2
 import numpy as np
 
 from camnet.geometry.model import Stereo
+from camnet.matching.images import (  # noqa: F401 (re-exported: the matcher's image functions)
+    DARK_MEDIAN,
+    LOW_CONTRAST_SPAN,
+    few_features_reason,
+    normalise_contrast,
+    to_8bit,
+    to_grey,
+)
 
 log = logging.getLogger(__name__)
 
@@ -123,99 +131,50 @@ class FrameSetMatches:
     pairs: tuple[PairMatches, ...] = field(default_factory=tuple)
 
 
-# ROS Bayer names -> OpenCV codes. OpenCV names a mosaic by the second row's
-# second and third pixels, so ROS rggb is OpenCV's BG (the mapping cv_bridge uses).
-_BAYER_TO_GREY = {
-    "bayer_rggb8": cv2.COLOR_BayerBG2GRAY,
-    "bayer_bggr8": cv2.COLOR_BayerRG2GRAY,
-    "bayer_gbrg8": cv2.COLOR_BayerGR2GRAY,
-    "bayer_grbg8": cv2.COLOR_BayerGB2GRAY,
-}
-
-
-def to_grey(image: np.ndarray, *, encoding: str | None = None) -> np.ndarray:
-    """Grey image (H, W) of the image's depth (uint8 or uint16) from grey (H, W), (H, W, 1), BGR (H, W, 3) or BGRA.
-
-    `encoding` (a camnet.bus.frame encoding name) says what a frame's pixels are:
-    rgb8 is taken as RGB, bayer_* mosaics are demosaiced; without it three
-    channels are BGR. uint16 (mono16) stays uint16: `detect` decides how its
-    bits become 8 (`normalise_contrast` or `to_8bit`).
-    """
-    image = np.asarray(image)
-    if image.dtype not in (np.uint8, np.uint16):
-        raise ValueError(f"expected a uint8 or uint16 image, got {image.dtype}")
-    if encoding in _BAYER_TO_GREY and image.ndim == 2:
-        return cv2.cvtColor(image, _BAYER_TO_GREY[encoding])
-    if image.ndim == 2:
-        return image
-    if image.ndim == 3 and image.shape[2] == 1:
-        return image[:, :, 0]
-    if image.ndim == 3 and image.shape[2] == 3:
-        return cv2.cvtColor(image, cv2.COLOR_RGB2GRAY if encoding == "rgb8" else cv2.COLOR_BGR2GRAY)
-    if image.ndim == 3 and image.shape[2] == 4:
-        return cv2.cvtColor(image, cv2.COLOR_BGRA2GRAY)
-    raise ValueError(f"expected an (H, W) or (H, W, 1|3|4) image, got shape {image.shape}")
-
-
-def to_8bit(grey: np.ndarray) -> np.ndarray:
-    """uint8 from uint8 or uint16 grey: uint16 is shifted down keeping its highest used bit,
-    so 10- or 12-bit data in 16-bit words keeps its contrast."""
-    if grey.dtype == np.uint8:
-        return grey
-    shift = max(0, int(grey.max()).bit_length() - 8)
-    return (grey >> shift).astype(np.uint8)
-
-
-def normalise_contrast(grey: np.ndarray, *, clip_limit: float = 2.0) -> np.ndarray:
-    """uint8 grey for detection from uint8 or uint16 grey of any brightness and contrast.
-
-    First the 0.5 and 99.5 percentiles are stretched linearly to 0 and 255, at
-    the image's own depth, so a 12-bit dark image keeps its shadow levels; then
-    OpenCV's CLAHE (8 x 8 tiles, `clip_limit`) evens the contrast out locally.
-    Either step alone falls short on a dark real image (median grey 25 of
-    255): CLAHE alone lifts SIFT from 28 to 837 keypoints on a KITTI image,
-    the stretch alone to 2385, both to 2627 (2255 on the original image,
-    4000 on it normalised). The mapping is monotonic within a tile and
-    interpolated smoothly across tiles, so keypoints stay where they are.
-    """
-    low, high = np.percentile(grey, [0.5, 99.5])
-    gain = 255.0 / max(float(high - low), 1.0)
-    stretched = cv2.convertScaleAbs(grey, alpha=gain, beta=-low * gain)
-    return cv2.createCLAHE(clipLimit=clip_limit, tileGridSize=(8, 8)).apply(stretched)
-
-
-# What makes an image yield few keypoints, judged on its grey levels scaled to 0-255.
-DARK_MEDIAN = 30.0
-LOW_CONTRAST_SPAN = 40.0  # 99th minus 1st percentile
-
-
-def few_features_reason(grey: np.ndarray, n_features: int) -> str:
-    """Why a grey image (uint8 or uint16) gave only `n_features` keypoints, and what to do, in one phrase.
-
-    Darkness is judged before contrast, as a dark image is also a narrow one.
-    Blur and a textureless view are not told apart: no sharpness measure
-    tried separated them from sensor noise and quantisation on real images.
-    """
-    full = 255.0 if grey.dtype == np.uint8 else 65535.0
-    p1, median, p99 = np.percentile(grey, [1, 50, 99]) * (255.0 / full)
-    if median < DARK_MEDIAN:
-        return (f"{n_features} features: dark (median grey {median * full / 255:.0f} of {full:.0f}); "
-                "raise the exposure or gain, or light the scene")
-    if p99 - p1 < LOW_CONTRAST_SPAN:
-        return (f"{n_features} features: low contrast (1-99% of grey levels span {p99 - p1:.0f} of 255); "
-                "light the scene, clean the lens, or avoid glare")
-    return (f"{n_features} features in a bright, contrasted image: blurred or uniform; focus the lens, "
-            "shorten the exposure if the scene moves, or aim the camera at a textured part of the scene")
-
-
-def _make_detector(config: MatcherConfig):
+def _make_detector(config: MatcherConfig, max_features: int):
     if config.detector is Detector.SIFT:
         # Without precise upscaling, OpenCV's SIFT doubles the image with a
         # corner-origin convention and every keypoint lands 0.25 px right of
         # and below the true position (measured on Gaussian blobs).
-        return cv2.SIFT_create(nfeatures=config.max_features, enable_precise_upscale=True)
+        return cv2.SIFT_create(nfeatures=max_features, enable_precise_upscale=True)
     # FAST threshold lowered from 20 so that low-contrast scenes still yield features.
-    return cv2.ORB_create(nfeatures=config.max_features, fastThreshold=10)
+    return cv2.ORB_create(nfeatures=max_features, fastThreshold=10)
+
+
+def detection_grey(image: np.ndarray, config: MatcherConfig = MatcherConfig()) -> tuple[np.ndarray, np.ndarray]:
+    """(grey of the image's depth, uint8 grey to detect on): normalised (`config.normalise_contrast`) or
+    reduced to 8 bits as it is."""
+    raw = to_grey(image)
+    grey = normalise_contrast(raw, clip_limit=config.clahe_clip_limit) if config.normalise_contrast else to_8bit(raw)
+    return raw, grey
+
+
+def detection_scale(shape: tuple[int, ...], config: MatcherConfig) -> float:
+    """The factor s by which an image of `shape` is downscaled for detection (1: not at all)."""
+    limit = config.max_image_side_px
+    return max(shape[:2]) / limit if limit is not None and max(shape[:2]) > limit else 1.0
+
+
+def detect_grey(grey: np.ndarray, config: MatcherConfig, *, scale: float = 1.0,
+                max_features: int | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+    """(uv (n, 2), descriptors or None) of uint8 `grey`, detected on a copy downscaled by `scale`,
+    keypoints mapped back with ``u = (u_s + 0.5) * s - 0.5`` (origin at the centre of the top-left pixel)."""
+    if scale != 1.0:
+        size = (max(1, round(grey.shape[1] / scale)), max(1, round(grey.shape[0] / scale)))
+        grey = cv2.resize(grey, size, interpolation=cv2.INTER_AREA)
+    limit = config.max_features if max_features is None else max_features
+    keypoints, descriptors = _make_detector(config, limit).detectAndCompute(grey, None)
+    if descriptors is None or not keypoints:
+        return np.empty((0, 2)), None
+    uv = np.array([kp.pt for kp in keypoints], dtype=float).reshape(len(keypoints), 2)
+    if scale != 1.0:
+        uv = (uv + 0.5) * scale - 0.5
+    # SIFT can return more than nfeatures when keypoints tie in response.
+    return uv[:limit], descriptors[:limit]
+
+
+def empty_descriptors(detector: Detector) -> np.ndarray:
+    return np.empty((0, 128), np.float32) if detector is Detector.SIFT else np.empty((0, 32), np.uint8)
 
 
 def detect(image: np.ndarray, config: MatcherConfig = MatcherConfig()) -> Features:
@@ -228,27 +187,12 @@ def detect(image: np.ndarray, config: MatcherConfig = MatcherConfig()) -> Featur
     which keeps the origin at the centre of the top-left pixel. Fewer than
     `config.few_features` keypoints: `Features.shortage` says why.
     """
-    raw = to_grey(image)
-    grey = normalise_contrast(raw, clip_limit=config.clahe_clip_limit) if config.normalise_contrast else to_8bit(raw)
-    scale = 1.0
-    limit = config.max_image_side_px
-    if limit is not None and max(grey.shape) > limit:
-        scale = max(grey.shape) / limit
-        size = (round(grey.shape[1] / scale), round(grey.shape[0] / scale))
-        grey = cv2.resize(grey, size, interpolation=cv2.INTER_AREA)
-    keypoints, descriptors = _make_detector(config).detectAndCompute(grey, None)
-    n = len(keypoints) if descriptors is not None else 0
-    shortage = few_features_reason(raw, n) if n < config.few_features else None
-    if n == 0:
-        width = 128 if config.detector is Detector.SIFT else 32
-        dtype = np.float32 if config.detector is Detector.SIFT else np.uint8
-        return Features(np.empty((0, 2)), np.empty((0, width), dtype), config.detector, shortage)
-    uv = np.array([kp.pt for kp in keypoints], dtype=float).reshape(n, 2)
-    if scale != 1.0:
-        uv = (uv + 0.5) * scale - 0.5
-    # SIFT can return more than nfeatures when keypoints tie in response.
-    keep = slice(0, config.max_features)
-    return Features(uv[keep], descriptors[keep], config.detector, shortage)
+    raw, grey = detection_grey(image, config)
+    uv, descriptors = detect_grey(grey, config, scale=detection_scale(grey.shape, config))
+    shortage = few_features_reason(raw, len(uv)) if len(uv) < config.few_features else None
+    if descriptors is None:
+        return Features(uv, empty_descriptors(config.detector), config.detector, shortage)
+    return Features(uv, descriptors, config.detector, shortage)
 
 
 def _as_distance_operands(desc: np.ndarray, detector: Detector) -> tuple[np.ndarray, np.ndarray]:
@@ -260,11 +204,18 @@ def _as_distance_operands(desc: np.ndarray, detector: Detector) -> tuple[np.ndar
     return vec, np.einsum("ij,ij->i", vec, vec)
 
 
-def _distance_block(va: np.ndarray, na: np.ndarray, vb: np.ndarray, nb: np.ndarray, detector: Detector) -> np.ndarray:
-    # |a - b|^2 = |a|^2 + |b|^2 - 2 a.b; for bit vectors that is the Hamming distance.
-    d = na[:, None] + nb[None, :] - 2.0 * (va @ vb.T)
+def _distance_block(va: np.ndarray, na: np.ndarray, vb: np.ndarray, nb: np.ndarray) -> np.ndarray:
+    """|a - b|^2 = |a|^2 + |b|^2 - 2 a.b: squared L2 distances, or Hamming distances of bit vectors.
+
+    SIFT's stay squared: the ratio test compares them against squared
+    thresholds, which spares a square root over every block.
+    """
+    d = va @ vb.T
+    d *= -2.0
+    d += na[:, None]
+    d += nb[None, :]
     np.maximum(d, 0.0, out=d)
-    return d if detector is Detector.ORB else np.sqrt(d, out=d)
+    return d
 
 
 def stereo_candidate_mask(
@@ -309,31 +260,36 @@ def mutual_ratio_matches(
         return _bf_mutual_ratio(fa, fb, ratio=ratio, cross_check=cross_check)
     va, sa = _as_distance_operands(fa.descriptors, fa.detector)
     vb, sb = _as_distance_operands(fb.descriptors, fb.detector)
+    # Distances of SIFT are squared: so are the factors they are compared with.
+    power = 1 if fa.detector is Detector.ORB else 2
+    ratio_p, margin_p = np.float32(ratio**power), np.float32(outside_margin**power)
     best = np.full(na_pts, -1, dtype=np.int64)
     keep = np.zeros(na_pts, dtype=bool)
     col_best = np.full(nb_pts, -1, dtype=np.int64)
     col_best_d = np.full(nb_pts, np.inf, dtype=np.float32)
+    columns = np.arange(nb_pts)
     for start in range(0, na_pts, ROW_BLOCK):
         rows = np.arange(start, min(start + ROW_BLOCK, na_pts))
-        d = _distance_block(va[rows], sa[rows], vb, sb, fa.detector)
+        local = np.arange(len(rows))
+        d = _distance_block(va[rows], sa[rows], vb, sb)
         best_outside = np.full(len(rows), np.inf, dtype=d.dtype)
         if allowed is not None:
             outside = ~allowed(rows)
             best_outside = np.where(outside, d, np.inf).min(axis=1)
             d[outside] = np.inf
-        two = np.argpartition(d, 1, axis=1)[:, :2]
-        d2 = np.take_along_axis(d, two, axis=1)
-        order = np.argsort(d2, axis=1)
-        two = np.take_along_axis(two, order, axis=1)
-        d2 = np.take_along_axis(d2, order, axis=1)
-        best[rows] = two[:, 0]
-        # Ratio on distances: an infinite second best (no other candidate) passes.
-        keep[rows] = np.isfinite(d2[:, 0]) & (d2[:, 0] < ratio * d2[:, 1]) & (d2[:, 0] <= outside_margin * best_outside)
         block_arg = np.argmin(d, axis=0)
-        block_min = d[block_arg, np.arange(nb_pts)]
+        block_min = d[block_arg, columns]
         better = block_min < col_best_d
         col_best_d[better] = block_min[better]
         col_best[better] = rows[block_arg[better]]
+        # The two smallest of each row: the smallest, then the smallest with it set aside.
+        first = np.argmin(d, axis=1)
+        d1 = d[local, first]
+        d[local, first] = np.inf
+        d2 = d.min(axis=1)
+        best[rows] = first
+        # Ratio on distances: an infinite second best (no other candidate) passes.
+        keep[rows] = np.isfinite(d1) & (d1 < ratio_p * d2) & (d1 <= margin_p * best_outside)
     ia = np.flatnonzero(keep)
     ib = best[ia]
     if cross_check:
@@ -385,16 +341,10 @@ def ransac_fundamental(
     return F, mask.ravel().astype(bool)
 
 
-def match_pair(
-    fa: Features,
-    fb: Features,
-    config: MatcherConfig = MatcherConfig(),
-    *,
-    stereo_prior: bool = False,
-    a: int = 0,
-    b: int = 1,
-) -> PairMatches:
-    """Ratio test, cross check, optional stereo prior (a = left, b = right), then RANSAC on F."""
+def candidate_matches(fa: Features, fb: Features, config: MatcherConfig = MatcherConfig(), *,
+                      stereo_prior: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Indices (m,) into `fa` and `fb` passing the ratio test, the cross check and the optional stereo
+    prior (a = left, b = right): the candidates RANSAC then verifies."""
     allowed = None
     if stereo_prior:
 
@@ -406,7 +356,7 @@ def match_pair(
                 min_disparity_px=config.min_disparity_px,
             )
 
-    ia, ib = mutual_ratio_matches(
+    return mutual_ratio_matches(
         fa,
         fb,
         ratio=config.ratio,
@@ -414,6 +364,19 @@ def match_pair(
         allowed=allowed,
         outside_margin=config.prior_outside_margin,
     )
+
+
+def match_pair(
+    fa: Features,
+    fb: Features,
+    config: MatcherConfig = MatcherConfig(),
+    *,
+    stereo_prior: bool = False,
+    a: int = 0,
+    b: int = 1,
+) -> PairMatches:
+    """Ratio test, cross check, optional stereo prior (a = left, b = right), then RANSAC on F."""
+    ia, ib = candidate_matches(fa, fb, config, stereo_prior=stereo_prior)
     F, inliers = ransac_fundamental(fa.uv[ia], fb.uv[ib], config)
     if F is None or inliers.sum() < config.min_matches:
         log.debug("pair %d-%d: %d candidates, too few RANSAC inliers", a, b, len(ia))

@@ -1,0 +1,145 @@
+"""Matching frame set after frame set without matching the same background again.
+
+A camera's keypoints carry which of them are reused from its keyframe
+(`camnet.matching.edge.CameraFeatures`): static background, matched already.
+Once a pair of cameras has been matched whole with their current keyframes,
+later frame sets match only what is new: the new keypoints of one camera
+against every keypoint of the other, both ways. Reused against reused is
+skipped; those tracks are in the pool. A new keyframe on either side (a
+camera moved, the light changed, or simply its period came round) matches
+the pair whole again.
+
+New keypoints are often few (the part of the scene that moved), too few for
+RANSAC to find F alone. The rig is static, so the pair's F from its last
+whole match still holds: candidates within `ransac_threshold_px` of its
+epipolar lines are kept when at least half of them are, otherwise the pair
+gives nothing this time (a moved camera then gets a new keyframe and a new F).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Collection, Sequence
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from camnet.geometry.model import Stereo
+from camnet.matching.edge import CameraFeatures
+from camnet.matching.features import (
+    Features,
+    FrameSetMatches,
+    MatcherConfig,
+    PairMatches,
+    candidate_matches,
+    ransac_fundamental,
+)
+
+log = logging.getLogger(__name__)
+
+MIN_AGREEING = 0.5  # of the new candidates within the old F's threshold, to trust the old F
+
+
+@dataclass(frozen=True)
+class PairState:
+    """What a pair of cameras was last matched whole with: both keyframes, and its F (b against a)."""
+
+    keyframes: tuple[int, int]
+    F: np.ndarray
+
+
+def _subset(features: Features, index: np.ndarray) -> Features:
+    return Features(features.uv[index], features.descriptors[index], features.detector)
+
+
+def _new_candidates(fa: CameraFeatures, fb: CameraFeatures, config: MatcherConfig, *,
+                    prior: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Candidates (indices into a and b) with a new keypoint on at least one side."""
+    new_a, old_a = np.arange(fa.reused, len(fa.features)), np.arange(fa.reused)
+    new_b = np.arange(fb.reused, len(fb.features))
+    # New against all, then reused against new: every pair but reused against reused, once.
+    ia1, ib1 = candidate_matches(_subset(fa.features, new_a), fb.features, config, stereo_prior=prior)
+    ia2, ib2 = candidate_matches(_subset(fa.features, old_a), _subset(fb.features, new_b), config,
+                                 stereo_prior=prior)
+    pairs = np.stack([np.concatenate([new_a[ia1], old_a[ia2]]), np.concatenate([ib1, new_b[ib2]])])
+    # One keypoint in one match only: a clash between the two directions drops both.
+    keep = np.ones(pairs.shape[1], dtype=bool)
+    for side in pairs:
+        _, first, counts = np.unique(side, return_index=True, return_counts=True)
+        keep &= np.isin(np.arange(side.size), first[counts == 1])
+    return pairs[0, keep].astype(np.int64), pairs[1, keep].astype(np.int64)
+
+
+def epipolar_inliers(F: np.ndarray, uv_a: np.ndarray, uv_b: np.ndarray, threshold_px: float) -> np.ndarray:
+    """Boolean (m,): matches within `threshold_px` (Sampson distance) of F's epipolar geometry."""
+    if len(uv_a) == 0:
+        return np.zeros(0, dtype=bool)
+    # OpenCV's sampsonDistance takes one point pair at a time; this is its vector form.
+    xa = np.column_stack([uv_a, np.ones(len(uv_a))])
+    xb = np.column_stack([uv_b, np.ones(len(uv_b))])
+    Fxa, Ftxb = xa @ F.T, xb @ F
+    num = np.einsum("ij,ij->i", xb, Fxa) ** 2
+    den = Fxa[:, 0] ** 2 + Fxa[:, 1] ** 2 + Ftxb[:, 0] ** 2 + Ftxb[:, 1] ** 2
+    return num <= threshold_px**2 * np.maximum(den, 1e-300)
+
+
+class IncrementalMatcher:
+    """Matches the frame sets of one static rig in order, remembering what each pair has matched.
+
+    Not thread-safe: the matcher node owns one. Memory: one `PairState` per pair.
+    """
+
+    def __init__(self, config: MatcherConfig | None = None, *, stereo: Stereo | None = None) -> None:
+        self.config = MatcherConfig() if config is None else config
+        self.stereo = stereo
+        self._pairs: dict[tuple[str, str], PairState] = {}
+        self.whole = 0  # pairs matched whole
+        self.incremental = 0  # pairs matched on their new keypoints only
+
+    def forget(self, camera_id: str) -> None:
+        """Match every pair of `camera_id` whole next time."""
+        self._pairs = {k: v for k, v in self._pairs.items() if camera_id not in k}
+
+    def match(self, cameras: Sequence[CameraFeatures], *, pairs: Collection[frozenset[str]] | None = None,
+              seed: int = 0) -> FrameSetMatches:
+        """Match `pairs` of cameras (frozensets of two ids; None: every pair) of one frame set."""
+        cv2.setRNGSeed(seed)
+        ids = tuple(c.camera_id for c in cameras)
+        if len(set(ids)) != len(ids):
+            raise ValueError(f"duplicate camera ids in frame set: {ids}")
+        stereo = self.stereo
+        use_prior = stereo is not None and stereo.parallel and self.config.use_stereo_prior
+        out = []
+        for i in range(len(ids)):
+            for j in range(i + 1, len(ids)):
+                if pairs is not None and frozenset((ids[i], ids[j])) not in pairs:
+                    continue
+                # A parallel head is matched with its left camera as `a`: the disparity's sign depends on it.
+                a, b = (j, i) if use_prior and (ids[j], ids[i]) == (stereo.left, stereo.right) else (i, j)
+                prior = use_prior and (ids[a], ids[b]) == (stereo.left, stereo.right)
+                out.append(self._match_pair(cameras[a], cameras[b], a, b, prior=prior))
+        return FrameSetMatches(ids, tuple(c.features for c in cameras), tuple(out))
+
+    def _match_pair(self, fa: CameraFeatures, fb: CameraFeatures, a: int, b: int, *, prior: bool) -> PairMatches:
+        config = self.config
+        key = (fa.camera_id, fb.camera_id)
+        state = self._pairs.get(key)
+        keyframes = (fa.keyframe_seq, fb.keyframe_seq)
+        empty = np.empty(0, dtype=np.int64)
+        if state is None or state.keyframes != keyframes:
+            ia, ib = candidate_matches(fa.features, fb.features, config, stereo_prior=prior)
+            F, inliers = ransac_fundamental(fa.features.uv[ia], fb.features.uv[ib], config)
+            self.whole += 1
+            if F is None or inliers.sum() < config.min_matches:
+                self._pairs.pop(key, None)
+                return PairMatches(a, b, empty, empty, None, len(ia))
+            self._pairs[key] = PairState(keyframes, F)
+            return PairMatches(a, b, ia[inliers], ib[inliers], F, len(ia))
+        self.incremental += 1
+        ia, ib = _new_candidates(fa, fb, config, prior=prior)
+        inliers = epipolar_inliers(state.F, fa.features.uv[ia], fb.features.uv[ib], config.ransac_threshold_px)
+        if len(ia) == 0 or inliers.mean() < MIN_AGREEING:
+            log.debug("pair %s-%s: %d of %d new candidates on the old F", *key, int(inliers.sum()), len(ia))
+            return PairMatches(a, b, empty, empty, None, len(ia))
+        return PairMatches(a, b, ia[inliers], ib[inliers], state.F, len(ia))
