@@ -1,4 +1,11 @@
-"""`camnet status --rig NAME`: the live nodes of a rig, with their frame rates and drops."""
+"""`camnet status --rig NAME`: the live nodes of a rig, with their frame rates and drops.
+
+Below the table: the cameras as the matcher receives them (a camera silent
+for longer than a frame set waits is MISSING, with the seconds since its
+last frame), and what looks wrong. Statistics are what a node says of
+itself, and any peer may publish them: those of a node with no liveliness
+token, and a camera's rate that the matcher does not receive, are flagged.
+"""
 
 from __future__ import annotations
 
@@ -31,6 +38,48 @@ def format_table(nodes: list[tuple[str, str]], stats: dict) -> str:
             rows.append(f"{kind:<12}{node_id:<16}{s.fps:>8.1f}{s.dropped:>9d}{s.frames:>9d}"
                         f"  {s.detail}{faults}")
     return "\n".join(rows)
+
+
+# A driver may claim this much more than the matcher receives of it (the matcher drops late frames
+# only after receiving them, so the two rates agree on a healthy rig) before it is flagged.
+RATE_MISMATCH_FACTOR = 1.5
+RATE_MISMATCH_FPS = 2.0
+
+
+def format_cameras(stats: dict) -> list[str]:
+    """Lines for the cameras as the matcher receives them (none when no matcher reports)."""
+    lines = []
+    for (kind, _), s in sorted(stats.items()):
+        if kind != "matcher" or not s.cameras:
+            continue
+        lines.append("cameras as the matcher receives them:")
+        for camera_id, seen in s.cameras.items():
+            age = "no frame yet" if seen.age_s is None else f"last frame {seen.age_s:.1f} s ago"
+            state = "MISSING" if seen.missing else "ok"
+            lines.append(f"  {camera_id:<16}{state:<9}{seen.fps:>7.1f} fps  {age}")
+    return lines
+
+
+def suspicious(nodes: list[tuple[str, str]], stats: dict) -> list[str]:
+    """What in `stats` (by (kind, id)) is not to be believed: statistics of a node with no liveliness
+    token among `nodes`, a driver that claims a rate the matcher does not receive or a camera the
+    matcher does not know."""
+    live = set(nodes)
+    received = {camera_id: seen for (kind, _), s in stats.items() if kind == "matcher"
+                for camera_id, seen in s.cameras.items()}
+    found = []
+    for (kind, node_id), s in sorted(stats.items()):
+        if (kind, node_id) not in live:
+            found.append(f"{kind} {node_id}: statistics without a liveliness token (a node gone, or a peer "
+                         "publishing in its name)")
+        if kind != "driver" or not received:
+            continue
+        seen = received.get(node_id)
+        if seen is None:
+            found.append(f"driver {node_id}: claims {s.fps:.1f} fps, but the matcher knows no camera {node_id!r}")
+        elif s.fps > RATE_MISMATCH_FACTOR * seen.fps + RATE_MISMATCH_FPS:
+            found.append(f"driver {node_id}: claims {s.fps:.1f} fps, the matcher receives {seen.fps:.1f} fps")
+    return found
 
 
 def run(args: argparse.Namespace) -> int:
@@ -70,7 +119,11 @@ def run(args: argparse.Namespace) -> int:
             nodes.append((kind, node_id))
         subscriber.undeclare()
     with lock:
-        table = format_table(nodes, dict(stats))
+        seen = dict(stats)
     print(f"rig {args.rig}: {len(nodes)} live node(s)")
-    print(table)
+    print(format_table(nodes, seen))
+    for line in format_cameras(seen):
+        print(line)
+    for line in suspicious(nodes, seen):
+        print(f"suspicious: {line}")
     return 0
