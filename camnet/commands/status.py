@@ -82,44 +82,67 @@ def suspicious(nodes: list[tuple[str, str]], stats: dict) -> list[str]:
     return found
 
 
-def run(args: argparse.Namespace) -> int:
-    import threading
-    import time
+class StatsReader:
+    """Subscriber callback keeping the latest statistics of each node, by (kind, id); what is no
+    statistics message is counted and logged once, never kept."""
 
-    from camnet.bus import keys
-    from camnet.bus.node import Tally
-    from camnet.bus.session import open_session, options_from_args
-    from camnet.bus.stats import NodeStats
-    from camnet.errors import InputError
+    def __init__(self) -> None:
+        import threading
 
-    stats: dict[tuple[str, str], NodeStats] = {}
-    lock = threading.Lock()
-    malformed = Tally(log)
+        from camnet.bus.node import Tally
 
-    def on_stats(sample) -> None:
+        self._lock = threading.Lock()
+        self._stats: dict = {}
+        self.malformed = Tally(log)
+
+    def __call__(self, sample) -> None:
+        from camnet.bus.stats import NodeStats
+        from camnet.errors import InputError
+
         try:
             s = NodeStats.from_json(bytes(sample.payload.to_bytes()))
         except InputError as exc:
-            malformed.count("stats", "ignoring statistics on %s: %s", sample.key_expr, exc)
+            self.malformed.count("stats", "ignoring statistics on %s: %s", sample.key_expr, exc)
             return
-        with lock:
-            stats[(s.kind, s.node_id)] = s
+        with self._lock:
+            self._stats[(s.kind, s.node_id)] = s
 
+    @property
+    def stats(self) -> dict:
+        with self._lock:
+            return dict(self._stats)
+
+
+def live_nodes(replies) -> list[tuple[str, str]]:
+    """(kind, id) of the liveliness `replies` that name a node; other keys are skipped."""
+    from camnet.bus import keys
+    from camnet.errors import InputError
+
+    nodes = []
+    for reply in replies:
+        if reply.ok is None:
+            continue
+        try:
+            _, kind, node_id = keys.parse_node(str(reply.ok.key_expr))
+        except InputError:
+            continue
+        nodes.append((kind, node_id))
+    return nodes
+
+
+def run(args: argparse.Namespace) -> int:
+    import time
+
+    from camnet.bus import keys
+    from camnet.bus.session import open_session, options_from_args
+
+    reader = StatsReader()
     with open_session(options_from_args(args)) as session:
-        subscriber = session.declare_subscriber(keys.all_node_stats(args.rig), on_stats)
+        subscriber = session.declare_subscriber(keys.all_node_stats(args.rig), reader)
         time.sleep(args.wait_s)
-        nodes = []
-        for reply in session.liveliness().get(keys.all_nodes(args.rig), timeout=2.0):
-            if reply.ok is None:
-                continue
-            try:
-                _, kind, node_id = keys.parse_node(str(reply.ok.key_expr))
-            except InputError:
-                continue
-            nodes.append((kind, node_id))
+        nodes = live_nodes(session.liveliness().get(keys.all_nodes(args.rig), timeout=2.0))
         subscriber.undeclare()
-    with lock:
-        seen = dict(stats)
+    seen = reader.stats
     print(f"rig {args.rig}: {len(nodes)} live node(s)")
     print(format_table(nodes, seen))
     for line in format_cameras(seen):
