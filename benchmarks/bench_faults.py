@@ -256,7 +256,7 @@ def run_status(net: Network) -> str:
 
     proc = subprocess.run([sys.executable, "-m", "camnet", "status", "--rig", net.rig_name, "--connect",
                            net.endpoint, "--wait-s", "2.5"], capture_output=True, text=True, timeout=60)
-    return proc.stdout
+    return proc.stdout + proc.stderr
 
 
 DAMAGES = {

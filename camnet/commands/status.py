@@ -131,6 +131,7 @@ def live_nodes(replies) -> list[tuple[str, str]]:
 
 
 def run(args: argparse.Namespace) -> int:
+    import sys
     import time
 
     from camnet.bus import keys
@@ -142,11 +143,13 @@ def run(args: argparse.Namespace) -> int:
         time.sleep(args.wait_s)
         nodes = live_nodes(session.liveliness().get(keys.all_nodes(args.rig), timeout=2.0))
         subscriber.undeclare()
-    seen = reader.stats
-    print(f"rig {args.rig}: {len(nodes)} live node(s)")
-    print(format_table(nodes, seen))
-    for line in format_cameras(seen):
-        print(line)
-    for line in suspicious(nodes, seen):
-        print(f"suspicious: {line}")
+        # Printed before the session closes: what was seen is shown even if closing it is slow or fails.
+        seen = reader.stats
+        print(f"rig {args.rig}: {len(nodes)} live node(s)")
+        print(format_table(nodes, seen))
+        for line in format_cameras(seen):
+            print(line)
+        for line in suspicious(nodes, seen):
+            print(f"suspicious: {line}")
+        sys.stdout.flush()
     return 0
