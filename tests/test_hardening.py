@@ -133,3 +133,26 @@ def test_calibrate_refuses_too_many_tracks_in_one_line_or_subsamples(tmp_path, o
     assert proc.returncode == 0, proc.stderr
     assert f"solving 40 of the {n} tracks" in proc.stderr
     assert json.loads(proc.stdout)["points"] <= 40
+
+
+def test_status_flags_a_phantom_driver_and_statistics_without_a_token():
+    from camnet.bus.stats import CameraSeen, NodeStats
+    from camnet.commands.status import format_cameras, suspicious
+
+    def stats(kind, node_id, fps, cameras=None):
+        return NodeStats("r", kind, node_id, fps, 10, 0, 1, cameras=cameras or {})
+
+    seen = {"left": CameraSeen(0.01, 30.0, False), "mono_a": CameraSeen(12.5, 0.0, True)}
+    all_stats = {("matcher", "matcher"): stats("matcher", "matcher", 3.0, seen),
+                 ("driver", "left"): stats("driver", "left", 30.2),
+                 ("driver", "mono_a"): stats("driver", "mono_a", 999.0),
+                 ("driver", "ghost"): stats("driver", "ghost", 999.0)}
+    live = [("matcher", "matcher"), ("driver", "left"), ("driver", "mono_a")]
+    found = suspicious(live, all_stats)
+    assert found == ["driver ghost: statistics without a liveliness token (a node gone, or a peer publishing "
+                     "in its name)",
+                     "driver ghost: claims 999.0 fps, but the matcher knows no camera 'ghost'",
+                     "driver mono_a: claims 999.0 fps, the matcher receives 0.0 fps"]
+    lines = format_cameras(all_stats)
+    assert any("mono_a" in line and "MISSING" in line and "12.5 s ago" in line for line in lines)
+    assert not any("left" in line and "MISSING" in line for line in lines)
