@@ -101,7 +101,11 @@ class SimCamera:
         slot = self._next_slot
         late_slots = self.slot_at(now_ns) - slot
         if late_slots > 0:
-            stride = 1 << late_slots.bit_length()  # the smallest power of two > late_slots
+            # The smallest power of two > late_slots, but at most about a second of slots: a camera
+            # that was stopped for a while (SIGSTOP, a suspended host) resumes within a second, not
+            # within as long again as it was away.
+            max_stride = 1 << max(0, int(self.config.fps).bit_length() - 1)
+            stride = min(1 << late_slots.bit_length(), max_stride)
             resume = -(-self.slot_at(now_ns) // stride) * stride
             self._dropped += resume - slot
             slot = self._next_slot = resume

@@ -30,17 +30,24 @@ from camnet.geometry.evaluate import scale_sigma_rel
 from camnet.geometry.live import LiveConfig, Outcome, Tracker
 from camnet.geometry.model import Calibration, Observations
 from camnet.io.formats import (
+    MAX_TRACKS,
     calibration_to_doc,
     load_json,
     parse_calibration,
     parse_observations,
     write_json_atomic,
 )
+from camnet.io.rig import Rig
+from camnet.io.rig_match import calibration_mismatch, observations_mismatch
 from camnet.io.validate import decode_json
 
 log = logging.getLogger(__name__)
 
 NODE_KIND = "calibrator"
+# An observations message is at most this large: MAX_TRACKS tracks of 16 cameras take about 12 MB.
+# A larger one is dropped unread (one of 23 MB kept the node busy for a minute at 1.1 GB).
+MAX_MESSAGE_BYTES = 32 * 2**20
+SUBSAMPLE_SEED = 0  # a larger set is solved on MAX_TRACKS of its tracks, the same ones every time
 
 
 @dataclass(frozen=True)
@@ -75,27 +82,39 @@ class LatestMessage:
             return payload
 
 
-def load_state(path: Path | None) -> Calibration | None:
-    """The persisted calibration, or None. A damaged file is kept aside, never overwritten."""
+def load_state(path: Path | None, rig: Rig | None = None) -> Calibration | None:
+    """The persisted calibration, or None. A damaged file, or one of another rig than `rig`, is kept
+    aside, never overwritten."""
     if path is None or not path.exists():
         return None
     try:
-        return parse_calibration(load_json(path))
+        cal = parse_calibration(load_json(path))
     except InputError as exc:
-        aside = path.with_name(path.name + f".damaged-{time.time_ns()}")
-        path.rename(aside)
-        log.warning("%s: cannot resume from it (%s); moved it to %s", path, exc, aside)
+        _set_aside(path, "damaged", str(exc))
         return None
+    mismatch = calibration_mismatch(rig, cal) if rig is not None else None
+    if mismatch is not None:
+        _set_aside(path, "other-rig", f"not a calibration of rig {rig.name!r}: {mismatch}")
+        return None
+    return cal
+
+
+def _set_aside(path: Path, why: str, reason: str) -> None:
+    aside = path.with_name(path.name + f".{why}-{time.time_ns()}")
+    path.rename(aside)
+    log.warning("%s: cannot resume from it (%s); moved it to %s", path, reason, aside)
 
 
 class CalibratorNode:
     """Zenoh side of the calibrator: subscribe, solve on a worker, publish, persist, answer."""
 
     def __init__(self, session, rig_name: str, config: CalibratorConfig = CalibratorConfig(), *,
-                 viewer=None, lockstep: bool = False) -> None:
+                 viewer=None, lockstep: bool = False, rig: Rig | None = None) -> None:
         self.session = session
         self.lockstep = lockstep
         self.rig_name = keys.validate_id(rig_name, what="rig")
+        # With the rig file, observations and a state file of other cameras, sizes or baseline are refused.
+        self.rig = rig
         self.config = config
         self.viewer = viewer
         self.stop = threading.Event()
@@ -111,7 +130,12 @@ class CalibratorNode:
     # ------------------------------------------------------------ bus callbacks
 
     def _on_observations(self, sample) -> None:
-        self.mailbox.put(sample.payload.to_bytes())
+        payload = sample.payload.to_bytes()
+        if len(payload) > MAX_MESSAGE_BYTES:
+            self.malformed.count("too large", "dropping an observations message of %d bytes, more than %d",
+                                 len(payload), MAX_MESSAGE_BYTES)
+            return
+        self.mailbox.put(payload)
 
     def _on_query(self, query) -> None:
         with self._lock:
@@ -130,10 +154,20 @@ class CalibratorNode:
         try:
             # The matcher's observations carry the rig file's distances, checked (or deliberately
             # accepted) when the rig was loaded.
-            return parse_observations(doc, any_distance=True), doc
+            obs = parse_observations(doc, any_distance=True, max_tracks=MAX_TRACKS, subsample_seed=SUBSAMPLE_SEED)
         except InputError as exc:
             self.malformed.count(str(exc).split(":", 1)[0], "dropping malformed observations (%s)", exc)
             return None
+        mismatch = observations_mismatch(self.rig, obs) if self.rig is not None else None
+        if mismatch is not None:
+            self.malformed.count("other rig", "dropping observations that are not of rig %r: %s", self.rig_name,
+                                 mismatch)
+            return None
+        if len(doc["tracks"]) > len(obs.track_ids):
+            self.malformed.count("subsampled", "solving %d of the %d tracks of an observations message, drawn "
+                                 "at random (at most %d per solve)", len(obs.track_ids), len(doc["tracks"]),
+                                 MAX_TRACKS)
+        return obs, doc
 
     def _publish(self, publisher, cal: Calibration, doc_in: dict, outcome: Outcome) -> None:
         doc = calibration_to_doc(cal)
@@ -186,7 +220,7 @@ class CalibratorNode:
                         dropped=self.mailbox.superseded, detail=detail)
 
     def _resume(self, publisher) -> None:
-        resumed = load_state(self.config.state_path)
+        resumed = load_state(self.config.state_path, self.rig)
         if resumed is None:
             return
         self.tracker.good = resumed

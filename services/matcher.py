@@ -56,7 +56,7 @@ from camnet.bus.frame import Frame
 from camnet.bus.node import Presence, Tally, guarded, stop_on_signals
 from camnet.bus.receiver import FrameReceiver
 from camnet.bus.session import declare_liveliness
-from camnet.bus.stats import Activity, RateMeter
+from camnet.bus.stats import Activity, CameraSeen, RateMeter
 from camnet.bus.sync import FrameSet, FrameSynchronizer, SyncCounts
 from camnet.errors import InputError
 from camnet.geometry.model import CameraInfo, Stereo
@@ -74,6 +74,7 @@ NODE_KIND = "matcher"
 NODE_ID = "matcher"
 WARNING_PERIOD_S = 30.0  # at most one warning of each kind per this many seconds
 NO_SET_WARNING_S = 10.0  # frames arrive but no frame set forms for this long: say why
+MIN_SILENCE_S = 1.0  # a camera silent this long (and longer than a set waits) is reported missing
 LOCKSTEP_FRAME_WAIT_S = 10.0  # a step's frames are on their way when it is announced
 
 
@@ -211,6 +212,7 @@ class MatcherNode:
         self._rate = RateMeter(window_s=10.0)
         self._last_set_s = time.monotonic()
         self._warned_s: dict[str, float] = {}
+        self._said_no_set = False
         self._dropped_at_warning = 0
         self._next_publish_s = float("-inf")  # on the wall clock, or the capture clock in lockstep
         self._inbox = lockstep.StepInbox() if config.lockstep else None
@@ -382,7 +384,19 @@ class MatcherNode:
         detail = (f"{pooled} tracks pooled, {self.frame_sets_pooled} sets, match "
                   f"{1e3 * self.last_match_s:.0f} ms, {counts.partial_sets} partial, {malformed} bad frames")
         return Activity(fps=round(self._rate.rate(), 2), frames=self.frame_sets_matched, dropped=counts.dropped,
-                        detail=detail)
+                        detail=detail, cameras=self.cameras_seen())
+
+    def cameras_seen(self) -> dict[str, CameraSeen]:
+        """Per rig camera: seconds since its last frame and its rate; missing once silent for longer
+        than a frame set waits for it (or before its first frame)."""
+        arrivals = self.receiver.arrivals()
+        seen = {}
+        for camera_id in self.camera_ids:
+            age_s, fps = arrivals.get(camera_id, (None, 0.0))
+            missing = age_s is None or age_s > max(self.config.max_wait_s, MIN_SILENCE_S)
+            seen[camera_id] = CameraSeen(age_s=None if age_s is None else round(age_s, 3), fps=round(fps, 2),
+                                         missing=missing)
+        return seen
 
     def _may_warn(self, kind: str, now_s: float) -> bool:
         """True at most once per WARNING_PERIOD_S for each kind of warning."""
@@ -399,7 +413,9 @@ class MatcherNode:
                         "since the last warning; the latest frames are matched", 1e3 * self.last_match_s,
                         dropped - self._dropped_at_warning)
             self._dropped_at_warning = dropped
-        if now_s - self._last_set_s >= NO_SET_WARNING_S and self._may_warn("no-set", now_s):
+        # Said once per stretch without sets, not every period: the statistics show it going on.
+        if now_s - self._last_set_s >= NO_SET_WARNING_S and not self._said_no_set:
+            self._said_no_set = True
             counts = self.receiver.counts()
             received = ", ".join(f"{c} {counts[c].received if c in counts else 0}" for c in self.camera_ids)
             log.warning("no frame set for %.0f s (frames received: %s); the stereo cameras must publish, "
@@ -424,6 +440,7 @@ class MatcherNode:
             self._process_safely(frame_set)
             # Waiting for the next set starts now: matching time is not a missing set.
             now_s = self._last_set_s = time.monotonic()
+            self._said_no_set = False
         self._publish_if_due(publisher, now_s)
         self._check_health(now_s)
 

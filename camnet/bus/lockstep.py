@@ -44,11 +44,20 @@ STEP_FORMAT = "camnet.lockstep-step/1"
 ACK_FORMAT = "camnet.lockstep-ack/1"
 
 
+def _decode(payload: bytes) -> object:
+    """The JSON value of `payload`; InputError for anything else, however malformed (nesting deep
+    enough to exhaust the stack is a RecursionError, not a ValueError)."""
+    try:
+        return json.loads(payload)
+    except (ValueError, RecursionError) as exc:
+        raise InputError(f"not JSON ({type(exc).__name__})") from None
+
+
 def _load(payload: bytes, expected_format: str) -> dict:
     try:
-        doc = json.loads(payload)
-    except ValueError as exc:
-        raise InputError(f"{expected_format}: not JSON: {exc}") from None
+        doc = _decode(payload)
+    except InputError as exc:
+        raise InputError(f"{expected_format}: {exc}") from None
     if not isinstance(doc, dict) or doc.get("format") != expected_format:
         raise InputError(f"expected a {expected_format} message")
     return doc
@@ -72,7 +81,7 @@ class Step:
         try:
             step, capture_ns = int(doc["step"]), int(doc["capture_ns"])
             frames = {str(c): int(seq) for c, seq in doc["frames"].items()}
-        except (KeyError, TypeError, ValueError, AttributeError) as exc:
+        except (KeyError, TypeError, ValueError, AttributeError, OverflowError) as exc:
             raise InputError(f"{STEP_FORMAT}: bad or missing field ({exc})") from None
         return cls(step, capture_ns, frames, bool(doc.get("final", False)))
 
@@ -94,14 +103,18 @@ class Ack:
     @classmethod
     def parse(cls, payload: bytes) -> Ack:
         doc = _load(payload, ACK_FORMAT)
-        return cls(doc.get("step"), doc.get("pool_id"), doc.get("frame_sets"), str(doc.get("status", "")))
+        step, pool_id, frame_sets = doc.get("step"), doc.get("pool_id"), doc.get("frame_sets")
+        for name, value, kind in (("step", step, int), ("pool_id", pool_id, str), ("frame_sets", frame_sets, int)):
+            if value is not None and (not isinstance(value, kind) or isinstance(value, bool)):
+                raise InputError(f"{ACK_FORMAT}: {name} must be {kind.__name__} or null, got {type(value).__name__}")
+        return cls(step, pool_id, frame_sets, str(doc.get("status", "")))
 
     @classmethod
     def for_observations(cls, payload: bytes, *, status: str) -> Ack:
         """The calibrator's ack of one observations message (unreadable ones name no document)."""
         try:
-            doc = json.loads(payload)
-        except ValueError:
+            doc = _decode(payload)
+        except InputError:
             doc = None
         if not isinstance(doc, dict):
             return cls(status=status)

@@ -138,7 +138,7 @@ class Presence:
                 faults[kind] = faults.get(kind, 0) + n
         return NodeStats(rig=self.rig, kind=self.kind, node_id=self.node_id, fps=activity.fps,
                          frames=activity.frames, dropped=activity.dropped, timestamp_ns=time.time_ns(),
-                         detail=activity.detail, faults=faults)
+                         detail=activity.detail, faults=faults, cameras=activity.cameras)
 
     def publish(self) -> None:
         self._publisher.put(self.stats().to_json())

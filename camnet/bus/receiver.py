@@ -9,11 +9,13 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from camnet.bus.frame import Frame, FrameError, FrameHeader, decode_frame, decode_header
 from camnet.bus.node import Tally
+from camnet.bus.stats import RateMeter
 
 log = logging.getLogger(__name__)
 
@@ -34,6 +36,8 @@ class _Track:
     dropped: int = 0
     restarts: int = 0
     last_seq: int = -1
+    arrived_s: float = 0.0  # monotonic time of the last accepted frame
+    meter: RateMeter = field(default_factory=RateMeter)
 
 
 class FrameReceiver:
@@ -83,6 +87,14 @@ class FrameReceiver:
                     track.restarts += 1
             track.received += 1
             track.last_seq = frame.seq
+            track.arrived_s = time.monotonic()
+            track.meter.tick(track.arrived_s)
+
+    def arrivals(self) -> dict[str, tuple[float, float]]:
+        """(seconds since its last frame, frames per second as received) per camera id."""
+        now_s = time.monotonic()
+        with self._lock:
+            return {cid: (now_s - t.arrived_s, t.meter.rate(now_s)) for cid, t in self._tracks.items()}
 
     def counts(self) -> dict[str, CameraCounts]:
         """Counters per camera id."""

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import time
 from collections import deque
 from dataclasses import asdict, dataclass, field
@@ -20,6 +21,39 @@ class Activity:
     frames: int
     dropped: int
     detail: str = ""
+    cameras: dict[str, CameraSeen] = field(default_factory=dict)  # a consumer of frames: what it gets of each
+
+
+@dataclass(frozen=True)
+class CameraSeen:
+    """What a node that takes frames (the matcher) sees of one camera: seconds since its last frame
+    (None: none yet), its frame rate as received, and whether it counts as missing (silent for longer
+    than the node waits for it)."""
+
+    age_s: float | None
+    fps: float
+    missing: bool
+
+    def to_doc(self) -> dict:
+        return asdict(self)
+
+    @staticmethod
+    def from_doc(doc: object) -> CameraSeen:
+        if not isinstance(doc, dict):
+            raise TypeError(f"a camera's entry must be an object, got {type(doc).__name__}")
+        age = doc["age_s"]
+        missing = doc["missing"]
+        if not isinstance(missing, bool):
+            raise TypeError("missing must be true or false")
+        return CameraSeen(age_s=None if age is None else _finite(age, "age_s"), fps=_finite(doc["fps"], "fps"),
+                          missing=missing)
+
+
+def _finite(value: object, name: str) -> float:
+    """`value` as a finite float; ValueError otherwise (JSON may carry 1e999, which reads as infinity)."""
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise ValueError(f"{name} must be a finite number, got {str(value)[:20]}")
+    return float(value)
 
 
 @dataclass(frozen=True)
@@ -36,24 +70,27 @@ class NodeStats:
     timestamp_ns: int
     detail: str = ""
     faults: dict[str, int] = field(default_factory=dict)
+    cameras: dict[str, CameraSeen] = field(default_factory=dict)
 
     def to_json(self) -> bytes:
-        return json.dumps({"format": STATS_FORMAT, **asdict(self)}).encode()
+        return json.dumps({"format": STATS_FORMAT, **asdict(self)}, allow_nan=False).encode()
 
     @staticmethod
     def from_json(payload: bytes) -> NodeStats:
         try:
             doc = json.loads(payload)
             if doc.get("format") != STATS_FORMAT:
-                raise InputError(f"stats: unsupported format {doc.get('format')!r}")
+                raise InputError(f"stats: unsupported format {str(doc.get('format'))[:40]!r}")
             return NodeStats(rig=str(doc["rig"]), kind=str(doc["kind"]),
-                             node_id=str(doc["node_id"]), fps=float(doc["fps"]),
+                             node_id=str(doc["node_id"]), fps=_finite(doc["fps"], "fps"),
                              frames=int(doc["frames"]), dropped=int(doc["dropped"]),
                              timestamp_ns=int(doc["timestamp_ns"]),
                              detail=str(doc.get("detail", "")),
-                             faults={str(k): int(n) for k, n in doc.get("faults", {}).items()})
-        except (ValueError, KeyError, TypeError, AttributeError) as exc:
-            raise InputError(f"stats: malformed message ({exc})") from exc
+                             faults={str(k): int(n) for k, n in doc.get("faults", {}).items()},
+                             cameras={str(c): CameraSeen.from_doc(seen)
+                                      for c, seen in doc.get("cameras", {}).items()})
+        except (ValueError, KeyError, TypeError, AttributeError, OverflowError, RecursionError) as exc:
+            raise InputError(f"stats: malformed message ({str(exc)[:80]})") from None
 
 
 class RateMeter:

@@ -42,6 +42,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="also print a one-line JSON summary on stdout (the human summary goes to stderr)")
     parser.add_argument("--accept-any-distance", action="store_true",
                         help="accept known distances outside 0.005-50 m (refused as a likely unit mistake)")
+    parser.add_argument("--max-tracks", type=int, default=None, metavar="N",
+                        help="most tracks one solve takes (default 20000: more take minutes and gigabytes); "
+                             "a file with more is refused unless --subsample-tracks")
+    parser.add_argument("--subsample-tracks", action="store_true",
+                        help="solve --max-tracks tracks drawn at random (with --seed) from a larger file")
     parser.add_argument(
         "--pp-prior-rel",
         type=float,
@@ -54,6 +59,32 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def parse_free(value: str) -> str | frozenset[str]:
     """The --free flag: "auto" or the set of names (the engine checks them)."""
     return "auto" if value == "auto" else frozenset(s.strip() for s in value.split(",") if s.strip())
+
+
+# Inputs from this size on say on stderr what they are doing: a solve may then take minutes.
+PROGRESS_FILE_BYTES = 5_000_000
+PROGRESS_TRACKS = 5_000
+
+
+class Progress:
+    """Stage lines on stderr with the seconds since start, only for large inputs (stdout stays JSON)."""
+
+    def __init__(self, path: str) -> None:
+        import os
+        import time
+
+        self._start_s = time.monotonic()
+        try:
+            self.on = os.path.getsize(path) >= PROGRESS_FILE_BYTES
+        except OSError:
+            self.on = False
+
+    def say(self, message: str) -> None:
+        import time
+
+        if self.on:
+            print(f"camnet calibrate: {time.monotonic() - self._start_s:6.1f} s  {message}", file=sys.stderr,
+                  flush=True)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -73,12 +104,27 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--loss-scale-px: must be positive, got {args.loss_scale_px}")
     if not 0 <= args.pp_prior_rel < 1:
         raise InputError(f"--pp-prior-rel: must be in [0, 1), got {args.pp_prior_rel}")
+    from camnet.io.formats import MAX_TRACKS
+
+    max_tracks = MAX_TRACKS if args.max_tracks is None else args.max_tracks
+    if max_tracks < 1:
+        raise InputError(f"--max-tracks: must be at least 1, got {max_tracks}")
     free = parse_free(args.free)
-    obs = parse_observations(load_json(args.observations), any_distance=args.accept_any_distance)
+    progress = Progress(args.observations)
+    progress.say(f"reading {args.observations}")
+    doc = load_json(args.observations)
+    obs = parse_observations(doc, any_distance=args.accept_any_distance, max_tracks=max_tracks,
+                             subsample_seed=args.seed if args.subsample_tracks else None)
+    progress.on = progress.on or len(obs.track_ids) >= PROGRESS_TRACKS
+    if len(doc["tracks"]) > len(obs.track_ids):
+        print(f"camnet calibrate: warning: solving {len(obs.track_ids)} of the {len(doc['tracks'])} tracks, "
+              f"drawn at random (--seed {args.seed})", file=sys.stderr)
+    progress.say(f"solving {len(obs.track_ids)} tracks, {len(obs.uv)} observations, {len(obs.cameras)} cameras")
     initial = parse_calibration(load_json(args.initial)) if args.initial else None
     options = Options(method=Method(args.method), loss=Loss(args.loss), loss_scale_px=args.loss_scale_px, free=free,
                       seed=args.seed, pp_prior_rel=args.pp_prior_rel)
     result = calibrate(obs, options, initial=initial)
+    progress.say("solved" if result.converged else "not converged")
     if not result.converged:
         raise SolveError(f"the adjustment did not converge: {result.reason}")
     write_json_atomic(args.output, calibration_to_doc(result.calibration))

@@ -92,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
         truth = (rig.simulated_truth() if rig is not None else []) or None
         viewer = RerunView(rec, truth=truth) if rec is not None else None
         with open_session(options_from_args(args)) as session:
-            CalibratorNode(session, name, config, viewer=viewer, lockstep=args.lockstep).run()
+            CalibratorNode(session, name, config, viewer=viewer, lockstep=args.lockstep, rig=rig).run()
     finally:
         close_recording(rec)
     return 0

@@ -1,4 +1,11 @@
-"""`camnet status --rig NAME`: the live nodes of a rig, with their frame rates and drops."""
+"""`camnet status --rig NAME`: the live nodes of a rig, with their frame rates and drops.
+
+Below the table: the cameras as the matcher receives them (a camera silent
+for longer than a frame set waits is MISSING, with the seconds since its
+last frame), and what looks wrong. Statistics are what a node says of
+itself, and any peer may publish them: those of a node with no liveliness
+token, and a camera's rate that the matcher does not receive, are flagged.
+"""
 
 from __future__ import annotations
 
@@ -33,44 +40,116 @@ def format_table(nodes: list[tuple[str, str]], stats: dict) -> str:
     return "\n".join(rows)
 
 
-def run(args: argparse.Namespace) -> int:
-    import threading
-    import time
+# A driver may claim this much more than the matcher receives of it (the matcher drops late frames
+# only after receiving them, so the two rates agree on a healthy rig) before it is flagged.
+RATE_MISMATCH_FACTOR = 1.5
+RATE_MISMATCH_FPS = 2.0
 
-    from camnet.bus import keys
-    from camnet.bus.node import Tally
-    from camnet.bus.session import open_session, options_from_args
-    from camnet.bus.stats import NodeStats
-    from camnet.errors import InputError
 
-    stats: dict[tuple[str, str], NodeStats] = {}
-    lock = threading.Lock()
-    malformed = Tally(log)
+def format_cameras(stats: dict) -> list[str]:
+    """Lines for the cameras as the matcher receives them (none when no matcher reports)."""
+    lines = []
+    for (kind, _), s in sorted(stats.items()):
+        if kind != "matcher" or not s.cameras:
+            continue
+        lines.append("cameras as the matcher receives them:")
+        for camera_id, seen in s.cameras.items():
+            age = "no frame yet" if seen.age_s is None else f"last frame {seen.age_s:.1f} s ago"
+            state = "MISSING" if seen.missing else "ok"
+            lines.append(f"  {camera_id:<16}{state:<9}{seen.fps:>7.1f} fps  {age}")
+    return lines
 
-    def on_stats(sample) -> None:
+
+def suspicious(nodes: list[tuple[str, str]], stats: dict) -> list[str]:
+    """What in `stats` (by (kind, id)) is not to be believed: statistics of a node with no liveliness
+    token among `nodes`, a driver that claims a rate the matcher does not receive or a camera the
+    matcher does not know."""
+    live = set(nodes)
+    received = {camera_id: seen for (kind, _), s in stats.items() if kind == "matcher"
+                for camera_id, seen in s.cameras.items()}
+    found = []
+    for (kind, node_id), s in sorted(stats.items()):
+        if (kind, node_id) not in live:
+            found.append(f"{kind} {node_id}: statistics without a liveliness token (a node gone, or a peer "
+                         "publishing in its name)")
+        if kind != "driver" or not received:
+            continue
+        seen = received.get(node_id)
+        if seen is None:
+            found.append(f"driver {node_id}: claims {s.fps:.1f} fps, but the matcher knows no camera {node_id!r}")
+        elif s.fps > RATE_MISMATCH_FACTOR * seen.fps + RATE_MISMATCH_FPS:
+            found.append(f"driver {node_id}: claims {s.fps:.1f} fps, the matcher receives {seen.fps:.1f} fps")
+    return found
+
+
+class StatsReader:
+    """Subscriber callback keeping the latest statistics of each node, by (kind, id); what is no
+    statistics message is counted and logged once, never kept."""
+
+    def __init__(self) -> None:
+        import threading
+
+        from camnet.bus.node import Tally
+
+        self._lock = threading.Lock()
+        self._stats: dict = {}
+        self.malformed = Tally(log)
+
+    def __call__(self, sample) -> None:
+        from camnet.bus.stats import NodeStats
+        from camnet.errors import InputError
+
         try:
             s = NodeStats.from_json(bytes(sample.payload.to_bytes()))
         except InputError as exc:
-            malformed.count("stats", "ignoring statistics on %s: %s", sample.key_expr, exc)
+            self.malformed.count("stats", "ignoring statistics on %s: %s", sample.key_expr, exc)
             return
-        with lock:
-            stats[(s.kind, s.node_id)] = s
+        with self._lock:
+            self._stats[(s.kind, s.node_id)] = s
 
+    @property
+    def stats(self) -> dict:
+        with self._lock:
+            return dict(self._stats)
+
+
+def live_nodes(replies) -> list[tuple[str, str]]:
+    """(kind, id) of the liveliness `replies` that name a node; other keys are skipped."""
+    from camnet.bus import keys
+    from camnet.errors import InputError
+
+    nodes = []
+    for reply in replies:
+        if reply.ok is None:
+            continue
+        try:
+            _, kind, node_id = keys.parse_node(str(reply.ok.key_expr))
+        except InputError:
+            continue
+        nodes.append((kind, node_id))
+    return nodes
+
+
+def run(args: argparse.Namespace) -> int:
+    import sys
+    import time
+
+    from camnet.bus import keys
+    from camnet.bus.session import open_session, options_from_args
+
+    reader = StatsReader()
     with open_session(options_from_args(args)) as session:
-        subscriber = session.declare_subscriber(keys.all_node_stats(args.rig), on_stats)
+        subscriber = session.declare_subscriber(keys.all_node_stats(args.rig), reader)
         time.sleep(args.wait_s)
-        nodes = []
-        for reply in session.liveliness().get(keys.all_nodes(args.rig), timeout=2.0):
-            if reply.ok is None:
-                continue
-            try:
-                _, kind, node_id = keys.parse_node(str(reply.ok.key_expr))
-            except InputError:
-                continue
-            nodes.append((kind, node_id))
+        nodes = live_nodes(session.liveliness().get(keys.all_nodes(args.rig), timeout=2.0))
         subscriber.undeclare()
-    with lock:
-        table = format_table(nodes, dict(stats))
-    print(f"rig {args.rig}: {len(nodes)} live node(s)")
-    print(table)
+        # Printed before the session closes: what was seen is shown even if closing it is slow or fails.
+        seen = reader.stats
+        print(f"rig {args.rig}: {len(nodes)} live node(s)")
+        print(format_table(nodes, seen))
+        for line in format_cameras(seen):
+            print(line)
+        for line in suspicious(nodes, seen):
+            print(f"suspicious: {line}")
+        sys.stdout.flush()
     return 0

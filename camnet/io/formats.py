@@ -58,11 +58,9 @@ def load_json(path: str | Path) -> Any:
 
 def _parse_camera(value: Any, path: str) -> CameraInfo:
     cam_id = v.string(v.require(value, "id", path), f"{path}.id")
-    width = v.integer(v.require(value, "width", path), f"{path}.width", positive=True)
-    height = v.integer(v.require(value, "height", path), f"{path}.height", positive=True)
-    K = v.matrix(value["K"], 3, 3, f"{path}.K") if "K" in value else None
-    if K is not None and (K[0, 0] <= 0 or K[1, 1] <= 0):
-        raise v.fail(f"{path}.K", "focal lengths must be positive")
+    width = v.image_side(v.require(value, "width", path), f"{path}.width")
+    height = v.image_side(v.require(value, "height", path), f"{path}.height")
+    K = v.intrinsic_matrix(value["K"], f"{path}.K") if "K" in value else None
     model = v.lens_model(value["model"], f"{path}.model") if "model" in value else LensModel.PINHOLE
     dist = v.lens_dist(value["dist"], model, f"{path}.dist") if "dist" in value else None
     fixed_raw = value.get("fixed", [])
@@ -94,11 +92,19 @@ def _parse_stereo(stereo_raw: Any, index: dict[str, int], any_distance: bool) ->
     return Stereo(left, right, baseline, sigma_m=stereo_sigma_m)
 
 
-def parse_observations(doc: Any, *, any_distance: bool = False) -> Observations:
+# Tracks one solve takes. The adjustment's time and memory grow with the tracks: 20k tracks
+# of 16 cameras solve in tens of seconds; 100k took a minute and a gigabyte, 10^6 did not end.
+MAX_TRACKS = 20_000
+
+
+def parse_observations(doc: Any, *, any_distance: bool = False, max_tracks: int | None = None,
+                       subsample_seed: int | None = None) -> Observations:
     """Validate a ``camnet.observations/1`` document and return flat arrays.
 
     any_distance: accept known distances outside the plausible range for
     camera rigs (validate.PLAUSIBLE_DISTANCE_M), which are refused otherwise.
+    max_tracks: refuse a document with more tracks (MAX_TRACKS for a solve),
+    or, with `subsample_seed`, keep that many of them drawn at random.
     """
     _check_format(doc, OBSERVATIONS_FORMAT)
     cams_raw = v.non_empty_list(v.require(doc, "cameras", ""), "cameras")
@@ -116,6 +122,7 @@ def parse_observations(doc: Any, *, any_distance: bool = False) -> Observations:
     tracks_raw = v.require(doc, "tracks", "")
     if not isinstance(tracks_raw, list):
         raise v.fail("tracks", "expected a list")
+    tracks_raw = _cap_tracks(tracks_raw, max_tracks, subsample_seed)
     track_ids, cam_index, track_index, uv = [], [], [], []
     seen: set[int] = set()
     for ti, track in enumerate(tracks_raw):
@@ -135,6 +142,8 @@ def parse_observations(doc: Any, *, any_distance: bool = False) -> Observations:
                 raise v.fail(opath, "expected [u, v]")
             u_px = v.number(pixel[0], opath + "[0]")
             v_px = v.number(pixel[1], opath + "[1]")
+            camera = cameras[index[cam_id]]
+            v.pixel_in_image(u_px, v_px, camera.width, camera.height, opath)
             cam_index.append(index[cam_id])
             track_index.append(len(track_ids))
             uv.append((u_px, v_px))
@@ -148,6 +157,17 @@ def parse_observations(doc: Any, *, any_distance: bool = False) -> Observations:
         uv=np.asarray(uv, dtype=float).reshape(-1, 2),
         baselines=baselines,
     )
+
+
+def _cap_tracks(tracks: list, max_tracks: int | None, seed: int | None) -> list:
+    """`tracks`, or `max_tracks` of them drawn with `seed` (in their order); refused without a seed."""
+    if max_tracks is None or len(tracks) <= max_tracks:
+        return tracks
+    if seed is None:
+        raise v.fail("tracks", f"{len(tracks)} tracks, more than the {max_tracks} one solve takes; "
+                     "subsample them (camnet calibrate --subsample-tracks)")
+    keep = np.sort(np.random.default_rng(seed).choice(len(tracks), size=max_tracks, replace=False))
+    return [tracks[i] for i in keep]
 
 
 def observations_to_doc(obs: Observations) -> dict:
@@ -229,9 +249,9 @@ def _parse_camera_pose(c: Any, path: str) -> Camera:
     model = v.lens_model(c["model"], f"{path}.model") if "model" in c else LensModel.PINHOLE
     return Camera(
         id=v.string(v.require(c, "id", path), f"{path}.id"),
-        width=v.integer(v.require(c, "width", path), f"{path}.width", positive=True),
-        height=v.integer(v.require(c, "height", path), f"{path}.height", positive=True),
-        K=v.matrix(v.require(c, "K", path), 3, 3, f"{path}.K"),
+        width=v.image_side(v.require(c, "width", path), f"{path}.width"),
+        height=v.image_side(v.require(c, "height", path), f"{path}.height"),
+        K=v.intrinsic_matrix(v.require(c, "K", path), f"{path}.K"),
         dist=v.lens_dist(c["dist"], model, f"{path}.dist") if "dist" in c else np.zeros(model.dist_size),
         R=v.rotation(v.require(c, "R", path), f"{path}.R"),
         t=t,

@@ -178,6 +178,10 @@ class _Section:
     def integer(self, key: str, default: Any = ..., *, positive: bool = False) -> int:
         return self._read(key, default, v.integer, positive=positive)
 
+    def side(self, key: str, default: Any = ...) -> int:
+        """An image width or height (1 to camnet.io.validate.MAX_SIDE_PX)."""
+        return self._read(key, default, v.image_side)
+
     def string(self, key: str, default: Any = ..., *, choices: tuple[str, ...] = ()) -> str:
         return self._read(key, default, v.string, choices=choices)
 
@@ -210,7 +214,7 @@ def _sim(s: _Section, model: LensModel = LensModel.PINHOLE) -> SimConfig:
         fx = fy = s.number("f_px", positive=True)
     else:
         fx, fy = s.number("fx_px", positive=True), s.number("fy_px", positive=True)
-    width, height = s.integer("width", positive=True), s.integer("height", positive=True)
+    width, height = s.side("width"), s.side("height")
     dist = s.dist("dist", model, np.zeros(model.dist_size))
     config = SimConfig(
         width=width, height=height,
@@ -241,8 +245,8 @@ def _aravis(s: _Section) -> AravisConfig:
     config = AravisConfig(
         device_id=device_id,
         pixel_format=s.string("pixel_format", "Mono8"),
-        width=_optional_positive(s, "width", integer=True),
-        height=_optional_positive(s, "height", integer=True),
+        width=s.side("width", None),
+        height=s.side("height", None),
         fps=_optional_positive(s, "fps"),
         exposure_us=_optional_positive(s, "exposure_us"),
         gain_db=s.number("gain_db", None, minimum=0.0),
@@ -261,8 +265,8 @@ def _v4l2(s: _Section) -> V4l2Config:
                          f"got {fourcc!r}")
     config = V4l2Config(
         source=s.string("source"),
-        width=_optional_positive(s, "width", integer=True),
-        height=_optional_positive(s, "height", integer=True),
+        width=s.side("width", None),
+        height=s.side("height", None),
         fps=_optional_positive(s, "fps"),
         fourcc=fourcc,
         encoding=s.string("encoding", "bgr8", choices=V4L2_ENCODINGS),

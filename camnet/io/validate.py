@@ -153,17 +153,70 @@ def lens_model(value: Any, path: str) -> LensModel:
     return LensModel(string(value, path, choices=tuple(LensModel)))
 
 
+# Distortion coefficients of real lenses in OpenCV's models (normalised image coordinates)
+# stay within a few units; beyond these the number is a typo or another model's, and the
+# projection would fold the image over itself.
+MAX_RADIAL_COEFFICIENT = 100.0  # |k1|, |k2|, |k3| of a pinhole, |k1..k4| of a fisheye
+MAX_TANGENTIAL_COEFFICIENT = 1.0  # |p1|, |p2|
+
+
+def _bounded_dist(dist: np.ndarray, model: LensModel, path: str) -> np.ndarray:
+    tangential = (2, 3) if model == LensModel.PINHOLE else ()
+    for i, k in enumerate(dist):
+        bound = MAX_TANGENTIAL_COEFFICIENT if i in tangential else MAX_RADIAL_COEFFICIENT
+        if abs(k) > bound:
+            raise fail(f"{path}[{i}]", f"{k:g} is no distortion coefficient of a real lens (|value| <= {bound:g}); "
+                       "check the order (OpenCV's) and the lens model")
+    return dist
+
+
 def lens_dist(value: Any, model: LensModel, path: str) -> np.ndarray:
     """A camera's distortion in `model`'s order: a fisheye's exactly [k1, k2, k3, k4], a pinhole's
-    at most [k1, k2, p1, p2, k3] (padded with zeros)."""
+    at most [k1, k2, p1, p2, k3] (padded with zeros); each within the bounds above."""
     if model == LensModel.FISHEYE:
         if not isinstance(value, list | tuple) or len(value) != model.dist_size:
             raise fail(path, f"a fisheye's dist is [k1, k2, k3, k4]: expected 4 numbers, got {show(value)}")
-        return vector(value, path)
+        return _bounded_dist(vector(value, path), model, path)
     if isinstance(value, list | tuple) and len(value) > model.dist_size:
         raise fail(path, f"a pinhole's dist is at most [k1, k2, p1, p2, k3], got {len(value)} numbers "
                          '(a fisheye lens: give "model": "fisheye" and [k1, k2, k3, k4])')
-    return full_dist(vector(value, path))
+    return _bounded_dist(full_dist(vector(value, path)), model, path)
+
+
+def intrinsic_matrix(value: Any, path: str) -> np.ndarray:
+    """A camera matrix K: positive focal lengths, zero below the diagonal, last row [0, 0, 1]."""
+    K = matrix(value, 3, 3, path)
+    if K[0, 0] <= 0 or K[1, 1] <= 0:
+        raise fail(path, "focal lengths must be positive")
+    if K[1, 0] != 0 or K[2, 0] != 0 or K[2, 1] != 0 or K[2, 2] != 1:
+        raise fail(path, f"not a camera matrix: expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]], got rows 2-3 "
+                   f"{K[1].tolist()}, {K[2].tolist()}")
+    return K
+
+
+# An image side fits the frame header's 16 bits (camnet.bus.frame.MAX_SIDE_PX).
+MAX_SIDE_PX = 65535
+
+
+def image_side(value: Any, path: str) -> int:
+    """An image width or height in pixels: 1 to MAX_SIDE_PX."""
+    side = integer(value, path, positive=True)
+    if side > MAX_SIDE_PX:
+        raise fail(path, f"{side} px is larger than any camera's image (at most {MAX_SIDE_PX})")
+    return side
+
+
+# A measured pixel lies in its image; sub-pixel refinement may put one a little outside.
+PIXEL_MARGIN_REL = 0.05  # of the image's side
+
+
+def pixel_in_image(u_px: float, v_px: float, width: int, height: int, path: str) -> None:
+    """Refuse a pixel outside its width x height image by more than PIXEL_MARGIN_REL of a side."""
+    mu, mv = PIXEL_MARGIN_REL * width, PIXEL_MARGIN_REL * height
+    if not (-0.5 - mu <= u_px <= width - 0.5 + mu and -0.5 - mv <= v_px <= height - 0.5 + mv):
+        raise fail(path, f"pixel ({u_px:g}, {v_px:g}) is outside the camera's {width}x{height} image "
+                   f"(u from -0.5 to {width - 0.5:g}, v from -0.5 to {height - 0.5:g}, give or take "
+                   f"{100 * PIXEL_MARGIN_REL:g}%); were the pixels measured in an image of another size?")
 
 
 def matrix(value: Any, rows: int, cols: int, path: str) -> np.ndarray:

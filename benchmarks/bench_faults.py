@@ -1,0 +1,388 @@
+#!/usr/bin/env python3
+"""Faults on a live simulated network, and what each costs.
+
+A 4-camera sim rig at 30 fps (small images, so that it runs on 2 cores):
+drivers, matcher and calibrator as processes meeting at a router, and an
+observer that queries the calibration key. For each fault, once the network
+has published a good calibration:
+
+- alive: every node still running (or restarted) afterwards;
+- lost: good calibrations published before the fault that the network no
+  longer answers after it (must be 0: the last good one is always answered);
+- next good s: seconds from the end of the fault to the next good
+  calibration published (the network calibrates again);
+- RSS MB: the nodes' resident memory before and after.
+
+    python benchmarks/bench_faults.py                # every fault, full length
+    python benchmarks/bench_faults.py --short        # the test's version: a few faults, short
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import socket
+import sys
+import tempfile
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from camnet.bus import keys
+from camnet.bus.launch import Child, Launch, NetworkSpec, start_network
+from camnet.bus.session import BusOptions, open_session
+from camnet.errors import InputError
+from camnet.io.validate import decode_json
+
+BOX_CENTRE = [0.0625, 0.0, 0.65]
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def rig_document(name: str, *, fps: float = 30.0, n_cameras: int = 4, side_px: int = 320) -> dict:
+    """The paper's rig at `side_px` wide, with further cameras on an arc beyond four."""
+    scale = side_px / 1280
+    width, height = side_px, round(1024 * scale)
+
+    def sim(f_px: float, centre, look_at=None) -> dict:
+        cam = {"width": width, "height": height, "encoding": "mono8", "fps": fps, "f_px": f_px * scale,
+               "cx_px": (width - 1) / 2, "cy_px": (height - 1) / 2, "centre_m": list(centre)}
+        return cam | ({"look_at_m": list(look_at)} if look_at is not None else {})
+
+    cameras = [{"id": "left", "driver": "sim", "sim": sim(1500, [0.0, 0.0, 0.0])},
+               {"id": "right", "driver": "sim", "sim": sim(1500, [0.125, 0.0, 0.0])},
+               {"id": "mono_a", "driver": "sim", "sim": sim(1300, [-0.30, 0.0, 0.05], BOX_CENTRE)},
+               {"id": "mono_b", "driver": "sim", "sim": sim(1400, [0.425, 0.0, 0.05], BOX_CENTRE)}]
+    for i in range(n_cameras - 4):
+        angle = np.deg2rad(-60 + 120 * (i + 0.5) / (n_cameras - 4))
+        centre = np.array(BOX_CENTRE) + 0.6 * np.array([np.sin(angle), 0.0, -np.cos(angle)])
+        centre[1] += 0.1 if i % 2 else -0.1
+        cameras.append({"id": f"mono_{i + 2:02d}", "driver": "sim",
+                        "sim": sim(1200 + 80 * i, centre.round(4).tolist(), BOX_CENTRE)})
+    return {"rig": name, "stereo": {"left": "left", "right": "right", "baseline_m": 0.125, "parallel": True},
+            "scene": {"seed": 7, "box_centre_m": BOX_CENTRE, "box_size_m": [0.10, 0.17, 0.08],
+                      "box_rotation_deg_per_s": 20.0},
+            "cameras": cameras}
+
+
+def rss_mb(pid: int) -> float:
+    """Resident memory of a process in MB (0 when it is gone)."""
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024
+    except OSError:
+        pass
+    return 0.0
+
+
+class Network:
+    """A rig's nodes behind a router, an observer of its calibrations, and the faults done to them."""
+
+    def __init__(self, work: Path, rig: dict, *, matcher_flags: tuple[str, ...] = ()) -> None:
+        self.work = work
+        self.rig_name = rig["rig"]
+        self.rig_path = work / "rig.yaml"
+        self.rig_path.write_text(yaml.safe_dump(rig, sort_keys=False))
+        self.state = work / "calibration.json"
+        self.endpoint = f"tcp/127.0.0.1:{free_port()}"
+        self.launch = Launch(work, grace_s=5.0)
+        self.matcher_flags = matcher_flags
+        self.calibrations: list[tuple[float, dict]] = []  # (monotonic s, document) as published
+        self._lock = threading.Lock()
+        self.session = None
+
+    def __enter__(self) -> Network:
+        self.launch.__enter__()
+        self.started_s = time.monotonic()
+        self.start_router()
+        self.session = open_session(BusOptions(connect=(self.endpoint,)))
+        self.session.declare_subscriber(keys.calibration(self.rig_name), self._on_calibration)
+        bus = ("--connect", self.endpoint)
+        cameras = tuple((c["id"], "sim") for c in yaml.safe_load(self.rig_path.read_text())["cameras"])
+        start_network(self.launch, NetworkSpec(
+            rig_path=self.rig_path, rig_name=self.rig_name, cameras=cameras, bus=bus,
+            matcher=("--publish-period-s", "1.0", *self.matcher_flags),
+            calibrator=("--state", str(self.state))))
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        try:
+            if self.session is not None:
+                self.session.close()
+        finally:
+            self.launch.__exit__(*exc_info)
+
+    def start_router(self) -> Child:
+        return self.launch.start("router", ["router", "--listen", self.endpoint], verbose=False)
+
+    def _on_calibration(self, sample) -> None:
+        try:
+            doc = decode_json(sample.payload.to_bytes(), "calibration")
+        except InputError:  # the flood reaches this observer too
+            return
+        if isinstance(doc, dict) and doc.get("status") == "good":
+            with self._lock:
+                self.calibrations.append((time.monotonic(), doc))
+
+    def child(self, name: str) -> Child:
+        return next(c for c in self.launch.children if c.name == name)
+
+    def start_again(self, child: Child) -> Child:
+        """Start a stopped `child` again, with its command and flags."""
+        command = child.argv[child.argv.index("camnet.cli") + 1:]
+        verbose = command[:1] == ["-v"]
+        return self.launch.start(child.name, command[1:] if verbose else command, verbose=verbose)
+
+    def good_after(self, since_s: float) -> float | None:
+        with self._lock:
+            times = [t for t, _ in self.calibrations if t >= since_s]
+        return times[0] if times else None
+
+    def wait_good(self, since_s: float, timeout_s: float) -> float | None:
+        """Seconds from `since_s` to the first good calibration published after it (None: none came)."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            got = self.good_after(since_s)
+            if got is not None:
+                return got - since_s
+            self.launch.check()
+            time.sleep(0.2)
+        return None
+
+    def answered_ns(self, timeout_s: float = 20.0) -> int | None:
+        """When the calibration the network answers on its key was solved (None: nobody answers)."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            for reply in self.session.get(keys.calibration(self.rig_name), timeout=2.0):
+                if reply.ok is not None:
+                    try:
+                        return int(json.loads(reply.ok.payload.to_bytes())["solved_ns"])
+                    except (ValueError, KeyError, TypeError):
+                        continue
+            time.sleep(0.2)
+        return None
+
+    def published_ns(self) -> list[int]:
+        """When each good calibration published so far was solved."""
+        with self._lock:
+            return [int(d.get("solved_ns", 0)) for _, d in self.calibrations]
+
+    def rss_mb(self) -> float:
+        return sum(rss_mb(c.process.pid) for c in self.launch.children)
+
+    def alive(self) -> bool:
+        return not self.launch.exited()
+
+
+@dataclass(frozen=True)
+class Result:
+    fault: str
+    alive: bool
+    lost: int | None
+    next_good_s: float | None
+    rss_before_mb: float
+    rss_after_mb: float
+    note: str = ""
+
+    def row(self) -> str:
+        lost = "?" if self.lost is None else str(self.lost)
+        good = "none" if self.next_good_s is None else f"{self.next_good_s:.1f}"
+        return (f"{self.fault:<36}{'yes' if self.alive else 'NO':>6}{lost:>6}{good:>10}"
+                f"{self.rss_before_mb:>9.0f}{self.rss_after_mb:>9.0f}  {self.note}")
+
+
+HEADER = f"{'fault':<36}{'alive':>6}{'lost':>6}{'good s':>10}{'RSS MB':>9}{'after':>9}  note"
+
+
+def measure(net: Network, name: str, fault: Callable[[Network], str], *, recover_s: float) -> Result:
+    """Do `fault` to a network that already calibrates; what it cost."""
+    rss_before = net.rss_mb()
+    before_ns = net.published_ns()
+    note = fault(net) or ""
+    ended_s = time.monotonic()
+    next_good = net.wait_good(ended_s, recover_s)
+    answered_ns = net.answered_ns()
+    # Lost: good calibrations from before the fault newer than what the network answers after it.
+    lost = None if answered_ns is None else sum(t > answered_ns for t in before_ns)
+    return Result(name, net.alive(), lost, next_good, rss_before, net.rss_mb(), note)
+
+
+# ------------------------------------------------------------------ the faults
+
+def kill_and_restart(name: str, outage_s: float = 0.0) -> Callable[[Network], str]:
+    def fault(net: Network) -> str:
+        child = net.child(name)
+        net.launch.stop(child, kill=True)
+        time.sleep(outage_s)
+        net.start_again(child)
+        return f"kill -9, {outage_s:.0f} s down"
+    return fault
+
+
+def silent_camera(camera: str, silent_s: float, *, check_status: bool = False) -> Callable[[Network], str]:
+    """Stop a driver (SIGSTOP: its process and session stay, its frames stop) for `silent_s`; the network
+    must go on calibrating from the other cameras meanwhile."""
+    def fault(net: Network) -> str:
+        child = net.child(f"driver-{camera}")
+        os.kill(child.process.pid, signal.SIGSTOP)
+        started_s = time.monotonic()
+        try:
+            during = net.wait_good(started_s + 2.0, silent_s)
+            status = run_status(net) if check_status else ""
+            time.sleep(max(0.0, silent_s - (time.monotonic() - started_s)))
+        finally:
+            os.kill(child.process.pid, signal.SIGCONT)
+        shown = any(camera in line and "MISSING" in line for line in status.splitlines())
+        missing = "shown MISSING by status" if shown else ""
+        during_text = "none" if during is None else f"{during:.1f} s"
+        return f"silent {silent_s:.0f} s; first good calibration during it after {during_text} {missing}".strip()
+    return fault
+
+
+def run_status(net: Network) -> str:
+    import subprocess
+
+    proc = subprocess.run([sys.executable, "-m", "camnet", "status", "--rig", net.rig_name, "--connect",
+                           net.endpoint, "--wait-s", "2.5"], capture_output=True, text=True, timeout=60)
+    return proc.stdout + proc.stderr
+
+
+DAMAGES = {
+    "truncated": lambda text: text[: len(text) // 2],
+    "not JSON": lambda text: "{not json",
+    "binary": lambda text: "\x00\xff" * 100,
+    "deep nesting": lambda text: "[" * 100_000,
+    "huge integer": lambda text: text.replace('"solve": ', '"solve": 1' + "0" * 5000 + " + ", 1)
+    if '"solve": ' in text else "9" * 5000,
+    "another rig": lambda text: json.dumps(_scaled(json.loads(text), 4.0)),
+    "K not a camera matrix": lambda text: json.dumps(_bad_k(json.loads(text))),
+}
+
+
+def _scaled(doc: dict, factor: float) -> dict:
+    for cam in doc["cameras"]:
+        cam["t"] = [factor * x for x in cam["t"]]
+    return doc
+
+
+def _bad_k(doc: dict) -> dict:
+    doc["cameras"][0]["K"][2] = [0.0, 0.0, 5.0]
+    return doc
+
+
+def damaged_state(how: str) -> Callable[[Network], str]:
+    def fault(net: Network) -> str:
+        child = net.child("calibrator")
+        net.launch.stop(child)
+        before = len(list(net.work.glob("calibration.json.*-*")))
+        net.state.write_text(DAMAGES[how](net.state.read_text()))
+        net.start_again(child)
+        deadline = time.monotonic() + 30.0
+        while time.monotonic() < deadline and len(list(net.work.glob("calibration.json.*-*"))) == before:
+            time.sleep(0.2)
+        aside = len(list(net.work.glob("calibration.json.*-*"))) > before
+        return f"state {how}: {'set aside, not resumed' if aside else 'RESUMED'}"
+    return fault
+
+
+def malformed_flood(n: int) -> Callable[[Network], str]:
+    """`n` malformed messages on every key a node reads: frames, observations, calibration, statistics."""
+    def fault(net: Network) -> str:
+        rng = np.random.default_rng(0)
+        rig = net.rig_name
+        targets = [keys.frame(rig, "left"), keys.frame(rig, "mono_a"), keys.observations(rig),
+                   keys.calibration(rig), keys.node_stats(rig, "driver", "left")]
+        publishers = [net.session.declare_publisher(k) for k in targets]
+        samples = [b"", b"{", b"[" * 50_000, b"\xff" * 64, b'{"format": "camnet.observations/1", "cameras": 3}',
+                   b"CNFR" + bytes(60)]
+        for i in range(n):
+            for publisher in publishers:
+                publisher.put(samples[i % len(samples)] if i % 3 else rng.bytes(int(rng.integers(1, 200))))
+            if i % 500 == 0:
+                time.sleep(0.05)  # the flood must not drop in Zenoh's queues before it reaches the nodes
+        for publisher in publishers:
+            publisher.undeclare()
+        return f"{n} x {len(targets)} keys"
+    return fault
+
+
+def forged_observations(net: Network) -> str:
+    """Observations of another rig (baseline 0.5 m) from a peer that is no matcher: none may become a
+    calibration."""
+    from camnet.io.formats import observations_to_doc
+    from camnet.sim.simulate import make_rig, observe
+
+    doc = observations_to_doc(observe(make_rig(seed=9), seed=9).observations)
+    doc["stereo"]["baseline_m"] = 0.5
+    publisher = net.session.declare_publisher(keys.observations(net.rig_name))
+    for _ in range(15):
+        publisher.put(json.dumps(doc).encode())
+        time.sleep(0.3)
+    publisher.undeclare()
+    time.sleep(3.0)
+    with net._lock:
+        forged = sum(abs(_baseline(d) - 0.5) < 0.05 for _, d in net.calibrations)
+    return f"15 forged messages; {forged} became calibrations"
+
+
+def _baseline(doc: dict) -> float:
+    cams = {c["id"]: c for c in doc["cameras"]}
+    centres = [-np.asarray(cams[c]["R"]).T @ np.asarray(cams[c]["t"]) for c in ("left", "right")]
+    return float(np.linalg.norm(centres[0] - centres[1]))
+
+
+def scenarios(short: bool) -> list[tuple[str, Callable[[Network], str]]]:
+    if short:
+        return [("mono camera silent 8 s", silent_camera("mono_b", 8.0, check_status=True)),
+                ("kill -9 calibrator, restart", kill_and_restart("calibrator")),
+                ("state file: another rig", damaged_state("another rig")),
+                ("1000 malformed messages per key", malformed_flood(1000))]
+    found = [(f"kill -9 {n}, restart", kill_and_restart(n)) for n in ("driver-mono_a", "matcher", "calibrator")]
+    found += [("kill -9 router, 1 s", kill_and_restart("router", 1.0)),
+              ("kill -9 router, 20 s", kill_and_restart("router", 20.0)),
+              ("mono camera silent 30 s", silent_camera("mono_b", 30.0, check_status=True))]
+    found += [(f"state file: {how}", damaged_state(how)) for how in DAMAGES]
+    found += [("10k malformed messages per key", malformed_flood(10_000)),
+              ("forged observations (0.5 m)", forged_observations)]
+    return found
+
+
+def run(work: Path, *, short: bool, recover_s: float, out=print) -> list[Result]:
+    results = []
+    with Network(work, rig_document("faults")) as net:
+        first = net.wait_good(net.started_s, 180.0)
+        if first is None:
+            raise RuntimeError(f"no first calibration; logs in {work}")
+        out(f"first good calibration after {first:.1f} s of the run")
+        out(HEADER)
+        for name, fault in scenarios(short):
+            result = measure(net, name, fault, recover_s=recover_s)
+            out(result.row())
+            results.append(result)
+    return results
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--short", action="store_true", help="the few short faults the tests run")
+    parser.add_argument("--recover-s", type=float, default=90.0, help="longest wait for the next good calibration")
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory(prefix="camnet-bench-faults-") as tmp:
+        results = run(Path(tmp), short=args.short, recover_s=args.recover_s)
+    return 0 if all(r.alive and r.lost == 0 for r in results) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
