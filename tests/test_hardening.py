@@ -129,7 +129,7 @@ def test_calibrate_refuses_too_many_tracks_in_one_line_or_subsamples(tmp_path, o
     assert proc.returncode != 0 and not out.exists()
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and f"tracks: {n} tracks, more than the 40" in lines[0] and "--subsample-tracks" in lines[0]
-    proc = run_camnet("calibrate", str(src), "-o", str(out), "--max-tracks", "40", "--subsample-tracks")
+    proc = run_camnet("calibrate", str(src), "-o", str(out), "--max-tracks", "40", "--subsample-tracks", "--json")
     assert proc.returncode == 0, proc.stderr
     assert f"solving 40 of the {n} tracks" in proc.stderr
     assert json.loads(proc.stdout)["points"] <= 40
