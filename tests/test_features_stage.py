@@ -90,12 +90,16 @@ def test_a_stage_beside_two_drivers_feeds_the_matcher(network):  # noqa: F811 (t
         # A malformed features message is counted, and matching goes on.
         net.drivers_session.put(keys.features(rig.name, "left"), b"CNFT\x01 not features")
 
-        def both_stages_pooled() -> bool:
-            tracks = net.latest()["tracks"] if net.count() else []
-            return sum("left" in t["observations"] and "mono_a" in t["observations"] for t in tracks) >= 50
+        checked = (("left", "right"), ("left", "mono_a"), ("right", "mono_b"))
 
-        # Sets without a stage's late features come first on a busy machine: wait for both.
-        assert wait_for(both_stages_pooled, 180.0), "no tracks between the two stages' cameras"
+        def every_pair_pooled() -> bool:
+            tracks = net.latest()["tracks"] if net.count() else []
+            return all(sum(a in t["observations"] and b in t["observations"] for t in tracks) >= 50
+                       for a, b in checked)
+
+        # Sets without a stage's late features, or a late camera's frames, come first on a
+        # busy machine: wait for every pair checked below.
+        assert wait_for(every_pair_pooled, 180.0), "the pooled tracks never joined every pair checked"
         assert net.node._feature_cameras == {"left", "mono_a"}
         assert net.node.rejected.counts.get("features truncated") == 1
         # Pooled tracks may come from the first messages: the stages keep publishing.
