@@ -58,11 +58,15 @@ EOF
 # Nothing of this host in the image: the engine provides hostname and resolv.conf.
 rm -rf "$root"/fs/var/cache/apt/archives/*.deb "$root"/fs/var/lib/apt/lists/* "$root"/fs/var/log/* \
        "$root"/fs/tmp/* "$root/fs/etc/hostname" "$root/fs/etc/resolv.conf"
-tar --numeric-owner -C "$root/fs" -c . |
-  "$engine" import \
-    --change 'ENV PATH=/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin' \
-    --change 'ENV LANG=C.UTF-8' \
-    --change 'CMD ["python3"]' \
-    - "$tag" >/dev/null
+if ! tar --numeric-owner -C "$root/fs" -c . |
+     "$engine" import \
+       --change 'ENV PATH=/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin' \
+       --change 'ENV LANG=C.UTF-8' \
+       --change 'CMD ["python3"]' \
+       - "$tag" >"$root/import.log" 2>&1; then
+  cat "$root/import.log" >&2
+  echo "make-base: $engine import failed" >&2
+  exit 1
+fi
 python=$(chroot "$root/fs" python3 --version)
 echo "make-base: $tag ($python)"
