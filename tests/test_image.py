@@ -250,7 +250,9 @@ def test_a_router_container_and_a_rig_container_calibrate(image, tmp_path, capsy
         podman("rm", "-f", "-v", "-t", "0", router_name, check=False)
         podman("network", "rm", "-f", name, check=False)
 
-    # No one joined with a certificate that names no identity.
+    # The router admitted each node by its own certificate, and no one without an identity.
+    for identity in UP_IDENTITIES:
+        assert f"admitted the {identity} (camnet-{identity})" in log, log[-3000:]
     assert "names no camnet identity" not in log, log[-3000:]
     cal = parse_calibration(json.loads((out / "calibration.json").read_text()))
     comparison = compare_cameras(cal, load_rig(rig_path).simulated_truth())
