@@ -55,11 +55,12 @@ def foreign_secrets(tmp_path_factory) -> Path:
 
 @contextmanager
 def router_process(secrets: Path, log_path: Path, port: int | None = None):
-    """`camnet router --secure` on `port` of loopback (default: a free one): (endpoint nodes dial, its log)."""
+    """`camnet router --secure` on `port` of loopback (default: a free one): (endpoint nodes dial, its log).
+    Run as docker/compose.yaml runs it, without -v: its log is what a deployment's shows."""
     port = port or free_port()
     with open(log_path, "wb") as log:
         process = subprocess.Popen(
-            [sys.executable, "-m", "camnet.cli", "-v", "router", "--secure", str(secrets),
+            [sys.executable, "-m", "camnet.cli", "router", "--secure", str(secrets),
              "--listen", f"tls/127.0.0.1:{port}"], cwd=ROOT, stdout=log, stderr=subprocess.STDOUT)
     try:
         # Progress, not a fixed delay: the router prints once it listens (a loaded machine is slow to start).

@@ -4,6 +4,7 @@ With --secure DIR it is the router of a secured rig: TLS only, a certificate
 demanded of every node, and the rig's access control (camnet.bus.security).
 Zenoh's own warnings (a peer refused in the TLS handshake among them) and its
 access control's notes go to standard output; RUST_LOG replaces that choice.
+Who joins and leaves, by identity, goes to standard error, with or without -v.
 """
 
 from __future__ import annotations
@@ -42,6 +43,11 @@ def run(args: argparse.Namespace) -> int:
     rig = load_secure_dir(options.secure, ROUTER).rig if options.secure else None
     with open_session(options, config=config) as session, stop_on_signals(threading.Event()) as stop:
         if rig is not None:
+            # Who joins and leaves, by identity, is what the router's log is for (`docker compose
+            # logs router`): logged without -v.
+            security_log = logging.getLogger("camnet.bus.security")
+            if security_log.getEffectiveLevel() > logging.INFO:
+                security_log.setLevel(logging.INFO)
             watch_identities(session)
         access = f"; TLS only, access control for rig {rig!r}" if rig is not None else ""
         print(f"camnet router {session.info.zid()} listening on {', '.join(listen_endpoints(config))}{access}; "

@@ -12,7 +12,10 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-DEFAULT_RIG = Path(__file__).resolve().parents[2] / "config" / "sim.yaml"
+# The built-in rig, config/sim.yaml: installed with camnet as camnet/rigs/sim.yaml
+# (pyproject.toml), read from config/ in a source checkout (an editable install).
+INSTALLED_RIG = Path(__file__).resolve().parents[1] / "rigs" / "sim.yaml"
+SOURCE_RIG = Path(__file__).resolve().parents[2] / "config" / "sim.yaml"
 RECORDED_CLOCK_S = 3600.0  # a capture this far from the host clock was stamped by a recording
 
 
@@ -43,13 +46,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_bus_arguments(parser)
 
 
+def default_rig() -> Path:
+    """The rig `camnet up` runs without a rig file: the installed copy, else the source tree's."""
+    return INSTALLED_RIG if INSTALLED_RIG.is_file() else SOURCE_RIG
+
+
 def _checked_rig(args: argparse.Namespace):
     """(rig path, Rig) of the command, once its flags are known to be usable; InputError if not."""
     from camnet.errors import InputError
     from camnet.io.rig import load_rig
     from camnet.viz_sinks import sinks_from_args
 
-    rig_path = Path(args.rig_file) if args.rig_file else DEFAULT_RIG
+    rig_path = Path(args.rig_file) if args.rig_file else default_rig()
     rig = load_rig(rig_path)
     if rig.stereo is None:
         raise InputError(f"{rig_path}: the rig has no stereo pair; camnet needs one with a known baseline")
