@@ -34,10 +34,8 @@ def camnet_start(obs: Observations, seed: int = 0):
     """(order, start): camnet's cold start of `obs`, as `camnet.geometry.calibrate` computes it."""
     order = camera_order(obs)
     intr = initial_intrinsics(obs, order)
-    held_K = np.zeros(len(order), dtype=bool)
     xy = centred(obs, order, intr)
-    start = cold_start(obs, order, intr, xy, observation_rows(obs), seed=seed, max_tracks=150, held_K=held_K,
-                       loss_scale_px=2.0)
+    start = cold_start(obs, order, intr, xy, observation_rows(obs), seed=seed, max_tracks=150)
     return order, start
 
 
