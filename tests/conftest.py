@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import socket
+import threading
 import time
+from contextlib import contextmanager
 
 import pytest
 
@@ -53,3 +55,16 @@ def matched_publisher(session, key_expr: str, timeout_s: float = 5.0):
     assert wait_for(lambda: publisher.matching_status.matching, timeout_s), \
         f"no subscriber matched {key_expr}"
     return publisher
+
+
+@contextmanager
+def running_node(node, join_timeout_s: float = 60.0):
+    """`node.run()` on a thread for the block; stopped (`node.stop`) and joined after it, even on failure."""
+    thread = threading.Thread(target=node.run, daemon=True)
+    thread.start()
+    try:
+        yield node
+    finally:
+        node.stop.set()
+        thread.join(timeout=join_timeout_s)
+        assert not thread.is_alive(), f"{type(node).__name__} did not stop"

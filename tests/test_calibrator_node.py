@@ -3,8 +3,6 @@
 import json
 import subprocess
 import sys
-import threading
-from contextlib import contextmanager
 
 import numpy as np
 import pytest
@@ -14,22 +12,13 @@ from camnet.bus import keys
 from camnet.geometry.verdict import judge
 from camnet.io.formats import observations_to_doc, parse_calibration
 from camnet.sim.simulate import make_rig, observe
-from tests.conftest import matched_publisher, wait_for
+from tests.conftest import matched_publisher, running_node, wait_for
 
 RIG = "calnode"
 
 
-@contextmanager
 def running(session, config):
-    node = CalibratorNode(session, RIG, config)
-    thread = threading.Thread(target=node.run, daemon=True)
-    thread.start()
-    try:
-        yield node
-    finally:
-        node.stop.set()
-        thread.join(timeout=30)
-        assert not thread.is_alive(), "calibrator did not stop"
+    return running_node(CalibratorNode(session, RIG, config))
 
 
 def observations_payload(seed: int, n_points: int = 150) -> bytes:

@@ -1,8 +1,6 @@
 """The calibrator with its rig file: forged observations and a state file of another rig are refused."""
 
 import json
-import threading
-from contextlib import contextmanager
 from pathlib import Path
 
 from camnet.services.calibrator import MAX_MESSAGE_BYTES, CalibratorConfig, CalibratorNode
@@ -11,23 +9,14 @@ from camnet.bus import keys
 from camnet.io.formats import calibration_to_doc, observations_to_doc
 from camnet.io.rig import load_rig
 from camnet.sim.simulate import make_rig, observe
-from tests.conftest import matched_publisher, wait_for
+from tests.conftest import matched_publisher, running_node, wait_for
 from tests.test_hardening import sim_calibration
 
 RIG = load_rig(Path(__file__).resolve().parents[1] / "config" / "sim.yaml")
 
 
-@contextmanager
 def running(session, state_path):
-    node = CalibratorNode(session, RIG.name, CalibratorConfig(state_path=state_path), rig=RIG)
-    thread = threading.Thread(target=node.run, daemon=True)
-    thread.start()
-    try:
-        yield node
-    finally:
-        node.stop.set()
-        thread.join(timeout=30)
-        assert not thread.is_alive(), "calibrator did not stop"
+    return running_node(CalibratorNode(session, RIG.name, CalibratorConfig(state_path=state_path), rig=RIG))
 
 
 def test_forged_observations_and_a_foreign_state_file_are_refused(zenoh_pair, tmp_path):

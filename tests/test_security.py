@@ -21,7 +21,7 @@ from camnet.bus import keys
 from camnet.bus.security import IDENTITIES, ROUTER, access_control, common_name, load_secure_dir, zenoh_settings
 from camnet.bus.session import BusOptions, make_config, open_session
 from camnet.errors import InputError
-from tests.conftest import free_port, matched_publisher, wait_for
+from tests.conftest import free_port, matched_publisher, running_node, wait_for
 
 RIG = "securig"
 ROOT = Path(__file__).resolve().parents[1]
@@ -224,21 +224,10 @@ def stranger_secrets(secrets: Path, tmp_path: Path) -> Path:
     return stranger
 
 
-@contextmanager
 def calibrator_running(session, state_path: Path):
-    import threading
-
     from camnet.services.calibrator import CalibratorConfig, CalibratorNode
 
-    node = CalibratorNode(session, RIG, CalibratorConfig(state_path=state_path))
-    thread = threading.Thread(target=node.run, daemon=True)
-    thread.start()
-    try:
-        yield node
-    finally:
-        node.stop.set()
-        thread.join(timeout=60)
-        assert not thread.is_alive(), "calibrator did not stop"
+    return running_node(CalibratorNode(session, RIG, CalibratorConfig(state_path=state_path)))
 
 
 def test_only_authorised_identities_reach_the_calibrator(secrets, foreign_secrets, tmp_path):
