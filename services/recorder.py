@@ -37,6 +37,7 @@ from camnet.bus.node import Presence, Tally, guarded, stop_on_signals
 from camnet.bus.stats import Activity, RateMeter
 from camnet.errors import CamnetError, InputError
 from camnet.io import session_file as sf
+from camnet.io.validate import decode_json
 
 log = logging.getLogger(__name__)
 
@@ -441,6 +442,6 @@ def _summary_metadata(summary: RecordingSummary) -> dict[str, str]:
 
 def _is_json_object(payload: bytes) -> bool:
     try:
-        return isinstance(json.loads(payload), dict)
-    except (ValueError, UnicodeDecodeError):
+        return isinstance(decode_json(payload, "message"), dict)
+    except InputError:  # whatever json cannot take, deep nesting included
         return False

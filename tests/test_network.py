@@ -7,6 +7,7 @@ clock), so the rigs are small images at a low frame rate.
 import json
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -58,6 +59,22 @@ def rig_file(tmp_path, n_cameras: int) -> str:
     return str(path)
 
 
+def publish_junk_calibrations(endpoint: str, rig_name: str) -> None:
+    """`{}`, 100k-deep JSON and bytes that are not UTF-8 on the calibration key, while the network runs.
+
+    Measured before: `{}` there stopped `camnet up` and its six nodes a second later.
+    """
+    from camnet.bus.session import BusOptions, open_session
+
+    with open_session(BusOptions(connect=(endpoint,))) as peer:
+        publisher = peer.declare_publisher(keys.calibration(rig_name))
+        deadline = time.monotonic() + 30.0
+        while time.monotonic() < deadline:
+            for junk in (b"{}", b"[" * 100_000, b"\xff\xfe"):
+                publisher.put(junk)
+            time.sleep(2.0)
+
+
 @pytest.mark.parametrize("n_cameras", [4, 8])
 def test_simulated_network_calibrates_to_scale_within_a_minute(tmp_path, n_cameras):
     rig_path = rig_file(tmp_path, n_cameras)
@@ -65,20 +82,26 @@ def test_simulated_network_calibrates_to_scale_within_a_minute(tmp_path, n_camer
     rrd = tmp_path / "run.rrd"
     session = tmp_path / "session.mcap"
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    proc = subprocess.run(
+    proc = subprocess.Popen(
         [sys.executable, "-m", "camnet.cli", "up", rig_path, "--duration-s", "60", "--run-dir",
          str(tmp_path / "run"), "-o", str(out), "--listen", endpoint, "--rerun", f"save={rrd}",
          "--record", str(session)],
-        capture_output=True, text=True, timeout=180)
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        if n_cameras == 4:  # any peer may publish on the calibration key: junk there stops nothing
+            publish_junk_calibrations(endpoint, load_rig(rig_path).name)
+        stdout, stderr = proc.communicate(timeout=180)
+    finally:
+        proc.kill()
     logs = "\n".join(p.read_text()[-1500:] for p in (tmp_path / "run").rglob("*.log"))
-    assert proc.returncode == 0, proc.stdout + proc.stderr + logs
+    assert proc.returncode == 0, stdout + stderr + logs
     cal = parse_calibration(json.loads(out.read_text()))
     truth = load_rig(rig_path).simulated_truth()
     comparison = compare_cameras(cal, truth)
     assert len(cal.cameras) == n_cameras
-    assert abs(comparison.scale_rel) < 0.005, proc.stdout
-    assert max(abs(e.focal_rel) for e in comparison.cameras) < 0.01, proc.stdout
-    assert "vs truth" in proc.stdout and "final calibration" in proc.stdout
+    assert abs(comparison.scale_rel) < 0.005, stdout
+    assert max(abs(e.focal_rel) for e in comparison.cameras) < 0.01, stdout
+    assert "vs truth" in stdout and "final calibration" in stdout
 
     # The run's Rerun recording: every camera, the cloud, the series, one entry per solve.
     data = read_rrd(rrd)

@@ -268,6 +268,20 @@ _DESCRIBE = {
 }
 
 
+def _document(sample, parse, log) -> dict | None:
+    """The JSON document of a bus `sample` if `parse` accepts it; None, logged, for anything else."""
+    from camnet.errors import InputError
+    from camnet.io.validate import decode_json
+
+    try:
+        doc = decode_json(sample.payload.to_bytes(), str(sample.key_expr))
+        parse(doc)
+    except InputError as exc:
+        log.warning("ignoring a message that does not parse (%s)", exc)
+        return None
+    return doc
+
+
 def calibrate_live(rig_path: str | Path, *, run_dir: Path, endpoint: str, max_tracks: int = 3000,
                    min_frame_sets: int = 4, timeout_s: float = 120.0):
     """The rig's drivers, matcher and calibrator as processes on the bus, until they calibrate every camera.
@@ -282,7 +296,6 @@ def calibrate_live(rig_path: str | Path, *, run_dir: Path, endpoint: str, max_tr
     and the seconds since the nodes started. Raises CamnetError when a node
     exits or nothing comes within `timeout_s`.
     """
-    import json
     import logging
     import threading
     import time
@@ -302,15 +315,19 @@ def calibrate_live(rig_path: str | Path, *, run_dir: Path, endpoint: str, max_tr
     lock = threading.Lock()
     arrived = threading.Event()
 
+    # Any peer may publish on these keys: only what parses is kept.
     def on_observations(sample) -> None:
-        doc = json.loads(sample.payload.to_bytes())
-        with lock:
-            observed[doc["frame_sets"], doc["latest_capture_ns"]] = doc
+        doc = _document(sample, lambda d: parse_observations(d, any_distance=True), log)
+        if doc is not None and all(isinstance(doc.get(k), int) for k in ("frame_sets", "latest_capture_ns")):
+            with lock:
+                observed[doc["frame_sets"], doc["latest_capture_ns"]] = doc
 
     def on_calibration(sample) -> None:
-        with lock:
-            calibrations.append(json.loads(sample.payload.to_bytes()))
-        arrived.set()
+        doc = _document(sample, parse_calibration, log)
+        if doc is not None:
+            with lock:
+                calibrations.append(doc)
+            arrived.set()
 
     spec = NetworkSpec(rig_path=Path(rig_path), rig_name=rig.name,
                        cameras=tuple((e.id, e.driver) for e in rig.cameras), bus=("--connect", endpoint),
