@@ -61,7 +61,7 @@ from camnet.bus.sync import FrameSet, FrameSynchronizer, SyncCounts
 from camnet.errors import InputError
 from camnet.geometry.model import CameraInfo, Stereo
 from camnet.io.formats import observations_to_doc
-from camnet.io.rig import Rig
+from camnet.io.rig import Rig, configured_size
 from camnet.matching.edge import CameraFeatures, EdgeConfig, FeatureExtractor
 from camnet.matching.features import Detector, MatcherConfig, to_grey
 from camnet.matching.pool import PoolConfig, PoolUpdate, TrackPool
@@ -144,13 +144,6 @@ def camera_info(rig: Rig, camera_id: str, width: int, height: int) -> CameraInfo
     if known is None:
         return CameraInfo(camera_id, width, height, model=entry.model)
     return CameraInfo(camera_id, width, height, K=known.K, dist=known.dist, fixed=known.fixed, model=entry.model)
-
-
-def configured_size(rig: Rig, camera_id: str) -> tuple[int, int] | None:
-    """(width, height) the rig file gives for a camera, if it gives one."""
-    config = rig.camera(camera_id).config
-    width, height = getattr(config, "width", None), getattr(config, "height", None)
-    return (width, height) if width and height else None
 
 
 def regrow_pool(pool: TrackPool | None, cameras: list[CameraInfo], stereo: Stereo, config: PoolConfig,

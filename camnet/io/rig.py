@@ -450,6 +450,13 @@ def _stereo_pose(st: _Section, pair: Stereo, cameras: tuple[CameraEntry, ...]) -
     return replace(pair, R=R, t=t)
 
 
+def configured_size(rig: Rig, camera_id: str) -> tuple[int, int] | None:
+    """(width, height) the rig file gives for a camera, if it gives one."""
+    config = rig.camera(camera_id).config
+    width, height = getattr(config, "width", None), getattr(config, "height", None)
+    return (width, height) if width and height else None
+
+
 def load_rig(path: str | Path) -> Rig:
     """Read and validate a rig file."""
     import yaml

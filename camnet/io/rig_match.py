@@ -12,17 +12,11 @@ from __future__ import annotations
 import numpy as np
 
 from camnet.geometry.model import Calibration, Observations
-from camnet.io.rig import Rig
+from camnet.io.rig import Rig, configured_size
 
 # A solved calibration keeps an exact baseline exactly; a soft one (sigma_m) moves within its sigmas.
 BASELINE_TOLERANCE_REL = 1e-6
 SOLVED_BASELINE_SIGMAS = 5.0
-
-
-def _size(rig: Rig, camera_id: str) -> tuple[int, int] | None:
-    config = rig.camera(camera_id).config
-    width, height = getattr(config, "width", None), getattr(config, "height", None)
-    return (width, height) if width and height else None
 
 
 def _cameras_mismatch(rig: Rig, cameras: list[tuple[str, int, int]]) -> str | None:
@@ -30,7 +24,7 @@ def _cameras_mismatch(rig: Rig, cameras: list[tuple[str, int, int]]) -> str | No
     for camera_id, width, height in cameras:
         if camera_id not in ids:
             return f"camera {camera_id!r} is not in rig {rig.name!r} (cameras: {', '.join(sorted(ids))})"
-        size = _size(rig, camera_id)
+        size = configured_size(rig, camera_id)
         if size is not None and size != (width, height):
             return f"camera {camera_id!r} is {width}x{height}, the rig file says {size[0]}x{size[1]}"
     return None
