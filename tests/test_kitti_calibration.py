@@ -192,7 +192,7 @@ def test_rig_files_replay_the_frames_each_colour_camera_has(rig_file, colour, fr
     kitti = KittiExtract.open(require(KITTI_ROOT))
     root = Path(__file__).resolve().parents[1]
     rig = load_rig(root / "config" / rig_file)
-    monkeypatch.chdir(root)  # the globs are relative to the project root
+    monkeypatch.chdir(Path(__file__).parent)  # the globs are relative to the rig file, not to here
     assert [c.id for c in rig.cameras] == ["0", "1", colour] and rig.stereo.baseline_m == pytest.approx(0.5372)
     for entry in rig.cameras:
         assert entry.config.fps == 1.0

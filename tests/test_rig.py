@@ -91,7 +91,8 @@ def test_errors_name_the_field():
     refused(lambda d: d["stereo"].update(baseline_m=0),
             r"stereo\.baseline_m: must be positive")
     refused(lambda d: d["cameras"][0].pop("sim"), r"cameras\[0\]\.sim: missing")
-    refused(lambda d: d["cameras"][0]["sim"].update(fx=3), r"cameras\[0\]\.sim\.fx: unknown key")
+    refused(lambda d: d["cameras"][0]["sim"].update(fx=3),
+            r"unknown key 'fx' in cameras\[0\]\.sim \(did you mean 'f_px'\?\)")
     refused(lambda d: d["cameras"][0].update(id="a/b"), r"cameras\[0\]\.id")
     refused(lambda d: d.pop("cameras"), r"cameras: missing")
     refused(lambda d: d["cameras"][2]["v4l2"].update(fourcc="MJPEG"),
@@ -141,3 +142,59 @@ def test_a_stereo_pair_is_a_parallel_head_only_when_the_rig_says_so():
     for name in ("sim.yaml", "kitti.yaml", "aravis-example.yaml"):
         assert load_rig(CONFIG / name).stereo.parallel, name
     refused(lambda d: d["stereo"].update(parallel="yes"), r"stereo\.parallel: expected true or false")
+
+
+@pytest.mark.parametrize(("change", "message"), [
+    # A misspelt required key is named as the stray key, not as the missing one it was meant to be.
+    (lambda d: d["stereo"].update(baseline=d["stereo"].pop("baseline_m")),
+     "rig.yaml: unknown key 'baseline' in stereo (did you mean 'baseline_m'?)"),
+    (lambda d: d.update(camera=d.pop("cameras")),
+     "rig.yaml: unknown key 'camera' in the rig file (did you mean 'cameras'?)"),
+    (lambda d: d["cameras"][2]["v4l2"].update(sorce="x.mp4"),
+     "rig.yaml: unknown key 'sorce' in cameras[2].v4l2 (did you mean 'source'?)"),
+    (lambda d: d["cameras"][0].update(drivr="sim"),
+     "rig.yaml: unknown key 'drivr' in cameras[0] (did you mean 'driver'?)"),
+    (lambda d: d["cameras"][0].update(v4l2={}), "rig.yaml: unknown key 'v4l2' in cameras[0] (known: id, driver, "
+                                                "model, intrinsics, sim)"),
+])
+def test_a_misspelt_key_is_named_with_the_key_it_resembles(change, message):
+    data = copy.deepcopy(base())
+    change(data)
+    with pytest.raises(InputError) as caught:
+        parse_rig(data, source="rig.yaml")
+    assert str(caught.value) == message
+
+
+def test_paths_are_relative_to_the_rig_file_and_absolute_ones_kept(tmp_path, monkeypatch):
+    rig_dir = tmp_path / "rigs [1]"  # glob characters in the rig file's directory are not a pattern
+    (rig_dir / "img").mkdir(parents=True)
+    data = copy.deepcopy(base())
+    data["cameras"][2]["v4l2"] = {"source": "img/*.png", "timestamps": "img/times.txt"}
+    data["cameras"].append({"id": "d", "driver": "v4l2", "v4l2": {"source": "clips/d.mp4"}})
+    data["cameras"].append({"id": "e", "driver": "v4l2", "v4l2": {"source": str(tmp_path / "e.mp4")}})
+    data["cameras"].append({"id": "f", "driver": "v4l2", "v4l2": {"source": "2"}})
+    (rig_dir / "rig.yaml").write_text(yaml.safe_dump(data))
+    monkeypatch.chdir(tmp_path)
+    rig = load_rig(Path("rigs [1]") / "rig.yaml")
+    seq, clip, absolute, device = (rig.camera(c).config for c in "cdef")
+    assert seq.source == str(Path("rigs [[]1]") / "img" / "*.png")
+    assert seq.timestamps == str(Path("rigs [1]") / "img" / "times.txt")
+    assert clip.source == str(Path("rigs [1]") / "clips" / "d.mp4")
+    assert absolute.source == str(tmp_path / "e.mp4") and device.source == "2"
+    assert rig.camera("c").config.source != parse_rig(data).camera("c").config.source == "img/*.png"
+
+
+def test_an_image_sequence_beside_the_rig_file_is_found_from_anywhere(tmp_path, monkeypatch):
+    import cv2
+    from camnet.drivers.v4l2 import V4l2Camera
+
+    (tmp_path / "rig" / "img").mkdir(parents=True)
+    for i in range(2):
+        cv2.imwrite(str(tmp_path / "rig" / "img" / f"{i}.png"), np.full((8, 10), 40 * i, np.uint8))
+    data = {"rig": "r", "cameras": [{"id": "c", "driver": "v4l2", "v4l2": {"source": "img/*.png", "fps": 100}}]}
+    (tmp_path / "rig" / "rig.yaml").write_text(yaml.safe_dump(data))
+    (tmp_path / "elsewhere").mkdir()
+    monkeypatch.chdir(tmp_path / "elsewhere")
+    entry = load_rig("../rig/rig.yaml").camera("c")
+    with V4l2Camera("c", entry.config) as cam:
+        assert cam.info.width == 10 and cam.read(timeout_s=1.0).image.shape[:2] == (8, 10)

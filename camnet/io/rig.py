@@ -3,8 +3,10 @@
 Parsed into frozen, validated dataclasses; one config dataclass per driver.
 Every error is an InputError naming the field, e.g.
 ``cameras[2].driver: unknown driver 'foo' (expected sim, aravis, v4l2)``.
-Unknown keys are refused too, so that a typo never silently falls back to a
-default. The format is documented in config/README.md.
+Unknown keys are refused too, named with the key they most resemble, so that
+a typo never silently falls back to a default (camnet.io.rig_section). Paths
+in a rig file are relative to the rig file. The format is documented in
+config/README.md.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from camnet.errors import InputError
 from camnet.geometry.model import Baseline, Camera, LensModel, Stereo
 from camnet.ids import validate_id
 from camnet.io import validate as v
+from camnet.io.rig_section import Section
 from camnet.sim.config import SceneConfig, SimConfig
 
 SIM_ENCODINGS = ("mono8", "mono16", "bgr8", "rgb8")
@@ -138,78 +141,22 @@ class Rig:
         return out
 
 
-class _Section:
-    """Typed reads of one mapping of the rig file (camnet.io.validate), with errors naming the field path.
-
-    A key that is absent or null takes `default` (required when none is given).
-    """
-
-    def __init__(self, data: Any, path: str) -> None:
-        if not isinstance(data, dict):
-            raise InputError(f"{path or 'rig file'}: expected a mapping, got {v.kind(data)}")
-        self.data = data
-        self.path = path
-        self.used: set[str] = set()
-
-    def field(self, key: str) -> str:
-        return f"{self.path}.{key}" if self.path else key
-
-    def raw(self, key: str, default: Any = ..., *, required: bool = False) -> Any:
-        self.used.add(key)
-        if key not in self.data or self.data[key] is None:
-            if required or default is ...:
-                raise InputError(f"{self.field(key)}: missing")
-            return default
-        return self.data[key]
-
-    def section(self, key: str, *, required: bool = True) -> _Section:
-        value = self.raw(key, {} if not required else ..., required=required)
-        return _Section(value, self.field(key))
-
-    def _read(self, key: str, default: Any, check, *args, **kwargs) -> Any:
-        value = self.raw(key, default)
-        if value is default and default is not ...:
-            return value
-        return check(value, self.field(key), *args, **kwargs)
-
-    def number(self, key: str, default: Any = ..., *, positive: bool = False, minimum: float | None = None) -> float:
-        return self._read(key, default, v.number, positive=positive, minimum=minimum)
-
-    def integer(self, key: str, default: Any = ..., *, positive: bool = False) -> int:
-        return self._read(key, default, v.integer, positive=positive)
-
-    def side(self, key: str, default: Any = ...) -> int:
-        """An image width or height (1 to camnet.io.validate.MAX_SIDE_PX)."""
-        return self._read(key, default, v.image_side)
-
-    def string(self, key: str, default: Any = ..., *, choices: tuple[str, ...] = ()) -> str:
-        return self._read(key, default, v.string, choices=choices)
-
-    def boolean(self, key: str, default: bool) -> bool:
-        return v.boolean(self.raw(key, default), self.field(key))
-
-    def matrix(self, key: str, rows: int, cols: int, default: Any = ...) -> np.ndarray:
-        return self._read(key, default, lambda value, path: v.matrix(value, rows, cols, path))
-
-    def rotation(self, key: str, default: Any = ...) -> np.ndarray:
-        return self._read(key, default, v.rotation)
-
-    def dist(self, key: str, model: LensModel, default: Any = ...) -> np.ndarray:
-        """OpenCV distortion in `model`'s order (camnet.io.validate.lens_dist)."""
-        return self._read(key, default, lambda value, path: v.lens_dist(value, model, path))
-
-    def vector(self, key: str, size: int, default: Any = ...) -> tuple[float, ...]:
-        return self._read(key, default, lambda value, path: tuple(v.vector(value, path, size=size).tolist()))
-
-    def finish(self) -> None:
-        """Refuse keys that were never read: they are typos or unsupported options."""
-        unknown = sorted(set(self.data) - self.used, key=str)
-        if unknown:
-            raise InputError(f"{self.field(str(unknown[0]))}: unknown key "
-                             f"(known: {', '.join(sorted(self.used))})")
+# The keys of each section of a rig file (config/README.md).
+SIM_KEYS = ("width", "height", "encoding", "fps", "f_px", "fx_px", "fy_px", "cx_px", "cy_px", "dist", "centre_m",
+            "look_at_m", "up", "noise_sigma_dn")
+ARAVIS_KEYS = ("device_id", "pixel_format", "width", "height", "fps", "exposure_us", "gain_db", "packet_size",
+               "n_buffers", "enable_fake_interface")
+V4L2_KEYS = ("source", "width", "height", "fps", "fourcc", "encoding", "loop", "timestamps", "speed", "frame_range")
+INTRINSICS_KEYS = ("K", "dist", "fixed")
+SYNC_KEYS = ("tolerance_ms", "max_wait_s")
+SCENE_KEYS = ("seed", "box_centre_m", "box_size_m", "box_rotation_deg_per_s", "wall_z_m", "wall_x_range_m",
+              "wall_y_range_m", "floor_y_m", "floor_z_range_m", "object")
+CAMERA_KEYS = ("id", "driver", "model", "intrinsics")  # and the section named after its driver
+STEREO_KEYS = ("left", "right", "baseline_m", "sigma_m", "parallel", "R", "t")
+TOP_KEYS = ("rig", "stereo", "baselines", "scene", "sync", "cameras", v.ANY_DISTANCE_FLAG)
 
 
-def _sim(s: _Section, model: LensModel = LensModel.PINHOLE) -> SimConfig:
+def _sim(s: Section, model: LensModel = LensModel.PINHOLE) -> SimConfig:
     if "f_px" in s.data:
         fx = fy = s.number("f_px", positive=True)
     else:
@@ -230,15 +177,14 @@ def _sim(s: _Section, model: LensModel = LensModel.PINHOLE) -> SimConfig:
         noise_sigma_dn=s.number("noise_sigma_dn", 2.0, minimum=0.0),
         model=model,
     )
-    s.finish()
     return config
 
 
-def _optional_positive(s: _Section, key: str, *, integer: bool = False):
+def _optional_positive(s: Section, key: str, *, integer: bool = False):
     return s.integer(key, None, positive=True) if integer else s.number(key, None, positive=True)
 
 
-def _aravis(s: _Section) -> AravisConfig:
+def _aravis(s: Section) -> AravisConfig:
     device_id = s.raw("device_id", None)
     if device_id is not None and not isinstance(device_id, str):
         device_id = str(device_id)
@@ -254,24 +200,23 @@ def _aravis(s: _Section) -> AravisConfig:
         n_buffers=s.integer("n_buffers", 8, positive=True),
         enable_fake_interface=s.boolean("enable_fake_interface", False),
     )
-    s.finish()
     return config
 
 
-def _v4l2(s: _Section) -> V4l2Config:
+def _v4l2(s: Section) -> V4l2Config:
     fourcc = s.raw("fourcc", None)
     if fourcc is not None and (not isinstance(fourcc, str) or len(fourcc) != 4):
         raise InputError(f"{s.field('fourcc')}: expected 4 characters such as MJPG, "
                          f"got {fourcc!r}")
     config = V4l2Config(
-        source=s.string("source"),
+        source=_v4l2_source(s),
         width=s.side("width", None),
         height=s.side("height", None),
         fps=_optional_positive(s, "fps"),
         fourcc=fourcc,
         encoding=s.string("encoding", "bgr8", choices=V4L2_ENCODINGS),
         loop=s.boolean("loop", False),
-        timestamps=s.string("timestamps", None),
+        timestamps=s.path_string("timestamps", None),
         speed=s.number("speed", 1.0, positive=True),
         frame_range=_frame_range(s),
     )
@@ -285,8 +230,15 @@ def _v4l2(s: _Section) -> V4l2Config:
     if config.fps is not None and "speed" in s.data:
         raise InputError(f"{s.field('speed')}: scales the recorded pace; with 'fps' the pace is fixed "
                          "(give one of them)")
-    s.finish()
     return config
+
+
+def _v4l2_source(s: Section) -> str:
+    """The v4l2 source: a device as given, a file or a glob relative to the rig file."""
+    source = s.string("source")
+    if source.isdigit() or source.startswith("/dev/"):
+        return source
+    return s.path_string("source", pattern=is_image_pattern(source))
 
 
 def is_image_pattern(source: str) -> bool:
@@ -294,7 +246,7 @@ def is_image_pattern(source: str) -> bool:
     return any(ch in source for ch in "*?[")
 
 
-def _frame_range(s: _Section) -> tuple[int, int] | None:
+def _frame_range(s: Section) -> tuple[int, int] | None:
     value = s.raw("frame_range", None)
     if value is None:
         return None
@@ -306,7 +258,7 @@ def _frame_range(s: _Section) -> tuple[int, int] | None:
     return int(value[0]), int(value[1])
 
 
-def _intrinsics(s: _Section, model: LensModel) -> KnownIntrinsics:
+def _intrinsics(s: Section, model: LensModel) -> KnownIntrinsics:
     K = s.matrix("K", 3, 3, None)
     upper_triangular = K is None or (K[0, 0] > 0 and K[1, 1] > 0 and K[1, 0] == 0 and np.array_equal(K[2], [0, 0, 1]))
     if not upper_triangular:
@@ -319,14 +271,12 @@ def _intrinsics(s: _Section, model: LensModel) -> KnownIntrinsics:
     fixed = s.raw("fixed", given)
     if not isinstance(fixed, list) or not all(name in given for name in fixed):
         raise InputError(f"{s.field('fixed')}: expected a list drawn from the given {given}, got {fixed!r}")
-    s.finish()
     return KnownIntrinsics(K=K, dist=dist, fixed=frozenset(fixed))
 
 
-def _sync(s: _Section) -> SyncSettings:
+def _sync(s: Section) -> SyncSettings:
     settings = SyncSettings(tolerance_ms=s.number("tolerance_ms", None, minimum=0.0),
                             max_wait_s=s.number("max_wait_s", None, minimum=0.0))
-    s.finish()
     return settings
 
 
@@ -334,34 +284,37 @@ _DRIVER_PARSERS = {"sim": _sim, "aravis": _aravis, "v4l2": _v4l2}
 DRIVERS = tuple(_DRIVER_PARSERS)  # the camera drivers, one config section each (camnet.drivers has their modules)
 
 
-def _camera(s: _Section) -> CameraEntry:
+_SECTION_KEYS = {"sim": SIM_KEYS, "aravis": ARAVIS_KEYS, "v4l2": V4L2_KEYS}
+
+
+def _camera(data: Any, path: str, base_dir: Path | None) -> CameraEntry:
+    driver = data.get("driver") if isinstance(data, dict) else None
+    if driver is not None and driver not in DRIVERS:
+        raise InputError(f"{path}.driver: unknown driver {driver!r} (expected {', '.join(DRIVERS)})")
+    s = Section(data, path, CAMERA_KEYS + ((driver,) if driver else ()), base_dir=base_dir)
     camera_id = s.raw("id", required=True)
     if not isinstance(camera_id, str):
         raise InputError(f"{s.field('id')}: expected a string, got {camera_id!r}")
     validate_id(camera_id, what=s.field("id"))
-    driver = s.raw("driver", None)
-    if driver is not None and driver not in DRIVERS:
-        raise InputError(f"{s.field('driver')}: unknown driver {driver!r} "
-                         f"(expected {', '.join(DRIVERS)})")
     model = LensModel(s.string("model", LensModel.PINHOLE.value, choices=tuple(LensModel)))
     config = None
     if driver is not None:
-        section = s.section(driver)
+        section = s.section(driver, _SECTION_KEYS[driver])
         config = _sim(section, model) if driver == "sim" else _DRIVER_PARSERS[driver](section)
-    intrinsics = _intrinsics(s.section("intrinsics"), model) if s.data.get("intrinsics") is not None else None
-    s.used.add("intrinsics")
-    s.finish()
+    intrinsics = None
+    if s.raw("intrinsics", None) is not None:
+        intrinsics = _intrinsics(s.section("intrinsics", INTRINSICS_KEYS), model)
     return CameraEntry(id=camera_id, driver=driver, config=config, intrinsics=intrinsics, model=model)
 
 
-def _range(s: _Section, key: str, default: tuple[float, float]) -> tuple[float, float]:
+def _range(s: Section, key: str, default: tuple[float, float]) -> tuple[float, float]:
     lo, hi = s.vector(key, 2, default)
     if not lo < hi:
         raise InputError(f"{s.field(key)}: expected [low, high] with low < high, got {[lo, hi]}")
     return lo, hi
 
 
-def _scene(s: _Section) -> SceneConfig:
+def _scene(s: Section) -> SceneConfig:
     size = s.vector("box_size_m", 3, (0.10, 0.17, 0.08))
     if min(size) <= 0:
         raise InputError(f"{s.field('box_size_m')}: sizes must be positive, got {list(size)}")
@@ -377,20 +330,23 @@ def _scene(s: _Section) -> SceneConfig:
         floor_z_range_m=_range(s, "floor_z_range_m", (0.2, 1.2)),
         object=s.string("object", "box", choices=("box", "person")),
     )
-    s.finish()
     return scene
 
 
-def parse_rig(data: Any, *, source: str = "<memory>") -> Rig:
-    """The Rig described by `data` (the YAML document as Python objects)."""
+def parse_rig(data: Any, *, source: str = "<memory>", base_dir: Path | None = None) -> Rig:
+    """The Rig described by `data` (the YAML document as Python objects).
+
+    A relative path in it (a v4l2 source or timestamps file) is taken relative
+    to `base_dir` (the rig file's directory); None keeps it as given.
+    """
     try:
-        return _parse_rig(data, source)
+        return _parse_rig(data, source, base_dir)
     except InputError as exc:
         raise InputError(f"{source}: {exc}") from None
 
 
-def _parse_rig(data: Any, source: str) -> Rig:
-    top = _Section(data, "")
+def _parse_rig(data: Any, source: str, base_dir: Path | None) -> Rig:
+    top = Section(data, "", TOP_KEYS)
     any_distance = top.boolean(v.ANY_DISTANCE_FLAG, False)
     name = top.raw("rig", required=True)
     if not isinstance(name, str):
@@ -399,7 +355,7 @@ def _parse_rig(data: Any, source: str) -> Rig:
     raw_cameras = top.raw("cameras", required=True)
     if not isinstance(raw_cameras, list) or not raw_cameras:
         raise InputError(f"cameras: expected a non-empty list, got {raw_cameras!r}")
-    cameras = tuple(_camera(_Section(c, f"cameras[{i}]")) for i, c in enumerate(raw_cameras))
+    cameras = tuple(_camera(c, f"cameras[{i}]", base_dir) for i, c in enumerate(raw_cameras))
     seen: dict[str, int] = {}
     for i, cam in enumerate(cameras):
         if cam.id in seen:
@@ -408,7 +364,7 @@ def _parse_rig(data: Any, source: str) -> Rig:
         seen[cam.id] = i
     stereo = None
     if top.raw("stereo", None) is not None:
-        st = top.section("stereo")
+        st = top.section("stereo", STEREO_KEYS)
         left, right = st.string("left"), st.string("right")
         for key, cid in (("left", left), ("right", right)):
             if cid not in seen:
@@ -421,18 +377,15 @@ def _parse_rig(data: Any, source: str) -> Rig:
         pair = Stereo(left=left, right=right, baseline_m=baseline_m,
                       sigma_m=st.number("sigma_m", 0.0, minimum=0.0), parallel=st.boolean("parallel", False))
         stereo = _stereo_pose(st, pair, cameras)
-        st.finish()
     pair_ids = None if stereo is None else (stereo.left, stereo.right)
     baselines = v.baselines(top.raw("baselines", []), "baselines", seen, pair_ids, strict=True,
                             any_distance=any_distance)
-    scene = _scene(top.section("scene", required=False))
-    sync = _sync(top.section("sync")) if top.data.get("sync") is not None else None
-    top.used.add("sync")
-    top.finish()
+    scene = _scene(top.section("scene", SCENE_KEYS, required=False))
+    sync = _sync(top.section("sync", SYNC_KEYS)) if top.raw("sync", None) is not None else None
     return Rig(name=name, cameras=cameras, stereo=stereo, scene=scene, source=source, sync=sync, baselines=baselines)
 
 
-def _stereo_pose(st: _Section, pair: Stereo, cameras: tuple[CameraEntry, ...]) -> Stereo:
+def _stereo_pose(st: Section, pair: Stereo, cameras: tuple[CameraEntry, ...]) -> Stereo:
     """The pair with its known pose (stereo.R, stereo.t), checked, when the rig file gives one."""
     R, t = st.rotation("R", None), st.vector("t", 3, None)
     if R is None and t is None:
@@ -470,4 +423,4 @@ def load_rig(path: str | Path) -> Rig:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
         raise InputError(f"{path}: not valid YAML: {exc}") from exc
-    return parse_rig(data, source=str(path))
+    return parse_rig(data, source=str(path), base_dir=path.parent)
