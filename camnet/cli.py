@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import os
 import sys
 
 from camnet import __version__
@@ -57,12 +58,30 @@ def _command(argv: list[str]) -> str | None:
     return next((word for word in argv if word in COMMANDS), None)
 
 
+def quiet_opencv() -> None:
+    """Keep OpenCV's own log lines (``[ WARN:0@0.062] global cap.cpp:212 ...``) out of camnet's output.
+
+    camnet says itself what fails, naming the camera. The environment
+    variables reach OpenCV (and the FFmpeg inside it, ``[mov,mp4,...] moov
+    atom not found``) when it is imported, here and in the child nodes
+    (`camnet up`); an OPENCV_LOG_LEVEL the user set is kept.
+    """
+    if "OPENCV_LOG_LEVEL" in os.environ:
+        return
+    os.environ["OPENCV_LOG_LEVEL"] = "SILENT"
+    os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # AV_LOG_QUIET
+    if "cv2" in sys.modules:  # imported already (camnet called from Python): tell it directly
+        cv2 = sys.modules["cv2"]
+        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     parser = build_parser(only=_command(argv) or "")
     args = parser.parse_args(argv)
     level = logging.WARNING - 10 * min(args.verbose, 2)
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    quiet_opencv()
     try:
         return int(args.run(args) or 0)
     except CamnetError as exc:

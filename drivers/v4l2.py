@@ -48,6 +48,22 @@ def create(entry: CameraEntry, rig: Rig) -> V4l2Camera:
     return V4l2Camera(entry.id, entry.config)
 
 
+def source_problem(camera_id: str, config: V4l2Config) -> str | None:
+    """What makes `config.source` unusable before anything opens it (an absent device or file, a glob
+    matching nothing), in one line naming the camera and what to do; None when it may be opened."""
+    source = config.source
+    if is_image_pattern(source):
+        if not glob.glob(source):
+            return f"camera {camera_id!r}: no image matches {source!r} (paths are relative to the rig file)"
+    elif source.isdigit() or source.startswith("/dev/"):
+        device = f"/dev/video{source}" if source.isdigit() else source
+        if not Path(device).exists():
+            return f"camera {camera_id!r}: no device {device} on this host (camnet cameras lists the devices found)"
+    elif not Path(source).is_file():
+        return f"camera {camera_id!r}: no file {source!r} (paths are relative to the rig file)"
+    return None
+
+
 def parse_timestamps(text: str, *, source: str) -> np.ndarray:
     """Capture times (int64 ns since the Unix epoch, read as UTC) of a KITTI timestamps file, by line.
 

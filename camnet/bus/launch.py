@@ -23,18 +23,28 @@ from camnet.errors import CamnetError
 log = logging.getLogger(__name__)
 
 
+STARTUP_S = 5.0  # a node that fails this soon after its start is failing to start, as its siblings may be
+
+
 @dataclass
 class Child:
     name: str
     argv: list[str]
     log_path: Path
     process: subprocess.Popen
+    started_mono_s: float = 0.0
 
     def log_tail(self, lines: int = 15) -> str:
         try:
             return "\n".join(self.log_path.read_text(errors="replace").splitlines()[-lines:])
         except OSError:
             return ""
+
+    def why(self) -> str:
+        """One line: how it ended, and its own error line (`camnet ...: error: ...`) when it printed one."""
+        ended = f"{self.name} exited with status {self.process.returncode}"
+        errors = [line for line in self.log_tail(40).splitlines() if line.startswith("camnet ") and ": error: " in line]
+        return f"{ended}: {errors[-1].split(': error: ', 1)[1]}" if errors else ended
 
 
 def bus_flags(options: BusOptions) -> list[str]:
@@ -75,7 +85,7 @@ class Launch:
         with open(log_path, "ab") as out:
             process = subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                                        start_new_session=True)
-        child = Child(name, argv, log_path, process)
+        child = Child(name, argv, log_path, process, time.monotonic())
         self.children.append(child)
         log.info("started %s (pid %d): %s", name, process.pid, " ".join(command))
         return child
@@ -85,10 +95,27 @@ class Launch:
         return [c for c in self.children if c.process.poll() is not None]
 
     def check(self) -> None:
-        """Raise CamnetError, with the end of its log, if a child has ended."""
-        for child in self.exited():
-            raise CamnetError(f"node {child.name} exited with status {child.process.returncode}; "
-                              f"the end of {child.log_path}:\n{child.log_tail()}")
+        """Raise CamnetError naming every child that has ended, with its error line.
+
+        When one fails at start, its siblings still starting (cameras of one
+        rig often fail together: unplugged, wrong ids) are given until
+        `STARTUP_S` after their start, so that all of them are named at once.
+        """
+        exited = self.exited()
+        if not exited:
+            return
+        if any(c.process.returncode != 0 for c in exited):
+            starting = [c for c in self.children if c not in exited]
+            deadline = max((c.started_mono_s + STARTUP_S for c in starting), default=0.0)
+            while time.monotonic() < deadline and any(c.process.poll() is None for c in starting):
+                time.sleep(0.1)
+            exited = self.exited()
+        if len(exited) == 1:
+            child = exited[0]
+            raise CamnetError(f"node {child.why()}; the end of {child.log_path}:\n{child.log_tail()}")
+        lines = [f"{len(exited)} of {len(self.children)} nodes exited:", *(f"  {c.why()}" for c in exited),
+                 f"their logs are in {self.log_dir}"]
+        raise CamnetError("\n".join(lines))
 
     def stop(self, child: Child, *, kill: bool = False) -> int:
         """Stop one child (SIGKILL at once with `kill`); its exit status."""

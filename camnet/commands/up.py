@@ -65,6 +65,8 @@ def _checked_rig(args: argparse.Namespace):
         if entry.driver is None and not args.replay:
             raise InputError(f"{rig_path}: cameras[{i}] ({entry.id}) has no driver; camnet up runs one per camera "
                              "(a rig of image files is for camnet match)")
+    if not args.replay:
+        _check_sources(rig_path, rig)
     if not args.duration_s > 0:
         raise InputError(f"--duration-s: must be positive, got {args.duration_s}")
     if args.record and Path(args.record).exists() and not Path(args.record).is_dir():
@@ -75,6 +77,24 @@ def _checked_rig(args: argparse.Namespace):
         raise InputError("--record: a replay is recorded already; give --replay or --record, not both")
     sinks_from_args(args)  # refuse a bad --rerun here, before anything is written or started
     return rig_path, rig
+
+
+def _check_sources(rig_path: Path, rig) -> None:
+    """Refuse, naming every one of them at once, the cameras whose source is absent (v4l2 devices, files)."""
+    from camnet.errors import InputError
+
+    problems = []
+    for entry in rig.cameras:
+        if entry.driver == "v4l2":
+            from camnet.drivers.v4l2 import source_problem
+
+            problems.append(source_problem(entry.id, entry.config))
+    problems = [p for p in problems if p is not None]
+    if len(problems) == 1:
+        raise InputError(f"{rig_path}: {problems[0]}")
+    if problems:
+        raise InputError("\n".join([f"{rig_path}: {len(problems)} of {len(rig.cameras)} cameras cannot start:",
+                                    *(f"  {p}" for p in problems)]))
 
 
 class LatestCalibration:

@@ -1,0 +1,70 @@
+"""A rig of the operator's own cameras under `camnet up`: every failing camera named at once, no OpenCV noise.
+
+Cameras that cannot start are named all together, whether camnet sees it
+before starting anything (an absent device, file or image) or a driver finds
+it out (a file OpenCV cannot read); OpenCV's own log lines
+(``[ WARN:0@0.062] global cap.cpp:212 ...``) never reach camnet's output or
+the nodes' logs.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import yaml
+
+OPENCV_LOG_MARKS = ("[ WARN:", "[ERROR:", "global cap", "moov atom")  # OpenCV's and its FFmpeg's
+
+
+def v4l2_rig(directory: Path, sources: dict[str, str]) -> Path:
+    ids = list(sources)
+    doc = {"rig": "own", "stereo": {"left": ids[0], "right": ids[1], "baseline_m": 0.12},
+           "cameras": [{"id": cid, "driver": "v4l2", "v4l2": {"source": src, "fps": 5, "loop": True}}
+                       for cid, src in sources.items()]}
+    path = directory / "rig.yaml"
+    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    return path
+
+
+def camnet(*args: str, cwd: Path, timeout_s: float = 120.0) -> subprocess.CompletedProcess:
+    env = {k: v for k, v in os.environ.items() if k not in ("OPENCV_LOG_LEVEL", "OPENCV_FFMPEG_LOGLEVEL")}
+    return subprocess.run([sys.executable, "-m", "camnet", *args], cwd=cwd, capture_output=True, text=True,
+                          timeout=timeout_s, env=env)
+
+
+def test_up_names_every_absent_camera_before_starting_anything(tmp_path):
+    rig = v4l2_rig(tmp_path, {"usb": "/dev/video63", "clip": "clips/missing.mp4", "stills": "img/*.png"})
+    proc = camnet("up", str(rig), "--duration-s", "5", "--run-dir", str(tmp_path / "run"), cwd=tmp_path)
+    lines = proc.stderr.strip().splitlines()
+    assert proc.returncode == 2, proc.stderr
+    assert lines[0] == f"camnet up: error: {rig}: 3 of 3 cameras cannot start:", proc.stderr
+    assert "camera 'usb': no device /dev/video63" in lines[1]
+    assert f"camera 'clip': no file '{tmp_path / 'clips' / 'missing.mp4'}'" in lines[2]
+    assert f"camera 'stills': no image matches '{tmp_path / 'img' / '*.png'}'" in lines[3]
+    assert len(lines) == 4 and proc.stdout == "" and not (tmp_path / "run").exists()
+
+
+def test_up_names_every_camera_its_drivers_could_not_open_and_keeps_opencv_quiet(tmp_path):
+    for name in ("a.mp4", "b.mp4"):
+        (tmp_path / name).write_bytes(b"not a video at all" * 100)
+    (tmp_path / "frames").mkdir()
+    import cv2
+    import numpy as np
+
+    cv2.imwrite(str(tmp_path / "frames" / "0.png"), np.zeros((48, 64), np.uint8))
+    rig = v4l2_rig(tmp_path, {"a": "a.mp4", "b": "b.mp4", "good": "frames/*.png"})
+    elsewhere = tmp_path / "elsewhere"  # the rig's paths are relative to the rig file
+    elsewhere.mkdir()
+    proc = camnet("up", str(rig), "--duration-s", "60", "--run-dir", str(tmp_path / "run"), cwd=elsewhere)
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    error = proc.stderr[proc.stderr.index("camnet up: error:"):]
+    assert error.startswith("camnet up: error: 2 of "), proc.stderr
+    assert f"driver-a exited with status 2: camera 'a': cannot open '{tmp_path / 'a.mp4'}'" in error
+    assert f"driver-b exited with status 2: camera 'b': cannot open '{tmp_path / 'b.mp4'}'" in error
+    assert "driver-good" not in error
+    logs = "".join(p.read_text() for p in (tmp_path / "run" / "logs").glob("*.log"))
+    for mark in OPENCV_LOG_MARKS:
+        assert mark not in proc.stdout + proc.stderr + logs, (mark, proc.stderr, logs)
