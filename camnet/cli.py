@@ -14,6 +14,8 @@ from camnet.errors import CamnetError
 # name -> module in camnet.commands; order is the order shown in --help.
 COMMANDS = {
     "up": "Run the whole network (drivers, matcher, calibrator) on this machine; default: the simulated rig.",
+    "cameras": "List the cameras this host sees (V4L2, GenICam) with their modes; --preview streams them.",
+    "init": "Write a rig file of the cameras found: the stereo pair and its baseline.",
     "match": "Match one synchronised image per camera into an observations file.",
     "calibrate": "Solve a calibration offline from an observations file.",
     "simulate": "Write the observations of a simulated rig (and its ground truth).",

@@ -34,7 +34,7 @@ import gi
 import numpy as np
 
 gi.require_version("Aravis", "0.8")
-from camnet.drivers.base import DeviceError, DeviceInfo, ReadTimeout  # noqa: E402
+from camnet.drivers.base import DeviceError, DeviceInfo, FoundCamera, ReadTimeout  # noqa: E402
 from gi.repository import Aravis, GLib  # noqa: E402  (require_version must come first)
 
 from camnet.bus.frame import Frame  # noqa: E402
@@ -63,6 +63,49 @@ _FRAME_ID_MODULO = 1 << 16  # GigE Vision 1.x block ids are 16-bit
 
 def create(entry: CameraEntry, rig: Rig) -> AravisCamera:
     return AravisCamera(entry.id, entry.config)
+
+
+FAKE_INTERFACE = "Fake"  # Aravis's in-process Fake camera (device id Fake_1)
+
+
+def discover(*, fake: bool = False) -> list[FoundCamera]:
+    """The cameras Aravis finds (GigE Vision on every interface, USB3 Vision), each with its modes.
+
+    `fake` also enables Aravis's in-process Fake camera. A camera that cannot
+    be opened (held by another program, on another subnet) is listed with why.
+    """
+    if fake:
+        Aravis.enable_interface(FAKE_INTERFACE)
+    Aravis.update_device_list()
+    found = []
+    for i in range(Aravis.get_n_devices()):
+        device_id = Aravis.get_device_id(i)
+        address = Aravis.get_device_address(i)
+        description = (f"{Aravis.get_device_vendor(i)} {Aravis.get_device_model(i)} "
+                       f"(serial {Aravis.get_device_serial_nbr(i)}, {Aravis.get_device_protocol(i)}"
+                       f"{', ' + address if address and address != '0.0.0.0' else ''})")
+        is_fake = Aravis.get_device_protocol(i) == FAKE_INTERFACE
+        try:
+            modes, formats = _modes(Aravis.Camera.new(device_id))
+        except GLib.Error as exc:
+            found.append(FoundCamera("aravis", device_id, description, problem=f"cannot open: {exc.message}",
+                                     fake=is_fake))
+            continue
+        found.append(FoundCamera("aravis", device_id, description, modes=modes, pixel_formats=formats, fake=is_fake))
+    return found
+
+
+def _modes(camera) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """(mode lines, GenICam pixel format names) of an open camera, which is released on return."""
+    formats = tuple(camera.dup_available_pixel_formats_as_strings() or ())
+    _, _, width, height = camera.get_region()
+    widths, heights = camera.get_width_bounds(), camera.get_height_bounds()
+    lines = [f"pixel formats: {', '.join(formats) or '?'}",
+             f"size: {width}x{height} now, {widths.min}x{heights.min} to {widths.max}x{heights.max}"]
+    if camera.is_frame_rate_available():
+        rates = camera.get_frame_rate_bounds()
+        lines.append(f"frame rate: {camera.get_frame_rate():g} fps now, {rates.min:g} to {rates.max:g} fps")
+    return tuple(lines), formats
 
 
 def _release_in_order(held: list) -> None:

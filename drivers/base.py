@@ -23,7 +23,7 @@ from camnet.io.rig import DRIVERS, CameraEntry, Rig
 DRIVER_MODULES = {name: f"camnet.drivers.{name}" for name in DRIVERS}
 
 # What to install when a driver's module cannot be imported.
-_INSTALL_HINTS = {
+INSTALL_HINTS = {
     "aravis": "install the Aravis typelib (Debian: gir1.2-aravis-0.8) and PyGObject<3.51 "
               "(pip install 'camnet[aravis]')",
 }
@@ -54,6 +54,31 @@ class DeviceInfo:
     description: str = ""
 
 
+@dataclass(frozen=True)
+class FoundCamera:
+    """A camera found on this host (`camnet cameras`), with what its driver reports of its modes.
+
+    `device` is what a rig file names it by (a v4l2 `source`, an Aravis
+    `device_id`); `modes` are lines such as ``MJPG 1920x1080 at 30, 15 fps``;
+    `pixel_formats` are the camera's own names (GenICam, V4L2 fourcc); `problem`
+    says why the camera could not be asked (then `modes` may be empty).
+    """
+
+    driver: str
+    device: str
+    description: str
+    modes: tuple[str, ...] = ()
+    pixel_formats: tuple[str, ...] = ()
+    problem: str | None = None
+    fake: bool = False  # Aravis's in-process Fake camera
+
+    @property
+    def suggested_id(self) -> str:
+        """A camera id for a rig file: the device's name without what ids may not hold."""
+        name = self.device.removeprefix("/dev/")
+        return "".join("_" if ch in "/*$?# " else ch for ch in name)
+
+
 @runtime_checkable
 class Camera(Protocol):
     camera_id: str
@@ -81,7 +106,7 @@ def create_camera(entry: CameraEntry, rig: Rig) -> Camera:
     try:
         module = importlib.import_module(module_name)
     except ImportError as exc:
-        hint = _INSTALL_HINTS.get(entry.driver, "check the installation")
+        hint = INSTALL_HINTS.get(entry.driver, "check the installation")
         raise DeviceError(f"camera {entry.id!r}: the {entry.driver} driver is unavailable "
                           f"({exc}); {hint}") from exc
     return module.create(entry, rig)
