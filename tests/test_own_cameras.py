@@ -68,3 +68,21 @@ def test_up_names_every_camera_its_drivers_could_not_open_and_keeps_opencv_quiet
     logs = "".join(p.read_text() for p in (tmp_path / "run" / "logs").glob("*.log"))
     for mark in OPENCV_LOG_MARKS:
         assert mark not in proc.stdout + proc.stderr + logs, (mark, proc.stderr, logs)
+
+
+def test_the_v4l2_example_runs_as_given_from_anywhere(tmp_path):
+    """config/v4l2-example.yaml with no camera: its image sequences, found relative to the rig file."""
+    from tests._groundtruth import KITTI_ROOT, require
+
+    require(KITTI_ROOT)
+    rig = Path(__file__).resolve().parents[1] / "config" / "v4l2-example.yaml"
+    run_dir = tmp_path / "run"
+    # Measured: the first calibration 20 s after the start on a busy 2-core machine.
+    proc = camnet("up", str(rig), "--duration-s", "45", "--run-dir", str(run_dir), cwd=tmp_path, timeout_s=240.0)
+    logs = "\n".join(p.read_text()[-1500:] for p in (run_dir / "logs").glob("*.log"))
+    assert proc.returncode == 0, proc.stdout + proc.stderr + logs
+    assert "final calibration:\n3 cameras" in proc.stdout
+    for camera_id in ("left", "right", "colour"):
+        assert f"\n{camera_id} " in proc.stdout
+    for mark in OPENCV_LOG_MARKS:
+        assert mark not in proc.stdout + proc.stderr + logs
