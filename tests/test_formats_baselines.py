@@ -128,7 +128,8 @@ def test_a_rig_file_names_its_distances_as_the_observations_do():
         (lambda d: d["baselines"][1].update(cameras=["a", "x"]), "rig.yaml: baselines[1].cameras: unknown camera 'x'"),
         (lambda d: d["baselines"][1].update(cameras=["b", "a"]), "rig.yaml: baselines[1].cameras: the distance of "
                                                                  "'b' and 'a' is already given by stereo.baseline_m"),
-        (lambda d: d["baselines"][0].update(sigma=0.1), "rig.yaml: baselines[0].sigma: unknown key (known: "),
+        (lambda d: d["baselines"][0].update(sigma=0.1),
+         "rig.yaml: unknown key 'sigma' in baselines[0] (did you mean 'sigma_m'?)"),
         (lambda d: d["baselines"][0].update(baseline_m=-1), "rig.yaml: baselines[0].baseline_m: must be positive"),
         (lambda d: d["stereo"].update(sigma_m=-1), "rig.yaml: stereo.sigma_m: must be at least 0"),
         (lambda d: d.update(baselines={"c": "d"}), "rig.yaml: baselines: expected a list"),

@@ -86,3 +86,14 @@ def test_the_v4l2_example_runs_as_given_from_anywhere(tmp_path):
         assert f"\n{camera_id} " in proc.stdout
     for mark in OPENCV_LOG_MARKS:
         assert mark not in proc.stdout + proc.stderr + logs
+
+
+def test_up_names_a_misspelt_key_in_one_line(tmp_path):
+    rig = v4l2_rig(tmp_path, {"a": "/dev/video0", "b": "/dev/video1"})
+    doc = yaml.safe_load(rig.read_text())
+    doc["stereo"]["baseline"] = doc["stereo"].pop("baseline_m")
+    rig.write_text(yaml.safe_dump(doc))
+    proc = camnet("up", str(rig), "--run-dir", str(tmp_path / "run"), cwd=tmp_path)
+    assert proc.returncode == 2 and proc.stdout == ""
+    assert proc.stderr == f"camnet up: error: {rig}: unknown key 'baseline' in stereo (did you mean 'baseline_m'?)\n"
+    assert not (tmp_path / "run").exists()

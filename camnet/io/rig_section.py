@@ -9,7 +9,6 @@ behind the "missing" of the key it was meant to be.
 
 from __future__ import annotations
 
-import difflib
 import glob
 from pathlib import Path
 from typing import Any
@@ -19,13 +18,6 @@ import numpy as np
 from camnet.errors import InputError
 from camnet.geometry.model import LensModel
 from camnet.io import validate as v
-
-
-def unknown_key_error(key: Any, where: str, known: tuple[str, ...]) -> InputError:
-    """The error for `key` in the mapping at `where` (its path; "" for the whole file) of `known` keys."""
-    close = difflib.get_close_matches(str(key), known, n=1, cutoff=0.6)
-    hint = f"did you mean {close[0]!r}?" if close else f"known: {', '.join(known)}"
-    return InputError(f"unknown key {key!r} in {where or 'the rig file'} ({hint})")
 
 
 class Section:
@@ -41,7 +33,7 @@ class Section:
             raise InputError(f"{path or 'rig file'}: expected a mapping, got {v.kind(data)}")
         for key in data:
             if key not in known:
-                raise unknown_key_error(key, path, known)
+                raise v.unknown_key_error(key, path, known)
         self.data = data
         self.path = path
         self.known = known

@@ -7,6 +7,7 @@ calibration codecs, the rig file and the report.
 
 from __future__ import annotations
 
+import difflib
 import json
 import math
 from collections.abc import Collection
@@ -49,6 +50,14 @@ def decode_json(data: bytes | str, source: str) -> Any:
 def fail(path: str, message: str) -> InputError:
     """The error for the field at `path` (the document itself when empty)."""
     return InputError(f"{path or 'document'}: {message}")
+
+
+def unknown_key_error(key: Any, where: str, known: Collection[str]) -> InputError:
+    """The error for `key` in the mapping at `where` (its path; "" for the whole file) of `known` keys,
+    naming the known key it most resembles: ``unknown key 'baseline' in stereo (did you mean 'baseline_m'?)``."""
+    close = difflib.get_close_matches(str(key), list(known), n=1, cutoff=0.6)
+    hint = f"did you mean {close[0]!r}?" if close else f"known: {', '.join(known)}"
+    return InputError(f"unknown key {key!r} in {where or 'the rig file'} ({hint})")
 
 
 def show(value: Any) -> str:
@@ -281,7 +290,7 @@ def baselines(
         mapping(entry, here)
         unknown = sorted(set(entry) - set(BASELINE_KEYS), key=str) if strict else []
         if unknown:
-            raise fail(f"{here}.{unknown[0]}", f"unknown key (known: {', '.join(BASELINE_KEYS)})")
+            raise unknown_key_error(unknown[0], here, BASELINE_KEYS)
         cameras = require(entry, "cameras", here)
         if not isinstance(cameras, list) or len(cameras) != 2:
             raise fail(f"{here}.cameras", f"expected [a, b], two camera ids, got {show(cameras)}")
