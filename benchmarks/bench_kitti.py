@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import os
 import socket
 import sys
 import tempfile
@@ -62,7 +61,6 @@ def scenario_row(name: str, result: VsPublished, solve_s: float) -> str:
 
 def live_rows(kitti: KittiExtract, max_tracks: int) -> tuple[list[str], str]:
     """The live network on config/kitti.yaml: its camera rows and scenario row (time: until the calibration)."""
-    os.chdir(ROOT)  # the rig file's paths are relative to the project root
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         endpoint = f"tcp/127.0.0.1:{s.getsockname()[1]}"
