@@ -10,6 +10,7 @@ the nodes' logs.
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -30,9 +31,26 @@ def v4l2_rig(directory: Path, sources: dict[str, str]) -> Path:
 
 
 def camnet(*args: str, cwd: Path, timeout_s: float = 120.0) -> subprocess.CompletedProcess:
+    """Run camnet to its end; past `timeout_s` it is stopped as Ctrl-C would (so that `camnet up` stops its
+    nodes), then killed, and the test fails."""
     env = {k: v for k, v in os.environ.items() if k not in ("OPENCV_LOG_LEVEL", "OPENCV_FFMPEG_LOGLEVEL")}
-    return subprocess.run([sys.executable, "-m", "camnet", *args], cwd=cwd, capture_output=True, text=True,
-                          timeout=timeout_s, env=env)
+    proc = subprocess.Popen([sys.executable, "-m", "camnet", *args], cwd=cwd, env=env, text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        stdout, stderr = proc.communicate(timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        proc.send_signal(signal.SIGINT)
+        try:
+            stdout, stderr = proc.communicate(timeout=30)
+        finally:
+            proc.kill()
+            proc.wait()
+        raise AssertionError(f"camnet {' '.join(args)} ran past {timeout_s} s:\n{stdout}\n{stderr}") from None
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    return subprocess.CompletedProcess(proc.args, proc.returncode, stdout, stderr)
 
 
 def test_up_names_every_absent_camera_before_starting_anything(tmp_path):
