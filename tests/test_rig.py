@@ -154,6 +154,9 @@ def test_a_stereo_pair_is_a_parallel_head_only_when_the_rig_says_so():
      "rig.yaml: unknown key 'sorce' in cameras[2].v4l2 (did you mean 'source'?)"),
     (lambda d: d["cameras"][0].update(drivr="sim"),
      "rig.yaml: unknown key 'drivr' in cameras[0] (did you mean 'driver'?)"),
+    # The typo is named, not the section it leaves unknown.
+    (lambda d: d["cameras"][1].update(sim=d["cameras"][1].pop("sim"), drivr=d["cameras"][1].pop("driver")),
+     "rig.yaml: unknown key 'drivr' in cameras[1] (did you mean 'driver'?)"),
     (lambda d: d["cameras"][0].update(v4l2={}), "rig.yaml: unknown key 'v4l2' in cameras[0] (known: id, driver, "
                                                 "model, intrinsics, sim)"),
 ])

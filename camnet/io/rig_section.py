@@ -9,6 +9,7 @@ behind the "missing" of the key it was meant to be.
 
 from __future__ import annotations
 
+import difflib
 import glob
 from pathlib import Path
 from typing import Any
@@ -31,9 +32,10 @@ class Section:
     def __init__(self, data: Any, path: str, known: tuple[str, ...], *, base_dir: Path | None = None) -> None:
         if not isinstance(data, dict):
             raise InputError(f"{path or 'rig file'}: expected a mapping, got {v.kind(data)}")
-        for key in data:
-            if key not in known:
-                raise v.unknown_key_error(key, path, known)
+        unknown = [key for key in data if key not in known]
+        if unknown:  # a typo first: the stray key most like a known one
+            typos = [k for k in unknown if difflib.get_close_matches(str(k), known, n=1, cutoff=v.TYPO_CUTOFF)]
+            raise v.unknown_key_error((typos or unknown)[0], path, known)
         self.data = data
         self.path = path
         self.known = known

@@ -52,10 +52,13 @@ def fail(path: str, message: str) -> InputError:
     return InputError(f"{path or 'document'}: {message}")
 
 
+TYPO_CUTOFF = 0.6  # difflib's similarity from which an unknown key is taken for a typo of a known one
+
+
 def unknown_key_error(key: Any, where: str, known: Collection[str]) -> InputError:
     """The error for `key` in the mapping at `where` (its path; "" for the whole file) of `known` keys,
     naming the known key it most resembles: ``unknown key 'baseline' in stereo (did you mean 'baseline_m'?)``."""
-    close = difflib.get_close_matches(str(key), list(known), n=1, cutoff=0.6)
+    close = difflib.get_close_matches(str(key), list(known), n=1, cutoff=TYPO_CUTOFF)
     hint = f"did you mean {close[0]!r}?" if close else f"known: {', '.join(known)}"
     return InputError(f"unknown key {key!r} in {where or 'the rig file'} ({hint})")
 
