@@ -7,8 +7,10 @@ device is present on a CI machine, which the listing must say cleanly.
 
 from __future__ import annotations
 
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -61,6 +63,32 @@ def test_preview_streams_the_cameras_to_rerun_and_stops_after_its_duration(emula
     assert len(shown) == 1, proc.stdout
     images = read_rrd(rrd)[f"/world/cameras/{EMULATED}/image"]["EncodedImage:blob"]
     assert len(images) >= 2 and len(images) == int(shown[0].split()[2])
+
+
+@needs_aravis
+def test_preview_stops_at_ctrl_c(emulator, tmp_path):  # noqa: F811
+    rrd = tmp_path / "preview.rrd"
+    proc = subprocess.Popen([sys.executable, "-m", "camnet", "cameras", "--preview", "--duration-s", "600",
+                             "--rerun", f"save={rrd}"], cwd=tmp_path, text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        lines = []
+        while not any(line.startswith("preview: Rerun recording") for line in lines):
+            line = proc.stdout.readline()
+            assert line, f"camnet cameras ended early: {proc.wait(timeout=30)}; {proc.stderr.read()}"
+            lines.append(line)
+        time.sleep(3.0)  # a few images
+        started_s = time.monotonic()
+        proc.send_signal(signal.SIGINT)
+        stdout, stderr = proc.communicate(timeout=60)
+        assert proc.returncode == 0, stderr
+        assert time.monotonic() - started_s < 20.0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert f"preview: {EMULATED}: " in stdout
+    assert len(read_rrd(rrd)[f"/world/cameras/{EMULATED}/image"]["EncodedImage:blob"]) >= 1
 
 
 @needs_aravis
