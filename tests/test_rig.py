@@ -94,6 +94,7 @@ def test_errors_name_the_field():
     refused(lambda d: d["cameras"][0]["sim"].update(fx=3),
             r"unknown key 'fx' in cameras\[0\]\.sim \(did you mean 'f_px'\?\)")
     refused(lambda d: d["cameras"][0].update(id="a/b"), r"cameras\[0\]\.id")
+    refused(lambda d: d["cameras"][0]["sim"].update(fx_px=3), r"cameras\[0\]\.sim\.fx_px: give f_px, or fx_px and")
     refused(lambda d: d.pop("cameras"), r"cameras: missing")
     refused(lambda d: d["cameras"][2]["v4l2"].update(fourcc="MJPEG"),
             r"cameras\[2\]\.v4l2\.fourcc")

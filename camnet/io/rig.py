@@ -158,6 +158,9 @@ TOP_KEYS = ("rig", "stereo", "baselines", "scene", "sync", "cameras", v.ANY_DIST
 
 def _sim(s: Section, model: LensModel = LensModel.PINHOLE) -> SimConfig:
     if "f_px" in s.data:
+        both = [key for key in ("fx_px", "fy_px") if key in s.data]
+        if both:
+            raise InputError(f"{s.field(both[0])}: give f_px, or fx_px and fy_px, not both")
         fx = fy = s.number("f_px", positive=True)
     else:
         fx, fy = s.number("fx_px", positive=True), s.number("fy_px", positive=True)
