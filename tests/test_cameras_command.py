@@ -138,6 +138,18 @@ def test_init_with_one_camera_says_a_rig_needs_two_and_writes_nothing(emulator, 
     assert not (tmp_path / "rig.yaml").exists()
 
 
+@pytest.mark.parametrize(("flags", "message"), [
+    (["--duration-s", "5"], "--duration-s: only with --preview"),
+    (["--rerun", "spawn"], "--rerun: only with --preview"),
+    (["--preview", "--duration-s", "0"], "--duration-s: must be positive, got 0.0"),
+    (["--preview", "--rerun", "bogus"], "--rerun"),
+])
+def test_cameras_refuses_bad_flags_in_one_line_before_looking(tmp_path, flags, message):
+    proc = camnet("cameras", *flags, cwd=tmp_path)
+    assert proc.returncode == 2 and proc.stdout == "", proc.stdout
+    assert proc.stderr.count("\n") == 1 and proc.stderr.startswith(f"camnet cameras: error: {message}"), proc.stderr
+
+
 def test_init_refuses_a_bare_baseline_before_looking_for_cameras(tmp_path):
     proc = camnet("init", "--pair", "a", "b", "--baseline", "120", cwd=tmp_path)
     assert proc.returncode == 2 and proc.stdout == ""

@@ -12,6 +12,7 @@ import argparse
 import sys
 from dataclasses import dataclass
 
+PREVIEW_S = 60.0  # how long a preview runs unless told
 PREVIEW_HZ = 5.0  # images per camera sent to Rerun: enough to frame, cheap to encode
 GENICAM_FORMATS = ("Mono8", "BayerRG8", "BayerGR8", "BayerGB8", "BayerBG8", "RGB8", "BGR8", "Mono16")
 
@@ -23,8 +24,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--preview", action="store_true",
                         help="stream the cameras found to Rerun, for framing and overlap "
                              "(default sink: spawn a viewer)")
-    parser.add_argument("--duration-s", type=float, default=60.0,
-                        help="with --preview: stop after this many seconds (default 60; Ctrl-C stops sooner)")
+    parser.add_argument("--duration-s", type=float,
+                        help=f"with --preview: stop after this many seconds (default {PREVIEW_S:g}; "
+                             "Ctrl-C stops sooner)")
     add_rerun_arguments(parser)
 
 
@@ -101,11 +103,13 @@ def run(args: argparse.Namespace) -> int:
     from camnet.errors import InputError
     from camnet.viz_sinks import parse_sink, sinks_from_args
 
-    if args.preview and not args.duration_s > 0:
-        raise InputError(f"--duration-s: must be positive, got {args.duration_s}")
+    for flag, given in (("--duration-s", args.duration_s is not None), ("--rerun", bool(args.rerun))):
+        if given and not args.preview:
+            raise InputError(f"{flag}: only with --preview")
+    duration_s = PREVIEW_S if args.duration_s is None else args.duration_s
+    if not duration_s > 0:
+        raise InputError(f"--duration-s: must be positive, got {duration_s}")
     sinks = sinks_from_args(args)
-    if args.rerun and not args.preview:
-        raise InputError("--rerun: only with --preview")
     found = discover(aravis_fake=args.aravis_fake)
     print(listing(found), flush=True)
     if not args.preview:
@@ -115,8 +119,9 @@ def run(args: argparse.Namespace) -> int:
         return 0
     usable = [c for c in found.cameras if c.problem is None]
     if not usable:
-        raise InputError("--preview: no camera to preview")
-    return preview(usable, sinks or (parse_sink("spawn"),), duration_s=args.duration_s)
+        raise InputError("--preview: no camera to preview; check that each is powered and connected, and for "
+                         "GigE that it is on this host's subnet")
+    return preview(usable, sinks or (parse_sink("spawn"),), duration_s=duration_s)
 
 
 def preview(cameras, sinks, *, duration_s: float) -> int:
