@@ -17,6 +17,8 @@ from pathlib import Path
 
 import yaml
 
+from tests.conftest import free_port
+
 OPENCV_LOG_MARKS = ("[ WARN:", "[ERROR:", "global cap", "moov atom")  # OpenCV's and its FFmpeg's
 
 
@@ -28,6 +30,11 @@ def v4l2_rig(directory: Path, sources: dict[str, str]) -> Path:
     path = directory / "rig.yaml"
     path.write_text(yaml.safe_dump(doc, sort_keys=False))
     return path
+
+
+def own_bus() -> tuple[str, str]:
+    """`camnet up`'s nodes meet on a loopback port of their own, not on the default rendezvous."""
+    return "--listen", f"tcp/127.0.0.1:{free_port()}"
 
 
 def camnet(*args: str, cwd: Path, timeout_s: float = 120.0) -> subprocess.CompletedProcess:
@@ -76,7 +83,7 @@ def test_up_names_every_camera_its_drivers_could_not_open_and_keeps_opencv_quiet
     rig = v4l2_rig(tmp_path, {"a": "a.mp4", "b": "b.mp4", "good": "frames/*.png"})
     elsewhere = tmp_path / "elsewhere"  # the rig's paths are relative to the rig file
     elsewhere.mkdir()
-    proc = camnet("up", str(rig), "--duration-s", "60", "--run-dir", str(tmp_path / "run"), cwd=elsewhere)
+    proc = camnet("up", str(rig), "--duration-s", "60", "--run-dir", str(tmp_path / "run"), *own_bus(), cwd=elsewhere)
     assert proc.returncode == 2, proc.stdout + proc.stderr
     error = proc.stderr[proc.stderr.index("camnet up: error:"):]
     assert error.startswith("camnet up: error: 2 of "), proc.stderr
@@ -96,7 +103,8 @@ def test_the_v4l2_example_runs_as_given_from_anywhere(tmp_path):
     rig = Path(__file__).resolve().parents[1] / "config" / "v4l2-example.yaml"
     run_dir = tmp_path / "run"
     # Measured: the first calibration 20 s after the start on a busy 2-core machine.
-    proc = camnet("up", str(rig), "--duration-s", "45", "--run-dir", str(run_dir), cwd=tmp_path, timeout_s=240.0)
+    proc = camnet("up", str(rig), "--duration-s", "45", "--run-dir", str(run_dir), *own_bus(), cwd=tmp_path,
+                  timeout_s=240.0)
     logs = "\n".join(p.read_text()[-1500:] for p in (run_dir / "logs").glob("*.log"))
     assert proc.returncode == 0, proc.stdout + proc.stderr + logs
     assert "final calibration:\n3 cameras" in proc.stdout
