@@ -48,6 +48,7 @@ NODE_KIND = "calibrator"
 # A larger one is dropped unread (one of 23 MB kept the node busy for a minute at 1.1 GB).
 MAX_MESSAGE_BYTES = 32 * 2**20
 SUBSAMPLE_SEED = 0  # a larger set is solved on MAX_TRACKS of its tracks, the same ones every time
+WARNING_PERIOD_S = 30.0  # a solve that is not kept is warned about at most this often per outcome, else logged
 
 
 @dataclass(frozen=True)
@@ -126,6 +127,7 @@ class CalibratorNode:
         self.latest_doc: bytes | None = None
         self._meter = RateMeter(window_s=30.0)
         self._lock = threading.Lock()
+        self._warned_s: dict[str, float] = {}  # outcome -> when it was last warned about
 
     # ------------------------------------------------------------ bus callbacks
 
@@ -203,8 +205,14 @@ class CalibratorNode:
                      len(cal.cameras), len(cal.points), cal.rms_reprojection_px,
                      100 * scale_sigma_rel(cal))
         else:
-            log.warning("solve %d: %s, the last good calibration stays: %s", self.tracker.solves,
-                        outcome.status, outcome.reason)
+            # A rig that keeps failing must not flood the console: its status line counts every one.
+            now_s = time.monotonic()
+            loud = now_s - self._warned_s.get(outcome.status, -WARNING_PERIOD_S) >= WARNING_PERIOD_S
+            if loud:
+                self._warned_s[outcome.status] = now_s
+            log.log(logging.WARNING if loud else logging.INFO, "solve %d: %s, the last good calibration stays: "
+                    "%s%s", self.tracker.solves, outcome.status, outcome.reason,
+                    f" (further ones within {WARNING_PERIOD_S:.0f} s are only counted)" if loud else "")
         if self.viewer is not None:
             self.viewer.solved(outcome, obs, doc)
         return outcome
@@ -250,7 +258,8 @@ class CalibratorNode:
                                                            congestion_control=zenoh.CongestionControl.BLOCK)
             ack_token = declare_liveliness(self.session, keys.lockstep_ack(rig, NODE_KIND))
         presence = Presence(self.session, rig=rig, kind=NODE_KIND, node_id=NODE_KIND, report=self._activity,
-                            tallies=(self.malformed, self.failures), period_s=self.config.stats_period_s)
+                            tallies=(self.malformed, self.failures), period_s=self.config.stats_period_s,
+                            counted="solves", dropped="observations superseded while solving")
         try:
             with stop_on_signals(self.stop), presence:
                 while not self.stop.is_set():

@@ -406,7 +406,8 @@ class Recorder:
         for key in (keys.groundtruth(cfg.rig), keys.calibration(cfg.rig)):
             self.session.get(key, guarded(self._on_reply, self.failures, "receiving a reply"), timeout=2.0)
         presence = Presence(self.session, rig=cfg.rig, kind=NODE_KIND, node_id=cfg.node_id, report=self._activity,
-                            tallies=(self.malformed, self.failures), period_s=cfg.stats_period_s)
+                            tallies=(self.malformed, self.failures), period_s=cfg.stats_period_s,
+                            status_period_s=None)  # camnet record prints its own progress
         log.info("recording %s/** to %s", prefix, cfg.path)
         error = None
         with stop_on_signals(self.stop), presence:

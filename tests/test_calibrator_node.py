@@ -107,3 +107,19 @@ def test_command_refuses_bad_flags_in_one_line(tmp_path):
         assert proc.returncode == 2, proc.stderr
         lines = proc.stderr.strip().splitlines()
         assert len(lines) == 1 and fragment in lines[0], proc.stderr
+
+
+def test_solves_that_are_not_kept_warn_once_a_period_not_each_time(caplog):
+    """A rig whose every solve is refused: measured before, one warning per solve."""
+    import logging
+
+    from camnet.geometry.live import LiveConfig
+
+    node = CalibratorNode(None, RIG, CalibratorConfig(live=LiveConfig(max_rms_px=1e-9)))
+    caplog.set_level(logging.INFO, logger="camnet.services.calibrator")
+    payload = observations_payload(seed=3, n_points=80)
+    outcomes = [node.handle(payload, publisher=None) for _ in range(3)]
+    assert [o.status for o in outcomes] == ["rejected"] * 3
+    kept_back = [r for r in caplog.records if "the last good calibration stays" in r.getMessage()]
+    assert [r.levelname for r in kept_back] == ["WARNING", "INFO", "INFO"]
+    assert node.tracker.counts["rejected"] == 3
