@@ -246,6 +246,18 @@ def watch_routers(session) -> None:
     session.info.declare_transport_events_listener(on_event, history=False)
 
 
+def close_session(session) -> None:
+    """Close `session`. A close that fails (Zenoh gives up after some 10 s on a slow or lossy link,
+    raising "close operation timed out") is logged, not raised: the work is done and the process
+    is leaving."""
+    import zenoh
+
+    try:
+        session.close()
+    except zenoh.ZError as exc:
+        log.warning("the Zenoh session did not close cleanly (%s); leaving anyway", exc)
+
+
 def declare_liveliness(session, key: str):
     """Declare a liveliness token at `key`; undeclare it (or close the session) to leave."""
     return session.liveliness().declare_token(key)
