@@ -214,7 +214,7 @@ class CalibratorNode:
                     "%s%s", self.tracker.solves, outcome.status, outcome.reason,
                     f" (further ones within {WARNING_PERIOD_S:.0f} s are only counted)" if loud else "")
         if self.viewer is not None:
-            self.viewer.solved(outcome, obs, doc)
+            self.viewer.solved(outcome, obs, doc, solve=self.tracker.solves)
         return outcome
 
     def _activity(self) -> Activity:
@@ -232,10 +232,15 @@ class CalibratorNode:
         if resumed is None:
             return
         self.tracker.good = resumed
+        doc = load_json(self.config.state_path)
+        # Solves are numbered on from the resumed one, so that a number names one calibration.
+        if isinstance(doc.get("solve"), int) and 0 <= doc["solve"] < 2**53:
+            self.tracker.solves = doc["solve"]
         # The persisted document as it was published, live metadata (solve, status, ...) included:
         # the calibration type keeps only what it models.
         with self._lock:
-            self.latest_doc = json.dumps(load_json(self.config.state_path), allow_nan=False).encode()
+            # Said so on the bus (not in the file): a listener tells it from a solve of this run.
+            self.latest_doc = json.dumps({**doc, "resumed": True}, allow_nan=False).encode()
         publisher.put(self.latest_doc)
         log.info("resumed from %s (%d cameras)", self.config.state_path, len(resumed.cameras))
 
@@ -300,7 +305,8 @@ class RerunView:
             with self._lock:
                 self._frames[frame.camera_id] = frame
 
-    def solved(self, outcome: Outcome, obs: Observations, doc: dict) -> None:
+    def solved(self, outcome: Outcome, obs: Observations, doc: dict, *, solve: int | None = None) -> None:
+        """Show one solve; `solve` is its number as the calibrator publishes it (`solve` of the calibration)."""
         from camnet import viz
 
         time_ns = int(doc.get("latest_capture_ns") or time.time_ns())
@@ -309,6 +315,8 @@ class RerunView:
         for frame in frames:
             viz.log_frame(self.rec, frame.camera_id, frame.image, time_ns=time_ns, encoding=frame.encoding)
         if outcome.status == "good":
-            viz.log_calibration(self.rec, outcome.calibration, time_ns=time_ns, observations=obs, truth=self.truth)
+            viz.log_calibration(self.rec, outcome.calibration, time_ns=time_ns, observations=obs, truth=self.truth,
+                                solve_index=solve)
         else:
-            viz.log_solve_failure(self.rec, f"{outcome.status}: {outcome.reason}", time_ns=time_ns)
+            viz.log_solve_failure(self.rec, f"{outcome.status}: {outcome.reason}", time_ns=time_ns,
+                                  solve_index=solve)
