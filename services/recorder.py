@@ -27,14 +27,14 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from camnet.services.recording_gaps import ByteBoundedQueue, GapWindow, QueueItem
+from camnet.services.recording_gaps import ByteBoundedQueue, GapTracker, QueueItem
 from mcap.writer import CompressionType, Writer
 
 from camnet import __version__
 from camnet.bus import keys
 from camnet.bus.frame import FrameError, FrameHeader
 from camnet.bus.node import Presence, Tally, guarded, stop_on_signals
-from camnet.bus.stats import Activity, NodeStats, RateMeter
+from camnet.bus.stats import Activity, RateMeter
 from camnet.errors import CamnetError, InputError
 from camnet.io import session_file as sf
 from camnet.io.validate import decode_json
@@ -190,12 +190,7 @@ class Recorder:
         self.failures = Tally(log)  # callbacks that raised, by what and exception type
         self._messages = 0
         self._sequence: dict[str, int] = {}
-        self._window = GapWindow()  # missing frames since the last report, and why
-        self._window_started = time.monotonic()
-        self._frame_keys: dict[str, str] = {}  # camera id -> its frame key
-        self._last_frame_ns: dict[str, int] = {}  # camera id -> receive time of its last frame written
-        self._driver_dropped: dict[str, int] = {}  # camera id -> its driver's last reported drop count
-        self._refused_reported = 0
+        self._gaps = GapTracker(stall_s=config.stall_s)  # missing frames since the last report, and why
         self._unwritten_at_stop = 0
         self._meter = RateMeter()
         self._started = time.monotonic()
@@ -237,7 +232,7 @@ class Recorder:
                 self._count_malformed("json", "not a JSON object", item.key)
                 return
             elif schema == "camnet.node-stats/1":
-                self._note_driver_drops(payload)
+                self._gaps.node_stats(payload)
         self._add(channels, item.key, encoding, schema, item.log_time_ns, publish_ns, payload)
 
     def _add(self, channels: _Channels, topic: str, encoding: str, schema: str, log_time_ns: int,
@@ -254,6 +249,8 @@ class Recorder:
                "timestamp_ns": item.log_time_ns}
         with contextlib.suppress(InputError):
             _, doc["kind"], doc["node_id"] = keys.parse_node(item.key)
+        if doc.get("kind") == "driver":
+            self._gaps.driver_event(doc["node_id"], item.event)
         return json.dumps(doc).encode()
 
     def _account(self, channels: _Channels, item: QueueItem, header: FrameHeader, size: int) -> None:
@@ -271,15 +268,8 @@ class Recorder:
                    "timestamp_ns": header.timestamp_ns}
             tally = replace(tally, missing=tally.missing + missing,
                             gaps=tally.gaps + (not restart), restarts=tally.restarts + restart)
-            if restart:
-                self._window.add_restart(camera)
-            else:
-                self._window.add_gap(camera, missing, dropped_here)
-        previous_ns = self._last_frame_ns.get(camera)
-        if previous_ns is not None and item.log_time_ns - previous_ns >= self.config.stall_s * 1e9:
-            self._window.add_silence(camera, (item.log_time_ns - previous_ns) / 1e9)
-        self._last_frame_ns[camera] = item.log_time_ns
-        self._frame_keys[camera] = item.key
+            self._gaps.gap(camera, missing=missing, refused=dropped_here, restart=restart)
+        self._gaps.frame(camera, item.key, item.log_time_ns)
         self._tallies[camera] = replace(
             tally, frames=tally.frames + 1, payload_bytes=tally.payload_bytes + size,
             first_seq=header.seq if tally.first_seq < 0 else tally.first_seq, last_seq=header.seq,
@@ -288,39 +278,6 @@ class Recorder:
         if gap is not None:
             self._add(channels, sf.gaps_topic(self.config.rig), sf.JSON_ENCODING, sf.GAP_FORMAT,
                       item.log_time_ns, header.timestamp_ns, json.dumps(gap).encode())
-
-    def _note_driver_drops(self, payload: bytes) -> None:
-        """Count what a driver says its camera dropped since its last statistics (a cause of gaps)."""
-        try:
-            stats = NodeStats.from_json(payload)
-        except InputError:
-            return  # recorded as it came; only the drivers' own counts matter here
-        if stats.kind != "driver":
-            return
-        before = self._driver_dropped.get(stats.node_id, 0)
-        self._driver_dropped[stats.node_id] = stats.dropped
-        # A count that went down is a restarted driver: all it reports is new.
-        new = stats.dropped - before if stats.dropped >= before else stats.dropped
-        if new > 0:
-            self._window.add_driver_drops(stats.node_id, new)
-
-    def _report_gaps(self) -> None:
-        """One warning on the frames that went missing since the last report and why, if any did."""
-        now_ns, period_s = time.time_ns(), time.monotonic() - self._window_started
-        self._window_started = time.monotonic()
-        silent_now = {}
-        for camera, key in self._frame_keys.items():
-            arrived_ns = self._queue.arrived_ns(key)
-            if arrived_ns is not None and now_ns - arrived_ns >= self.config.stall_s * 1e9:
-                silent_now[camera] = (now_ns - arrived_ns) / 1e9
-        refused = self._queue.refused - self._refused_reported
-        self._refused_reported = self._queue.refused
-        refused_other = max(0, refused - sum(self._window.refused.values()))
-        line = self._window.line(period_s=period_s, silent_now_s=silent_now, refused_other=refused_other,
-                                 lag_s=self._queue.backlog()[2])
-        if line is not None:
-            log.warning("%s", line)
-        self._window = GapWindow()
 
     def _count_malformed(self, kind: str, problem: object, key: str) -> None:
         self.malformed.count(kind, "not recording a malformed message on %s (%s: %s)", key, kind, problem)
@@ -366,7 +323,7 @@ class Recorder:
 
     def _loop(self, channels: _Channels, presence: Presence, on_progress, progress_period_s: float) -> None:
         cfg = self.config
-        self._started = self._window_started = now = time.monotonic()
+        self._started = now = time.monotonic()
         deadline = now + cfg.duration_s if cfg.duration_s > 0 else float("inf")
         next_flush, next_progress = now + cfg.flush_period_s, now + progress_period_s
         next_report = now + cfg.report_period_s
@@ -379,7 +336,7 @@ class Recorder:
                 channels.writer.flush()
                 next_flush = now + cfg.flush_period_s
             if now >= next_report:
-                self._report_gaps()
+                self._gaps.report(self._queue)
                 next_report = now + cfg.report_period_s
             presence.publish_if_due()
             if on_progress is not None and now >= next_progress:
@@ -450,7 +407,7 @@ class Recorder:
             log.warning("stopping on time: %d received message(s) (%.0f MB, the last %.1f s) not written; the "
                         "recorder was behind: this machine cannot keep up with writing (try --compression none, "
                         "or a faster disk)", self._unwritten_at_stop, unwritten_bytes / 1e6, lag_s)
-        self._report_gaps()
+        self._gaps.report(self._queue)
 
 
 def _summary_metadata(summary: RecordingSummary) -> dict[str, str]:

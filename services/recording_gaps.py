@@ -14,10 +14,17 @@ silent. `GapWindow.line` is the one warning a period, instead of one per gap.
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
 from collections import deque
 from dataclasses import dataclass, field
+
+from camnet.bus.stats import NodeStats
+from camnet.errors import InputError
+
+log = logging.getLogger(__name__)
+STALL_REPEAT_S = 60.0  # a camera that stays silent is said again at most this often
 
 
 @dataclass(frozen=True)
@@ -112,10 +119,11 @@ class GapWindow:
         self.silent_s[camera_id] = max(silent_s, self.silent_s.get(camera_id, 0.0))
 
     def line(self, *, period_s: float, silent_now_s: dict[str, float], refused_other: int = 0,
-             lag_s: float = 0.0) -> str | None:
+             lag_s: float = 0.0, gone: frozenset[str] = frozenset()) -> str | None:
         """One line for the operator on what went missing in the last `period_s` and why; None when
         nothing did. `silent_now_s`: cameras silent right now (seconds); `refused_other`: messages
-        other than frames the full queue refused; `lag_s`: how far behind the writer is."""
+        other than frames the full queue refused; `lag_s`: how far behind the writer is; `gone`:
+        cameras whose driver left the bus."""
         missing = sum(self.missing.values())
         stalls = {**self.silent_s, **silent_now_s}
         if not (missing or stalls or self.restarts or refused_other):
@@ -138,8 +146,91 @@ class GapWindow:
             parts.append(f"{lost} lost on the way: a congested link or a busy machine drops frames")
         if stalls:
             parts.append("stalled: " + ", ".join(
-                f"{c} (no frame for {s:.1f} s{'' if c in silent_now_s else ', then back'})"
-                for c, s in sorted(stalls.items())))
+                f"{c} (no frame for {s:.1f} s{_since(c, silent_now_s, gone)})" for c, s in sorted(stalls.items())))
         if self.restarts:
             parts.append("restarted: " + ", ".join(sorted(self.restarts)))
         return "; ".join(parts)
+
+
+def _since(camera_id: str, silent_now_s: dict[str, float], gone: frozenset[str]) -> str:
+    if camera_id not in silent_now_s:
+        return ", then back"
+    return ": its driver left the bus" if camera_id in gone else ""
+
+
+class GapTracker:
+    """The recorder's side of `GapWindow`: fed what it writes, it reports once a period (`report`)."""
+
+    def __init__(self, *, stall_s: float) -> None:
+        self.stall_s = stall_s
+        self._window = GapWindow()
+        self._window_started = time.monotonic()
+        self._frame_keys: dict[str, str] = {}  # camera id -> its frame key
+        self._last_frame_ns: dict[str, int] = {}  # camera id -> receive time of its last frame written
+        self._driver_dropped: dict[str, int] = {}  # camera id -> its driver's last reported drop count
+        self._refused_reported = 0
+        self._stall_said: dict[str, float] = {}  # camera id -> when its silence was last said
+        self._drivers_gone: set[str] = set()  # camera ids whose driver left the bus
+
+    def gap(self, camera_id: str, *, missing: int, refused: int, restart: bool) -> None:
+        if restart:
+            self._window.add_restart(camera_id)
+        else:
+            self._window.add_gap(camera_id, missing, refused)
+
+    def frame(self, camera_id: str, key: str, log_time_ns: int) -> None:
+        """A frame written, received at `log_time_ns`: a long silence before it was a stall."""
+        previous_ns = self._last_frame_ns.get(camera_id)
+        if previous_ns is not None and log_time_ns - previous_ns >= self.stall_s * 1e9:
+            self._window.add_silence(camera_id, (log_time_ns - previous_ns) / 1e9)
+        self._last_frame_ns[camera_id] = log_time_ns
+        self._frame_keys[camera_id] = key
+
+    def node_stats(self, payload: bytes) -> None:
+        """Count what a driver says its camera dropped since its last statistics (a cause of gaps)."""
+        try:
+            stats = NodeStats.from_json(payload)
+        except InputError:
+            return  # recorded as it came; only the drivers' own counts matter here
+        if stats.kind != "driver":
+            return
+        before = self._driver_dropped.get(stats.node_id, 0)
+        self._driver_dropped[stats.node_id] = stats.dropped
+        # A count that went down is a restarted driver: all it reports is new.
+        new = stats.dropped - before if stats.dropped >= before else stats.dropped
+        if new > 0:
+            self._window.add_driver_drops(stats.node_id, new)
+
+    def driver_event(self, camera_id: str, event: str) -> None:
+        """A driver joined or left: a camera silent with its driver gone has not stalled, it left."""
+        if event == "left":
+            self._drivers_gone.add(camera_id)
+        else:
+            self._drivers_gone.discard(camera_id)
+
+    def _silent_cameras(self, queue: ByteBoundedQueue) -> dict[str, float]:
+        """Cameras silent for `stall_s` or more, by seconds: said when they fall silent, then at most
+        every STALL_REPEAT_S while they stay so (a camera switched off is not news every period)."""
+        now_ns, now_s, silent = time.time_ns(), time.monotonic(), {}
+        for camera_id, key in self._frame_keys.items():
+            arrived_ns = queue.arrived_ns(key)
+            if arrived_ns is None or now_ns - arrived_ns < self.stall_s * 1e9:
+                self._stall_said.pop(camera_id, None)
+                continue
+            if now_s - self._stall_said.get(camera_id, -STALL_REPEAT_S) >= STALL_REPEAT_S:
+                self._stall_said[camera_id] = now_s
+                silent[camera_id] = (now_ns - arrived_ns) / 1e9
+        return silent
+
+    def report(self, queue: ByteBoundedQueue) -> None:
+        """One warning on the frames that went missing since the last report and why, if any did."""
+        period_s = time.monotonic() - self._window_started
+        self._window_started = time.monotonic()
+        refused = queue.refused - self._refused_reported
+        self._refused_reported = queue.refused
+        line = self._window.line(period_s=period_s, silent_now_s=self._silent_cameras(queue),
+                                 refused_other=max(0, refused - sum(self._window.refused.values())),
+                                 lag_s=queue.backlog()[2], gone=frozenset(self._drivers_gone))
+        if line is not None:
+            log.warning("%s", line)
+        self._window = GapWindow()

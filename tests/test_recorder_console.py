@@ -7,10 +7,11 @@ from __future__ import annotations
 
 import json
 import logging
+import re
 import time
 
 from camnet.services.recorder import Recorder, RecorderConfig
-from camnet.services.recording_gaps import GapWindow
+from camnet.services.recording_gaps import ByteBoundedQueue, GapTracker, GapWindow
 from mcap.reader import make_reader
 
 from camnet.bus import keys
@@ -47,6 +48,24 @@ def test_a_quiet_period_says_nothing_and_causes_never_exceed_the_missing():
     window.add_driver_drops("left", 50)  # statistics may tell of drops whose gaps come later
     line = window.line(period_s=5.0, silent_now_s={})
     assert "2 dropped at the cameras" in line and "lost on the way" not in line
+
+
+def test_a_silent_camera_is_said_when_it_falls_silent_not_every_period(caplog):
+    queue = ByteBoundedQueue(1 << 20)
+    tracker = GapTracker(stall_s=0.05)
+    for camera_id in ("off", "unplugged"):
+        key = keys.frame(RIG, camera_id)
+        queue.put(key, b"frame")
+        tracker.frame(camera_id, key, queue.get(timeout_s=0).log_time_ns)
+    tracker.driver_event("unplugged", "left")
+    time.sleep(0.2)
+    caplog.set_level(logging.WARNING)
+    for _ in range(3):
+        tracker.report(queue)
+    lines = [r.getMessage() for r in caplog.records]
+    assert len(lines) == 1, lines
+    assert re.search(r"stalled: off \(no frame for [\d.]+ s\), unplugged \(no frame for [\d.]+ s: its driver "
+                     r"left the bus\)", lines[0]), lines[0]
 
 
 def _recorder(session, tmp_path, **options) -> Recorder:
