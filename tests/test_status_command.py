@@ -72,7 +72,7 @@ class SlowToClose:
 def test_a_session_slow_to_close_ends_cleanly(two_rigs, capsys, caplog, monkeypatch):
     """Measured before: a ZError traceback after the table."""
     opened = bus_session.open_session
-    monkeypatch.setattr(bus_session, "open_session", lambda options: SlowToClose(opened(options)))
+    monkeypatch.setattr(bus_session, "open_session", lambda options, **kw: SlowToClose(opened(options, **kw)))
     caplog.set_level(logging.WARNING, logger="camnet.bus.session")
     assert status(two_rigs, "sim") == 0
     out, _ = capsys.readouterr()

@@ -37,7 +37,7 @@ def run(args: argparse.Namespace) -> int:
     import time
     from pathlib import Path
 
-    from camnet.bus.session import open_session, options_from_args
+    from camnet.bus.session import joined, options_from_args
     from camnet.services.recorder import Recorder, RecorderConfig
 
     output = Path(args.output)
@@ -58,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
                 f"{summary.file_bytes / 1e6:.0f} MB")
         print(line, end="\r" if tty else "\n", file=sys.stderr, flush=True)
 
-    with open_session(options_from_args(args)) as session:
+    with joined(options_from_args(args)) as session:
         summary = Recorder(session, config).run(on_progress=progress,
                                                 progress_period_s=1.0 if tty else 5.0)
     if tty:

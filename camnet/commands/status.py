@@ -159,11 +159,10 @@ def run(args: argparse.Namespace) -> int:
     import time
 
     from camnet.bus import keys
-    from camnet.bus.session import close_session, open_session, options_from_args
+    from camnet.bus.session import joined, options_from_args
 
     reader = StatsReader()
-    session = open_session(options_from_args(args))
-    try:
+    with joined(options_from_args(args)) as session:
         subscriber = session.declare_subscriber(keys.all_node_stats(args.rig), reader)
         time.sleep(args.wait_s)
         # The rig's own nodes, and every rig's, asked at once: on a secured rig an observer may see
@@ -174,5 +173,3 @@ def run(args: argparse.Namespace) -> int:
         subscriber.undeclare()
         # Printed before the session closes: what was seen is shown even if closing it is slow.
         return report(args.rig, sorted(nodes), reader.stats)
-    finally:
-        close_session(session)

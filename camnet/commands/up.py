@@ -245,7 +245,7 @@ def run(args: argparse.Namespace) -> int:
     from camnet.bus import keys
     from camnet.bus.launch import Launch, start_network
     from camnet.bus.node import stop_on_signals
-    from camnet.bus.session import open_session, options_from_args
+    from camnet.bus.session import joined, options_from_args
     from camnet.errors import CamnetError
     from camnet.io.run_dir import default_run_dir
 
@@ -264,7 +264,7 @@ def run(args: argparse.Namespace) -> int:
         # and every node is stopped on the way out.
         stop = stack.enter_context(stop_on_signals(threading.Event()))
         progress_file = stack.enter_context(open(args.progress_jsonl, "w")) if args.progress_jsonl else None
-        session = stack.enter_context(open_session(options_from_args(args)))
+        session = stack.enter_context(joined(options_from_args(args)))
         launch = stack.enter_context(Launch(run_dir / "logs"))
         subscribers = [session.declare_subscriber(keys.calibration(rig.name), follower.on_calibration),
                        session.declare_subscriber(keys.observations(rig.name), follower.on_observations)]
