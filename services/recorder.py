@@ -12,7 +12,10 @@ ones reported on the gaps channel equal the span of sequence numbers seen
 at least every `flush_period_s`, so a recorder killed outright leaves a file
 that mcap's stream reader (and `camnet.io.session_file`) reads up to the last
 flush; a stopped recorder (SIGTERM, Ctrl-C, duration) writes the summary and
-footer. Layout: docs/session-format.md.
+footer, on time: what is still queued is written for at most `stop_grace_s`,
+the rest dropped and counted. Missing frames are told in one warning a
+period, with their likely causes (`camnet.services.recording_gaps`).
+Layout: docs/session-format.md.
 """
 
 from __future__ import annotations
