@@ -84,6 +84,8 @@ def main(argv: list[str] | None = None) -> int:
     level = logging.WARNING - 10 * min(args.verbose, 2)
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
     quiet_opencv()
+    # Each node's one status line every few seconds (camnet.bus.node.Presence) shows at the default level.
+    logging.getLogger("camnet.status").setLevel(min(level, logging.INFO))
     try:
         return int(args.run(args) or 0)
     except CamnetError as exc:

@@ -158,8 +158,8 @@ def _set_times(rec: rr.RecordingStream, *, time_ns: int, solve_index: int) -> No
     rec.set_time(SOLVE_TIMELINE, sequence=max(solve_index, 0))
 
 
-def _next_solve(rec: rr.RecordingStream) -> int:
-    index = _solve_counts.get(rec, -1) + 1
+def _next_solve(rec: rr.RecordingStream, given: int | None = None) -> int:
+    index = _solve_counts.get(rec, -1) + 1 if given is None else given
     _solve_counts[rec] = index
     return index
 
@@ -233,6 +233,7 @@ def log_calibration(
     time_ns: int,
     observations: Observations | None = None,
     truth: Calibration | Sequence[Camera] | None = None,
+    solve_index: int | None = None,
 ) -> None:
     """Log one solve: cameras, cloud, observations on the images, time series.
 
@@ -242,10 +243,12 @@ def log_calibration(
     Calibration (points by track id) or as cameras alone (then the scale error
     is that of the camera centres); adds the error series. A degenerate
     calibration is logged as an error line in ``log``, not as cameras.
+    solve_index: the solve's number on the solve timeline, as its producer
+    counts it (the calibrator's `solve`); by default, one more than the last.
     """
     import rerun as rr
 
-    solve_index = _next_solve(rec)
+    solve_index = _next_solve(rec, solve_index)
     _set_times(rec, time_ns=time_ns, solve_index=solve_index)
     problem = _degenerate(calibration)
     if problem:
@@ -342,11 +345,12 @@ def _log_text(rec: rr.RecordingStream, calibration: Calibration, solve_index: in
 
 
 @_sidecar
-def log_solve_failure(rec: rr.RecordingStream | None, reason: str, *, time_ns: int) -> None:
+def log_solve_failure(rec: rr.RecordingStream | None, reason: str, *, time_ns: int,
+                      solve_index: int | None = None) -> None:
     """Log a solve that failed (e.g. a SolveError's message) as an error line; counts as a solve."""
     import rerun as rr
 
-    solve_index = _next_solve(rec)
+    solve_index = _next_solve(rec, solve_index)
     _set_times(rec, time_ns=time_ns, solve_index=solve_index)
     rec.log("log", rr.TextLog(f"solve {solve_index} failed: {reason}", level=rr.TextLogLevel.ERROR))
 

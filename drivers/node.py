@@ -62,7 +62,8 @@ class DriverNode:
             keys.frame(self.rig.name, self.camera_id),
             congestion_control=zenoh.CongestionControl.DROP)
         presence = Presence(self.session, rig=self.rig.name, kind=NODE_KIND, node_id=self.camera_id,
-                            report=self._activity, period_s=self.stats_period_s)
+                            report=self._activity, period_s=self.stats_period_s, counted="frames sent",
+                            dropped="dropped by the camera")
         with stop_on_signals(self.stop), self.camera, presence:
             queryable = self._publish_groundtruth()
             log.info("camera %s: publishing %s", self.camera_id, keys.frame(self.rig.name, self.camera_id))

@@ -48,6 +48,7 @@ NODE_KIND = "calibrator"
 # A larger one is dropped unread (one of 23 MB kept the node busy for a minute at 1.1 GB).
 MAX_MESSAGE_BYTES = 32 * 2**20
 SUBSAMPLE_SEED = 0  # a larger set is solved on MAX_TRACKS of its tracks, the same ones every time
+WARNING_PERIOD_S = 30.0  # a solve that is not kept is warned about at most this often per outcome, else logged
 
 
 @dataclass(frozen=True)
@@ -126,6 +127,7 @@ class CalibratorNode:
         self.latest_doc: bytes | None = None
         self._meter = RateMeter(window_s=30.0)
         self._lock = threading.Lock()
+        self._warned_s: dict[str, float] = {}  # outcome -> when it was last warned about
 
     # ------------------------------------------------------------ bus callbacks
 
@@ -203,10 +205,16 @@ class CalibratorNode:
                      len(cal.cameras), len(cal.points), cal.rms_reprojection_px,
                      100 * scale_sigma_rel(cal))
         else:
-            log.warning("solve %d: %s, the last good calibration stays: %s", self.tracker.solves,
-                        outcome.status, outcome.reason)
+            # A rig that keeps failing must not flood the console: its status line counts every one.
+            now_s = time.monotonic()
+            loud = now_s - self._warned_s.get(outcome.status, -WARNING_PERIOD_S) >= WARNING_PERIOD_S
+            if loud:
+                self._warned_s[outcome.status] = now_s
+            log.log(logging.WARNING if loud else logging.INFO, "solve %d: %s, the last good calibration stays: "
+                    "%s%s", self.tracker.solves, outcome.status, outcome.reason,
+                    f" (further ones within {WARNING_PERIOD_S:.0f} s are only counted)" if loud else "")
         if self.viewer is not None:
-            self.viewer.solved(outcome, obs, doc)
+            self.viewer.solved(outcome, obs, doc, solve=self.tracker.solves)
         return outcome
 
     def _activity(self) -> Activity:
@@ -224,10 +232,15 @@ class CalibratorNode:
         if resumed is None:
             return
         self.tracker.good = resumed
+        doc = load_json(self.config.state_path)
+        # Solves are numbered on from the resumed one, so that a number names one calibration.
+        if isinstance(doc.get("solve"), int) and 0 <= doc["solve"] < 2**53:
+            self.tracker.solves = doc["solve"]
         # The persisted document as it was published, live metadata (solve, status, ...) included:
         # the calibration type keeps only what it models.
         with self._lock:
-            self.latest_doc = json.dumps(load_json(self.config.state_path), allow_nan=False).encode()
+            # Said so on the bus (not in the file): a listener tells it from a solve of this run.
+            self.latest_doc = json.dumps({**doc, "resumed": True}, allow_nan=False).encode()
         publisher.put(self.latest_doc)
         log.info("resumed from %s (%d cameras)", self.config.state_path, len(resumed.cameras))
 
@@ -250,7 +263,8 @@ class CalibratorNode:
                                                            congestion_control=zenoh.CongestionControl.BLOCK)
             ack_token = declare_liveliness(self.session, keys.lockstep_ack(rig, NODE_KIND))
         presence = Presence(self.session, rig=rig, kind=NODE_KIND, node_id=NODE_KIND, report=self._activity,
-                            tallies=(self.malformed, self.failures), period_s=self.config.stats_period_s)
+                            tallies=(self.malformed, self.failures), period_s=self.config.stats_period_s,
+                            counted="solves", dropped="observations superseded while solving")
         try:
             with stop_on_signals(self.stop), presence:
                 while not self.stop.is_set():
@@ -291,7 +305,8 @@ class RerunView:
             with self._lock:
                 self._frames[frame.camera_id] = frame
 
-    def solved(self, outcome: Outcome, obs: Observations, doc: dict) -> None:
+    def solved(self, outcome: Outcome, obs: Observations, doc: dict, *, solve: int | None = None) -> None:
+        """Show one solve; `solve` is its number as the calibrator publishes it (`solve` of the calibration)."""
         from camnet import viz
 
         time_ns = int(doc.get("latest_capture_ns") or time.time_ns())
@@ -300,6 +315,8 @@ class RerunView:
         for frame in frames:
             viz.log_frame(self.rec, frame.camera_id, frame.image, time_ns=time_ns, encoding=frame.encoding)
         if outcome.status == "good":
-            viz.log_calibration(self.rec, outcome.calibration, time_ns=time_ns, observations=obs, truth=self.truth)
+            viz.log_calibration(self.rec, outcome.calibration, time_ns=time_ns, observations=obs, truth=self.truth,
+                                solve_index=solve)
         else:
-            viz.log_solve_failure(self.rec, f"{outcome.status}: {outcome.reason}", time_ns=time_ns)
+            viz.log_solve_failure(self.rec, f"{outcome.status}: {outcome.reason}", time_ns=time_ns,
+                                  solve_index=solve)

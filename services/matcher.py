@@ -374,7 +374,7 @@ class MatcherNode:
         counts = self.sync_counts()
         malformed = self.receiver.malformed.total + self.rejected.total
         pooled = len(self._pool) if self._pool is not None else 0
-        detail = (f"{pooled} tracks pooled, {self.frame_sets_pooled} sets, match "
+        detail = (f"{counts.received} frames in, {pooled} tracks pooled, {self.frame_sets_pooled} sets, match "
                   f"{1e3 * self.last_match_s:.0f} ms, {counts.partial_sets} partial, {malformed} bad frames")
         return Activity(fps=round(self._rate.rate(), 2), frames=self.frame_sets_matched, dropped=counts.dropped,
                         detail=detail, cameras=self.cameras_seen())
@@ -471,7 +471,8 @@ class MatcherNode:
             declared.append(declare_liveliness(self.session, keys.lockstep_ack(rig, NODE_KIND)))
         presence = Presence(self.session, rig=rig, kind=NODE_KIND, node_id=NODE_ID, report=self.activity,
                             tallies=(self.receiver.malformed, self.rejected, self.failures, self.few_features),
-                            period_s=self.config.stats_period_s)
+                            period_s=self.config.stats_period_s, counted="frame sets matched",
+                            dropped="frames dropped")
         log.info("matching %s (stereo %s-%s, %s), publishing %s%s", ", ".join(self.camera_ids), self.stereo.left,
                  self.stereo.right, "a parallel head: matched along rows" if self.stereo.parallel else
                  "matched like any pair", keys.observations(rig), " in lockstep" if self._inbox is not None else "")

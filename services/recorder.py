@@ -12,7 +12,10 @@ ones reported on the gaps channel equal the span of sequence numbers seen
 at least every `flush_period_s`, so a recorder killed outright leaves a file
 that mcap's stream reader (and `camnet.io.session_file`) reads up to the last
 flush; a stopped recorder (SIGTERM, Ctrl-C, duration) writes the summary and
-footer. Layout: docs/session-format.md.
+footer, on time: what is still queued is written for at most `stop_grace_s`,
+the rest dropped and counted. Missing frames are told in one warning a
+period, with their likely causes (`camnet.services.recording_gaps`).
+Layout: docs/session-format.md.
 """
 
 from __future__ import annotations
@@ -23,11 +26,11 @@ import json
 import logging
 import threading
 import time
-from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+from camnet.services.recording_gaps import ByteBoundedQueue, GapTracker, QueueItem
 from mcap.writer import CompressionType, Writer
 
 from camnet import __version__
@@ -66,6 +69,9 @@ class RecorderConfig:
     node_id: str = "recorder"
     stats_period_s: float = 1.0
     overwrite: bool = False
+    stop_grace_s: float = 1.0  # on stopping, write what is queued for at most this long, then drop the rest
+    report_period_s: float = 5.0  # at most one line on missing frames per period
+    stall_s: float = 2.0  # a camera silent this long has stalled
 
     def __post_init__(self) -> None:
         keys.validate_id(self.rig, what="rig")
@@ -74,9 +80,11 @@ class RecorderConfig:
             raise InputError(f"compression: expected a ChunkCompression, got {self.compression!r}")
         if not self.duration_s >= 0:
             raise InputError(f"duration_s: must be >= 0, got {self.duration_s}")
-        for name in ("flush_period_s", "stats_period_s"):
+        for name in ("flush_period_s", "stats_period_s", "report_period_s", "stall_s"):
             if not getattr(self, name) > 0:
                 raise InputError(f"{name}: must be > 0, got {getattr(self, name)}")
+        if not self.stop_grace_s >= 0:
+            raise InputError(f"stop_grace_s: must be >= 0, got {self.stop_grace_s}")
         if self.chunk_size_bytes < 1 or self.queue_capacity_bytes < 1:
             raise InputError("chunk size and queue capacity must be positive")
 
@@ -104,6 +112,7 @@ class RecordingSummary:
     cameras: dict[str, CameraTally]
     queue_overflows: int
     malformed: dict[str, int]
+    unwritten_at_stop: int = 0  # received, still queued when the recording stopped, not written
 
     def lines(self) -> list[str]:
         """A table of the recording, for the command's summary."""
@@ -113,56 +122,13 @@ class RecordingSummary:
                         f"{t.payload_bytes / 1e6:>9.1f}")
         rows.append(f"{self.messages} messages in {self.duration_s:.1f} s; file {self.file_bytes / 1e6:.1f} MB"
                     f" ({self.path}); queue overflows {self.queue_overflows}")
+        if self.unwritten_at_stop:
+            rows.append(f"not written: {self.unwritten_at_stop} message(s) still queued at the stop (the recorder "
+                        "was behind: this machine cannot keep up with writing)")
         if self.malformed:
             rows.append("malformed (not written): " + ", ".join(
                 f"{kind} {n}" for kind, n in sorted(self.malformed.items())))
         return rows
-
-
-@dataclass(frozen=True)
-class _Item:
-    log_time_ns: int
-    key: str
-    payload: bytes
-    event: str = ""  # "joined" / "left" for liveliness changes, "" for samples
-
-
-class _ByteBoundedQueue:
-    """FIFO bounded in bytes; a full queue refuses the new item, counted in total and per key."""
-
-    def __init__(self, capacity_bytes: int) -> None:
-        self.capacity_bytes = capacity_bytes
-        self._items: deque[_Item] = deque()
-        self._bytes = 0
-        self._last_ns = 0
-        self._ready = threading.Condition()
-        self._refused_by_key: dict[str, int] = {}
-        self.refused = 0
-
-    def put(self, key: str, payload: bytes, event: str = "") -> None:
-        with self._ready:
-            if self._items and self._bytes + len(payload) > self.capacity_bytes:
-                self._refused_by_key[key] = self._refused_by_key.get(key, 0) + 1
-                self.refused += 1
-                return
-            # Stamped under the lock: queue order is log-time order.
-            self._last_ns = max(time.time_ns(), self._last_ns)
-            self._items.append(_Item(self._last_ns, key, payload, event))
-            self._bytes += len(payload)
-            self._ready.notify()
-
-    def get(self, *, timeout_s: float) -> _Item | None:
-        with self._ready:
-            if not self._ready.wait_for(lambda: self._items, timeout=timeout_s):
-                return None
-            item = self._items.popleft()
-            self._bytes -= len(item.payload)
-            return item
-
-    def take_refused(self, key: str) -> int:
-        """Items of `key` refused since the last call."""
-        with self._ready:
-            return self._refused_by_key.pop(key, 0)
 
 
 @dataclass
@@ -221,12 +187,14 @@ class Recorder:
         self.session = session
         self.config = config
         self.stop = threading.Event()
-        self._queue = _ByteBoundedQueue(config.queue_capacity_bytes)
+        self._queue = ByteBoundedQueue(config.queue_capacity_bytes)
         self._tallies: dict[str, CameraTally] = {}
         self.malformed = Tally(log)  # messages not recorded, by kind
         self.failures = Tally(log)  # callbacks that raised, by what and exception type
         self._messages = 0
         self._sequence: dict[str, int] = {}
+        self._gaps = GapTracker(stall_s=config.stall_s)  # missing frames since the last report, and why
+        self._unwritten_at_stop = 0
         self._meter = RateMeter()
         self._started = time.monotonic()
 
@@ -247,7 +215,7 @@ class Recorder:
 
     # -- writing (the node's thread) -------------------------------------------------------
 
-    def _write(self, channels: _Channels, item: _Item) -> None:
+    def _write(self, channels: _Channels, item: QueueItem) -> None:
         rig = self.config.rig
         if item.event:
             encoding, schema, publish_ns = sf.JSON_ENCODING, sf.NODE_EVENT_FORMAT, item.log_time_ns
@@ -266,6 +234,8 @@ class Recorder:
             elif encoding == sf.JSON_ENCODING and not _is_json_object(payload):
                 self._count_malformed("json", "not a JSON object", item.key)
                 return
+            elif schema == "camnet.node-stats/1":
+                self._gaps.node_stats(payload)
         self._add(channels, item.key, encoding, schema, item.log_time_ns, publish_ns, payload)
 
     def _add(self, channels: _Channels, topic: str, encoding: str, schema: str, log_time_ns: int,
@@ -277,14 +247,16 @@ class Recorder:
                                     sequence=sequence & 0xFFFFFFFF)
         self._messages += 1
 
-    def _node_event(self, item: _Item) -> bytes:
+    def _node_event(self, item: QueueItem) -> bytes:
         doc = {"format": sf.NODE_EVENT_FORMAT, "event": item.event, "key": item.key,
                "timestamp_ns": item.log_time_ns}
         with contextlib.suppress(InputError):
             _, doc["kind"], doc["node_id"] = keys.parse_node(item.key)
+        if doc.get("kind") == "driver":
+            self._gaps.driver_event(doc["node_id"], item.event)
         return json.dumps(doc).encode()
 
-    def _account(self, channels: _Channels, item: _Item, header: FrameHeader, size: int) -> None:
+    def _account(self, channels: _Channels, item: QueueItem, header: FrameHeader, size: int) -> None:
         """Count the frame; write a gap or restart message if its seq does not follow."""
         camera = header.camera_id
         tally = self._tallies.get(camera, CameraTally())
@@ -299,12 +271,8 @@ class Recorder:
                    "timestamp_ns": header.timestamp_ns}
             tally = replace(tally, missing=tally.missing + missing,
                             gaps=tally.gaps + (not restart), restarts=tally.restarts + restart)
-            if restart:
-                log.warning("camera %s restarted: seq %d after %d", camera, header.seq, tally.last_seq)
-            else:
-                log.warning("camera %s: %d frame(s) missing before seq %d%s", camera, missing,
-                            header.seq, f" ({dropped_here} dropped by the recorder's full queue)"
-                            if dropped_here else "")
+            self._gaps.gap(camera, missing=missing, refused=dropped_here, restart=restart)
+        self._gaps.frame(camera, item.key, item.log_time_ns)
         self._tallies[camera] = replace(
             tally, frames=tally.frames + 1, payload_bytes=tally.payload_bytes + size,
             first_seq=header.seq if tally.first_seq < 0 else tally.first_seq, last_seq=header.seq,
@@ -325,7 +293,7 @@ class Recorder:
             path=path, duration_s=time.monotonic() - self._started, messages=self._messages,
             file_bytes=path.stat().st_size if path.exists() else 0, cameras=dict(self._tallies),
             queue_overflows=self._queue.refused,
-            malformed=self.malformed.counts)
+            malformed=self.malformed.counts, unwritten_at_stop=self._unwritten_at_stop)
 
     def _activity(self) -> Activity:
         summary = self.summary()
@@ -361,20 +329,18 @@ class Recorder:
         self._started = now = time.monotonic()
         deadline = now + cfg.duration_s if cfg.duration_s > 0 else float("inf")
         next_flush, next_progress = now + cfg.flush_period_s, now + progress_period_s
-        refused_reported = 0
+        next_report = now + cfg.report_period_s
         while not self.stop.is_set() and time.monotonic() < deadline:
-            item = self._queue.get(timeout_s=0.05)
+            item = self._queue.get(timeout_s=min(0.05, max(0.0, deadline - time.monotonic())))
             if item is not None:
                 self._write(channels, item)
             now = time.monotonic()
             if now >= next_flush:
                 channels.writer.flush()
                 next_flush = now + cfg.flush_period_s
-                if self._queue.refused > refused_reported:
-                    log.warning("receive queue full: %d message(s) lost (%d in all); writing "
-                                "cannot keep up (try --compression none, or a faster disk)",
-                                self._queue.refused - refused_reported, self._queue.refused)
-                    refused_reported = self._queue.refused
+            if now >= next_report:
+                self._gaps.report(self._queue)
+                next_report = now + cfg.report_period_s
             presence.publish_if_due()
             if on_progress is not None and now >= next_progress:
                 on_progress(self.summary())
@@ -400,7 +366,8 @@ class Recorder:
         for key in (keys.groundtruth(cfg.rig), keys.calibration(cfg.rig)):
             self.session.get(key, guarded(self._on_reply, self.failures, "receiving a reply"), timeout=2.0)
         presence = Presence(self.session, rig=cfg.rig, kind=NODE_KIND, node_id=cfg.node_id, report=self._activity,
-                            tallies=(self.malformed, self.failures), period_s=cfg.stats_period_s)
+                            tallies=(self.malformed, self.failures), period_s=cfg.stats_period_s,
+                            status_period_s=None)  # camnet record prints its own progress
         log.info("recording %s/** to %s", prefix, cfg.path)
         error = None
         with stop_on_signals(self.stop), presence:
@@ -421,8 +388,7 @@ class Recorder:
         """Write what is still queued, the summary and the footer (unless writing failed); close the file."""
         try:
             if error is None:
-                while (item := self._queue.get(timeout_s=0.0)) is not None:
-                    self._write(channels, item)
+                self._write_backlog(channels)
                 channels.writer.add_metadata(sf.SUMMARY_METADATA, _summary_metadata(self.summary()))
                 channels.writer.finish()
             stream.close()
@@ -431,12 +397,29 @@ class Recorder:
         return error
 
 
+    def _write_backlog(self, channels: _Channels) -> None:
+        """Write what is still queued for at most `stop_grace_s`, so that the stop is on time: a
+        recorder that fell behind would otherwise take as long again as its queue holds (seconds of
+        frames). What is left is counted and said."""
+        give_up_s = time.monotonic() + self.config.stop_grace_s
+        while time.monotonic() < give_up_s and (item := self._queue.get(timeout_s=0.0)) is not None:
+            self._write(channels, item)
+        _, _, lag_s = self._queue.backlog()
+        self._unwritten_at_stop, unwritten_bytes = self._queue.clear()
+        if self._unwritten_at_stop:
+            log.warning("stopping on time: %d received message(s) (%.0f MB, the last %.1f s) not written; the "
+                        "recorder was behind: this machine cannot keep up with writing (try --compression none, "
+                        "or a faster disk)", self._unwritten_at_stop, unwritten_bytes / 1e6, lag_s)
+        self._gaps.report(self._queue)
+
+
 def _summary_metadata(summary: RecordingSummary) -> dict[str, str]:
     cameras = {cid: {"frames": t.frames, "missing": t.missing, "gaps": t.gaps,
                      "restarts": t.restarts, "first_seq": t.first_seq, "last_seq": t.last_seq,
                      "dropped_by_recorder": t.dropped_by_recorder, "payload_bytes": t.payload_bytes}
                for cid, t in summary.cameras.items()}
     return {"messages": str(summary.messages), "queue_overflows": str(summary.queue_overflows),
+            "unwritten_at_stop": str(summary.unwritten_at_stop),
             "cameras": json.dumps(cameras), "malformed": json.dumps(summary.malformed)}
 
 

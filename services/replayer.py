@@ -226,7 +226,8 @@ class Replayer:
             malformed = Tally(log)
             presence = Presence(self.session, rig=self.rig, kind=NODE_KIND, node_id=camera_id,
                                 report=lambda topic=topic: self._activity(cameras[topic]),
-                                tallies=(malformed,), period_s=self.options.stats_period_s)
+                                tallies=(malformed,), period_s=self.options.stats_period_s,
+                                status_period_s=None)  # camnet replay prints its own progress
             cameras[topic] = _Camera(
                 publisher=self.session.declare_publisher(keys.frame(self.rig, camera_id),
                                                          congestion_control=congestion),

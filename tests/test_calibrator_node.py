@@ -67,7 +67,9 @@ def test_a_restarted_calibrator_resumes_from_its_state(zenoh_pair, tmp_path):
         # The queryable is declared just after the resumed calibration is loaded; let it reach the other peer.
         assert wait_for(lambda: replies.extend(r for r in b.get(keys.calibration(RIG), timeout=1.0) if r.ok)
                         or replies, 10)
-        resumed = parse_calibration(json.loads(replies[0].ok.payload.to_bytes()))
+        resumed_doc = json.loads(replies[0].ok.payload.to_bytes())
+        assert resumed_doc["resumed"] is True and resumed_doc["solve"] == 1  # said so, with its number
+        resumed = parse_calibration(resumed_doc)
         for cam, before in zip(resumed.cameras, first.cameras, strict=True):
             np.testing.assert_array_equal(cam.K, before.K)
             np.testing.assert_array_equal(cam.t, before.t)
@@ -76,6 +78,7 @@ def test_a_restarted_calibrator_resumes_from_its_state(zenoh_pair, tmp_path):
         publisher.put(observations_payload(seed=2, n_points=160))
         assert wait_for(lambda: sum(node.tracker.counts.values()) == 1, 60)
         assert node.tracker.counts["good"] == 1
+        assert node.tracker.solves == 2  # numbered on from the resumed solve 1: a number names one calibration
 
 
 @pytest.mark.parametrize("content", [b"\xff\xfe{}", b"[" * 100_000, b'{"format": "camnet.calibration/1", "cameras": '
@@ -107,3 +110,19 @@ def test_command_refuses_bad_flags_in_one_line(tmp_path):
         assert proc.returncode == 2, proc.stderr
         lines = proc.stderr.strip().splitlines()
         assert len(lines) == 1 and fragment in lines[0], proc.stderr
+
+
+def test_solves_that_are_not_kept_warn_once_a_period_not_each_time(caplog):
+    """A rig whose every solve is refused: measured before, one warning per solve."""
+    import logging
+
+    from camnet.geometry.live import LiveConfig
+
+    node = CalibratorNode(None, RIG, CalibratorConfig(live=LiveConfig(max_rms_px=1e-9)))
+    caplog.set_level(logging.INFO, logger="camnet.services.calibrator")
+    payload = observations_payload(seed=3, n_points=80)
+    outcomes = [node.handle(payload, publisher=None) for _ in range(3)]
+    assert [o.status for o in outcomes] == ["rejected"] * 3
+    kept_back = [r for r in caplog.records if "the last good calibration stays" in r.getMessage()]
+    assert [r.levelname for r in kept_back] == ["WARNING", "INFO", "INFO"]
+    assert node.tracker.counts["rejected"] == 3

@@ -76,6 +76,9 @@ def test_sim_driver_process_publishes_frames_groundtruth_and_status():
     finally:
         err = stop(driver)
     assert driver.returncode == 0, err
+    # At the default log level, the driver says what it did (at least on leaving), in one line.
+    status = [line for line in err.splitlines() if "camnet.status: driver mono_a: " in line]
+    assert status and "frames sent" in status[-1] and "dropped by the camera" in status[-1], err
 
 
 def test_driver_refuses_wrong_driver_for_camera():

@@ -226,7 +226,7 @@ def test_status_reads_any_statistics_and_liveliness(payload, key):
         ok: Sample | None
 
     nodes = live_nodes([Reply(sample(b"", key)), Reply(None), Reply(sample(b"", keys.node("fuzz", "driver", "a")))])
-    assert nodes[-1] == ("driver", "a")
+    assert nodes[-1] == ("fuzz", "driver", "a")
 
 
 # ------------------------------------------------------------------ lockstep

@@ -5,6 +5,7 @@ clock), so the rigs are small images at a low frame rate.
 """
 
 import json
+import re
 import subprocess
 import sys
 import time
@@ -102,6 +103,12 @@ def test_simulated_network_calibrates_to_scale_within_a_minute(tmp_path, n_camer
     assert abs(comparison.scale_rel) < 0.005, stdout
     assert max(abs(e.focal_rel) for e in comparison.cameras) < 0.01, stdout
     assert "vs truth" in stdout and "final calibration" in stdout
+    # Every calibration is a line, numbered as the calibrator publishes it; a number skipped is said.
+    lines = [line for line in stdout.splitlines() if re.match(r"\s*[\d.]+ s  solve ", line)]
+    numbers = [int(line.split(" solve ")[1].split()[0]) for line in lines]
+    assert numbers == sorted(set(numbers)) and numbers, stdout
+    for before, (number, line) in zip([0, *numbers], zip(numbers, lines, strict=True), strict=False):
+        assert (number == before + 1) != ("not kept" in line), line
 
     # The run's Rerun recording: every camera, the cloud, the series, one entry per solve.
     data = read_rrd(rrd)

@@ -78,3 +78,31 @@ def test_presence_publishes_statistics_with_faults_and_leaves(zenoh_pair):
         ("t", "probe", "p1", 2.5, 7, 1, "probing")
     assert last.faults == {"json": 1}
     sub.undeclare()
+
+
+def test_presence_says_one_status_line_a_period_and_one_on_leaving(zenoh_pair, caplog):
+    """The operator of a standalone node sees what it did every few seconds, and no more often."""
+    import time
+
+    from camnet.bus.stats import CameraSeen
+
+    a, _ = zenoh_pair
+    cameras = {"left": CameraSeen(age_s=0.1, fps=10.0, missing=False),
+               "far": CameraSeen(age_s=None, fps=0.0, missing=True)}
+    presence = Presence(a, rig="t", kind="matcher", node_id="matcher", period_s=0.02, status_period_s=0.5,
+                        counted="frame sets matched", dropped="frames dropped", tallies=(Tally(),),
+                        report=lambda: Activity(fps=1.5, frames=12, dropped=3, detail="40 frames in",
+                                                cameras=cameras))
+    caplog.set_level(logging.INFO, logger="camnet.status")
+    started = time.monotonic()
+    with presence:
+        while time.monotonic() - started < 2.0:  # a node's loop: many times a period
+            presence.publish_if_due()
+            time.sleep(0.005)
+    elapsed_s = time.monotonic() - started
+    lines = [r.getMessage() for r in caplog.records if r.name == "camnet.status"]
+    assert lines[-1].endswith("(leaving)")
+    periodic = lines[:-1]
+    assert 1 <= len(periodic) <= elapsed_s / 0.5 + 1, lines
+    assert periodic[0] == ("matcher: 12 frame sets matched (1.5/s), 3 frames dropped; 40 frames in; "
+                           "MISSING: far")

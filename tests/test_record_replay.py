@@ -19,7 +19,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from camnet.services.recorder import ChunkCompression, Recorder, RecorderConfig, _ByteBoundedQueue
+from camnet.services.recorder import ChunkCompression, Recorder, RecorderConfig
+from camnet.services.recording_gaps import ByteBoundedQueue
 from camnet.services.replayer import Replayer, ReplayOptions
 from mcap.reader import make_reader
 from mcap.stream_reader import StreamReader
@@ -200,7 +201,7 @@ def test_injected_gap_and_restart_are_written(recorded):
 
 
 def test_queue_bounded_in_bytes_counts_what_it_refuses():
-    queue = _ByteBoundedQueue(25)
+    queue = ByteBoundedQueue(25)
     for _ in range(3):
         queue.put("k", b"x" * 10)
     assert queue.take_refused("k") == 1 and queue.take_refused("k") == 0 and queue.refused == 1

@@ -251,3 +251,19 @@ def test_a_sink_that_cannot_open_is_a_clear_error():
         busy.listen()
         with pytest.raises(CamnetError, match="^--rerun serve: cannot open"):
             viz.open_recording(rig="sim", sinks=[viz_sinks.parse_sink(f"serve={free_port()},{busy.getsockname()[1]}")])
+
+
+def test_the_solve_timeline_takes_the_calibrators_numbers(recording, solves):
+    """Measured before: Rerun numbered its own solves from 0 and skipped the failed ones, so its 'solve 0'
+    was the calibrator's (and camnet up's) solve 1, and the two drifted apart with every failure."""
+    rec, path = recording
+    rig, _, runs = solves
+    viz.log_calibration(rec, runs[0][0], time_ns=T0_NS, solve_index=1)
+    viz.log_solve_failure(rec, "rejected: too uncertain", time_ns=T0_NS + 1, solve_index=3)
+    viz.log_calibration(rec, runs[1][0], time_ns=T0_NS + 2, truth=rig.cameras, solve_index=4)
+    viz.close_recording(rec)
+    data = read_rrd(path)
+    assert data["/world/cameras/left"]["solve"] == [1, 4]
+    texts = [text for cell in data["/log"]["TextLog:text"] for text in cell]
+    assert any(t.startswith("solve 3 failed: rejected") for t in texts)
+    assert any(t.startswith("solve 4: 4 cameras") for t in texts)

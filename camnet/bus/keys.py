@@ -82,6 +82,11 @@ def node_stats(rig: str, kind: str, node_id: str) -> str:
     return f"{node(rig, kind, node_id)}/stats"
 
 
+def every_rigs_nodes() -> str:
+    """Selector for the node liveliness tokens of every rig on the bus."""
+    return f"{ROOT}/*/nodes/*/*"
+
+
 def all_node_stats(rig: str) -> str:
     return f"{rig_prefix(rig)}/nodes/*/*/stats"
 

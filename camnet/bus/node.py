@@ -11,7 +11,9 @@
   leaves the bus cleanly.
 - `Presence` is a node on the bus: its liveliness token
   (`camnet.bus.keys.node`) and its statistics (`camnet.bus.stats.NodeStats`),
-  published every period and once more on leaving.
+  published every period and once more on leaving; and the same statistics
+  as one line for the operator every few seconds and on leaving, on the
+  `camnet.status` logger, which `camnet` shows at its default level.
 """
 
 from __future__ import annotations
@@ -29,6 +31,8 @@ from camnet.bus.session import declare_liveliness
 from camnet.bus.stats import Activity, NodeStats
 
 log = logging.getLogger(__name__)
+status_log = logging.getLogger("camnet.status")  # one line a node every few seconds: shown by default
+STATUS_PERIOD_S = 5.0
 
 P = ParamSpec("P")
 R = TypeVar("R")
@@ -105,28 +109,39 @@ class Presence:
     `report` says what the node did (`Activity`); the statistics add who it
     is, when, and the counts of its `tallies`. They go out on the first
     `publish_if_due`, then every `period_s`, and once more on leaving, just
-    before the token goes, so that the final counts are seen.
+    before the token goes, so that the final counts are seen. Every
+    `status_period_s` (None: never), and on leaving, they are also logged as
+    one line (`status_line`), the node's `frames` and `dropped` named by `counted`
+    and `dropped` (what they count differs by node).
     """
 
     def __init__(self, session, *, rig: str, kind: str, node_id: str, report: Callable[[], Activity],
-                 tallies: Sequence[Tally] = (), period_s: float = 1.0) -> None:
+                 tallies: Sequence[Tally] = (), period_s: float = 1.0, counted: str = "frames",
+                 dropped: str = "dropped", status_period_s: float | None = STATUS_PERIOD_S) -> None:
         self.session = session
         self.rig, self.kind, self.node_id = rig, kind, node_id
         self.report = report
         self.tallies = tuple(tallies)
         self.period_s = period_s
+        self.counted, self.dropped = counted, dropped
+        self.status_period_s = status_period_s
         self._next_s = float("-inf")
+        self._next_status_s = float("inf")
         self._publisher = None
         self._token = None
 
     def __enter__(self) -> Presence:
         self._publisher = self.session.declare_publisher(keys.node_stats(self.rig, self.kind, self.node_id))
         self._token = declare_liveliness(self.session, keys.node(self.rig, self.kind, self.node_id))
+        if self.status_period_s is not None:
+            self._next_status_s = time.monotonic() + self.status_period_s
         return self
 
     def __exit__(self, *exc_info: object) -> None:
         try:
-            self.publish()
+            stats = self.publish()
+            if self.status_period_s is not None:
+                status_log.info("%s (leaving)", self.status_line(stats))
         finally:
             self._token.undeclare()
 
@@ -140,11 +155,29 @@ class Presence:
                          frames=activity.frames, dropped=activity.dropped, timestamp_ns=time.time_ns(),
                          detail=activity.detail, faults=faults, cameras=activity.cameras)
 
-    def publish(self) -> None:
-        self._publisher.put(self.stats().to_json())
+    def status_line(self, stats: NodeStats) -> str:
+        """The statistics as one line for the operator."""
+        who = self.kind if self.node_id == self.kind else f"{self.kind} {self.node_id}"
+        line = f"{who}: {stats.frames} {self.counted} ({stats.fps:.1f}/s), {stats.dropped} {self.dropped}"
+        if stats.detail:
+            line += f"; {stats.detail}"
+        if stats.faults:
+            line += "; " + ", ".join(f"{fault} {n}" for fault, n in sorted(stats.faults.items()))
+        missing = [camera_id for camera_id, seen in stats.cameras.items() if seen.missing]
+        if missing:
+            line += f"; MISSING: {', '.join(missing)}"
+        return line
+
+    def publish(self) -> NodeStats:
+        stats = self.stats()
+        self._publisher.put(stats.to_json())
+        return stats
 
     def publish_if_due(self) -> None:
         now_s = time.monotonic()
         if now_s >= self._next_s:
-            self.publish()
+            stats = self.publish()
             self._next_s = now_s + self.period_s
+            if now_s >= self._next_status_s:
+                status_log.info("%s", self.status_line(stats))
+                self._next_status_s = now_s + self.status_period_s

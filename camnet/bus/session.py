@@ -29,10 +29,12 @@ by itself), so that an outage shows in the nodes' logs.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import ipaddress
 import json
 import logging
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 log = logging.getLogger(__name__)
@@ -244,6 +246,29 @@ def watch_routers(session) -> None:
 
     # A callback listener lives as long as the session: no handle to keep.
     session.info.declare_transport_events_listener(on_event, history=False)
+
+
+@contextlib.contextmanager
+def joined(options: BusOptions, *, config=None) -> Iterator:
+    """`open_session` for the block, closed after it by `close_session`: a node or command whose
+    work is done never ends in a traceback because Zenoh was slow to close."""
+    session = open_session(options, config=config)
+    try:
+        yield session
+    finally:
+        close_session(session)
+
+
+def close_session(session) -> None:
+    """Close `session`. A close that fails (Zenoh gives up after some 10 s on a slow or lossy link,
+    raising "close operation timed out") is logged, not raised: the work is done and the process
+    is leaving."""
+    import zenoh
+
+    try:
+        session.close()
+    except zenoh.ZError as exc:
+        log.warning("the Zenoh session did not close cleanly (%s); leaving anyway", exc)
 
 
 def declare_liveliness(session, key: str):

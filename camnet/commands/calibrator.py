@@ -59,7 +59,7 @@ def default_state_path(rig: str) -> Path:
 def run(args: argparse.Namespace) -> int:
     import socket
 
-    from camnet.bus.session import open_session, options_from_args
+    from camnet.bus.session import joined, options_from_args
     from camnet.commands.calibrate import parse_free
     from camnet.errors import InputError
     from camnet.geometry.calibrate import Options
@@ -91,7 +91,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"rerun: {sink.describe(host=socket.gethostname())}", flush=True)
         truth = (rig.simulated_truth() if rig is not None else []) or None
         viewer = RerunView(rec, truth=truth) if rec is not None else None
-        with open_session(options_from_args(args)) as session:
+        with joined(options_from_args(args)) as session:
             CalibratorNode(session, name, config, viewer=viewer, lockstep=args.lockstep, rig=rig).run()
     finally:
         close_recording(rec)

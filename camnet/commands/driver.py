@@ -35,7 +35,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from camnet.bus.frame import Compression
-    from camnet.bus.session import open_session, options_from_args
+    from camnet.bus.session import joined, options_from_args
     from camnet.drivers.base import create_camera
     from camnet.errors import InputError
     from camnet.io.rig import load_rig
@@ -46,7 +46,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"{args.rig}: camera {entry.id!r} uses driver {entry.driver!r}, "
                          f"not {args.driver!r}")
     camera = create_camera(entry, rig)
-    with open_session(options_from_args(args)) as session:
+    with joined(options_from_args(args)) as session:
         from camnet.drivers.node import DriverNode
 
         with contextlib.ExitStack() as stack:

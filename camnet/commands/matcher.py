@@ -61,12 +61,12 @@ def node_config_from_args(args: argparse.Namespace, rig=None):
 
 
 def run(args: argparse.Namespace) -> int:
-    from camnet.bus.session import open_session, options_from_args
+    from camnet.bus.session import joined, options_from_args
     from camnet.io.rig import load_rig
     from camnet.services.matcher import MatcherNode, rig_stereo
 
     rig = load_rig(args.rig)
     rig_stereo(rig)  # refuse a rig without a stereo pair before joining the bus
     config = node_config_from_args(args, rig)
-    with open_session(options_from_args(args)) as session:
+    with joined(options_from_args(args)) as session:
         return MatcherNode(session, rig, config=config).run()

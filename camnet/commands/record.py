@@ -15,7 +15,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="MCAP file to write (refused if it exists, unless --force); an existing "
                              "directory gets a new <rig>-<UTC time>.mcap in it")
     parser.add_argument("--duration-s", type=float, default=0.0, metavar="S",
-                        help="stop after S seconds (default: until Ctrl-C or SIGTERM)")
+                        help="stop after S seconds (default: until Ctrl-C or SIGTERM); a recorder that fell "
+                             "behind writes its queue for at most 1 s more, then drops the rest, counted")
     parser.add_argument("--compression", type=ChunkCompression, choices=list(ChunkCompression),
                         default=ChunkCompression.LZ4,
                         help="chunk compression (default: lz4; zstd makes smaller files but "
@@ -36,7 +37,7 @@ def run(args: argparse.Namespace) -> int:
     import time
     from pathlib import Path
 
-    from camnet.bus.session import open_session, options_from_args
+    from camnet.bus.session import joined, options_from_args
     from camnet.services.recorder import Recorder, RecorderConfig
 
     output = Path(args.output)
@@ -53,10 +54,11 @@ def run(args: argparse.Namespace) -> int:
         frames = sum(t.frames for t in summary.cameras.values())
         missing = sum(t.missing for t in summary.cameras.values())
         line = (f"recording {summary.duration_s:6.1f} s: {len(summary.cameras)} camera(s), "
-                f"{frames} frames, {missing} missing, {summary.file_bytes / 1e6:.0f} MB")
+                f"{frames} frames, {missing} missing, {summary.queue_overflows} refused by the full queue, "
+                f"{summary.file_bytes / 1e6:.0f} MB")
         print(line, end="\r" if tty else "\n", file=sys.stderr, flush=True)
 
-    with open_session(options_from_args(args)) as session:
+    with joined(options_from_args(args)) as session:
         summary = Recorder(session, config).run(on_progress=progress,
                                                 progress_period_s=1.0 if tty else 5.0)
     if tty:

@@ -33,7 +33,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from camnet.bus.session import open_session, options_from_args
+    from camnet.bus.session import joined, options_from_args
     from camnet.errors import InputError
     from camnet.io.session_file import open_session_file
     from camnet.services.replayer import Replayer, ReplayOptions
@@ -57,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"replay {share:6.1%}: {done}/{summary.total_frames} frames, {summary.duration_s:.1f} s",
               end="\r" if tty else "\n", file=sys.stderr, flush=True)
 
-    with open_session(options_from_args(args)) as session:
+    with joined(options_from_args(args)) as session:
         replayer = Replayer(session, session_file, options=options)
         summary = replayer.run(on_progress=progress, progress_period_s=1.0 if tty else 5.0)
     if tty:

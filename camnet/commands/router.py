@@ -33,7 +33,7 @@ def run(args: argparse.Namespace) -> int:
 
     from camnet.bus.node import stop_on_signals
     from camnet.bus.security import ROUTER, load_secure_dir, watch_identities
-    from camnet.bus.session import listen_endpoints, make_config, open_session, options_from_args
+    from camnet.bus.session import joined, listen_endpoints, make_config, options_from_args
 
     if not sys.stdout.isatty():
         os.environ.setdefault("NO_COLOR", "1")  # Zenoh's log lines without colour codes in a log file
@@ -41,7 +41,7 @@ def run(args: argparse.Namespace) -> int:
     options = options_from_args(args, mode="router")
     config = make_config(options)
     rig = load_secure_dir(options.secure, ROUTER).rig if options.secure else None
-    with open_session(options, config=config) as session, stop_on_signals(threading.Event()) as stop:
+    with joined(options, config=config) as session, stop_on_signals(threading.Event()) as stop:
         if rig is not None:
             # Who joins and leaves, by identity, is what the router's log is for (`docker compose
             # logs router`): logged without -v.

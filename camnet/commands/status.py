@@ -113,8 +113,8 @@ class StatsReader:
             return dict(self._stats)
 
 
-def live_nodes(replies) -> list[tuple[str, str]]:
-    """(kind, id) of the liveliness `replies` that name a node; other keys are skipped."""
+def live_nodes(replies) -> list[tuple[str, str, str]]:
+    """(rig, kind, id) of the liveliness `replies` that name a node; other keys are skipped."""
     from camnet.bus import keys
     from camnet.errors import InputError
 
@@ -123,33 +123,53 @@ def live_nodes(replies) -> list[tuple[str, str]]:
         if reply.ok is None:
             continue
         try:
-            _, kind, node_id = keys.parse_node(str(reply.ok.key_expr))
+            nodes.append(keys.parse_node(str(reply.ok.key_expr)))
         except InputError:
             continue
-        nodes.append((kind, node_id))
     return nodes
 
 
-def run(args: argparse.Namespace) -> int:
+def rigs_line(rigs: set[str]) -> str:
+    return "rigs seen: " + (", ".join(sorted(rigs)) if rigs else "none (is a node running, and on this bus?)")
+
+
+def report(rig: str, every: list[tuple[str, str, str]], seen: dict) -> int:
+    """Print what was seen of `rig`, given the live nodes of `every` rig and the statistics `seen`;
+    the exit status: 1 when no node of `rig` is live (a misspelt rig name, or nothing running)."""
     import sys
+
+    nodes = [(kind, node_id) for node_rig, kind, node_id in every if node_rig == rig]
+    rigs = {node_rig for node_rig, _, _ in every}
+    if not nodes:
+        print(f"camnet status: no live node for rig {rig!r}; {rigs_line(rigs)}", file=sys.stderr, flush=True)
+        return 1
+    print(f"rig {rig}: {len(nodes)} live node(s)")
+    print(format_table(nodes, seen))
+    for line in format_cameras(seen):
+        print(line)
+    for line in suspicious(nodes, seen):
+        print(f"suspicious: {line}")
+    if rigs - {rig}:
+        print(f"other {rigs_line(rigs - {rig})}")
+    sys.stdout.flush()
+    return 0
+
+
+def run(args: argparse.Namespace) -> int:
     import time
 
     from camnet.bus import keys
-    from camnet.bus.session import open_session, options_from_args
+    from camnet.bus.session import joined, options_from_args
 
     reader = StatsReader()
-    with open_session(options_from_args(args)) as session:
+    with joined(options_from_args(args)) as session:
         subscriber = session.declare_subscriber(keys.all_node_stats(args.rig), reader)
         time.sleep(args.wait_s)
-        nodes = live_nodes(session.liveliness().get(keys.all_nodes(args.rig), timeout=2.0))
+        # The rig's own nodes, and every rig's, asked at once: on a secured rig an observer may see
+        # only its own rig's tokens (camnet.bus.security), so the first answer is the one relied on.
+        own, every = [session.liveliness().get(selector, timeout=2.0)
+                      for selector in (keys.all_nodes(args.rig), keys.every_rigs_nodes())]
+        nodes = set(live_nodes(own)) | set(live_nodes(every))
         subscriber.undeclare()
-        # Printed before the session closes: what was seen is shown even if closing it is slow or fails.
-        seen = reader.stats
-        print(f"rig {args.rig}: {len(nodes)} live node(s)")
-        print(format_table(nodes, seen))
-        for line in format_cameras(seen):
-            print(line)
-        for line in suspicious(nodes, seen):
-            print(f"suspicious: {line}")
-        sys.stdout.flush()
-    return 0
+        # Printed before the session closes: what was seen is shown even if closing it is slow.
+        return report(args.rig, sorted(nodes), reader.stats)

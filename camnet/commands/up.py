@@ -98,13 +98,18 @@ def _check_sources(rig_path: Path, rig) -> None:
 
 
 class LatestCalibration:
-    """Subscriber callback keeping the latest valid calibration document (`latest["doc"]`).
+    """Subscriber callback keeping the latest valid calibration document (`latest["doc"]`), and every
+    one that arrived since the last `take`, in order (a few at most: two solves in quick succession
+    are both shown, not just the second).
 
     Any peer may publish on the calibration key: what is no calibration is
     counted and logged once per kind, never shown or kept.
     """
 
+    PENDING = 32  # kept for `take`; beyond, the oldest go (the console is that far behind)
+
     def __init__(self) -> None:
+        import collections
         import logging
         import threading
 
@@ -113,6 +118,8 @@ class LatestCalibration:
         self.latest: dict[str, dict] = {}
         self.arrived = threading.Event()
         self.malformed = Tally(logging.getLogger("camnet.up"))
+        self._pending: collections.deque[dict] = collections.deque(maxlen=self.PENDING)
+        self._lock = threading.Lock()
 
     def __call__(self, sample) -> None:
         from camnet.errors import InputError
@@ -125,8 +132,17 @@ class LatestCalibration:
         except InputError as exc:
             self.malformed.count(str(exc).split(":", 1)[0], "ignoring a message that is no calibration (%s)", exc)
             return
-        self.latest["doc"] = doc
+        with self._lock:
+            self._pending.append(doc)
+            self.latest["doc"] = doc
         self.arrived.set()
+
+    def take(self) -> list[dict]:
+        """The calibrations that arrived since the last call, oldest first."""
+        with self._lock:
+            docs = list(self._pending)
+            self._pending.clear()
+        return docs
 
 
 class RunFollower:
@@ -159,6 +175,7 @@ class RunFollower:
 
         latest, arrived = self.on_calibration.latest, self.on_calibration.arrived
         next_wait_note = start_s + 10.0
+        numbering = SolveNumbering()
         replay_done_s = None
         while (self.args.forever or time.monotonic() - start_s < self.args.duration_s) and not stop.is_set():
             replay_done_s = replay_done_s or _replay_ended(launch)
@@ -167,15 +184,39 @@ class RunFollower:
             launch.check()
             if arrived.wait(timeout=0.5):
                 arrived.clear()
-                summary = summarise(time.monotonic() - start_s, latest["doc"], self.truth)
-                print(progress_line(summary), flush=True)
-                if progress_file is not None:
-                    progress_file.write(json.dumps(summary) + "\n")
-                    progress_file.flush()
+                for doc in self.on_calibration.take():
+                    summary = summarise(time.monotonic() - start_s, doc, self.truth)
+                    note = numbering.note(summary["solve"], run_dir, resumed=doc.get("resumed") is True)
+                    print(progress_line(summary) + note, flush=True)
+                    if progress_file is not None:
+                        progress_file.write(json.dumps(summary) + "\n")
+                        progress_file.flush()
             elif "doc" not in latest and time.monotonic() >= next_wait_note:
                 print(f"{time.monotonic() - start_s:7.1f} s  waiting for the first calibration "
                       f"(see {run_dir / 'logs'}/*.log)", flush=True)
                 next_wait_note = time.monotonic() + 10.0
+
+
+class SolveNumbering:
+    """What the console says of the calibrator's solve numbers: they count every solve, and only good
+    ones are published, so a number skipped is a solve not kept (refused or failed, in its log)."""
+
+    def __init__(self) -> None:
+        self.last: int | None = None
+
+    def note(self, solve: object, run_dir: Path, *, resumed: bool = False) -> str:
+        """A note for the line of calibration `solve`: resumed from the state file (the calibrator
+        numbers on from it), or after solves that were not kept; else ''."""
+        if not isinstance(solve, int) or isinstance(solve, bool):
+            return ""
+        first = 1 if self.last is None or solve <= self.last else self.last + 1
+        self.last = solve
+        if resumed:
+            return "  (resumed: the last run's calibration)"
+        if solve <= first:
+            return ""
+        skipped = f"solve {first}" if solve - first == 1 else f"solves {first}-{solve - 1}"
+        return f"  ({skipped} not kept: see {run_dir / 'logs' / 'calibrator.log'})"
 
 
 REPLAY_TAIL_S = 20.0  # after a replay's last frame, how long its last frame sets may take to be calibrated
@@ -191,6 +232,16 @@ def _replay_ended(launch) -> float | None:
             print("replay: the session has been played to its end", flush=True)
             return time.monotonic()
     return None
+
+
+def rerun_lines(values: list[str]) -> list[str]:
+    """What the operator needs of the --rerun sinks the calibrator opens: the web viewer's page to open,
+    the file, the viewer it streams to (the calibrator's own lines go to its log)."""
+    import socket
+
+    from camnet.viz_sinks import parse_sink
+
+    return [f"rerun: {parse_sink(value).describe(host=socket.gethostname())}" for value in values]
 
 
 def _network_spec(args: argparse.Namespace, rig_path: Path, rig, run_dir: Path):
@@ -214,7 +265,7 @@ def run(args: argparse.Namespace) -> int:
     from camnet.bus import keys
     from camnet.bus.launch import Launch, start_network
     from camnet.bus.node import stop_on_signals
-    from camnet.bus.session import open_session, options_from_args
+    from camnet.bus.session import joined, options_from_args
     from camnet.errors import CamnetError
     from camnet.io.run_dir import default_run_dir
 
@@ -233,11 +284,13 @@ def run(args: argparse.Namespace) -> int:
         # and every node is stopped on the way out.
         stop = stack.enter_context(stop_on_signals(threading.Event()))
         progress_file = stack.enter_context(open(args.progress_jsonl, "w")) if args.progress_jsonl else None
-        session = stack.enter_context(open_session(options_from_args(args)))
+        session = stack.enter_context(joined(options_from_args(args)))
         launch = stack.enter_context(Launch(run_dir / "logs"))
         subscribers = [session.declare_subscriber(keys.calibration(rig.name), follower.on_calibration),
                        session.declare_subscriber(keys.observations(rig.name), follower.on_observations)]
         start_network(launch, spec)
+        for line in rerun_lines(args.rerun):
+            print(line, flush=True)
         if args.replay:
             launch.start("replay", ["replay", str(args.replay), "--rig", rig.name, *spec.bus])
         follower.follow(launch, stop, time.monotonic(), run_dir, progress_file)
