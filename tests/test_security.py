@@ -174,6 +174,8 @@ def test_each_key_is_granted_to_the_kinds_whose_job_it_is():
                 for name in names if keys_include(k, key)}
 
     assert who("put ingress", keys.frame(RIG, "left")) == {"driver", "replayer"}
+    assert who("put ingress", keys.features(RIG, "left")) == {"driver", "replayer"}
+    assert who("put egress", keys.features(RIG, "left")) == {"matcher", "recorder"}
     assert who("put ingress", keys.observations(RIG)) == {"matcher"}
     assert who("put ingress", keys.calibration(RIG)) == {"calibrator"}
     assert who("declare_queryable ingress", keys.calibration(RIG)) == {"calibrator"}
