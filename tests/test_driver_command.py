@@ -90,9 +90,10 @@ def test_driver_refuses_wrong_driver_for_camera():
     assert "camera 'left' uses driver 'sim', not 'v4l2'" in result.stderr
 
 
-def small_rig(path: Path, *, side_px: int = 320, fps: float = 5.0) -> Path:
-    """config/sim.yaml at `side_px` wide and `fps`, written to `path`."""
+def small_rig(path: Path, *, side_px: int = 320, fps: float = 5.0, name: str = "sim") -> Path:
+    """config/sim.yaml at `side_px` wide and `fps`, named `name`, written to `path`."""
     rig = yaml.safe_load(RIG.read_text())
+    rig["rig"] = name
     scale = side_px / 1280
     for camera in rig["cameras"]:
         sim = camera["sim"]
