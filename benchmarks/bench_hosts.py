@@ -208,7 +208,8 @@ def main() -> int:
     parser.add_argument("--compare-minutes", type=float, default=3.0,
                         help="of the 4-camera run for the matcher's CPU per frame set (0: none; default: 3)")
     parser.add_argument("--rig", type=Path, default=ROOT / "config" / "hosts16.yaml",
-                        help="a simulated rig whose first four cameras hold its stereo pair (default: %(default)s)")
+                        help="a simulated rig whose first four cameras hold its stereo pair "
+                             "(default: config/hosts16.yaml)")
     parser.add_argument("--features-period-s", type=float, default=0.5,
                         help="the feature stages' grid of capture times (default: 0.5, two frame sets a second)")
     parser.add_argument("--sample-s", type=float, default=10.0)
