@@ -109,13 +109,17 @@ class Network:
         self.start_router()
         self.session = open_session(BusOptions(connect=(self.endpoint,)))
         self.session.declare_subscriber(keys.calibration(self.rig_name), self._on_calibration)
-        bus = ("--connect", self.endpoint)
+        self.start_nodes(("--connect", self.endpoint))
+        return self
+
+    def start_nodes(self, bus: tuple[str, ...], *, drivers: bool = True) -> None:
+        """The rig's nodes, joining with `bus` flags: a driver per camera (unless not `drivers`), matcher,
+        calibrator."""
         cameras = tuple((c["id"], "sim") for c in yaml.safe_load(self.rig_path.read_text())["cameras"])
         start_network(self.launch, NetworkSpec(
-            rig_path=self.rig_path, rig_name=self.rig_name, cameras=cameras, bus=bus,
+            rig_path=self.rig_path, rig_name=self.rig_name, cameras=cameras if drivers else (), bus=bus,
             matcher=("--publish-period-s", "1.0", *self.matcher_flags),
             calibrator=("--state", str(self.state))))
-        return self
 
     def __exit__(self, *exc_info: object) -> None:
         try:

@@ -65,9 +65,9 @@ def soak(work: Path, *, minutes: float, sample_s: float, n_cameras: int, fps: fl
     return {"samples": samples, "growth": growth(samples)}
 
 
-def growth(samples: list[dict]) -> dict[str, float]:
-    """Per node: relative RSS growth from the first sample after SETTLE_S to the last."""
-    settled = next((s for s in samples if s["t_s"] >= SETTLE_S), samples[0])
+def growth(samples: list[dict], settle_s: float = SETTLE_S) -> dict[str, float]:
+    """Per node: relative RSS growth from the first sample after `settle_s` to the last."""
+    settled = next((s for s in samples if s["t_s"] >= settle_s), samples[0])
     last = samples[-1]
     return {name: (last["rss_mb"][name] - mb) / mb for name, mb in settled["rss_mb"].items()
             if mb > 0 and name in last["rss_mb"]}

@@ -5,6 +5,8 @@ frames (seen as sequence gaps) instead of stalling the camera. A camera that
 knows the rig's ground truth (a simulated one) also publishes it on the
 groundtruth key and answers queries on it. `on_frame`, when given, sees every
 frame published (the feature stage beside the driver takes its frames so).
+`run_together` runs the nodes of several cameras in one process (a camera
+host), each on its own thread.
 """
 
 from __future__ import annotations
@@ -12,7 +14,7 @@ from __future__ import annotations
 import json
 import logging
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 from camnet.drivers.base import Camera, EndOfStream, ReadTimeout
 
@@ -89,3 +91,34 @@ class DriverNode:
                 if queryable is not None:
                     queryable.undeclare()
         return 0
+
+
+def run_together(nodes: Sequence[DriverNode], *, max_frames: int = 0) -> int:
+    """Run `nodes` on a thread each until SIGTERM or Ctrl-C, or until every one has ended.
+
+    A node that fails stops the others, and its error is raised here once they have stopped: the
+    process then ends as a one-camera driver would (and a supervisor restarts the whole host).
+    """
+    stop = threading.Event()
+    errors: list[BaseException] = []
+
+    def run_one(node: DriverNode) -> None:
+        try:
+            node.run(max_frames=max_frames)
+        except BaseException as exc:  # noqa: BLE001 (raised again in the main thread below)
+            errors.append(exc)
+            stop.set()
+
+    threads = [threading.Thread(target=run_one, args=(node,), name=f"driver-{node.camera_id}") for node in nodes]
+    with stop_on_signals(stop):
+        for thread in threads:
+            thread.start()
+        while any(thread.is_alive() for thread in threads) and not stop.wait(0.2):
+            pass
+        for node in nodes:
+            node.stop.set()
+        for thread in threads:
+            thread.join()
+    if errors:
+        raise errors[0]
+    return 0

@@ -44,9 +44,14 @@ def service_argv(service: dict) -> list[str]:
     return shlex.split(command) if isinstance(command, str) else list(command)
 
 
-def driver_services(compose: dict) -> dict[str, dict]:
+def driver_services(compose: dict, profile: str = "cameras") -> dict[str, dict]:
+    """The driver services of `profile`: one per camera in `cameras`, one per camera host in `hosts`."""
     return {name: s for name, s in camnet_services(compose).items()
-            if service_argv(s)[0] == "driver"}
+            if service_argv(s)[0] == "driver" and profile in s["profiles"]}
+
+
+def option_values(argv: list[str], option: str) -> list[str]:
+    return [argv[i + 1] for i, arg in enumerate(argv[:-1]) if arg == option]
 
 
 def config_source(compose: dict, service: dict, target: str) -> Path:
@@ -84,10 +89,13 @@ def test_compose_has_every_node_of_the_rig():
     drivers = {}
     for name, service in driver_services(compose).items():
         argv = service_argv(service)
-        entry = rig.camera(option_value(argv, "--camera"))
+        [camera_id] = option_values(argv, "--camera")
+        entry = rig.camera(camera_id)
         assert entry.driver == argv[1], f"{name}: rig says driver {entry.driver}"
-        assert "cameras" in service["profiles"], f"{name} is not in the cameras profile"
         drivers[entry.id] = name
+    every_driver = {n for n, s in camnet_services(compose).items() if service_argv(s)[0] == "driver"}
+    assert every_driver == set(drivers.values()) | set(driver_services(compose, "hosts")), \
+        "a driver service in neither the cameras nor the hosts profile"
     assert sorted(drivers) == sorted(c.id for c in rig.cameras), "a camera without a driver service"
     recorder = service_argv(services["recorder"])
     assert option_value(recorder, "--rig") == option_value(service_argv(services["status"]), "--rig") == rig.name
@@ -96,6 +104,28 @@ def test_compose_has_every_node_of_the_rig():
     calibrator = service_argv(services["calibrator"])
     assert option_value(calibrator, "--state").startswith("/state/")
     assert services["calibrator"]["volumes"] == ["calibrator-state:/state"]
+
+
+def test_hosts_profile_runs_every_camera_of_its_rig_once_on_four_hosts_with_features():
+    """Profile `hosts`: config/hosts16.yaml's 16 cameras, four per camera host, each host one process
+    detecting its cameras' features (what benchmarks/bench_hosts.py runs on one machine)."""
+    from camnet.cli import build_parser
+    from camnet.io.rig import load_rig
+
+    compose = load_compose({"CAMNET_RIG": "../config/hosts16.yaml"})
+    rig = load_rig(config_source(compose, compose["services"]["matcher"], "/etc/camnet/rig.yaml"))
+    hosts = driver_services(compose, "hosts")
+    assert len(hosts) == 4 and len(rig.cameras) == 16
+    placed: list[str] = []
+    for name, service in hosts.items():
+        argv = service_argv(service)
+        args = build_parser().parse_args(argv)
+        assert args.features and len(args.camera) == 4, name
+        assert all(rig.camera(c).driver == args.driver for c in args.camera), name
+        assert service["profiles"] == ["hosts"], f"{name} would also start in another profile"
+        placed += args.camera
+    assert sorted(placed) == sorted(c.id for c in rig.cameras), "a camera on no host, or on two"
+    assert "hosts16" in (DOCKER / "README.md").read_text()
 
 
 def test_compose_settings_change_what_they_name():

@@ -1,4 +1,5 @@
-"""`camnet driver sim` as a real process; a subscriber and `camnet status` see it."""
+"""`camnet driver sim` as a real process, with one camera or several; a subscriber and `camnet status`
+see it."""
 
 from __future__ import annotations
 
@@ -9,8 +10,11 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
+import yaml
 
 from camnet.bus import keys
+from camnet.bus.features_wire import decode_features
 from camnet.bus.receiver import FrameReceiver
 from camnet.bus.session import BusOptions, open_session
 from tests.conftest import free_port, wait_for
@@ -87,6 +91,94 @@ def test_driver_refuses_wrong_driver_for_camera():
         cwd=ROOT, capture_output=True, text=True, timeout=30)
     assert result.returncode == 2
     assert "camera 'left' uses driver 'sim', not 'v4l2'" in result.stderr
+
+
+def small_rig(path: Path, *, side_px: int = 320, fps: float = 5.0, name: str = "sim") -> Path:
+    """config/sim.yaml at `side_px` wide and `fps`, named `name`, written to `path`."""
+    rig = yaml.safe_load(RIG.read_text())
+    rig["rig"] = name
+    scale = side_px / 1280
+    for camera in rig["cameras"]:
+        sim = camera["sim"]
+        sim.update(width=side_px, height=round(1024 * scale), fps=fps, f_px=sim["f_px"] * scale,
+                   cx_px=(side_px - 1) / 2, cy_px=(round(1024 * scale) - 1) / 2)
+    path.write_text(yaml.safe_dump(rig))
+    return path
+
+
+def test_one_driver_process_runs_several_cameras_with_their_feature_stages(tmp_path):
+    """A camera host: three cameras of the rig in one process, each publishing frames and features."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    cameras = ("left", "mono_a", "mono_b")
+    rig = small_rig(tmp_path / "rig.yaml")
+    driver = camnet("driver", "sim", "--rig", str(rig), *[a for c in cameras for a in ("--camera", c)],
+                    "--features", "--features-period-s", "0.5", "--listen", endpoint, "--stats-period-s", "0.5")
+    try:
+        receiver = FrameReceiver()
+        frames: dict[str, list[int]] = {c: [] for c in cameras}
+        features: dict[str, list[int]] = {c: [] for c in cameras}
+
+        def on_frame(sample) -> None:
+            frame = receiver.accept(sample.payload.to_bytes())
+            frames[frame.camera_id].append(frame.seq)
+
+        def on_features(sample) -> None:
+            message = decode_features(sample.payload.to_bytes())
+            features[message.camera_id].append(len(message.uv))
+
+        with open_session(BusOptions(connect=(endpoint,))) as session:
+            session.declare_subscriber(keys.all_frames("sim"), on_frame)
+            session.declare_subscriber(keys.all_features("sim"), on_features)
+            # Progress, not a fixed delay: every camera's frames and features arrive, in order.
+            assert wait_for(lambda: all(len(frames[c]) >= 5 and len(features[c]) >= 2 for c in cameras), 120.0), \
+                ({c: len(f) for c, f in frames.items()}, {c: len(f) for c, f in features.items()}, stop(driver))
+            assert set(frames) == set(cameras) and receiver.malformed.total == 0
+            assert all(seqs == sorted(seqs) for seqs in frames.values())
+            assert all(min(n) > 20 for n in features.values()), features
+            nodes = {str(reply.ok.key_expr) for reply in session.liveliness().get(keys.all_nodes("sim"), timeout=5.0)
+                     if reply.ok is not None}
+            assert nodes == {keys.node("sim", "driver", c) for c in cameras}, nodes
+    finally:
+        err = stop(driver)
+    assert driver.returncode == 0, err  # SIGTERM stops every camera and the process cleanly
+
+
+@pytest.mark.parametrize(("cameras", "message"), [
+    (("left", "mono_a", "left"), "--camera: a camera given twice"),
+    (("left", "nope"), "nope"),
+])
+def test_driver_refuses_a_bad_list_of_cameras(tmp_path, cameras, message):
+    result = subprocess.run([sys.executable, "-m", "camnet", "driver", "sim", "--rig", str(RIG),
+                             *[a for c in cameras for a in ("--camera", c)]],
+                            cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2 and message in result.stderr, result.stderr
+
+
+class FailingCamera:
+    """A driver node whose camera fails after `fail_after_s` (None: runs until stopped)."""
+
+    def __init__(self, camera_id: str, fail_after_s: float | None) -> None:
+        import threading
+
+        self.camera_id, self.fail_after_s = camera_id, fail_after_s
+        self.stop = threading.Event()
+        self.stopped = False
+
+    def run(self, *, max_frames: int = 0) -> int:
+        if self.stop.wait(self.fail_after_s if self.fail_after_s is not None else 60.0):
+            self.stopped = True
+            return 0
+        raise OSError(f"camera {self.camera_id} unplugged")
+
+
+def test_a_failing_camera_stops_the_other_cameras_of_its_process():
+    from camnet.drivers.node import run_together
+
+    nodes = [FailingCamera("a", None), FailingCamera("b", 0.3), FailingCamera("c", None)]
+    started_s = time.monotonic()
+    with pytest.raises(OSError, match="camera b unplugged"):
+        run_together(nodes)
+    assert nodes[0].stopped and nodes[2].stopped and time.monotonic() - started_s < 30.0
 
 
 def test_router_relays_between_peers():

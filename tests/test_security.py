@@ -174,6 +174,8 @@ def test_each_key_is_granted_to_the_kinds_whose_job_it_is():
                 for name in names if keys_include(k, key)}
 
     assert who("put ingress", keys.frame(RIG, "left")) == {"driver", "replayer"}
+    assert who("put ingress", keys.features(RIG, "left")) == {"driver", "replayer"}
+    assert who("put egress", keys.features(RIG, "left")) == {"matcher", "recorder"}
     assert who("put ingress", keys.observations(RIG)) == {"matcher"}
     assert who("put ingress", keys.calibration(RIG)) == {"calibrator"}
     assert who("declare_queryable ingress", keys.calibration(RIG)) == {"calibrator"}
@@ -430,3 +432,39 @@ def test_a_node_started_before_its_router_waits_for_it_saying_so(secrets, tmp_pa
     finally:
         for session in opened:
             session.close()
+
+
+def test_a_camera_host_sends_its_features_through_the_access_control(secrets, tmp_path):
+    """`camnet driver --camera A --camera B --features --secure`: one process with the drivers' identity
+    publishes both cameras' frames and features, and the router passes them to the matcher."""
+    from camnet.bus.features_wire import decode_features
+    from tests.test_driver_command import small_rig
+
+    rig_path = small_rig(tmp_path / "rig.yaml", name=RIG)
+    with router_process(secrets, tmp_path / "router.log") as (endpoint, router_log):
+        with open(tmp_path / "driver.log", "wb") as log:
+            driver = subprocess.Popen([sys.executable, "-m", "camnet.cli", "driver", "sim", "--rig", str(rig_path),
+                                       "--camera", "left", "--camera", "mono_a", "--features", "--features-period-s",
+                                       "0.5", "--secure", str(secrets), "--connect", endpoint],
+                                      cwd=ROOT, stdout=log, stderr=subprocess.STDOUT)
+        try:
+            seen: dict[str, set[str]] = {"frames": set(), "features": set()}
+
+            def on_features(sample) -> None:
+                seen["features"].add(decode_features(sample.payload.to_bytes()).camera_id)
+
+            with client(secrets, "matcher", endpoint) as matcher:
+                matcher.declare_subscriber(keys.all_frames(RIG), lambda s: seen["frames"].add(str(s.key_expr)))
+                matcher.declare_subscriber(keys.all_features(RIG), on_features)
+                # Progress, not a fixed delay: both cameras' features arrive (or the driver ends).
+                assert wait_for(lambda: seen["features"] == {"left", "mono_a"} or driver.poll() is not None, 120), \
+                    (seen, (tmp_path / "driver.log").read_text()[-2000:], router_log.read_text()[-2000:])
+                assert seen["frames"] == {keys.frame(RIG, "left"), keys.frame(RIG, "mono_a")}
+        finally:
+            driver.terminate()
+            try:
+                driver.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                driver.kill()
+                driver.wait()
+    assert driver.returncode == 0, (tmp_path / "driver.log").read_text()[-2000:]

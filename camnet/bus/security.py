@@ -89,6 +89,7 @@ def grants(rig: str) -> dict[str, Grants]:
     """What each node kind of `rig` may do: its job's keys, its own liveliness and statistics."""
     prefix = keys.rig_prefix(rig)
     frames = keys.all_frames(rig)
+    features = keys.all_features(rig)  # of the feature stages beside the drivers (`camnet driver --features`)
     observations, calibration, groundtruth = keys.observations(rig), keys.calibration(rig), keys.groundtruth(rig)
 
     def own(kind: str) -> tuple[tuple[str, ...], tuple[str, ...]]:
@@ -104,14 +105,14 @@ def grants(rig: str) -> dict[str, Grants]:
     recorder_tokens, recorder_stats = own("recorder")
     return {
         # The sim driver also publishes the simulation's ground truth, and answers for it.
-        "driver": Grants(publish=(frames, groundtruth, *driver_stats), serve=(groundtruth,),
+        "driver": Grants(publish=(frames, features, groundtruth, *driver_stats), serve=(groundtruth,),
                          token=driver_tokens),
         # A replayed camera is a driver to the rest of the rig (services/replayer.py); a lockstep
         # replay also announces its steps and waits for the acknowledgements.
-        "replayer": Grants(publish=(frames, groundtruth, *driver_stats, keys.lockstep_step(rig)),
+        "replayer": Grants(publish=(frames, features, groundtruth, *driver_stats, keys.lockstep_step(rig)),
                            serve=(groundtruth,), token=driver_tokens,
                            subscribe=(keys.all_lockstep_acks(rig),), watch=(keys.all_lockstep_acks(rig),)),
-        "matcher": Grants(subscribe=(frames, keys.lockstep_step(rig)),
+        "matcher": Grants(subscribe=(frames, features, keys.lockstep_step(rig)),
                           publish=(observations, *matcher_stats, *acks("matcher")), serve=(observations,),
                           token=(*matcher_tokens, *acks("matcher"))),
         # Frames only for showing them in Rerun beside the solve.

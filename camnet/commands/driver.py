@@ -1,4 +1,9 @@
-"""`camnet driver sim|aravis|v4l2`: publish one camera's frames on the bus."""
+"""`camnet driver sim|aravis|v4l2`: publish a camera's frames on the bus.
+
+`--camera` repeated runs several cameras of the rig in one process, as one
+camera host does: one Zenoh session, a driver (and with `--features` its
+feature stage) per camera, each on its own thread.
+"""
 
 from __future__ import annotations
 
@@ -16,11 +21,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     parser.add_argument("driver", choices=DRIVERS, help="camera driver")
     parser.add_argument("--rig", required=True, metavar="RIG.yaml", help="rig file")
-    parser.add_argument("--camera", required=True, metavar="ID", help="camera id in the rig")
+    parser.add_argument("--camera", required=True, action="append", metavar="ID",
+                        help="camera id in the rig; repeat it to run several cameras of the rig in this "
+                             "process (one session, a thread per camera)")
     parser.add_argument("--compression", choices=[c.name.lower() for c in Compression], default="none",
                         help="frame compression on the wire (default: none)")
     parser.add_argument("--max-frames", type=int, default=0, metavar="N",
-                        help="stop after N frames (default: run until stopped)")
+                        help="stop after N frames of each camera (default: run until stopped)")
     parser.add_argument("--stats-period-s", type=float, default=1.0, metavar="S",
                         help="seconds between statistics messages (default: 1)")
     parser.add_argument("--features", action="store_true",
@@ -41,20 +48,27 @@ def run(args: argparse.Namespace) -> int:
     from camnet.io.rig import load_rig
 
     rig = load_rig(args.rig)
-    entry = rig.camera(args.camera)
-    if entry.driver != args.driver:
-        raise InputError(f"{args.rig}: camera {entry.id!r} uses driver {entry.driver!r}, "
-                         f"not {args.driver!r}")
-    camera = create_camera(entry, rig)
+    if len(set(args.camera)) < len(args.camera):
+        raise InputError(f"--camera: a camera given twice ({', '.join(args.camera)})")
+    entries = [rig.camera(camera_id) for camera_id in args.camera]
+    for entry in entries:
+        if entry.driver != args.driver:
+            raise InputError(f"{args.rig}: camera {entry.id!r} uses driver {entry.driver!r}, "
+                             f"not {args.driver!r}")
+    cameras = [create_camera(entry, rig) for entry in entries]
     with joined(options_from_args(args)) as session:
-        from camnet.drivers.node import DriverNode
+        from camnet.drivers.node import DriverNode, run_together
 
         with contextlib.ExitStack() as stack:
-            on_frame = stack.enter_context(_feature_worker(session, rig.name, entry.id, args)).offer \
-                if args.features else None
-            node = DriverNode(session, rig, camera, compression=Compression[args.compression.upper()],
-                              stats_period_s=args.stats_period_s, on_frame=on_frame)
-            return node.run(max_frames=args.max_frames)
+            nodes = []
+            for camera in cameras:
+                on_frame = stack.enter_context(_feature_worker(session, rig.name, camera.camera_id, args)).offer \
+                    if args.features else None
+                nodes.append(DriverNode(session, rig, camera, compression=Compression[args.compression.upper()],
+                                        stats_period_s=args.stats_period_s, on_frame=on_frame))
+            if len(nodes) == 1:
+                return nodes[0].run(max_frames=args.max_frames)
+            return run_together(nodes, max_frames=args.max_frames)
 
 
 def _feature_worker(session, rig_name: str, camera_id: str, args: argparse.Namespace):

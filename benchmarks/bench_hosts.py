@@ -1,0 +1,242 @@
+#!/usr/bin/env python3
+"""16 cameras across hosts, on one machine: four camera hosts, the router, the matcher, the calibrator.
+
+The 16-camera simulated rig of config/hosts16.yaml (640x512 at 10 fps) runs
+as four "hosts": four `camnet driver sim --camera A --camera B --camera C
+--camera D --features` processes, each with four cameras and their feature
+stages, meeting the matcher and the calibrator at `camnet router`, as the
+`hosts` profile of docker/compose.yaml runs them on five machines. Every `--sample-s` it samples
+each process's CPU time (/proc/PID/stat, utime + stime) and resident memory,
+the matcher's frame sets and the good calibrations published, and prints a
+progress line. At the end, a table:
+
+- calibrated frame sets per second: frame sets pooled into the good
+  calibrations published after the first minute (their `frame_sets`), per
+  second of that window (target: at least 1);
+- capture->calibration latency: solved_ns - latest_capture_ns of each good
+  calibration, median and max (as bench_live.py);
+- CPU of each process, in % of one core over the window;
+- memory of every node, and its growth after the first minute (under 5%).
+
+Rates, CPU and growth are taken from the first sample after the first
+minute and after the first good calibration, whichever is later (a loaded
+machine calibrates 16 cameras for the first time after more than a minute).
+
+Then, unless `--compare-minutes 0`, the same with the rig's first four
+cameras (the paper's rig) on one host: the matcher's CPU seconds per frame
+set matched, 16 cameras against 4 (target: at most 2.5x).
+
+    python benchmarks/bench_hosts.py                          # 10 minutes, then 3 of the 4-camera rig
+    python benchmarks/bench_hosts.py --minutes 3 --compare-minutes 2
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shlex
+import statistics
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import yaml
+from bench_faults import Network, rss_mb
+from soak import GROWTH_LIMIT, SETTLE_S, MatcherStats, growth
+
+from camnet.bus import keys
+
+ROOT = Path(__file__).resolve().parent.parent
+CAMERAS_PER_HOST = 4
+MIN_FRAME_SETS_PER_S = 1.0
+MAX_MATCHER_CPU_RATIO = 2.5
+CLOCK_TICKS_PER_S = os.sysconf("SC_CLK_TCK")
+
+
+def cpu_s(pid: int) -> float:
+    """CPU time (user + system) a process has used, in seconds (0 when it is gone)."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return 0.0
+    fields = stat[stat.rindex(")") + 2:].split()  # after the command name, which may hold spaces
+    return (int(fields[11]) + int(fields[12])) / CLOCK_TICKS_PER_S  # utime, stime: fields 14 and 15
+
+
+class HostsNetwork(Network):
+    """The rig's cameras in processes of `cameras_per_host` drivers each, with their feature stages."""
+
+    def __init__(self, work: Path, rig: dict, *, cameras_per_host: int, features_period_s: float,
+                 matcher_flags: tuple[str, ...] = ()) -> None:
+        super().__init__(work, rig, matcher_flags=matcher_flags)
+        self.camera_ids = [c["id"] for c in rig["cameras"]]
+        self.cameras_per_host = cameras_per_host
+        self.features_period_s = features_period_s
+
+    def start_nodes(self, bus: tuple[str, ...], *, drivers: bool = True) -> None:
+        ids, n = self.camera_ids, self.cameras_per_host
+        for host, first in enumerate(range(0, len(ids), n), start=1):
+            cameras = [arg for camera_id in ids[first:first + n] for arg in ("--camera", camera_id)]
+            self.launch.start(f"host-{host}", ["driver", "sim", "--rig", str(self.rig_path), *cameras, "--features",
+                                               "--features-period-s", str(self.features_period_s), *bus])
+        super().start_nodes(bus, drivers=False)
+
+
+@dataclass(frozen=True)
+class Phase:
+    n_cameras: int
+    minutes: float
+    samples: list[dict]  # t_s, cpu_s and rss_mb per process, matcher frame sets
+    calibrations: list[tuple[float, dict]]  # (s since the start, document) of every good calibration
+
+    @property
+    def window_s(self) -> float:
+        """Rates and growth are measured from here on: after the first minute (half the run if shorter)
+        and after the first good calibration (before it, the calibrator has not started its work)."""
+        first_good_s = self.calibrations[0][0] if self.calibrations else 0.0
+        return max(min(SETTLE_S, 30 * self.minutes), first_good_s)
+
+    def growth(self) -> dict[str, float]:
+        return growth(self.samples, self.window_s)
+
+    def settled(self) -> dict:
+        return next((s for s in self.samples if s["t_s"] >= self.window_s), self.samples[0])
+
+    def frame_sets_per_s(self) -> float | None:
+        """Frame sets pooled into good calibrations per second of the window (None: fewer than two)."""
+        docs = [(t, d) for t, d in self.calibrations if t >= self.window_s and isinstance(d.get("frame_sets"), int)]
+        if len(docs) < 2 or docs[-1][0] <= docs[0][0]:
+            return None
+        return (docs[-1][1]["frame_sets"] - docs[0][1]["frame_sets"]) / (docs[-1][0] - docs[0][0])
+
+    def latencies_s(self) -> list[float]:
+        return sorted((d["solved_ns"] - d["latest_capture_ns"]) / 1e9 for _, d in self.calibrations
+                      if isinstance(d.get("solved_ns"), int) and isinstance(d.get("latest_capture_ns"), int))
+
+    def cpu_percent(self) -> dict[str, float]:
+        """Per process: CPU over the window, in % of one core."""
+        first, last = self.settled(), self.samples[-1]
+        span_s = max(last["t_s"] - first["t_s"], 1e-9)
+        return {name: 100 * (last["cpu_s"][name] - cpu) / span_s for name, cpu in first["cpu_s"].items()
+                if name in last["cpu_s"]}
+
+    def matcher_cpu_per_set_s(self) -> float | None:
+        first, last = self.settled(), self.samples[-1]
+        sets = last["frame_sets"] - first["frame_sets"]
+        return (last["cpu_s"]["matcher"] - first["cpu_s"]["matcher"]) / sets if sets > 0 else None
+
+
+def run_phase(work: Path, rig: dict, *, minutes: float, sample_s: float, features_period_s: float,
+              matcher_flags: tuple[str, ...]) -> Phase:
+    samples: list[dict] = []
+    matcher = MatcherStats()
+    with HostsNetwork(work, rig, cameras_per_host=CAMERAS_PER_HOST, features_period_s=features_period_s,
+                      matcher_flags=matcher_flags) as net:
+        net.session.declare_subscriber(keys.node_stats(net.rig_name, "matcher", "matcher"), matcher)
+        start_s = time.monotonic()
+        while time.monotonic() - start_s < 60 * minutes:
+            time.sleep(sample_s)
+            net.launch.check()
+            stats = matcher.latest
+            children = net.launch.children
+            samples.append({"t_s": round(time.monotonic() - start_s, 1),
+                            "cpu_s": {c.name: cpu_s(c.process.pid) for c in children},
+                            "rss_mb": {c.name: round(rss_mb(c.process.pid), 1) for c in children},
+                            "frame_sets": stats.frames if stats else 0})
+            print(progress(samples, len(net.calibrations)), file=sys.stderr, flush=True)
+        calibrations = [(t - start_s, d) for t, d in net.calibrations]
+    return Phase(len(rig["cameras"]), minutes, samples, calibrations)
+
+
+def progress(samples: list[dict], n_calibrations: int) -> str:
+    last = samples[-1]
+    previous = samples[-2] if len(samples) > 1 else {"t_s": 0.0, "cpu_s": dict.fromkeys(last["cpu_s"], 0.0)}
+    span_s = max(last["t_s"] - previous["t_s"], 1e-9)
+    busiest = sorted(last["cpu_s"], key=lambda n: previous["cpu_s"].get(n, 0.0) - last["cpu_s"][n])[:3]
+    cpu = ", ".join(f"{n} {100 * (last['cpu_s'][n] - previous['cpu_s'].get(n, 0.0)) / span_s:.0f}%" for n in busiest)
+    return (f"  {last['t_s']:6.0f} s: {n_calibrations} good calibrations, {last['frame_sets']} frame sets matched; "
+            f"CPU {cpu}; RSS {sum(last['rss_mb'].values()):.0f} MB in all")
+
+
+def table(phase: Phase) -> list[str]:
+    """The phase as a Markdown table: one row per process, then the rates."""
+    cpu, grown, last = phase.cpu_percent(), phase.growth(), phase.samples[-1]
+    rows = [f"| process | CPU % of a core | RSS MB | RSS growth after {phase.window_s:.0f} s |", "|---|---|---|---|"]
+    for name in last["rss_mb"]:
+        g = grown.get(name)
+        rows.append(f"| {name} | {cpu.get(name, 0.0):.0f} | {last['rss_mb'][name]:.0f} | "
+                    f"{'-' if g is None else f'{100 * g:+.1f}%'} |")
+    rows.append(f"| all | {sum(cpu.values()):.0f} | {sum(last['rss_mb'].values()):.0f} | |")
+    rate, latencies = phase.frame_sets_per_s(), phase.latencies_s()
+    rows.append("")
+    first = f"the first after {phase.calibrations[0][0]:.0f} s" if phase.calibrations else "none"
+    rows.append(f"{phase.n_cameras} cameras, {phase.minutes:g} min: {len(phase.calibrations)} good calibrations "
+                f"({first}); "
+                f"calibrated frame sets per second from {phase.window_s:.0f} s: "
+                f"{'n/a (fewer than two calibrations)' if rate is None else f'{rate:.2f}'}")
+    if latencies:
+        rows.append(f"capture->calibration: median {statistics.median(latencies):.1f} s, max {latencies[-1]:.1f} s")
+    per_set = phase.matcher_cpu_per_set_s()
+    rows.append(f"matcher: {last['frame_sets']} frame sets matched, "
+                f"{'n/a' if per_set is None else f'{per_set:.2f}'} CPU s per frame set")
+    return rows
+
+
+def verdicts(main: Phase, compare: Phase | None) -> list[tuple[str, bool]]:
+    """(target, met) for each target of the run."""
+    rate = main.frame_sets_per_s()
+    worst = max(main.growth().values(), default=0.0)
+    found = [(f"calibrated frame sets per second >= {MIN_FRAME_SETS_PER_S:g}: "
+              f"{'n/a' if rate is None else f'{rate:.2f}'}", rate is not None and rate >= MIN_FRAME_SETS_PER_S),
+             (f"memory growth after {main.window_s:.0f} s < {100 * GROWTH_LIMIT:.0f}%: largest {100 * worst:+.1f}%",
+              worst < GROWTH_LIMIT)]
+    if compare is not None:
+        many, few = main.matcher_cpu_per_set_s(), compare.matcher_cpu_per_set_s()
+        ratio = many / few if many is not None and few else None
+        found.append((f"matcher CPU per frame set, {main.n_cameras} vs {compare.n_cameras} cameras <= "
+                      f"{MAX_MATCHER_CPU_RATIO:g}x: {'n/a' if ratio is None else f'{ratio:.1f}x'} "
+                      f"({'n/a' if many is None else f'{many:.2f}'} s vs {'n/a' if few is None else f'{few:.2f}'} s)",
+                      ratio is not None and ratio <= MAX_MATCHER_CPU_RATIO))
+    return found
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--minutes", type=float, default=10.0, help="of the 16-camera run (default: 10)")
+    parser.add_argument("--compare-minutes", type=float, default=3.0,
+                        help="of the 4-camera run for the matcher's CPU per frame set (0: none; default: 3)")
+    parser.add_argument("--rig", type=Path, default=ROOT / "config" / "hosts16.yaml",
+                        help="a simulated rig whose first four cameras hold its stereo pair "
+                             "(default: config/hosts16.yaml)")
+    parser.add_argument("--features-period-s", type=float, default=0.5,
+                        help="the feature stages' grid of capture times (default: 0.5, two frame sets a second)")
+    parser.add_argument("--sample-s", type=float, default=10.0)
+    parser.add_argument("--matcher-args", default="", help="further flags of the matcher, in one string")
+    args = parser.parse_args()
+    rig = yaml.safe_load(args.rig.read_text())
+    options = dict(sample_s=args.sample_s, features_period_s=args.features_period_s,
+                   matcher_flags=tuple(shlex.split(args.matcher_args)))
+    phases = [(rig, args.minutes)]
+    if args.compare_minutes > 0:
+        few = {**rig, "rig": f"{rig['rig']}_first{CAMERAS_PER_HOST}", "cameras": rig["cameras"][:CAMERAS_PER_HOST]}
+        phases.append((few, args.compare_minutes))
+    results = []
+    for phase_rig, minutes in phases:
+        n = len(phase_rig["cameras"])
+        print(f"{phase_rig['rig']}: {n} cameras on {-(-n // CAMERAS_PER_HOST)} hosts, {minutes:g} min:",
+              file=sys.stderr, flush=True)
+        with tempfile.TemporaryDirectory(prefix="camnet-bench-hosts-") as tmp:
+            results.append(run_phase(Path(tmp), phase_rig, minutes=minutes, **options))
+    for phase in results:
+        print("\n" + "\n".join(table(phase)))
+    found = verdicts(results[0], results[1] if len(results) > 1 else None)
+    print()
+    for text, met in found:
+        print(f"{'met' if met else 'NOT MET'}: {text}")
+    return 0 if all(met for _, met in found) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
