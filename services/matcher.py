@@ -245,8 +245,8 @@ class MatcherNode:
             self._ready.notify()
 
     def on_calibration(self, sample) -> None:
-        """Subscriber callback of the rig's calibration: kept for the worker, which parses it."""
-        self._calibration = sample.payload.to_bytes() if self.config.view_graph else None
+        """Calibration callback: kept for the worker to parse; not in lockstep, which must not depend on timing."""
+        self._calibration = sample.payload.to_bytes() if self.config.view_graph and self._inbox is None else None
 
     def _take_calibration(self) -> None:
         """Choose pairs with the latest calibration from now on; one that does not parse is counted."""

@@ -34,7 +34,8 @@ def _node_flags() -> tuple[tuple[str, dict], ...]:
                                         "(1: always whole) (default: 30)")),
         ("--view-graph", dict(action=argparse.BooleanOptionalAction,
                               help="once the rig's calibration arrives, match only the pairs whose views overlap, "
-                                   "that matched well before, or of a camera new to it (default: True)")),
+                                   "that matched well before, or of a camera new to it; never in lockstep "
+                                   "(default: True)")),
         ("--explore-pairs", dict(type=int, metavar="N",
                                  help="with the view graph: also match N other pairs per frame set, in rotation, "
                                       "to find a moved camera again (default: 2)")),
