@@ -111,7 +111,8 @@ def grants(rig: str) -> dict[str, Grants]:
         "replayer": Grants(publish=(frames, groundtruth, *driver_stats, keys.lockstep_step(rig)),
                            serve=(groundtruth,), token=driver_tokens,
                            subscribe=(keys.all_lockstep_acks(rig),), watch=(keys.all_lockstep_acks(rig),)),
-        "matcher": Grants(subscribe=(frames, keys.lockstep_step(rig)),
+        # The calibration: to choose the pairs it matches (camnet.matching.viewgraph).
+        "matcher": Grants(subscribe=(frames, calibration, keys.lockstep_step(rig)),
                           publish=(observations, *matcher_stats, *acks("matcher")), serve=(observations,),
                           token=(*matcher_tokens, *acks("matcher"))),
         # Frames only for showing them in Rerun beside the solve.
