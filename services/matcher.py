@@ -258,7 +258,7 @@ class MatcherNode:
         except InputError as exc:
             self.rejected.count("calibration", "ignoring a calibration that does not parse (%s)", exc)
             return
-        self.view_graph.update(calibration)
+        guarded(self.view_graph.update, self.failures, "taking a calibration")(calibration)  # counted if it raises
         log.info("calibration of %d cameras: %d overlapping pairs", len(calibration.cameras),
                  len(self.view_graph.overlapping))
 
