@@ -39,7 +39,7 @@ def test_a_calibration_narrows_the_pairs_and_exploration_finds_the_rest_again(ne
     net = network(rig, MatcherNodeConfig(publish_period_s=0.5, max_wait_s=0.3, explore_pairs=1))
     publisher = matched_publisher(net.observer, keys.calibration(rig.name), timeout_s=30.0)
     publisher.put(json.dumps(calibration_with_mono_b_elsewhere(rig)).encode())
-    time.sleep(0.5)  # delivered on loopback long before the first frame set
+    assert wait_for(lambda: net.node._calibration is not None, 60.0), "the calibration never reached the matcher"
     for camera_id in rig_document("vgtest")["cameras"]:
         net.start_driver(camera_id["id"])
     seen: list[tuple[int, int]] = []  # (pairs matched, pairs of its cameras) in the last frame set, as they change
