@@ -7,13 +7,12 @@ views converge), else seeded synthetic textures seen by a simulated
 parallel rig (with the stereo prior).
 
 With `--ring 4,8,16` it renders rings of M simulated cameras instead
-(config/surround.yaml's geometry, M - 1 positions
-evenly round the person, one of them the parallel head) and matches their
-frame sets twice, every pair and the view graph's pairs given the ground
-truth as the calibration, and prints pairs matched and matching time per
-frame set.
+(config/surround.yaml's geometry, M - 1 positions evenly round the person,
+one of them the parallel head) and matches their frame sets twice, every
+pair and the view graph's pairs given the ground truth as the calibration,
+and prints pairs matched and CPU seconds of matching per frame set.
 
-    python benchmarks/bench_matcher.py [--repeats N] [--ring 4,8,16 [--frame-sets 4]]
+    python benchmarks/bench_matcher.py [--repeats N] [--ring 4,8,16 [--frame-sets 5]]
 """
 
 from __future__ import annotations
@@ -115,7 +114,8 @@ def ground_truth_calibration(rig, time_s: float = 0.0):
 
 
 def ring_features(rig, frame_sets: int):
-    """Each frame set's features (camnet.matching.edge: whole, then where changed), and seconds of detection."""
+    """Each frame set's features (camnet.matching.edge: whole, then where changed), and CPU seconds of detection
+    per frame set."""
     from camnet.drivers.base import create_camera
 
     from camnet.matching.edge import FeatureExtractor
@@ -184,7 +184,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=7)
     parser.add_argument("--ring", metavar="M,M,...", help="rings of these many cameras: all pairs vs the view graph")
-    parser.add_argument("--frame-sets", type=int, default=4, help="with --ring: frame sets per ring (default 4)")
+    parser.add_argument("--frame-sets", type=int, default=5, help="with --ring: frame sets per ring (default 5)")
     args = parser.parse_args()
     if args.ring:
         ring_table([int(m) for m in args.ring.split(",")], frame_sets=args.frame_sets)
