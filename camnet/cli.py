@@ -20,6 +20,7 @@ COMMANDS = {
     "calibrate": "Solve a calibration offline from an observations file.",
     "simulate": "Write the observations of a simulated rig (and its ground truth).",
     "driver": "Run one camera driver (sim, aravis, v4l2) and publish its frames.",
+    "features": "Detect one camera's features from its frames on the bus and publish them (a feature stage).",
     "matcher": "Match a rig's frames into tracks and publish them as observations.",
     "calibrator": "Solve the rig's observations as they come; publish and keep the calibration.",
     "router": "Run an embedded Zenoh router.",

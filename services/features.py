@@ -121,3 +121,66 @@ class FeatureWorker:
         features = self.extractor.extract(frame.image, seq=frame.seq, timestamp_ns=frame.timestamp_ns)
         self.publisher.put(encode_features(to_message(features)))
         self.published += 1
+
+
+class FeatureNode:
+    """A camera's feature stage as a node of its own: the camera's frames from the bus in, its features out.
+
+    For a camera whose driver cannot host the stage (another process, another
+    host near the camera): it subscribes to ``keys.frame(rig, camera)`` and
+    publishes what `FeatureWorker` detects on ``keys.features(rig, camera)``.
+    `run` until `stop` is set (or SIGTERM, Ctrl-C).
+    """
+
+    def __init__(self, session, rig: str, camera_id: str, config: FeatureStageConfig = FeatureStageConfig(), *,
+                 stats_period_s: float = 1.0) -> None:
+        from camnet.bus.receiver import FrameReceiver
+
+        self.session, self.rig, self.camera_id = session, rig, camera_id
+        self.config = config
+        self.stats_period_s = stats_period_s
+        self.stop = threading.Event()
+        self.receiver = FrameReceiver({camera_id: None})  # another camera's frames are refused from their header
+        self.worker: FeatureWorker | None = None
+
+    def _on_frame(self, sample) -> None:
+        frame = self.receiver.accept(sample.payload.to_bytes())
+        if frame is not None and self.worker is not None:
+            self.worker.offer(frame)
+
+    def _activity(self):
+        from camnet.bus.stats import Activity
+
+        counts = self.receiver.counts().get(self.camera_id)
+        worker = self.worker
+        published = worker.published if worker is not None else 0
+        detail = (f"{published} feature sets, detect {1e3 * worker.last_detect_s:.0f} ms"
+                  if worker is not None else "starting")
+        return Activity(fps=0.0, frames=counts.received if counts else 0,
+                        dropped=worker.skipped if worker is not None else 0, detail=detail)
+
+    def run(self) -> int:
+        import zenoh
+
+        from camnet.bus import keys
+        from camnet.bus.node import Presence, stop_on_signals
+
+        publisher = self.session.declare_publisher(keys.features(self.rig, self.camera_id),
+                                                   congestion_control=zenoh.CongestionControl.DROP)
+        failures = Tally(log)
+        presence = Presence(self.session, rig=self.rig, kind="features", node_id=self.camera_id,
+                            report=self._activity, tallies=(self.receiver.malformed, failures),
+                            period_s=self.stats_period_s)
+        with FeatureWorker(publisher, self.camera_id, self.config) as worker, presence:
+            self.worker = worker
+            subscriber = self.session.declare_subscriber(keys.frame(self.rig, self.camera_id),
+                                                         guarded(self._on_frame, failures, "receiving a frame"))
+            log.info("detecting the features of camera %r of rig %r (%s), publishing %s", self.camera_id, self.rig,
+                     self.config.matcher.detector, keys.features(self.rig, self.camera_id))
+            try:
+                with stop_on_signals(self.stop):
+                    while not self.stop.wait(0.2):
+                        presence.publish_if_due()
+            finally:
+                subscriber.undeclare()
+        return 0

@@ -27,8 +27,9 @@ they arrive, its frames are ignored and its features join the frame sets in
 place of frames. The frames of the other cameras are detected here, each
 camera on its own `camnet.matching.edge.FeatureExtractor` (only where the
 image changed since its keyframe), in a thread pool over the cores (OpenCV
-releases the GIL). Pairs are matched by `camnet.matching.reuse.IncrementalMatcher`,
-which matches only what is new since the pair's last whole match.
+releases the GIL). `camnet.matching.reuse.IncrementalMatcher` matches only what is new since a
+pair's last whole match, on every pair until the rig's calibration (``keys.calibration``)
+arrives, then on the view graph's pairs (`camnet.matching.viewgraph`).
 
 Cameras are listed with the sizes of their frames (or of the rig file before
 the first frame) and what the rig file's `intrinsics` section knows of them
@@ -59,14 +60,16 @@ from camnet.bus.session import declare_liveliness
 from camnet.bus.stats import Activity, CameraSeen, RateMeter
 from camnet.bus.sync import FrameSet, FrameSynchronizer, SyncCounts
 from camnet.errors import InputError
-from camnet.geometry.model import CameraInfo, Stereo
-from camnet.io.formats import observations_to_doc
-from camnet.io.rig import Rig, configured_size
+from camnet.geometry.model import Stereo
+from camnet.io.formats import observations_to_doc, parse_calibration
+from camnet.io.rig import Rig, camera_info, configured_size
+from camnet.io.validate import decode_json
 from camnet.matching.edge import CameraFeatures, EdgeConfig, FeatureExtractor
 from camnet.matching.features import Detector, MatcherConfig, to_grey
-from camnet.matching.pool import PoolConfig, PoolUpdate, TrackPool
+from camnet.matching.pool import PoolConfig, PoolUpdate, TrackPool, regrow_pool
 from camnet.matching.reuse import IncrementalMatcher
-from camnet.matching.tracks import FrameTracks, build_tracks
+from camnet.matching.tracks import build_tracks
+from camnet.matching.viewgraph import ViewGraph, ViewGraphConfig
 
 log = logging.getLogger(__name__)
 
@@ -94,6 +97,8 @@ class MatcherNodeConfig:
     stats_period_s: float = 1.0
     lockstep: bool = False  # frames come from `camnet replay --lockstep`, one step at a time
     keyframe_period: int = 30  # frames detected here: whole at least every this many (1: always)
+    view_graph: bool = True  # once calibrated, match only the pairs that overlap (and a few others)
+    explore_pairs: int = 2  # with the view graph: other pairs matched per frame set, in rotation
 
     def __post_init__(self) -> None:
         if not isinstance(self.detector, Detector):
@@ -107,8 +112,9 @@ class MatcherNodeConfig:
         for name in ("frames_per_camera", "max_tracks", "max_features"):
             if getattr(self, name) < 1:
                 raise InputError(f"{name}: must be at least 1, got {getattr(self, name)}")
-        if self.keyframe_period < 1:
-            raise InputError(f"keyframe_period: must be at least 1, got {self.keyframe_period}")
+        if self.keyframe_period < 1 or self.explore_pairs < 0:
+            raise InputError(f"keyframe_period, explore_pairs: must be >= 1 and >= 0, got {self.keyframe_period}, "
+                             f"{self.explore_pairs}")
         if self.max_image_side_px is not None and self.max_image_side_px < 16:
             raise InputError(f"max_image_side_px: must be at least 16, got {self.max_image_side_px}")
 
@@ -137,33 +143,6 @@ def rig_options(rig: Rig) -> dict:
     return {name: value for name, value in given.items() if value is not None}
 
 
-def camera_info(rig: Rig, camera_id: str, width: int, height: int) -> CameraInfo:
-    """What the observations say of a camera: its size and the intrinsics the rig file knows."""
-    entry = rig.camera(camera_id)
-    known = entry.intrinsics
-    if known is None:
-        return CameraInfo(camera_id, width, height, model=entry.model)
-    return CameraInfo(camera_id, width, height, K=known.K, dist=known.dist, fixed=known.fixed, model=entry.model)
-
-
-def regrow_pool(pool: TrackPool | None, cameras: list[CameraInfo], stereo: Stereo, config: PoolConfig,
-                *, frame_seq: int) -> TrackPool:
-    """A pool over `cameras` holding the tracks of `pool` (None: an empty pool).
-
-    For a camera whose size became known, or changed, after pooling began.
-    Track ids are renumbered.
-    """
-    grown = TrackPool(cameras, stereo, config)
-    if pool is None or len(pool) == 0:
-        return grown
-    obs = pool.observations()
-    column = {c.id: i for i, c in enumerate(cameras)}
-    uv = np.full((len(obs.track_ids), len(cameras), 2), np.nan)
-    uv[obs.track_index, [column[obs.cameras[c].id] for c in obs.cam_index]] = obs.uv
-    grown.add(FrameTracks(tuple(column), uv), frame_seq=frame_seq)
-    return grown
-
-
 class MatcherNode:
     """Matches the frames of `rig` published on `session`; `run` until `stop` is set."""
 
@@ -180,6 +159,10 @@ class MatcherNode:
         edge = EdgeConfig(keyframe_period=config.keyframe_period)
         self._extractors = {c: FeatureExtractor(c, self._matcher_config, edge) for c in self.camera_ids}
         self._matcher = IncrementalMatcher(self._matcher_config, stereo=self.stereo)
+        self.view_graph = ViewGraph(ViewGraphConfig(explore_per_set=config.explore_pairs),
+                                     always={frozenset((self.stereo.left, self.stereo.right))})
+        self._calibration: bytes | None = None  # the latest calibration, for the worker to take
+        self.pairs = (0, 0)  # in the last frame set: pairs matched, pairs of its cameras
         self._workers = ThreadPoolExecutor(max_workers=max(1, min(len(self.camera_ids), os.cpu_count() or 1)),
                                            thread_name_prefix="detect")
         self._feature_cameras: set[str] = set()  # cameras whose features come from their own stage
@@ -260,6 +243,24 @@ class MatcherNode:
             self._sync.add(message, now_s=time.monotonic())
             self._ready.notify()
 
+    def on_calibration(self, sample) -> None:
+        """Calibration callback: kept for the worker to parse; not in lockstep, which must not depend on timing."""
+        self._calibration = sample.payload.to_bytes() if self.config.view_graph and self._inbox is None else None
+
+    def _take_calibration(self) -> None:
+        """Choose pairs with the latest calibration from now on; one that does not parse is counted."""
+        payload, self._calibration = self._calibration, None
+        if payload is None:
+            return
+        try:
+            calibration = parse_calibration(decode_json(payload, keys.calibration(self.rig.name)))
+        except InputError as exc:
+            self.rejected.count("calibration", "ignoring a calibration that does not parse (%s)", exc)
+            return
+        guarded(self.view_graph.update, self.failures, "taking a calibration")(calibration)  # counted if it raises
+        log.info("calibration of %d cameras: %d overlapping pairs", len(calibration.cameras),
+                 len(self.view_graph.overlapping))
+
     def _check(self, frame: Frame, key: str) -> str | None:
         if frame.camera_id not in self.camera_ids:
             return "unknown-camera"
@@ -328,7 +329,13 @@ class MatcherNode:
             self._sizes[camera_id] = (frame.width, frame.height)
         pool = self._ensure_pool()
         cameras = list(self._workers.map(self._features, frame_set.frames.values()))
-        matches = self._matcher.match(cameras)
+        self._take_calibration()
+        ids = [c.camera_id for c in cameras]
+        pairs = self.view_graph.pairs(ids, matched_well=self._matcher.matched_well(
+            self.view_graph.config.good_matches))
+        matches = self._matcher.match(cameras, pairs=pairs)
+        possible = len(ids) * (len(ids) - 1) // 2
+        self.pairs = (possible if pairs is None else len(pairs), possible)
         for camera_id, features in zip(matches.camera_ids, matches.features, strict=True):
             if features.shortage is not None:
                 self.few_features.count(f"few features: {camera_id}", "camera %r: %s", camera_id, features.shortage)
@@ -343,8 +350,9 @@ class MatcherNode:
         if update.added or update.reobserved or update.evicted:
             self._dirty = True
         missing = f" (without {', '.join(frame_set.missing)})" if frame_set.missing else ""
-        log.info("frame set %d: %d cameras%s, %d tracks (%d seen by 3+), +%d new, pool %d, %.0f ms",
-                 self.frame_sets_matched, len(frame_set.frames), missing, len(tracks),
+        log.info("frame set %d: %d cameras%s, %d of %d pairs, %d tracks (%d seen by 3+), +%d new, pool %d, %.0f ms",
+                 self.frame_sets_matched, len(frame_set.frames), missing, *self.pairs,
+                 len(tracks),
                  int(np.sum(tracks.views >= 3)), update.added, len(pool), 1e3 * self.last_match_s)
         return update
 
@@ -365,8 +373,7 @@ class MatcherNode:
                    latest_capture_ns=self.latest_capture_ns, published_ns=time.time_ns())
         return doc
 
-    def sync_counts(self) -> SyncCounts:
-        """Frames received, frame sets formed, frames dropped by synchronization."""
+    def sync_counts(self) -> SyncCounts:  # frames received, frame sets formed, frames dropped by synchronization
         with self._ready:
             return self._sync.counts
 
@@ -374,8 +381,9 @@ class MatcherNode:
         counts = self.sync_counts()
         malformed = self.receiver.malformed.total + self.rejected.total
         pooled = len(self._pool) if self._pool is not None else 0
-        detail = (f"{counts.received} frames in, {pooled} tracks pooled, {self.frame_sets_pooled} sets, match "
-                  f"{1e3 * self.last_match_s:.0f} ms, {counts.partial_sets} partial, {malformed} bad frames")
+        detail = (f"{counts.received} frames in, {pooled} tracks pooled, {self.frame_sets_pooled} sets, "
+                  f"{self.pairs[0]} pairs, match {1e3 * self.last_match_s:.0f} ms, {counts.partial_sets} partial, "
+                  f"{malformed} bad frames")
         return Activity(fps=round(self._rate.rate(), 2), frames=self.frame_sets_matched, dropped=counts.dropped,
                         detail=detail, cameras=self.cameras_seen())
 
@@ -460,6 +468,7 @@ class MatcherNode:
                                                     guarded(self.on_sample, self.failures, "receiving a frame")),
                     self.session.declare_subscriber(keys.all_features(rig),
                                                     guarded(self.on_features, self.failures, "receiving features")),
+                    self.session.declare_subscriber(keys.calibration(rig), self.on_calibration),
                     self.session.declare_queryable(keys.observations(rig),
                                                    guarded(self._on_query, self.failures, "answering a query"))]
         ack_publisher = None

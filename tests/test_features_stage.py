@@ -7,14 +7,14 @@ import threading
 
 import numpy as np
 import pytest
-from camnet.services.features import FeatureStageConfig, FeatureWorker, from_message, to_message
+from camnet.services.features import FeatureNode, FeatureStageConfig, FeatureWorker, from_message, to_message
 from camnet.services.matcher import MatcherNodeConfig
 
 from camnet.bus import keys
 from camnet.bus.features_wire import FeaturesError, FeaturesMessage, decode_features, encode_features
 from camnet.errors import InputError
 from camnet.io.rig import parse_rig
-from tests.conftest import wait_for
+from tests.conftest import matched_publisher, running_node, wait_for
 from tests.test_matcher_node import CAMERAS, fraction_on_epipolar_lines, network, rig_document, track_uv  # noqa: F401
 
 
@@ -123,3 +123,45 @@ def test_message_and_camera_features_convert_both_ways():
     sent = message()
     back = to_message(from_message(sent))
     assert back.reused == 2 and back.keyframe_seq == 3 and np.array_equal(back.descriptors, sent.descriptors)
+
+
+def test_a_feature_node_of_its_own_detects_a_cameras_frames_from_the_bus(zenoh_pair):
+    """`camnet features`: frames of its camera in, features out; another camera's frames refused by their header."""
+    from camnet.drivers.base import create_camera
+
+    from camnet.bus.frame import Frame, encode_frame
+
+    node_session, peer = zenoh_pair
+    rig = parse_rig(rig_document("fnode"))
+    camera = create_camera(rig.camera("left"), rig)
+    got: list[FeaturesMessage] = []
+    peer.declare_subscriber(keys.features(rig.name, "left"),
+                            lambda sample: got.append(decode_features(sample.payload.to_bytes())))
+    node = FeatureNode(node_session, rig.name, "left", FeatureStageConfig(period_s=0.25))
+    with running_node(node):
+        frames = matched_publisher(peer, keys.frame(rig.name, "left"), timeout_s=30.0)
+        assert wait_for(lambda: node.worker is not None, 30.0)
+        stranger = Frame("right", 0, 0, "mono8", np.zeros((8, 8), np.uint8))
+        frames.put(encode_frame(stranger))
+        for slot in range(4):
+            timestamp_ns = slot * 250_000_000
+            frames.put(encode_frame(Frame("left", slot, timestamp_ns, "mono8", camera.render(slot))))
+            assert wait_for(lambda n=slot: len(got) > n, 60.0), f"no features for frame {slot}"
+    assert [m.seq for m in got] == [0, 1, 2, 3] and all(m.camera_id == "left" for m in got)
+    assert len(got[0].uv) >= 200 and got[0].reused == 0  # a keyframe, then only what changed
+    assert got[-1].keyframe_seq == 0 and got[-1].reused > 0
+    assert node.receiver.malformed.counts == {"unknown-camera": 1}
+
+
+def test_the_features_command_refuses_a_camera_not_in_the_rig(tmp_path):
+    import subprocess
+    import sys
+
+    import yaml
+
+    rig_path = tmp_path / "rig.yaml"
+    rig_path.write_text(yaml.safe_dump(rig_document("fcmd")))
+    proc = subprocess.run([sys.executable, "-m", "camnet.cli", "features", "--rig", str(rig_path), "--camera",
+                           "nope"], capture_output=True, text=True, timeout=60)
+    lines = proc.stderr.strip().splitlines()
+    assert proc.returncode == 2 and len(lines) == 1 and "nope" in lines[0], proc.stderr

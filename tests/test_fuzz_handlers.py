@@ -198,6 +198,14 @@ CALIBRATION = calibration_to_doc(sim_calibration())
 
 @FUZZ
 @given(payload=st.one_of(RANDOM_BYTES, near_valid(CALIBRATION)))
+def test_the_matcher_survives_any_calibration(matcher, payload):
+    """What the view graph takes from the calibration key: counted when it does not parse, never raising."""
+    matcher.on_calibration(sample(payload, keys.calibration("fuzz")))
+    matcher._take_calibration()
+
+
+@FUZZ
+@given(payload=st.one_of(RANDOM_BYTES, near_valid(CALIBRATION)))
 def test_the_calibration_listener_keeps_only_calibrations(payload):
     listener = LatestCalibration()
     listener(sample(payload, keys.calibration("fuzz")))

@@ -106,9 +106,8 @@ def test_the_kitti_rig_file_holds_what_the_live_run_needs():
 
 
 def test_the_rig_files_sync_settings_and_intrinsics_reach_the_matcher():
-    from camnet.services.matcher import camera_info
-
     from camnet.commands.matcher import node_config_from_args
+    from camnet.io.rig import camera_info
 
     rig = load_rig(RIG)
     config = node_config_from_args(argparse.Namespace(), rig)

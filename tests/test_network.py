@@ -140,3 +140,27 @@ def test_up_refuses_bad_input_in_one_line_before_starting_nodes(tmp_path, flags,
     lines = proc.stderr.strip().splitlines()
     assert proc.returncode == 2 and len(lines) == 1 and fragment in lines[0], proc.stderr
     assert not (tmp_path / "run").exists()
+
+
+def test_up_with_feature_stages_beside_the_drivers_calibrates(tmp_path):
+    """`camnet up --features`: each driver detects its own camera's features; the matcher only matches them."""
+    rig_path = rig_file(tmp_path, 4)
+    out = tmp_path / "calibration.json"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "camnet.cli", "up", rig_path, "--features", "--duration-s", "60", "--run-dir",
+         str(tmp_path / "run"), "-o", str(out), "--listen", f"tcp/127.0.0.1:{free_port()}"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        stdout, stderr = proc.communicate(timeout=240)
+    finally:
+        proc.kill()
+    logs = {p.stem: p.read_text() for p in (tmp_path / "run" / "logs").glob("*.log")}
+    assert proc.returncode == 0, stdout + stderr + "".join(text[-1500:] for text in logs.values())
+    # Every camera's features came from its own stage, none was detected by the matcher.
+    for camera_id in ("left", "right", "mono_a", "mono_b"):
+        assert f"camera '{camera_id}': features from its own stage" in logs["matcher"], logs["matcher"][-3000:]
+    cal = parse_calibration(json.loads(out.read_text()))
+    comparison = compare_cameras(cal, load_rig(rig_path).simulated_truth())
+    assert len(cal.cameras) == 4
+    assert abs(comparison.scale_rel) < 0.005, stdout
+    assert max(abs(e.focal_rel) for e in comparison.cameras) < 0.01, stdout

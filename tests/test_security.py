@@ -180,6 +180,11 @@ def test_each_key_is_granted_to_the_kinds_whose_job_it_is():
     assert who("put ingress", keys.calibration(RIG)) == {"calibrator"}
     assert who("declare_queryable ingress", keys.calibration(RIG)) == {"calibrator"}
     assert who("put egress", keys.observations(RIG)) == {"calibrator", "recorder", "observer"}
+    # The matcher reads the calibration to choose its pairs, and the features of the cameras' stages.
+    assert who("put ingress", keys.features(RIG, "left")) == {"driver", "replayer"}
+    assert who("put egress", keys.features(RIG, "left")) == {"matcher", "recorder"}
+    assert who("liveliness_token ingress", keys.node(RIG, "features", "left")) == {"driver"}
+    assert who("put egress", keys.calibration(RIG)) == {"matcher", "recorder", "observer"}
     assert who("liveliness_token ingress", keys.node(RIG, "matcher", "matcher")) == {"matcher"}
     assert who("liveliness_token ingress", keys.node(RIG, "driver", "left")) == {"driver", "replayer"}
     assert who("put ingress", keys.node_stats(RIG, "calibrator", "calibrator")) == {"calibrator"}

@@ -149,12 +149,14 @@ class Launch:
 @dataclass(frozen=True)
 class NetworkSpec:
     """The nodes of one rig on this machine: a driver per camera, the matcher, the calibrator, and
-    the recorder when `record_path` is given. `bus` flags go to every node, the others to one."""
+    the recorder when `record_path` is given. `bus` flags go to every node, `driver` flags to every
+    driver, the others to one node."""
 
     rig_path: Path
     rig_name: str
     cameras: tuple[tuple[str, str], ...]  # (camera id, driver name), in the rig file's order
     bus: tuple[str, ...] = ()
+    driver: tuple[str, ...] = ()
     matcher: tuple[str, ...] = ()
     calibrator: tuple[str, ...] = ()
     record_path: Path | None = None
@@ -164,7 +166,8 @@ def start_network(launch: Launch, spec: NetworkSpec) -> None:
     """Start the nodes of `spec` as children of `launch`, drivers first."""
     rig = str(spec.rig_path)
     for camera_id, driver in spec.cameras:
-        launch.start(f"driver-{camera_id}", ["driver", driver, "--rig", rig, "--camera", camera_id, *spec.bus])
+        launch.start(f"driver-{camera_id}", ["driver", driver, "--rig", rig, "--camera", camera_id, *spec.driver,
+                                                     *spec.bus])
     launch.start("matcher", ["matcher", "--rig", rig, *spec.matcher, *spec.bus])
     launch.start("calibrator", ["calibrator", "--rig", rig, *spec.calibrator, *spec.bus])
     if spec.record_path is not None:

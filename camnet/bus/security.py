@@ -38,7 +38,7 @@ ROUTER = "router"
 
 # Which identity each camnet command uses: its node kind. `up` and `status` only watch.
 COMMAND_IDENTITY = {
-    "driver": "driver", "matcher": "matcher", "calibrator": "calibrator", "record": "recorder",
+    "driver": "driver", "features": "driver", "matcher": "matcher", "calibrator": "calibrator", "record": "recorder",
     "replay": "replayer", "up": "observer", "status": "observer", "router": ROUTER,
 }
 IDENTITIES = ("driver", "matcher", "calibrator", "recorder", "replayer", "observer", ROUTER)
@@ -88,8 +88,7 @@ _LEARN_MESSAGES = {"publish": "declare_subscriber", "ask": "declare_queryable"}
 def grants(rig: str) -> dict[str, Grants]:
     """What each node kind of `rig` may do: its job's keys, its own liveliness and statistics."""
     prefix = keys.rig_prefix(rig)
-    frames = keys.all_frames(rig)
-    features = keys.all_features(rig)  # of the feature stages beside the drivers (`camnet driver --features`)
+    frames, features = keys.all_frames(rig), keys.all_features(rig)
     observations, calibration, groundtruth = keys.observations(rig), keys.calibration(rig), keys.groundtruth(rig)
 
     def own(kind: str) -> tuple[tuple[str, ...], tuple[str, ...]]:
@@ -100,19 +99,22 @@ def grants(rig: str) -> dict[str, Grants]:
         return (keys.lockstep_ack(rig, kind),)
 
     driver_tokens, driver_stats = own("driver")
+    stage_tokens, stage_stats = own("features")  # `camnet features`: a node of kind features
     matcher_tokens, matcher_stats = own("matcher")
     calibrator_tokens, calibrator_stats = own("calibrator")
     recorder_tokens, recorder_stats = own("recorder")
     return {
-        # The sim driver also publishes the simulation's ground truth, and answers for it.
-        "driver": Grants(publish=(frames, features, groundtruth, *driver_stats), serve=(groundtruth,),
-                         token=driver_tokens),
+        # The sim driver also publishes the simulation's ground truth, and answers for it. A camera's
+        # feature stage runs on its host with the driver's identity: beside it, or on its frames.
+        "driver": Grants(publish=(frames, features, groundtruth, *driver_stats, *stage_stats), serve=(groundtruth,),
+                         subscribe=(frames,), token=(*driver_tokens, *stage_tokens)),
         # A replayed camera is a driver to the rest of the rig (services/replayer.py); a lockstep
         # replay also announces its steps and waits for the acknowledgements.
         "replayer": Grants(publish=(frames, features, groundtruth, *driver_stats, keys.lockstep_step(rig)),
                            serve=(groundtruth,), token=driver_tokens,
                            subscribe=(keys.all_lockstep_acks(rig),), watch=(keys.all_lockstep_acks(rig),)),
-        "matcher": Grants(subscribe=(frames, features, keys.lockstep_step(rig)),
+        # The calibration: to choose the pairs it matches (camnet.matching.viewgraph).
+        "matcher": Grants(subscribe=(frames, features, calibration, keys.lockstep_step(rig)),
                           publish=(observations, *matcher_stats, *acks("matcher")), serve=(observations,),
                           token=(*matcher_tokens, *acks("matcher"))),
         # Frames only for showing them in Rerun beside the solve.

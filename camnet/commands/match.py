@@ -81,10 +81,10 @@ def run(args: argparse.Namespace) -> int:
 
     from camnet.errors import InputError
     from camnet.io.formats import observations_to_doc, write_json_atomic
-    from camnet.io.rig import configured_size, load_rig
+    from camnet.io.rig import camera_info, configured_size, load_rig
     from camnet.matching.features import Detector, MatcherConfig
     from camnet.matching.pipeline import observations_from_frame_sets
-    from camnet.services.matcher import camera_info, rig_stereo
+    from camnet.services.matcher import rig_stereo
 
     rig = load_rig(args.rig)
     stereo = rig_stereo(rig)

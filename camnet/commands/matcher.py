@@ -32,6 +32,13 @@ def _node_flags() -> tuple[tuple[str, dict], ...]:
                                    help="frames detected here (a camera without a feature stage) are detected "
                                         "whole at least every N frames, else only where the image changed since "
                                         "(1: always whole) (default: 30)")),
+        ("--view-graph", dict(action=argparse.BooleanOptionalAction,
+                              help="once the rig's calibration arrives, match only the pairs whose views overlap, "
+                                   "that matched well before, or of a camera new to it; never in lockstep "
+                                   "(default: True)")),
+        ("--explore-pairs", dict(type=int, metavar="N",
+                                 help="with the view graph: also match N other pairs per frame set, in rotation, "
+                                      "to find a moved camera again (default: 2)")),
         ("--stats-period-s", dict(type=float, metavar="S",
                                   help="seconds between statistics messages (default: 1.0)")),
         ("--lockstep", dict(action="store_true",

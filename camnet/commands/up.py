@@ -31,6 +31,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--forever", action="store_true", help="run until interrupted")
     parser.add_argument("--detector", type=Detector, choices=list(Detector), default=Detector.SIFT,
                         help="matcher features (default: sift)")
+    parser.add_argument("--features", action="store_true",
+                        help="run each driver with its feature stage (camnet driver --features): features are "
+                             "detected beside each camera and the matcher only matches")
     parser.add_argument("--out", "--run-dir", dest="out", metavar="DIR",
                         help="the run directory: the last calibration, its observations, report.html, the exports "
                              "and the nodes' logs (default: runs/<rig>-<time> under the working directory)")
@@ -73,6 +76,8 @@ def _checked_rig(args: argparse.Namespace):
         raise InputError(f"--record: {args.record} exists; camnet never overwrites a session")
     if args.replay and not Path(args.replay).is_file():
         raise InputError(f"--replay: {args.replay} is no file")
+    if args.replay and args.features:
+        raise InputError("--features: a replay runs no drivers; its session holds the features it recorded, if any")
     if args.replay and args.record:
         raise InputError("--record: a replay is recorded already; give --replay or --record, not both")
     sinks_from_args(args)  # refuse a bad --rerun here, before anything is written or started
@@ -252,6 +257,7 @@ def _network_spec(args: argparse.Namespace, rig_path: Path, rig, run_dir: Path):
         rig_path=rig_path, rig_name=rig.name,
         cameras=() if args.replay else tuple((e.id, e.driver) for e in rig.cameras),
         bus=tuple(bus_flags(options_from_args(args))),
+        driver=("--features", "--detector", str(args.detector)) if args.features else (),
         matcher=("--detector", str(args.detector)),
         calibrator=("--state", str(run_dir / "calibration.json"), *(f for v in args.rerun for f in ("--rerun", v))),
         record_path=Path(args.record) if args.record else None)

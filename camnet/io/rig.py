@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from camnet.errors import InputError
-from camnet.geometry.model import Baseline, Camera, LensModel, Stereo
+from camnet.geometry.model import Baseline, Camera, CameraInfo, LensModel, Stereo
 from camnet.ids import validate_id
 from camnet.io import validate as v
 from camnet.io.rig_section import Section
@@ -427,3 +427,12 @@ def load_rig(path: str | Path) -> Rig:
     except yaml.YAMLError as exc:
         raise InputError(f"{path}: not valid YAML: {exc}") from exc
     return parse_rig(data, source=str(path), base_dir=path.parent)
+
+
+def camera_info(rig: Rig, camera_id: str, width: int, height: int) -> CameraInfo:
+    """What the observations say of a camera: its size and the intrinsics the rig file knows."""
+    entry = rig.camera(camera_id)
+    known = entry.intrinsics
+    if known is None:
+        return CameraInfo(camera_id, width, height, model=entry.model)
+    return CameraInfo(camera_id, width, height, K=known.K, dist=known.dist, fixed=known.fixed, model=entry.model)

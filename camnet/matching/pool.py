@@ -252,3 +252,21 @@ class TrackPool:
             track_index=track_index.astype(np.int64),
             uv=self._uv[track_index, cam_index].reshape(-1, 2),
         )
+
+
+def regrow_pool(pool: TrackPool | None, cameras: list[CameraInfo], stereo: Stereo, config: PoolConfig,
+                *, frame_seq: int) -> TrackPool:
+    """A pool over `cameras` holding the tracks of `pool` (None: an empty pool).
+
+    For a camera whose size became known, or changed, after pooling began.
+    Track ids are renumbered.
+    """
+    grown = TrackPool(cameras, stereo, config)
+    if pool is None or len(pool) == 0:
+        return grown
+    obs = pool.observations()
+    column = {c.id: i for i, c in enumerate(cameras)}
+    uv = np.full((len(obs.track_ids), len(cameras), 2), np.nan)
+    uv[obs.track_index, [column[obs.cameras[c].id] for c in obs.cam_index]] = obs.uv
+    grown.add(FrameTracks(tuple(column), uv), frame_seq=frame_seq)
+    return grown

@@ -43,10 +43,11 @@ MIN_AGREEING = 0.5  # of the new candidates within the old F's threshold, to tru
 
 @dataclass(frozen=True)
 class PairState:
-    """What a pair of cameras was last matched whole with: both keyframes, and its F (b against a)."""
+    """What a pair of cameras was last matched whole with: both keyframes, its F (b against a) and inliers."""
 
     keyframes: tuple[int, int]
     F: np.ndarray
+    inliers: int = 0
 
 
 def _subset(features: Features, index: np.ndarray) -> Features:
@@ -101,6 +102,10 @@ class IncrementalMatcher:
         """Match every pair of `camera_id` whole next time."""
         self._pairs = {k: v for k, v in self._pairs.items() if camera_id not in k}
 
+    def matched_well(self, min_inliers: int) -> set[frozenset[str]]:
+        """Pairs whose last whole match found an F with at least `min_inliers` inliers."""
+        return {frozenset(k) for k, state in self._pairs.items() if state.inliers >= min_inliers}
+
     def match(self, cameras: Sequence[CameraFeatures], *, pairs: Collection[frozenset[str]] | None = None,
               seed: int = 0) -> FrameSetMatches:
         """Match `pairs` of cameras (frozensets of two ids; None: every pair) of one frame set."""
@@ -134,7 +139,7 @@ class IncrementalMatcher:
             if F is None or inliers.sum() < config.min_matches:
                 self._pairs.pop(key, None)
                 return PairMatches(a, b, empty, empty, None, len(ia))
-            self._pairs[key] = PairState(keyframes, F)
+            self._pairs[key] = PairState(keyframes, F, int(inliers.sum()))
             return PairMatches(a, b, ia[inliers], ib[inliers], F, len(ia))
         self.incremental += 1
         ia, ib = _new_candidates(fa, fb, config, prior=prior)

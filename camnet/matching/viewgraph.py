@@ -1,0 +1,97 @@
+"""Which pairs of a frame set to match: every pair at a cold start, then the view graph.
+
+Matching every pair costs M(M-1)/2 pair matches per frame set; on a ring a
+camera shares its view with a few neighbours only. Once the rig has a
+calibration, a frame set matches:
+
+- the pairs whose frusta overlap in the scene's depth range
+  (`camnet.geometry.viewgraph.overlapping_pairs`, from the calibration's
+  cameras and points);
+- the pairs that matched well before (at least `good_matches` inliers in
+  their last whole match), wherever the geometry puts them;
+- every pair of a camera the calibration does not hold (new, or left out);
+- the stereo pair, always;
+- and `explore_per_set` of the other pairs, in rotation, so that a camera
+  that moved, or a pair the geometry missed, is found again.
+
+Without a calibration every pair is matched.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Collection, Sequence
+from dataclasses import dataclass
+from itertools import combinations
+
+import numpy as np
+
+from camnet.geometry.model import Calibration
+from camnet.geometry.viewgraph import depth_ranges, overlapping_pairs
+
+Pair = frozenset[str]
+
+
+@dataclass(frozen=True)
+class ViewGraphConfig:
+    """How pairs are chosen once a calibration exists (see `camnet.geometry.viewgraph`)."""
+
+    min_overlap: float = 0.05  # of either camera's frustum the other sees
+    max_axis_angle_deg: float = 75.0  # optical axes further apart: features do not match across
+    neighbours: int = 4  # best partners kept per camera by the geometry
+    explore_per_set: int = 2  # other pairs matched per frame set, in rotation
+    good_matches: int = 40  # inliers of a pair's last whole match that keep it matched
+
+    def __post_init__(self) -> None:
+        if self.neighbours < 1 or self.explore_per_set < 0 or self.good_matches < 0:
+            raise ValueError("expected neighbours >= 1, explore_per_set >= 0 and good_matches >= 0")
+
+
+def choose_pairs(camera_ids: Sequence[str], *, calibrated: Collection[str], overlapping: Collection[Pair],
+                 matched_well: Collection[Pair] = (), always: Collection[Pair] = (), explore: int = 0,
+                 cursor: int = 0) -> tuple[set[Pair], int]:
+    """The pairs of `camera_ids` to match in one frame set, and the exploration cursor for the next.
+
+    Chosen: every pair with a camera not in `calibrated`, and every pair in
+    `overlapping`, `matched_well` or `always`; then `explore` of the remaining
+    pairs (sorted by their ids), taken in rotation from `cursor`, so that
+    frame set after frame set every remaining pair comes round.
+    """
+    all_pairs = [frozenset(p) for p in combinations(sorted(set(camera_ids)), 2)]
+    chosen_from = set(overlapping) | set(matched_well) | set(always)
+    chosen = {p for p in all_pairs if p in chosen_from or not p <= set(calibrated)}
+    rest = sorted((p for p in all_pairs if p not in chosen), key=sorted)
+    if explore <= 0 or not rest:
+        return chosen, cursor
+    chosen.update(rest[(cursor + k) % len(rest)] for k in range(min(explore, len(rest))))
+    return chosen, cursor + explore
+
+
+class ViewGraph:
+    """The pairs to match, frame set after frame set, given the rig's latest calibration. Not thread-safe."""
+
+    def __init__(self, config: ViewGraphConfig = ViewGraphConfig(), *, always: Collection[Pair] = ()) -> None:
+        self.config = config
+        self.always = set(always)
+        self.calibrated: frozenset[str] = frozenset()
+        self.overlapping: set[Pair] = set()
+        self._cursor = 0
+
+    def update(self, calibration: Calibration) -> None:
+        """Take the pairs of a new calibration: its cameras' overlaps in its points' depth range."""
+        c = self.config
+        cameras = calibration.cameras
+        pairs = overlapping_pairs(cameras, calibration.points, min_overlap=c.min_overlap,
+                                  max_axis_angle_deg=c.max_axis_angle_deg, neighbours=c.neighbours)
+        self.overlapping = {frozenset((cameras[i].id, cameras[j].id)) for i, j in pairs}
+        # A camera that sees none of the points is matched with every camera, as a new one.
+        seeing = np.isfinite(depth_ranges(cameras, calibration.points)).all(axis=1)
+        self.calibrated = frozenset(cam.id for cam, sees in zip(cameras, seeing, strict=True) if sees)
+
+    def pairs(self, camera_ids: Sequence[str], *, matched_well: Collection[Pair] = ()) -> set[Pair] | None:
+        """The pairs of `camera_ids` to match now; None (every pair) before the first calibration."""
+        if not self.calibrated:
+            return None
+        chosen, self._cursor = choose_pairs(camera_ids, calibrated=self.calibrated, overlapping=self.overlapping,
+                                            matched_well=matched_well, always=self.always,
+                                            explore=self.config.explore_per_set, cursor=self._cursor)
+        return chosen

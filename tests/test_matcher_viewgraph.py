@@ -1,0 +1,61 @@
+"""The matcher node reads the rig's calibration from the bus and then matches only the view graph's pairs."""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import replace
+
+import numpy as np
+from camnet.services.matcher import MatcherNodeConfig
+
+from camnet.bus import keys
+from camnet.geometry.model import Calibration
+from camnet.io.formats import calibration_to_doc
+from camnet.io.rig import parse_rig
+from tests.conftest import matched_publisher, wait_for
+from tests.test_matcher_node import network, rig_document  # noqa: F401 (network: the fixture)
+
+AWAY_M = np.array([20.0, 0.0, 0.0])  # mono_b, as the calibration has it: 20 m to the right
+
+
+def calibration_with_mono_b_elsewhere(rig) -> dict:
+    """The ground truth, but mono_b 20 m away looking at points of its own: it overlaps no camera."""
+    cameras = rig.simulated_truth()
+    rng = np.random.default_rng(0)
+    points = rng.uniform([-0.15, -0.15, 0.5], [0.3, 0.15, 0.8], (300, 3))  # the textured box's region
+    index = [c.id for c in cameras].index("mono_b")
+    mono_b = cameras[index]
+    moved = replace(mono_b, t=mono_b.t - mono_b.R @ AWAY_M)  # centre + AWAY_M: x_cam = R X + t
+    cameras[index] = moved
+    own = moved.centre + 0.65 * moved.R[2] + rng.uniform(-0.1, 0.1, (100, 3))
+    all_points = np.concatenate([points, own])
+    cal = Calibration(tuple(cameras), np.arange(len(all_points)), all_points, 0.3, "left")
+    return calibration_to_doc(cal)
+
+
+def test_a_calibration_narrows_the_pairs_and_exploration_finds_the_rest_again(network):  # noqa: F811
+    rig = parse_rig(rig_document("vgtest"))
+    net = network(rig, MatcherNodeConfig(publish_period_s=0.5, max_wait_s=0.3, explore_pairs=1))
+    publisher = matched_publisher(net.observer, keys.calibration(rig.name), timeout_s=30.0)
+    publisher.put(json.dumps(calibration_with_mono_b_elsewhere(rig)).encode())
+    assert wait_for(lambda: net.node._calibration is not None, 60.0), "the calibration never reached the matcher"
+    for camera_id in rig_document("vgtest")["cameras"]:
+        net.start_driver(camera_id["id"])
+    seen: list[tuple[int, int]] = []  # (pairs matched, pairs of its cameras) in the last frame set, as they change
+    deadline = time.monotonic() + 120.0
+    while time.monotonic() < deadline and (not seen or seen[-1][0] < 6):
+        if net.node.frame_sets_matched and (not seen or net.node.pairs != seen[-1]):
+            seen.append(net.node.pairs)
+        time.sleep(0.01)
+    full = [matched for matched, possible in seen if possible == 6]  # frame sets of all four cameras
+    # The three overlapping pairs and one explored pair of mono_b, not all six: the calibration was read.
+    assert full and full[0] == 4, seen
+    # mono_b's pairs, explored one per frame set, match well and stay: the camera is found again.
+    assert full[-1] == 6, seen
+    # What does not parse is counted, and the last calibration stays.
+    publisher.put(b"{not a calibration")
+    assert wait_for(lambda: net.node.rejected.counts.get("calibration") == 1, 60.0)
+    assert net.node.view_graph.calibrated == {"left", "right", "mono_a", "mono_b"}
+    assert wait_for(lambda: net.count() >= 1 and any("mono_b" in t["observations"]
+                                                     for t in net.latest()["tracks"]), 60.0)

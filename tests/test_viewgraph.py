@@ -1,0 +1,115 @@
+"""The view graph: which pairs of a calibrated rig are matched, from geometry and from history."""
+
+from __future__ import annotations
+
+from itertools import combinations
+
+import numpy as np
+import pytest
+
+from camnet.geometry.model import Calibration, Camera
+from camnet.geometry.projection import look_at
+from camnet.geometry.viewgraph import axis_angles_deg, depth_ranges, frustum_overlap, overlapping_pairs
+from camnet.matching.viewgraph import ViewGraph, ViewGraphConfig, choose_pairs
+
+K = np.array([[500.0, 0.0, 319.5], [0.0, 500.0, 255.5], [0.0, 0.0, 1.0]])  # 65 degrees across 640 px
+
+
+def camera(name: str, centre, target) -> Camera:
+    R, t = look_at(np.asarray(centre, float), np.asarray(target, float))
+    return Camera(name, 640, 512, K, np.zeros(5), R, t)
+
+
+def ring(m: int, radius_m: float = 2.0) -> tuple[list[Camera], np.ndarray]:
+    """`m` cameras evenly on a ring about a person-sized cylinder at the origin, and points on it."""
+    angles = 2 * np.pi * np.arange(m) / m
+    cameras = [camera(f"c{k}", (radius_m * np.sin(a), -0.2, -radius_m * np.cos(a)), (0, 0, 0))
+               for k, a in enumerate(angles)]
+    rng = np.random.default_rng(0)
+    phi = rng.uniform(0, 2 * np.pi, 800)
+    points = np.column_stack([0.25 * np.cos(phi), rng.uniform(-0.8, 0.8, 800), 0.17 * np.sin(phi)])
+    return cameras, points
+
+
+def test_depth_ranges_follow_x_cam_equals_R_X_plus_t():
+    front = camera("front", (0, 0, 0), (0, 0, 1))
+    back = camera("back", (0, 0, 0), (0, 0, -1))
+    moved = Camera("moved", 640, 512, K, np.zeros(5), np.eye(3), np.array([0.0, 0.0, -1.0]))  # centre at z = +1
+    points = np.column_stack([np.zeros(50), np.zeros(50), np.linspace(1.0, 3.0, 50)])
+    ranges = depth_ranges([front, back, moved], points, percentiles=(0.0, 100.0))
+    np.testing.assert_allclose(ranges[0], [1.0, 3.0])
+    assert np.isnan(ranges[1]).all()  # every point behind it
+    # t = (0, 0, -1): the points at depths z - 1; the one at its centre is not in front.
+    np.testing.assert_allclose(ranges[2], [2.0 / 49, 2.0])
+
+
+def test_parallel_neighbours_overlap_and_far_apart_ones_do_not():
+    """Same orientation; the far camera would share the view at infinity, not in the scene's depth range."""
+    left, right = camera("l", (0, 0, 0), (0, 0, 1)), camera("r", (0.3, 0, 0), (0.3, 0, 1))
+    far = camera("far", (10, 0, 0), (10, 0, 1))
+    rng = np.random.default_rng(1)
+    points = np.concatenate([rng.uniform([-1, -1, 2], [1.3, 1, 3], (300, 3)),
+                             rng.uniform([9, -1, 2], [11, 1, 3], (300, 3))])
+    overlap = frustum_overlap([left, right, far], depth_ranges([left, right, far], points))
+    assert overlap[0, 1] > 0.5 and overlap[1, 0] > 0.5
+    assert overlap[0, 2] == 0 and overlap[2, 0] == 0
+    assert overlapping_pairs([left, right, far], points) == [(0, 1)]
+
+
+def test_ring_pairs_are_neighbours_and_grow_linearly():
+    counts = {}
+    for m in (8, 16, 32):
+        cameras, points = ring(m)
+        pairs = overlapping_pairs(cameras, points, neighbours=4)
+        counts[m] = len(pairs)
+        assert all((k, (k + 1) % m) in pairs or ((k + 1) % m, k) in pairs for k in range(m))  # each ring neighbour
+        angles = axis_angles_deg(cameras)
+        assert all(angles[i, j] <= 75.0 for i, j in pairs)  # never across the ring
+        assert (0, m // 2) not in pairs
+    assert counts[8] < 28
+    assert counts[32] <= 4 * 32 // 2 * 1.01 and counts[32] <= 2.2 * counts[16]
+
+
+def test_a_camera_that_sees_no_point_has_no_pair():
+    cameras, points = ring(8)
+    away = camera("away", (0, 0, -2), (0, 0, -5))
+    pairs = overlapping_pairs([*cameras, away], points)
+    assert all(8 not in pair for pair in pairs)
+
+
+def test_choose_pairs_cold_start_new_camera_and_exploration():
+    ids = ["a", "b", "c", "d", "e"]
+    everything = {frozenset(p) for p in combinations(ids, 2)}
+    chosen, _ = choose_pairs(ids, calibrated=(), overlapping=(), explore=0)
+    assert chosen == everything
+    overlapping = {frozenset("ab"), frozenset("bc")}
+    chosen, _ = choose_pairs(ids, calibrated="abcd", overlapping=overlapping, always={frozenset("ad")})
+    assert chosen == overlapping | {frozenset("ad")} | {frozenset((x, "e")) for x in "abcd"}  # e: new
+    # The rest (cd, ac, bd) come round in rotation, two per frame set.
+    seen, cursor = set(), 0
+    for _ in range(2):
+        chosen, cursor = choose_pairs(ids, calibrated=ids, overlapping=overlapping,
+                                      matched_well={frozenset("de"), frozenset("ae"), frozenset("be"),
+                                                    frozenset("ce"), frozenset("ad")}, explore=2, cursor=cursor)
+        assert len(chosen) == 7 + 2
+        seen |= chosen
+    assert seen == everything
+
+
+def test_view_graph_matches_everything_until_a_calibration():
+    cameras, points = ring(8)
+    graph = ViewGraph(ViewGraphConfig(explore_per_set=1), always={frozenset(("c0", "c1"))})
+    ids = [c.id for c in cameras]
+    assert graph.pairs(ids) is None
+    graph.update(Calibration(tuple(cameras), np.arange(len(points)), points, 0.5, "c0"))
+    first, second = graph.pairs(ids), graph.pairs(ids)
+    assert frozenset(("c0", "c4")) not in graph.overlapping
+    assert len(first) == len(graph.overlapping) + 1 < 28 and first != second  # one explored pair, rotating
+    assert graph.pairs([*ids, "new"]) >= {frozenset((c, "new")) for c in ids}
+
+
+def test_config_is_checked():
+    with pytest.raises(ValueError):
+        ViewGraphConfig(neighbours=0)
+    with pytest.raises(ValueError):
+        overlapping_pairs(ring(4)[0], ring(4)[1], min_overlap=2.0)
