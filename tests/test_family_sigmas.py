@@ -14,6 +14,7 @@ here the rigs it is unlike.
 import numpy as np
 import pytest
 
+from camnet.errors import SolveError
 from camnet.geometry.calibrate import calibrate
 from camnet.geometry.evaluate import compare
 from camnet.sim.families import FAMILIES, family, observe_family
@@ -54,3 +55,14 @@ def test_scale_and_focal_errors_lie_within_three_reported_sigmas(name):
         # (3 seeds of 0-39: 25, 28, 30) the scale sigma grows to 1.6-1.8%.
         reached = (np.array(scale_rel) < RING_K_MAX_SCALE_REL) | (np.array(scale_sigma) > RING_K_MAX_SCALE_REL)
         assert reached.all(), f"ring_K: scale errors % {np.round(100 * np.array(scale_rel), 3).tolist()}"
+
+
+@pytest.mark.xfail(strict=True, reason="open: a start the adjustment cannot recover from, returned with warnings")
+def test_a_tape_pair_that_starts_wrong_is_refused_or_within_its_sigmas():
+    # Seed 30 of tape_pair: ring3 and ring4 left out, 40% of the observations rejected, RMS 1.55 px, and a
+    # scale 585% off at a reported 14.3% (41 sigma), the focal lengths 67-231% off; warned, not refused.
+    try:
+        s, f, _, _ = z_scores("tape_pair", 30)
+    except SolveError:
+        return
+    assert s <= 3 and max(f) <= 3
