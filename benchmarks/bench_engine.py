@@ -18,12 +18,10 @@ from dataclasses import replace
 
 import numpy as np
 
-from camnet.geometry.bundle import State
 from camnet.geometry.calibrate import Options, calibrate
 from camnet.geometry.evaluate import point_weights
 from camnet.geometry.metrics import scale_error, shape_rms_m
-from camnet.geometry.projection import intrinsics_from_K
-from camnet.geometry.uncertainty import covariance, scale_sigma, scale_weights, shape_rms_bound_m
+from camnet.sim.bounds import cramer_rao
 from camnet.sim.simulate import make_rig, move_camera, observe
 
 SCENARIOS = [
@@ -38,21 +36,6 @@ SCENARIOS = [
         frozenset({"f", "pp"}),
     ),
 ]
-
-
-def bounds(rig, result, noise_px):
-    cams = [rig.cameras[i] for i in result.order]
-    kept = np.bincount(result.problem.pt, minlength=result.problem.n_points) >= 2
-    X = rig.points[result.calibration.point_ids]
-    truth = State(
-        np.array([intrinsics_from_K(c.K, c.dist) for c in cams]),
-        np.array([c.R for c in cams]),
-        np.array([c.centre for c in cams]),
-        rig.points[np.asarray(result.track_rows)],
-    )
-    cov = covariance(result.problem, truth, sigma_px=noise_px)
-    scale = scale_sigma(cov, truth.X, scale_weights(cov, truth.X, kept))
-    return scale, shape_rms_bound_m(cov, X) if kept.all() else np.nan
 
 
 def accuracy(seeds: int, noise_px: float) -> None:
@@ -79,7 +62,8 @@ def accuracy(seeds: int, noise_px: float) -> None:
                 scale = scale_error(cal.points, X_true, point_weights(cal))
                 rows[method].append((abs(scale), shape_rms_m(cal.points, X_true)))
                 if method == "refined":
-                    crb.append(bounds(rig, result, noise_px))
+                    bound = cramer_rao(rig, result, noise_px)
+                    crb.append((bound.scale_rel, bound.shape_m))
             print(".", end="", file=sys.stderr, flush=True)
         print(file=sys.stderr)
         crb_scale, crb_shape = np.nanmedian(np.array(crb), axis=0)

@@ -9,7 +9,9 @@ sigma is missing): the failure the user cannot see. Prints one row per family,
 with, beside it, what a user does today on the same tracks from the same
 start: COLMAP's bundle adjustment (pycolmap), the scale then fixed from the
 known distance (benchmarks/colmap_anchor.py); both scale errors with equal
-point weights.
+point weights. Beside camnet's scale and shape errors, their Cramér-Rao
+bounds (camnet.sim.bounds: at the ground truth, with the solve's free
+parameters, known distances and lens models) and the ratios of the medians.
 
 Then what a second head buys: the same seeded observations solved with the
 second head's baseline and with it ignored, on the `two_heads` ring and on
@@ -34,8 +36,11 @@ from camnet.errors import CamnetError
 from camnet.geometry.calibrate import calibrate
 from camnet.geometry.evaluate import compare
 from camnet.geometry.metrics import scale_error
-from camnet.sim.families import FAMILIES, family
+from camnet.sim.bounds import cramer_rao
+from camnet.sim.families import FAMILIES, family, observe_family
 from camnet.sim.simulate import make_rig, observe, with_head
+
+NOISE_PX = 0.5
 
 HEAD_VARIANTS = ("two_heads", "paper + head")
 
@@ -43,22 +48,28 @@ HEAD_VARIANTS = ("two_heads", "paper + head")
 def run_seed(name: str, seed: int) -> tuple[str, dict]:
     """("solved", errors) or ("refused", {"reason": ...}) for one seed of one family."""
     drawn = family(name, seed=seed)
-    obs = observe(drawn.rig, noise_px=0.5, seed=seed, normals=drawn.normals).observations
+    obs = observe_family(drawn, noise_px=NOISE_PX, seed=seed)
     try:
         result = calibrate(obs)
     except CamnetError as exc:
         return "refused", {"reason": str(exc).split(":")[0][:60]}
     with np.errstate(all="ignore"):
         c = compare(result.calibration, drawn.rig.cameras, drawn.rig.points)
-    focal_z = max(abs(e.focal_rel) / e.focal_sigma_rel if e.focal_sigma_rel > 0 else np.inf for e in c.cameras)
+    # A given K (a factory calibration) is held: no sigma, and its error is the given one's.
+    focal_z = max(abs(e.focal_rel) / e.focal_sigma_rel if e.focal_sigma_rel > 0 else np.inf
+                  for e in c.cameras if e.id not in drawn.given)
     scale_z = abs(c.scale_rel) / c.scale_sigma_rel if c.scale_sigma_rel > 0 else np.inf
     anchor = colmap_adjust(obs, seed)  # the same tracks and start; the scale from the known distance
+    bound = cramer_rao(drawn.rig, result, NOISE_PX)
     return "solved", {
         "scale_equal_rel": scale_error(result.calibration.points, drawn.rig.points[result.calibration.point_ids]),
         "colmap_scale_rel": scale_error(anchor.points, drawn.rig.points[anchor.track_ids]),
         "scale_rel": c.scale_rel,
         "scale_sigma_rel": c.scale_sigma_rel,
-        "focal_rel": max(abs(e.focal_rel) for e in c.cameras),
+        "scale_bound_rel": bound.scale_rel,
+        "shape_mm": c.shape_rms_mm,
+        "shape_bound_mm": 1e3 * bound.shape_m,
+        "focal_rel": max(abs(e.focal_rel) for e in c.cameras if e.id not in drawn.given),
         "rms_px": c.rms_reprojection_px,
         "within_3_sigma": bool(np.nan_to_num(max(focal_z, scale_z), nan=np.inf) <= 3.0),
     }
@@ -72,7 +83,7 @@ def head_pair(variant: str, seed: int) -> tuple[dict | None, dict | None]:
         rig, normals = drawn.rig, drawn.normals
     else:
         rig, normals = with_head(make_rig(seed=seed, n_points=120), "mono_b"), None
-    obs = observe(rig, noise_px=0.5, seed=seed, normals=normals).observations
+    obs = observe(rig, noise_px=NOISE_PX, seed=seed, normals=normals).observations
     out = []
     for used in (replace(obs, baselines=()), obs):
         try:
@@ -105,6 +116,30 @@ def print_head_table(seeds: int) -> None:
               f"| {_median_pct(twos, 'scale_rel'):.2f} |", flush=True)
 
 
+PERCENT = ("scale_rel", "scale_sigma_rel", "scale_bound_rel", "focal_rel", "scale_equal_rel", "colmap_scale_rel")
+
+
+def family_row(name: str, seeds: int) -> dict:
+    """One family's row: counts, and the medians over its solved seeds (relative errors in %)."""
+    t0 = time.perf_counter()
+    solved, refused = [], Counter()
+    for seed in range(seeds):
+        kind, out = run_seed(name, seed)
+        if kind == "solved":
+            solved.append(out)
+        else:
+            refused[out["reason"]] += 1
+        print(f"  {name} seed {seed}: {kind}", file=sys.stderr, flush=True)
+    row = {"name": name, "solved": len(solved), "refused": sum(refused.values()),
+           "silent": sum(not s["within_3_sigma"] for s in solved),
+           "refusals": "; ".join(f"{n}x {r}" for r, n in refused.most_common(2))}
+    for key in (*PERCENT, "shape_mm", "shape_bound_mm", "rms_px"):
+        median = float(np.median([abs(s[key]) for s in solved])) if solved else float("nan")
+        row[key] = 100 * median if key in PERCENT else median
+    row["time_s"] = time.perf_counter() - t0
+    return row
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=20)
@@ -114,32 +149,20 @@ def main() -> int:
     if args.heads_only:
         print_head_table(args.seeds)
         return 0
-    rows = []
-    for name in args.families.split(","):
-        t0 = time.perf_counter()
-        solved, refused = [], Counter()
-        for seed in range(args.seeds):
-            kind, out = run_seed(name, seed)
-            if kind == "solved":
-                solved.append(out)
-            else:
-                refused[out["reason"]] += 1
-            print(f"  {name} seed {seed}: {kind}", file=sys.stderr, flush=True)
-        silent = sum(not s["within_3_sigma"] for s in solved)
-        med = {key: float(np.median([abs(s[key]) for s in solved])) if solved else float("nan")
-               for key in ("scale_rel", "scale_sigma_rel", "focal_rel", "rms_px", "scale_equal_rel",
-                           "colmap_scale_rel")}
-        rows.append((name, len(solved), sum(refused.values()), silent, 100 * med["scale_rel"],
-                     100 * med["scale_sigma_rel"], 100 * med["focal_rel"], med["rms_px"],
-                     100 * med["scale_equal_rel"], 100 * med["colmap_scale_rel"],
-                     "; ".join(f"{n}x {r}" for r, n in refused.most_common(2)), time.perf_counter() - t0))
+    rows = [family_row(name, args.seeds) for name in args.families.split(",")]
     print("| family | solved | refused | wrong in silence (> 3 sigma) | median scale err % | median scale sigma % "
+          "| scale CRB % | scale err / CRB | median shape mm | shape CRB mm | shape / CRB "
           "| median max focal err % | median RMS px | scale err %, equal weights: camnet | pycolmap BA + distance "
           "| pycolmap / camnet | main refusals | time s |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|" + "---|" * 18)
     for r in rows:
-        print(f"| {r[0]} | {r[1]} | {r[2]} | {r[3]} | {r[4]:.2f} | {r[5]:.2f} | {r[6]:.1f} | {r[7]:.2f} | {r[8]:.2f} "
-              f"| {r[9]:.2f} | {r[9] / r[8]:.1f} | {r[10]} | {r[11]:.0f} |")
+        cells = [r["name"], r["solved"], r["refused"], r["silent"], f"{r['scale_rel']:.2f}",
+                 f"{r['scale_sigma_rel']:.2f}", f"{r['scale_bound_rel']:.3f}",
+                 f"{r['scale_rel'] / r['scale_bound_rel']:.2f}", f"{r['shape_mm']:.2f}", f"{r['shape_bound_mm']:.2f}",
+                 f"{r['shape_mm'] / r['shape_bound_mm']:.2f}", f"{r['focal_rel']:.1f}", f"{r['rms_px']:.2f}",
+                 f"{r['scale_equal_rel']:.2f}", f"{r['colmap_scale_rel']:.2f}",
+                 f"{r['colmap_scale_rel'] / r['scale_equal_rel']:.1f}", r["refusals"], f"{r['time_s']:.0f}"]
+        print("| " + " | ".join(str(c) for c in cells) + " |", flush=True)
     print_head_table(args.seeds)
     return 0
 

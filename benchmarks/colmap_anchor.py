@@ -5,7 +5,8 @@ Benchmark-only (pycolmap is in the test extra). COLMAP's pixel origin is the
 corner of the top-left pixel, camnet's its centre: +0.5 px on the way in.
 Every camera is COLMAP's OPENCV model (fx, fy, cx, cy, k1, k2, p1, p2) with
 the focal length and the distortion refined and the principal point held at
-the image centre, COLMAP's defaults.
+the image centre, COLMAP's defaults; a camera whose K the observations give
+and fix (a factory-calibrated head) starts at its K and distortion, held.
 """
 
 from __future__ import annotations
@@ -30,6 +31,19 @@ class AnchorResult:
     seconds: float  # the bundle adjustment alone
 
 
+def _given(cam) -> bool:
+    """Whether the observations give this camera's K and distortion and fix them."""
+    return cam.K is not None and cam.dist is not None and {"K", "dist"} <= cam.fixed
+
+
+def _params(cam, f_start: float) -> list[float]:
+    """COLMAP OPENCV parameters (fx, fy, cx, cy, k1, k2, p1, p2): the given ones, else the start's focal length."""
+    if not _given(cam):
+        return [f_start, f_start, cam.width / 2, cam.height / 2, 0.0, 0.0, 0.0, 0.0]
+    K, dist = cam.K, np.zeros(4) if not len(cam.dist) else np.asarray(cam.dist, dtype=float)[:4]
+    return [K[0, 0], K[1, 1], K[0, 2] + COLMAP_PIXEL_SHIFT, K[1, 2] + COLMAP_PIXEL_SHIFT, *dist]
+
+
 def camnet_start(obs: Observations, seed: int = 0):
     """(order, start): camnet's cold start of `obs`, as `camnet.geometry.calibrate` computes it."""
     order = camera_order(obs)
@@ -51,9 +65,8 @@ def colmap_adjust(obs: Observations, seed: int = 0) -> AnchorResult:
         if not start.registered[m]:
             continue
         cam = obs.cameras[i]
-        f = float(start.f[m])
         camera = pycolmap.Camera(model="OPENCV", width=cam.width, height=cam.height, camera_id=m + 1,
-                                 params=[f, f, cam.width / 2, cam.height / 2, 0.0, 0.0, 0.0, 0.0])
+                                 params=_params(cam, float(start.f[m])))
         rec.add_camera_with_trivial_rig(camera)
         mine = np.flatnonzero(obs.cam_index == i)
         image = pycolmap.Image(name=cam.id, keypoints=obs.uv[mine] + COLMAP_PIXEL_SHIFT, camera_id=m + 1,
@@ -75,7 +88,17 @@ def colmap_adjust(obs: Observations, seed: int = 0) -> AnchorResult:
     options = pycolmap.BundleAdjustmentOptions()
     options.print_summary = False
     t0 = time.perf_counter()
-    pycolmap.bundle_adjustment(rec, options)
+    held = [m + 1 for m, i in enumerate(order) if m + 1 in image_of and _given(obs.cameras[i])]
+    if held:  # the default adjustment, with the given cameras' intrinsics held
+        config = pycolmap.BundleAdjustmentConfig()
+        for image_id in image_of:
+            config.add_image(image_id)
+        for camera_id in held:
+            config.set_constant_cam_intrinsics(camera_id)
+        config.fix_gauge(pycolmap.BundleAdjustmentGauge.TWO_CAMS_FROM_WORLD)
+        pycolmap.create_default_bundle_adjuster(options, config, rec).solve()
+    else:
+        pycolmap.bundle_adjustment(rec, options)
     seconds = time.perf_counter() - t0
     centre = {m: rec.image(m + 1).projection_center() for m in range(2)}
     scale = obs.stereo.baseline_m / np.linalg.norm(centre[1] - centre[0])

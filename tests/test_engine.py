@@ -6,22 +6,12 @@ import numpy as np
 import pytest
 
 from camnet.errors import SolveError
-from camnet.geometry.bundle import State
 from camnet.geometry.calibrate import Options, calibrate
 from camnet.geometry.evaluate import compare, rotation_angle_deg
-from camnet.geometry.projection import intrinsics_from_K, project_with_jacobians, rotation_exp
+from camnet.geometry.projection import project_with_jacobians, rotation_exp
 from camnet.geometry.uncertainty import covariance, scale_sigma
+from camnet.sim.bounds import truth_state
 from camnet.sim.simulate import make_rig, move_camera, observe
-
-
-def truth_state(rig, result) -> State:
-    cams = [rig.cameras[i] for i in result.order]
-    return State(
-        np.array([intrinsics_from_K(c.K, c.dist) for c in cams]),
-        np.array([c.R for c in cams]),
-        np.array([c.centre for c in cams]),
-        rig.points[result.calibration.point_ids],
-    )
 
 
 def assert_exact(result, rig, rel=1e-6):

@@ -45,7 +45,7 @@ import numpy as np
 from camnet.errors import SolveError
 from camnet.geometry import bundle, distances
 from camnet.geometry.bundle import CentreMode, Problem, State
-from camnet.geometry.cold_start import check_solvable, cold_start, with_cameras_left_out, without_cameras
+from camnet.geometry.cold_start import check_solvable, cold_start, pair_advice, with_cameras_left_out, without_cameras
 from camnet.geometry.diagnostics import refuse_undetermined, reported_points, solve_report
 from camnet.geometry.free_rule import choose_free, free_mask, free_names, restore_free
 from camnet.geometry.initialise import (
@@ -170,7 +170,8 @@ def calibrate(
         with _blas_controller().limit(limits=1, user_api="blas"):
             return _calibrate(obs, options, initial, reset_cameras)
     except np.linalg.LinAlgError:
-        raise SolveError("the observations do not determine the calibration (singular equations)") from None
+        raise SolveError(f"the observations do not determine the calibration (singular equations){pair_advice(obs)}"
+                         ) from None
 
 
 def _calibrate(
@@ -478,7 +479,10 @@ def _result(
         kept=kept, dropped=dropped, residuals_px=r, start=start,
     )
     report = with_cameras_left_out(report, left_out or {})
-    refuse_undetermined(report)
+    try:
+        refuse_undetermined(report)
+    except SolveError as exc:
+        raise SolveError(f"{exc}{pair_advice(obs)}") from None
     calibration = Calibration(
         cameras=tuple(cameras),
         point_ids=obs.track_ids[track_rows[kept]],

@@ -52,6 +52,7 @@ PARALLEL_ROWS_RATIO = 3.0
 PARALLEL_ROWS_FLOOR_PX = 0.1
 PARALLEL_IN_FRONT = 0.8
 SEED_TRIALS = 4  # the pair's focal lengths a third view fits best, adjusted with it to choose one
+WEAK_PAIR_RATIO = 3.0  # a failed solve names a pair that shares this many times the stereo pair's tracks
 
 
 def check_solvable(obs: Observations) -> None:
@@ -67,6 +68,26 @@ def check_solvable(obs: Observations) -> None:
             f"tracks: the stereo pair ({obs.stereo.left}, {obs.stereo.right}) shares only {shared} tracks; "
             f"need at least {MIN_PAIR_POINTS} (choose two cameras that see the same part of the scene)"
         )
+
+
+def pair_advice(obs: Observations) -> str:
+    """What to do when a solve from this stereo pair failed, if another pair shares many more tracks; else "".
+
+    A pair that sees little of the scene together (two cameras far round a
+    ring) gives the start few points and a weak relative pose; the pair that
+    shares the most tracks starts better (its distance is then what to know).
+    """
+    seen = np.zeros((len(obs.track_ids), len(obs.cameras)), dtype=bool)
+    seen[obs.track_index, obs.cam_index] = True
+    shared = seen.T.astype(int) @ seen  # (cameras, cameras) tracks each two share
+    np.fill_diagonal(shared, -1)
+    left, right = obs.index_of(obs.stereo.left), obs.index_of(obs.stereo.right)
+    a, b = np.unravel_index(np.argmax(shared), shared.shape)
+    if shared[a, b] < WEAK_PAIR_RATIO * shared[left, right]:
+        return ""
+    return (f"; the stereo pair ({obs.stereo.left}, {obs.stereo.right}) shares only {shared[left, right]} tracks, "
+            f"{obs.cameras[a].id} and {obs.cameras[b].id} share {shared[a, b]}: name as the stereo pair two "
+            "cameras that see more of the scene together, with their distance")
 
 
 def is_parallel(rows_px: float, epipolar_px: float) -> bool:

@@ -9,6 +9,8 @@ the scene that faces it (`observe(..., normals=)`).
 - ``ring``: 8 cameras on a full ring of radius 2 m around a person-sized
   elliptic cylinder (0.5 x 1.7 x 0.34 m), a parallel head (0.12 m) taking the
   place of one of them, so the cameras opposite see none of the pair's points.
+- ``ring_K``: the ring with its head factory-calibrated: the observations
+  give both head cameras' K and distortion (the truth) and fix them.
 - ``two_heads``: the ring with a second parallel head opposite the first, its
   baseline a further known distance.
 - ``tape_pair``: the ring with no head: two single cameras 45 degrees apart
@@ -26,11 +28,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from camnet.geometry.model import Baseline, Camera, LensModel
+from camnet.geometry.model import Baseline, Camera, LensModel, Observations
 from camnet.geometry.projection import distort_fisheye, look_at
-from camnet.sim.simulate import HEIGHT, WIDTH, SimRig, make_rig
+from camnet.sim.simulate import HEIGHT, WIDTH, SimRig, make_rig, observe
 
-FAMILIES = ("ring", "two_heads", "tape_pair", "wide", "fisheye")
+FAMILIES = ("ring", "ring_K", "two_heads", "tape_pair", "wide", "fisheye")
 RING_RADIUS_M = 2.0
 HEAD_BASELINE_M = 0.12
 TAPE_SIGMA_M = 0.002  # a tape measure's 1 sigma over 1.5 m
@@ -54,6 +56,7 @@ FISHEYE_MAX_ANGLE_DEG = 85.0  # the room's points lie within this of the left ca
 class FamilyRig:
     rig: SimRig
     normals: np.ndarray  # (N, 3) outward unit normals of rig.points, left frame; NaN: seen from everywhere
+    given: tuple[str, ...] = ()  # cameras whose K and distortion the observations give, fixed (factory-calibrated)
 
 
 def _K(f: float, rng: np.random.Generator) -> np.ndarray:
@@ -154,6 +157,9 @@ def family(name: str, *, seed: int = 0) -> FamilyRig:
     """The family `name` (one of FAMILIES) drawn with `seed`."""
     if name == "ring":
         return ring(seed=seed)
+    if name == "ring_K":
+        drawn = ring(seed=seed)
+        return replace(drawn, given=tuple(c.id for c in drawn.rig.cameras[:2]))
     if name == "two_heads":
         return ring(seed=seed, heads=2)
     if name == "tape_pair":
@@ -163,3 +169,15 @@ def family(name: str, *, seed: int = 0) -> FamilyRig:
     if name == "fisheye":
         return fisheye(seed=seed)
     raise ValueError(f"unknown family {name!r}; expected one of {FAMILIES}")
+
+
+def observe_family(drawn: FamilyRig, *, noise_px: float = 0.5, seed: int = 0) -> Observations:
+    """The observations of a drawn family (`observe` with its normals), the given cameras' K and dist fixed."""
+    obs = observe(drawn.rig, noise_px=noise_px, seed=seed, normals=drawn.normals).observations
+    truth = {c.id: c for c in drawn.rig.cameras}
+    cameras = tuple(
+        replace(c, K=truth[c.id].K.copy(), dist=truth[c.id].dist.copy(), fixed=frozenset({"K", "dist"}))
+        if c.id in drawn.given else c
+        for c in obs.cameras
+    )
+    return replace(obs, cameras=cameras)

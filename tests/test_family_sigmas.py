@@ -1,0 +1,68 @@
+"""The reported sigmas hold on the real-rig families: scale and focal errors within 3 sigma.
+
+Over 20 seeds of each family (camnet.sim.families) that the benchmark (0-19)
+does not use, at default options: the scale and every estimated focal
+length lie within 3 reported sigmas in at least 95% of the checks, per
+family and quantity (one miss in 20). A camera whose K the observations
+give is held and has no focal check; a camera the solve leaves out is named
+in its report and has none either. The ring with its head's K given must
+also keep its scale error below 0.5%, or say it has not (a scale sigma
+above 0.5%). The paper's rig is checked the same way in tests/test_engine.py;
+here the rigs it is unlike.
+"""
+
+import numpy as np
+import pytest
+
+from camnet.errors import SolveError
+from camnet.geometry.calibrate import calibrate
+from camnet.geometry.evaluate import compare
+from camnet.sim.families import FAMILIES, family, observe_family
+
+FIRST_SEED = 20
+SEEDS = 20  # per family: 95% then allows one miss per family and quantity
+WITHIN = 0.95
+RING_K_MAX_SCALE_REL = 0.005  # the factory-calibrated head's must-reach
+
+
+def z_scores(name: str, seed: int) -> tuple[float, list[float], float, float]:
+    """(|scale error| / sigma, [|focal error| / sigma per estimated focal length], scale error, its sigma)."""
+    drawn = family(name, seed=seed)
+    cal = calibrate(observe_family(drawn, noise_px=0.5, seed=seed)).calibration
+    c = compare(cal, drawn.rig.cameras, drawn.rig.points)  # the cameras placed (a camera left out is named)
+
+    def z(error: float, sigma: float) -> float:
+        return abs(error) / sigma if sigma > 0 else np.inf  # a missing sigma never passes
+
+    focal = [z(e.focal_rel, e.focal_sigma_rel) for e in c.cameras if e.id not in drawn.given]
+    return z(c.scale_rel, c.scale_sigma_rel), focal, c.scale_rel, c.scale_sigma_rel
+
+
+@pytest.mark.parametrize("name", FAMILIES)
+def test_scale_and_focal_errors_lie_within_three_reported_sigmas(name):
+    scale_z, focal_z, scale_rel, scale_sigma = [], [], [], []
+    for seed in range(FIRST_SEED, FIRST_SEED + SEEDS):
+        s, f, rel, sigma = z_scores(name, seed)
+        scale_z.append(s)
+        focal_z += f
+        scale_rel.append(abs(rel))
+        scale_sigma.append(sigma)
+    scale_z, focal_z = np.array(scale_z), np.array(focal_z)
+    assert np.mean(scale_z <= 3) >= WITHIN, f"{name}: scale errors / sigma {np.round(scale_z, 2).tolist()}"
+    assert np.mean(focal_z <= 3) >= WITHIN, f"{name}: focal errors / sigma, worst {np.sort(focal_z)[-3:].tolist()}"
+    if name == "ring_K":
+        # The target, or a reported sigma that says it is not reached: where the rule frees the head's yaw
+        # (3 seeds of 0-39: 25, 28, 30) the scale sigma grows to 1.6-1.8%.
+        reached = (np.array(scale_rel) < RING_K_MAX_SCALE_REL) | (np.array(scale_sigma) > RING_K_MAX_SCALE_REL)
+        assert reached.all(), f"ring_K: scale errors % {np.round(100 * np.array(scale_rel), 3).tolist()}"
+
+
+@pytest.mark.xfail(strict=True, reason="open: a start the adjustment cannot recover from, returned with warnings")
+def test_a_tape_pair_that_starts_wrong_is_refused_or_within_its_sigmas():
+    # Seed 30 of tape_pair: ring3 and ring4 left out, 40% of the observations rejected, RMS 1.55 px, and a
+    # scale 585% off at a reported 14.3% (41 sigma), the focal lengths 67-231% off; warned, not refused.
+    try:
+        s, f, _, _ = z_scores("tape_pair", 30)
+    except SolveError:
+        return
+    assert s <= 3 and max(f) <= 3
