@@ -164,8 +164,11 @@ def reported_points(
 
 
 def _uncertainty(ids: list[str], problem, state, cov: Covariance, kept, warnings: list[str],
-                 notes: list[str]) -> Uncertainty:
-    """The solution's uncertainty; appends the warnings and notes it gives rise to."""
+                 notes: list[str], normal) -> Uncertainty:
+    """The solution's uncertainty; appends the warnings and notes it gives rise to.
+
+    normal: the solve's unweighted normal equations at `state` in cov's layout (or None).
+    """
     weights = scale_weights(cov, state.X, kept)
     scale = scale_sigma(cov, state.X, weights) if kept.any() else None
     undetermined_scale = scale is not None and not np.isfinite(scale)
@@ -179,7 +182,7 @@ def _uncertainty(ids: list[str], problem, state, cov: Covariance, kept, warnings
     nonlinear = scale is not None and pair_focal_rel > MAX_LINEAR_FOCAL_REL
     if nonlinear:
         scale = None
-    warnings += _distance_warnings(ids, problem, state, cov)
+    warnings += _distance_warnings(ids, problem, state, cov, normal)
     for m, cam_id in enumerate(ids):
         unknown = _undetermined_names(per_cam[cam_id])
         if unknown:
@@ -226,11 +229,11 @@ def _uncertainty(ids: list[str], problem, state, cov: Covariance, kept, warnings
     )
 
 
-def _distance_warnings(ids: list[str], problem, state, cov: Covariance) -> list[str]:
+def _distance_warnings(ids: list[str], problem, state, cov: Covariance, normal) -> list[str]:
     """Known distances that the scene (every other row) contradicts."""
     if not len(problem.distances):
         return []
-    scene_m, sigma_m = distance_checks(problem, state, cov)
+    scene_m, sigma_m = distance_checks(problem, state, cov, normal=normal)
     known = problem.distances
     z = np.abs(scene_m - known.metres) / np.hypot(sigma_m, known.sigma_m)
     return [
@@ -298,7 +301,7 @@ def solve_report(
         warnings += structure_warnings(ids, problem.cam, problem.uv, residuals_px, state.intr,
                                        problem.intr_free[:, 4], observed)
     notes: list[str] = []
-    uncertainty = None if cov is None else _uncertainty(ids, problem, state, cov, kept, warnings, notes)
+    uncertainty = None if cov is None else _uncertainty(ids, problem, state, cov, kept, warnings, notes, info.normal)
     # The held column offset is priced into the scale's sigma when the principal points entered as
     # a guess with its prior: then a caveat (a note), else the sigma cannot show it (a warning).
     priced = uncertainty is not None and uncertainty.scale_rel_if_pp_exact.value is not None

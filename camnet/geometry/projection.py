@@ -303,10 +303,15 @@ def project_with_jacobians(
     f, a = intr[:, 0], intr[:, 1]
     xc = np.einsum("nij,nj->ni", R, X - C)
     n = len(xc)
-    xd, J_dist, J_xc = np.empty((n, 2)), np.empty((n, 2, 5)), np.empty((n, 2, 3))
-    for rows, fish in _model_rows(fisheye, n):
-        lens = _fisheye_jacobians if fish else _pinhole_jacobians
-        xd[rows], J_dist[rows], J_xc[rows] = lens(xc[rows], intr[rows, 4:])
+    models = _model_rows(fisheye, n)
+    if len(models) == 1:  # one lens model: no rows to pick out and copy back
+        lens = _fisheye_jacobians if models[0][1] else _pinhole_jacobians
+        xd, J_dist, J_xc = lens(xc, intr[:, 4:])
+    else:
+        xd, J_dist, J_xc = np.empty((n, 2)), np.empty((n, 2, 5)), np.empty((n, 2, 3))
+        for rows, fish in models:
+            lens = _fisheye_jacobians if fish else _pinhole_jacobians
+            xd[rows], J_dist[rows], J_xc[rows] = lens(xc[rows], intr[rows, 4:])
     fy = a * f
     uv = np.stack([f * xd[:, 0] + intr[:, 2], fy * xd[:, 1] + intr[:, 3]], axis=1)
     scale = np.stack([f, fy], axis=1)[:, :, None]  # d pixel / d distorted normalised point, per axis
@@ -320,7 +325,11 @@ def project_with_jacobians(
     J_intr[:, :, 4:] = scale * J_dist
     duv_dxc = scale * J_xc
     # a^T [xc]x = a x xc, so d pixel / d w = -duv_dxc [xc]x = xc x duv_dxc (row-wise).
-    J_rot = np.cross(xc[:, None, :], duv_dxc)
-    J_point = duv_dxc[:, :, :1] * R[:, None, 0] + duv_dxc[:, :, 1:2] * R[:, None, 1] + duv_dxc[:, :, 2:] * R[:, None, 2]
+    J_rot = np.empty((n, 2, 3))
+    x0, x1, x2 = xc[:, 0, None], xc[:, 1, None], xc[:, 2, None]
+    J_rot[:, :, 0] = x1 * duv_dxc[:, :, 2] - x2 * duv_dxc[:, :, 1]
+    J_rot[:, :, 1] = x2 * duv_dxc[:, :, 0] - x0 * duv_dxc[:, :, 2]
+    J_rot[:, :, 2] = x0 * duv_dxc[:, :, 1] - x1 * duv_dxc[:, :, 0]
+    J_point = duv_dxc @ R  # a batched matmul: faster than broadcasting for 2x3 by 3x3
     J_centre = -J_point
     return uv, J_intr, J_rot, J_centre, J_point
