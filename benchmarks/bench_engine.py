@@ -19,7 +19,7 @@ import time
 from dataclasses import replace
 
 import numpy as np
-from colmap_anchor import AnchorSolver, colmap_adjust
+from colmap_anchor import AnchorSolver, camnet_start, colmap_adjust
 
 from camnet.geometry.bundle import State
 from camnet.geometry.calibrate import Options, calibrate
@@ -109,30 +109,44 @@ def timing(repeats: int) -> None:
     print("camnet vs COLMAP: the same tracks, start and free parameters (f; the stereo pair held); camnet's")
     print("  refined solve from the start with its covariance and report, COLMAP's bundle adjustment")
     print(f"  (pycolmap, Ceres: function tolerance {ANCHOR.function_tolerance:g}, gradient tolerance "
-          f"{ANCHOR.gradient_tolerance:g}, at most {ANCHOR.max_num_iterations} iterations), no covariance")
+          f"{ANCHOR.gradient_tolerance:g}, at most {ANCHOR.max_num_iterations} iterations), no covariance;")
+    print("  wall and CPU seconds (both solvers run on this one thread; CPU time is steadier on a shared machine)")
     print(f"{'M':>4} {'N':>6} {'observations':>13} {'cold s':>8} {'warm +5% s':>11} {'reset s':>8} "
-          f"{'camnet s':>9} {'COLMAP s':>9} {'ratio':>6} {'COLMAP its':>11}")
+          f"{'camnet s':>9} {'COLMAP s':>9} {'ratio':>6} {'camnet CPU':>11} {'COLMAP CPU':>11} {'ratio':>6} "
+          f"{'COLMAP its':>11}")
     for M, N in [(4, 250), (8, 250), (16, 250), (4, 1000), (8, 1000), (16, 1000)]:
-        times: dict[str, list[float]] = {k: [] for k in ("cold", "warm", "reset", "camnet", "colmap", "its")}
+        times: dict[str, list[float]] = {}
         for seed in range(repeats):
             rig = make_rig(n_cameras=M, n_points=N, seed=seed)
             obs = observe(rig, noise_px=0.5, seed=seed, visibility=0.6).observations
-            for name, seconds in _network_times(rig, obs, N, seed).items():
-                times[name].append(seconds)
-            # Alternating with COLMAP, seed by seed: a shared machine's drift favours neither.
-            t0 = time.perf_counter()
-            result = calibrate(obs, replace(SAME_FREE, seed=seed))
-            times["camnet"].append(time.perf_counter() - t0 - result.timings_s["initialise"])
-            assert result.covariance is not None
-            anchor = colmap_adjust(obs, seed, ANCHOR)
-            times["colmap"].append(anchor.seconds)
-            times["its"].append(anchor.iterations)
+            measured = {**_network_times(rig, obs, N, seed), **_beside_colmap(obs, seed)}
+            for name, seconds in measured.items():
+                times.setdefault(name, []).append(seconds)
         med = {k: float(np.median(v)) for k, v in times.items()}
         print(
             f"{M:>4} {N:>6} {len(obs.uv):>13} {med['cold']:>8.3f} {med['warm']:>11.3f} {med['reset']:>8.3f} "
-            f"{med['camnet']:>9.3f} {med['colmap']:>9.3f} {med['camnet'] / med['colmap']:>6.2f} {med['its']:>11.0f}",
+            f"{med['camnet']:>9.3f} {med['colmap']:>9.3f} {med['camnet'] / med['colmap']:>6.2f} "
+            f"{med['camnet_cpu']:>11.3f} {med['colmap_cpu']:>11.3f} {med['camnet_cpu'] / med['colmap_cpu']:>6.2f} "
+            f"{med['its']:>11.0f}",
             flush=True,
         )
+
+
+def _beside_colmap(obs, seed: int) -> dict[str, float]:
+    """camnet's solve from the start (wall, CPU) and COLMAP's bundle adjustment of the same, one after the other."""
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=1, user_api="blas"):  # as calibrate runs it
+        cpu0 = time.thread_time()
+        camnet_start(obs, seed)
+        start_cpu = time.thread_time() - cpu0
+    t0, cpu0 = time.perf_counter(), time.thread_time()
+    result = calibrate(obs, replace(SAME_FREE, seed=seed))
+    wall, cpu = time.perf_counter() - t0, time.thread_time() - cpu0
+    assert result.covariance is not None
+    anchor = colmap_adjust(obs, seed, ANCHOR)
+    return {"camnet": wall - result.timings_s["initialise"], "camnet_cpu": cpu - start_cpu,
+            "colmap": anchor.seconds, "colmap_cpu": anchor.cpu_seconds, "its": anchor.iterations}
 
 
 def _network_times(rig, obs, N: int, seed: int) -> dict[str, float]:

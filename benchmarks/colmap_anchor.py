@@ -43,6 +43,7 @@ class AnchorResult:
     points: np.ndarray  # (N, 3) metres, scaled by the known distance
     focal_px: dict[str, float]
     seconds: float  # the bundle adjustment alone: setting up Ceres's problem and solving it
+    cpu_seconds: float  # the same, in CPU time of this thread (Ceres solves on it at these sizes)
     iterations: int
     termination: str
 
@@ -77,16 +78,16 @@ def colmap_adjust(obs: Observations, seed: int = 0, solver: AnchorSolver = Ancho
             config.set_constant_rig_from_world_pose(rec.image(image_id).frame_id)
     else:
         config.fix_gauge(pycolmap.BundleAdjustmentGauge.TWO_CAMS_FROM_WORLD)
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), time.thread_time()
     summary = pycolmap.create_default_bundle_adjuster(options, config, rec).solve()
-    seconds = time.perf_counter() - t0
+    seconds, cpu_seconds = time.perf_counter() - t0, time.thread_time() - cpu0
     ceres_summary = summary.ceres_summary
     centre = {m: rec.image(m + 1).projection_center() for m in range(2)}
     scale = obs.stereo.baseline_m / np.linalg.norm(centre[1] - centre[0])
     points = np.array([rec.points3D[pid].xyz for pid in sorted(rec.points3D)]) * scale
     focal = {obs.cameras[order[cid - 1]].id: float(rec.cameras[cid].params[0]) for cid in rec.cameras}
     iterations = ceres_summary.num_successful_steps + ceres_summary.num_unsuccessful_steps
-    return AnchorResult(obs.track_ids[np.array(kept)], points, focal, seconds, iterations,
+    return AnchorResult(obs.track_ids[np.array(kept)], points, focal, seconds, cpu_seconds, iterations,
                         str(ceres_summary.termination_type).split(".")[-1])
 
 
