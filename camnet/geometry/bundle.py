@@ -202,7 +202,7 @@ def residuals(problem: Problem, state: State) -> np.ndarray:
 
 def _cost(problem: Problem, state: State, loss: str, scale_px: float) -> float:
     r = residuals(problem, state)
-    z = np.sum(r * r, axis=1) / scale_px**2
+    z = (r[:, 0] * r[:, 0] + r[:, 1] * r[:, 1]) / scale_px**2
     rho, _ = robust_loss(z, loss)
     if not np.all(np.isfinite(rho)):
         return np.inf
@@ -257,7 +257,7 @@ def normal_equations(problem: Problem, state: State, *, loss: str = "linear", sc
         state.intr[c], state.R[c], state.C[c], state.X[p], problem.fisheye_rows(c)
     )
     r = uv - lay.uv
-    z = np.sum(r * r, axis=1) / scale_px**2
+    z = (r[:, 0] * r[:, 0] + r[:, 1] * r[:, 1]) / scale_px**2
     rho, drho = robust_loss(z, loss)
     sw = None if loss == Loss.LINEAR else np.sqrt(drho)[:, None, None]  # rho' = 1: the rows as they are
     if sw is not None:
