@@ -254,7 +254,8 @@ def normal_equations(problem: Problem, state: State, *, loss: str = "linear", sc
     lay = problem.layout
     c, p, N = lay.cam, lay.pt, problem.n_points
     uv, J_intr, J_rot, J_cen, J_pt = project_with_jacobians(
-        state.intr[c], state.R[c], state.C[c], state.X[p], problem.fisheye_rows(c)
+        state.intr[c], state.R[c], state.C[c], state.X[p], problem.fisheye_rows(c),
+        distortion=any(np.any(si >= INTRINSIC_NAMES.index("k1")) for si, *_ in lay.groups),
     )
     r = uv - lay.uv
     z = (r[:, 0] * r[:, 0] + r[:, 1] * r[:, 1]) / scale_px**2

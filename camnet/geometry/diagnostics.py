@@ -87,13 +87,21 @@ def _parallax_deg(problem, state) -> np.ndarray:
     rays = state.X[problem.pt] - state.C[problem.cam]
     rays /= np.linalg.norm(rays, axis=1, keepdims=True)
     # The angle to the mean ray, doubled, is a cheap stand-in for the widest pair.
-    mean = np.zeros((problem.n_points, 3))
-    np.add.at(mean, problem.pt, rays)
+    mean = np.stack([np.bincount(problem.pt, rays[:, k], minlength=problem.n_points) for k in range(3)], axis=1)
     mean /= np.maximum(np.linalg.norm(mean, axis=1, keepdims=True), 1e-12)
     cosang = np.clip(np.sum(rays * mean[problem.pt], axis=1), -1.0, 1.0)
-    widest = np.zeros(problem.n_points)
-    np.maximum.at(widest, problem.pt, np.degrees(np.arccos(cosang)))
-    return 2.0 * widest
+    return 2.0 * _per_point_max(problem.pt, np.degrees(np.arccos(cosang)), problem.n_points, 0.0)
+
+
+def _per_point_max(pt: np.ndarray, values: np.ndarray, n_points: int, empty: float) -> np.ndarray:
+    """(n_points,) the largest of `values` (n,) per point `pt` (n,); `empty` where a point has none."""
+    order = np.argsort(pt, kind="stable")
+    starts = np.searchsorted(pt[order], np.arange(n_points))
+    seen = np.bincount(pt, minlength=n_points) > 0
+    out = np.full(n_points, empty)
+    if seen.any():
+        out[seen] = np.maximum.reduceat(values[order], starts[seen])
+    return out
 
 
 def _held_disparity_warning(obs, order, problem, state) -> list[str]:
@@ -148,8 +156,7 @@ def reported_points(
         _, xc = project_points(state.intr[problem.cam], state.R[problem.cam], state.C[problem.cam], state.X[problem.pt])
     behind = np.zeros(problem.n_points, dtype=bool)
     behind[problem.pt[xc[:, 2] <= 0]] = True
-    nearest = np.full(problem.n_points, np.inf)
-    np.minimum.at(nearest, problem.pt, np.linalg.norm(xc, axis=1))
+    nearest = -_per_point_max(problem.pt, -np.linalg.norm(xc, axis=1), problem.n_points, -np.inf)
     undetermined = np.zeros(problem.n_points, dtype=bool)
     if cov is not None:
         undetermined = np.sqrt(3.0) * cov.point_sigmas_m() >= nearest
