@@ -2,8 +2,9 @@
 """Bus benchmark: simulated cameras through Zenoh on loopback, camnet vs bare Zenoh.
 
 The camera processes (benchmarks/sim_publishers.py) run either the real
-driver node ("camnet") or a bare Zenoh publisher of the same bytes ("bare"),
-at the same rate. One subscriber process (this one) receives every frame:
+driver node ("camnet") or a bare Zenoh publisher of the same bytes ("bare";
+"bare+copy" also copies each frame's pixels into its payload, as camnet's
+camera does into its message), at the same rate. One subscriber process (this one) receives every frame:
 camnet's through `camnet.bus.receiver.FrameReceiver` (copied out of Zenoh,
 decoded, sequence checked), bare's copied out of Zenoh as bytes.
 
@@ -149,11 +150,11 @@ def run_phase(mode: str, *, cameras: int, fps: float, seconds: float, size=(1280
 
 
 def print_table(rows: list[PhaseResult]) -> None:
-    print(f"{'':<8}{'sent':>7}{'recv':>7}{'lost':>6}{'frames/s':>10}{'MB/s':>8}"
+    print(f"{'':<10}{'sent':>7}{'recv':>7}{'lost':>6}{'frames/s':>10}{'MB/s':>8}"
           f"{'capture->put':>14}{'in put':>8}{'put->recv p50':>15}{'p99':>7}{'recv->ready':>13}"
           f"{'pub CPU/cam':>13}{'sub CPU/cam':>13}")
     for r in rows:
-        print(f"{r.mode:<8}{r.sent:>7}{r.received:>7}{r.lost:>6}{r.frames_per_s:>10.1f}"
+        print(f"{r.mode:<10}{r.sent:>7}{r.received:>7}{r.lost:>6}{r.frames_per_s:>10.1f}"
               f"{r.mb_per_s:>8.1f}{np.median(r.capture_to_put_ms):>14.2f}"
               f"{np.median(r.in_put_ms):>8.2f}"
               f"{np.nanmedian(r.put_to_recv_ms):>15.2f}"
@@ -170,13 +171,13 @@ def print_overhead(camnet: PhaseResult, bare: PhaseResult) -> None:
 
     c50, b50 = np.nanmedian(camnet.put_to_recv_ms), np.nanmedian(bare.put_to_recv_ms)
     c99, b99 = np.nanpercentile(camnet.put_to_recv_ms, 99), np.nanpercentile(bare.put_to_recv_ms, 99)
-    print(f"camnet vs bare Zenoh: throughput {ratio(camnet.frames_per_s, bare.frames_per_s)}, "
+    print(f"camnet vs {bare.mode}: throughput {ratio(camnet.frames_per_s, bare.frames_per_s)}, "
           f"put->recv p50 {ratio(c50, b50)}, p99 {ratio(c99, b99)}, publisher CPU "
           f"{ratio(camnet.publisher_cpu, bare.publisher_cpu)}, subscriber CPU "
           f"{ratio(camnet.subscriber_cpu, bare.subscriber_cpu)}")
     end_to_end = (np.median(camnet.capture_to_put_ms) + c50 + np.nanmedian(camnet.recv_to_ready_ms),
                   np.median(bare.capture_to_put_ms) + b50 + np.nanmedian(bare.recv_to_ready_ms))
-    print(f"capture->ready p50 (sum of the medians): camnet {end_to_end[0]:.2f} ms, bare "
+    print(f"capture->ready p50 (sum of the medians): camnet {end_to_end[0]:.2f} ms, {bare.mode} "
           f"{end_to_end[1]:.2f} ms ({ratio(*end_to_end)})")
 
 
@@ -253,9 +254,11 @@ def main() -> int:
               "per phase; latency from just before put to receipt", flush=True)
         camnet = run_phase("camnet", cameras=args.cameras, fps=args.fps, seconds=args.seconds)
         bare = run_phase("bare", cameras=args.cameras, fps=args.fps, seconds=args.seconds)
+        copying = run_phase("bare+copy", cameras=args.cameras, fps=args.fps, seconds=args.seconds)
         print()
-        print_table([camnet, bare])
+        print_table([camnet, bare, copying])
         print_overhead(camnet, bare)
+        print_overhead(camnet, copying)
         costs = frame_costs()
         print("camnet's own work per frame, alone in one process: " +
               ", ".join(f"{name} {ms:.3f} ms" for name, ms in costs.items()))

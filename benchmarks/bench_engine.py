@@ -4,7 +4,9 @@ Prints, per scenario and method, the median scale error and shape error beside
 their Cramer-Rao bounds (computed at the ground truth with the same free
 parameters), over seeded trials; then solve times as the network grows, a
 warm-started re-solve after 5% new tracks, and a re-solve after one camera moved
-(warm, with that camera reset).
+(warm, with that camera reset); beside them, in the same run, COLMAP's bundle
+adjustment (pycolmap, benchmarks/colmap_anchor.py) of the same tracks from the
+same start with the same free parameters.
 
     python benchmarks/bench_engine.py [--seeds 20] [--repeats 3] [--only accuracy|timing]
 """
@@ -17,6 +19,7 @@ import time
 from dataclasses import replace
 
 import numpy as np
+from colmap_anchor import AnchorSolver, camnet_start, colmap_adjust
 
 from camnet.geometry.calibrate import Options, calibrate
 from camnet.geometry.evaluate import point_weights
@@ -77,41 +80,83 @@ def accuracy(seeds: int, noise_px: float) -> None:
             )
 
 
+# COLMAP with camnet's parameters for the comparison: the focal length alone per camera, the stereo
+# pair held (camnet's ideal pair), every other pose and every point free; Ceres's stopping rule
+# as COLMAP sets it (no test on the cost's change, gradient tolerance 1e-4, at most 100 iterations).
+ANCHOR = AnchorSolver(camera_model="SIMPLE_PINHOLE", hold_stereo_pair=True)
+SAME_FREE = Options(free=frozenset({"f"}))
+
+
 def timing(repeats: int) -> None:
     print("\nrefined solve time (median of repeats), 0.5 px noise, 60% visibility for non-stereo cameras")
     print("warm: after 5% new tracks; reset: after the last camera moved 5 cm and 3 deg, with it reset")
-    print(f"{'M':>4} {'N':>6} {'observations':>13} {'cold s':>8} {'warm +5% s':>11} {'reset s':>8}")
+    print("camnet vs COLMAP: the same tracks, start and free parameters (f; the stereo pair held); camnet's")
+    print("  refined solve from the start with its covariance and report, COLMAP's bundle adjustment")
+    print(f"  (pycolmap, Ceres: function tolerance {ANCHOR.function_tolerance:g}, gradient tolerance "
+          f"{ANCHOR.gradient_tolerance:g}, at most {ANCHOR.max_num_iterations} iterations), no covariance;")
+    print("  wall and CPU seconds (both solvers run on this one thread; CPU time is steadier on a shared machine)")
+    print(f"{'M':>4} {'N':>6} {'observations':>13} {'cold s':>8} {'warm +5% s':>11} {'reset s':>8} "
+          f"{'camnet s':>9} {'COLMAP s':>9} {'ratio':>6} {'camnet CPU':>11} {'COLMAP CPU':>11} {'ratio':>6} "
+          f"{'COLMAP its':>11}")
     for M, N in [(4, 250), (8, 250), (16, 250), (4, 1000), (8, 1000), (16, 1000)]:
-        cold, warm, reset = [], [], []
+        times: dict[str, list[float]] = {}
         for seed in range(repeats):
             rig = make_rig(n_cameras=M, n_points=N, seed=seed)
             obs = observe(rig, noise_px=0.5, seed=seed, visibility=0.6).observations
-            n_old = int(0.95 * N)
-            first = obs.track_index < n_old
-            old = replace(
-                obs,
-                cam_index=obs.cam_index[first],
-                track_index=obs.track_index[first],
-                uv=obs.uv[first],
-                track_ids=obs.track_ids[:n_old],
-            )
-            t0 = time.perf_counter()
-            previous = calibrate(old).calibration
-            cold.append(time.perf_counter() - t0)
-            t0 = time.perf_counter()
-            now = calibrate(obs, initial=previous).calibration
-            warm.append(time.perf_counter() - t0)
-            n_obs = len(obs.uv)
-            bumped = rig.cameras[-1].id
-            moved = move_camera(rig, bumped, shift_m=0.05, angle_deg=3.0, seed=seed)
-            after = observe(moved, noise_px=0.5, seed=seed + 1, visibility=0.6).observations
-            t0 = time.perf_counter()
-            calibrate(after, initial=now, reset_cameras={bumped})
-            reset.append(time.perf_counter() - t0)
+            measured = {**_network_times(rig, obs, N, seed), **_beside_colmap(obs, seed)}
+            for name, seconds in measured.items():
+                times.setdefault(name, []).append(seconds)
+        med = {k: float(np.median(v)) for k, v in times.items()}
         print(
-            f"{M:>4} {N:>6} {n_obs:>13} {np.median(cold):>8.3f} {np.median(warm):>11.3f} {np.median(reset):>8.3f}",
+            f"{M:>4} {N:>6} {len(obs.uv):>13} {med['cold']:>8.3f} {med['warm']:>11.3f} {med['reset']:>8.3f} "
+            f"{med['camnet']:>9.3f} {med['colmap']:>9.3f} {med['camnet'] / med['colmap']:>6.2f} "
+            f"{med['camnet_cpu']:>11.3f} {med['colmap_cpu']:>11.3f} {med['camnet_cpu'] / med['colmap_cpu']:>6.2f} "
+            f"{med['its']:>11.0f}",
             flush=True,
         )
+
+
+def _beside_colmap(obs, seed: int) -> dict[str, float]:
+    """camnet's solve from the start (wall, CPU) and COLMAP's bundle adjustment of the same, one after the other."""
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=1, user_api="blas"):  # as calibrate runs it
+        cpu0 = time.thread_time()
+        camnet_start(obs, seed)
+        start_cpu = time.thread_time() - cpu0
+    t0, cpu0 = time.perf_counter(), time.thread_time()
+    result = calibrate(obs, replace(SAME_FREE, seed=seed))
+    wall, cpu = time.perf_counter() - t0, time.thread_time() - cpu0
+    assert result.covariance is not None
+    anchor = colmap_adjust(obs, seed, ANCHOR)
+    return {"camnet": wall - result.timings_s["initialise"], "camnet_cpu": cpu - start_cpu,
+            "colmap": anchor.seconds, "colmap_cpu": anchor.cpu_seconds, "its": anchor.iterations}
+
+
+def _network_times(rig, obs, N: int, seed: int) -> dict[str, float]:
+    """Seconds of a cold solve (automatic free set) without the last 5% of tracks, a warm re-solve with
+    them, and a re-solve after the last camera moved, with it reset."""
+    n_old = int(0.95 * N)
+    first = obs.track_index < n_old
+    old = replace(
+        obs,
+        cam_index=obs.cam_index[first],
+        track_index=obs.track_index[first],
+        uv=obs.uv[first],
+        track_ids=obs.track_ids[:n_old],
+    )
+    t0 = time.perf_counter()
+    previous = calibrate(old).calibration
+    cold = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    now = calibrate(obs, initial=previous).calibration
+    warm = time.perf_counter() - t0
+    bumped = rig.cameras[-1].id
+    moved = move_camera(rig, bumped, shift_m=0.05, angle_deg=3.0, seed=seed)
+    after = observe(moved, noise_px=0.5, seed=seed + 1, visibility=0.6).observations
+    t0 = time.perf_counter()
+    calibrate(after, initial=now, reset_cameras={bumped})
+    return {"cold": cold, "warm": warm, "reset": time.perf_counter() - t0}
 
 
 def main() -> None:

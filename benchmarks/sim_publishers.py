@@ -4,10 +4,13 @@ Each camera is its own process. In "camnet" mode it runs the real driver
 node (camnet.drivers.node.DriverNode: frame encoding, publish with congestion
 control DROP, liveliness, statistics) on a camera that cycles through frames
 pre-rendered by the sim renderer, so that rendering cost does not hide the
-bus cost. In "bare" mode it puts the same encoded bytes with a bare Zenoh
-publisher (also DROP), stamping only the sequence number into the header.
+bus cost; the camera writes each frame into the node's reused message, the
+one copy a capture costs. In "bare" mode it puts the same encoded bytes with
+a bare Zenoh publisher (also DROP), stamping only the sequence number into
+the header: no capture at all. "bare+copy" is bare Zenoh with that capture:
+each frame's pixels copied into one reused payload before `put`.
 
-Both modes record, per frame, the host CLOCK_REALTIME just before `put`
+Every mode records, per frame, the host CLOCK_REALTIME just before `put`
 (and, for camnet, the capture time from the frame header), and send them
 back when done, so a subscriber can time publish-to-receipt the same way for
 both without any change to the wire format.
@@ -87,12 +90,15 @@ class PooledCamera:
     def __exit__(self, *exc):
         return None
 
-    def read(self, *, timeout_s: float = 1.0):
+    def read(self, *, timeout_s: float = 1.0, out=None):
+        from camnet.drivers.base import written_into
+
         from camnet.bus.frame import Frame
 
         sleep_until(self.t0_ns, self.seq, self.fps)
+        # Into the node's reused message, as a camera would write it: the capture's one copy.
         frame = Frame(self.camera_id, self.seq, time.time_ns(), "mono8",
-                      self.pool[self.seq % len(self.pool)])
+                      written_into(out, self.pool[self.seq % len(self.pool)]))
         self.seq += 1
         return frame
 
@@ -182,8 +188,12 @@ def publisher(mode: str, index: int, endpoint: str, fps: float, n_frames: int, s
             node.run(max_frames=n_frames)
             sent = node.frames_sent
         else:
-            # The same bytes as camnet would send; only seq and timestamp change per frame.
+            # The same bytes as camnet would send; only seq and timestamp change per frame. "bare+copy"
+            # copies each frame's pixels into one reused payload first, as a publisher of a camera must.
             payloads = [bytearray(encode_frame(Frame(cam_id, 0, 0, "mono8", img))) for img in pool]
+            if mode == "bare+copy":
+                payloads = payloads[:1]
+                pixels = np.frombuffer(payloads[0], np.uint8, offset=len(payloads[0]) - pool[0].size)
             pub = TimedPublisher(session.declare_publisher(
                 keys.frame("bench", cam_id), congestion_control=zenoh.CongestionControl.DROP), log)
             start.wait()
@@ -192,6 +202,8 @@ def publisher(mode: str, index: int, endpoint: str, fps: float, n_frames: int, s
             for seq in range(n_frames):
                 sleep_until(t0_ns, seq, fps)
                 payload = payloads[seq % len(payloads)]
+                if mode == "bare+copy":
+                    np.copyto(pixels, pool[seq % len(pool)].reshape(-1))
                 SEQ_AND_TIMESTAMP.pack_into(payload, SEQ_OFFSET, seq, time.time_ns())
                 pub.put(payload)
             sent = n_frames

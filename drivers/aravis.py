@@ -34,7 +34,7 @@ import gi
 import numpy as np
 
 gi.require_version("Aravis", "0.8")
-from camnet.drivers.base import DeviceError, DeviceInfo, FoundCamera, ReadTimeout  # noqa: E402
+from camnet.drivers.base import DeviceError, DeviceInfo, FoundCamera, ReadTimeout, written_into  # noqa: E402
 from gi.repository import Aravis, GLib  # noqa: E402  (require_version must come first)
 
 from camnet.bus.frame import Frame  # noqa: E402
@@ -280,7 +280,7 @@ class AravisCamera:
         self._reconnects += 1
         log.warning("camera %s: reconnected", self.camera_id)
 
-    def read(self, *, timeout_s: float = 1.0) -> Frame:
+    def read(self, *, timeout_s: float = 1.0, out: np.ndarray | None = None) -> Frame:
         deadline = time.monotonic() + timeout_s
         while True:
             if self._camera is None:
@@ -298,14 +298,14 @@ class AravisCamera:
                 raise ReadTimeout(f"camera {self.camera_id!r}: no frame in {timeout_s} s")
             self._last_buffer_mono = time.monotonic()
             try:
-                frame = self._frame_from(buffer)
+                frame = self._frame_from(buffer, out)
             finally:
                 self._stream.push_buffer(buffer)
             if frame is not None:
                 return frame
 
-    def _frame_from(self, buffer) -> Frame | None:
-        """The Frame in `buffer`, or None (counted as dropped) if the buffer is incomplete."""
+    def _frame_from(self, buffer, out: np.ndarray | None) -> Frame | None:
+        """The Frame in `buffer` (its pixels in `out`, as `read`), or None (counted as dropped) if incomplete."""
         frame_id = buffer.get_frame_id()
         if self._last_frame_id is not None:
             gap = (frame_id - self._last_frame_id - 1) % _FRAME_ID_MODULO
@@ -337,6 +337,6 @@ class AravisCamera:
         image = np.frombuffer(data, dtype=dtype, count=needed // dtype.itemsize).reshape(shape)
         timestamp_ns = buffer.get_timestamp() or buffer.get_system_timestamp() or time.time_ns()
         frame = Frame(camera_id=self.camera_id, seq=self._seq, timestamp_ns=int(timestamp_ns),
-                      encoding=encoding, image=image)
+                      encoding=encoding, image=written_into(out, image))
         self._seq += 1
         return frame

@@ -2,7 +2,11 @@
 
 A camera is a context manager: entering opens it, leaving closes it. Inside,
 `read()` returns the next `camnet.bus.frame.Frame` (blocking at most `timeout_s`)
-and `dropped` counts frames the camera produced but the driver lost. A
+and `dropped` counts frames the camera produced but the driver lost. Given
+`out` (an array of the frame's shape and dtype: the driver node's reused
+message, `camnet.bus.frame.FrameBuffer`), `read` writes the pixels into it
+and returns it as the frame's image; a frame of another shape comes in an
+array of its own, so callers check which they got. A
 simulated camera also knows the rig's ground truth (`groundtruth`), which its
 node publishes; real cameras have None. Driver modules are imported only when
 chosen, so a missing SDK (Aravis, say) breaks only that driver.
@@ -13,6 +17,8 @@ from __future__ import annotations
 import importlib
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
+
+import numpy as np
 
 from camnet.bus.frame import Frame
 from camnet.errors import CamnetError
@@ -94,7 +100,15 @@ class Camera(Protocol):
 
     def __exit__(self, *exc_info: object) -> None: ...
 
-    def read(self, *, timeout_s: float = 1.0) -> Frame: ...
+    def read(self, *, timeout_s: float = 1.0, out: np.ndarray | None = None) -> Frame: ...
+
+
+def written_into(out: np.ndarray | None, image: np.ndarray) -> np.ndarray:
+    """`image` copied into `out` where `out` (Camera.read's) has its shape and dtype, else `image` itself."""
+    if out is None or out.shape != image.shape or out.dtype != image.dtype:
+        return image
+    np.copyto(out, image)
+    return out
 
 
 def create_camera(entry: CameraEntry, rig: Rig) -> Camera:

@@ -1,7 +1,10 @@
 """The driver node: read one camera, publish its frames, liveliness and statistics.
 
 Frames go out with congestion control DROP: a slow subscriber or link loses
-frames (seen as sequence gaps) instead of stalling the camera. A camera that
+frames (seen as sequence gaps) instead of stalling the camera. Raw frames
+are written by the camera straight into a message buffer that is reused
+frame after frame (`camnet.bus.frame.FrameBuffer`), so the pixels are not
+copied into a new message before `put`. A camera that
 knows the rig's ground truth (a simulated one) also publishes it on the
 groundtruth key and answers queries on it. `on_frame`, when given, sees every
 frame published (the feature stage beside the driver takes its frames so).
@@ -19,7 +22,7 @@ from collections.abc import Callable, Sequence
 from camnet.drivers.base import Camera, EndOfStream, ReadTimeout
 
 from camnet.bus import keys
-from camnet.bus.frame import Compression, Frame, encode_frame
+from camnet.bus.frame import Compression, Frame, FrameBuffer, encode_frame
 from camnet.bus.node import Presence, stop_on_signals
 from camnet.bus.stats import Activity, RateMeter
 from camnet.io.rig import Rig
@@ -42,6 +45,26 @@ class DriverNode:
         self.stop = threading.Event()
         self.frames_sent = 0
         self._meter = RateMeter()
+        self._buffer: FrameBuffer | None = None  # raw frames only; made from the first frame
+
+    def _read(self) -> Frame:
+        """The camera's next frame, into the reused message buffer when there is one."""
+        return self.camera.read(timeout_s=0.5, out=None if self._buffer is None else self._buffer.pixels)
+
+    def _message(self, frame: Frame) -> bytes | bytearray:
+        """The wire bytes of `frame`: sealed in place when the camera wrote it into the buffer."""
+        if self.compression is not Compression.NONE:
+            return encode_frame(frame, compression=self.compression)
+        if self._buffer is not None and self._buffer.holds(frame):
+            return self._buffer.seal(frame)
+        self._buffer = FrameBuffer.like(frame)  # the first frame, or one of another size: the next goes in place
+        return encode_frame(frame)
+
+    def _offer(self, frame: Frame) -> None:
+        """Hand `frame` to `on_frame`, its pixels copied if they are in the buffer (the next frame overwrites it)."""
+        if self._buffer is not None and self._buffer.holds(frame):
+            frame = Frame(frame.camera_id, frame.seq, frame.timestamp_ns, frame.encoding, frame.image.copy())
+        self.on_frame(frame)
 
     def _publish_groundtruth(self):
         if self.camera.groundtruth is None:
@@ -72,16 +95,16 @@ class DriverNode:
             try:
                 while not self.stop.is_set():
                     try:
-                        frame = self.camera.read(timeout_s=0.5)
+                        frame = self._read()
                     except ReadTimeout:
                         frame = None
                     except EndOfStream as exc:
                         log.info("camera %s: %s", self.camera_id, exc)
                         break
                     if frame is not None:
-                        publisher.put(encode_frame(frame, compression=self.compression))
+                        publisher.put(self._message(frame))
                         if self.on_frame is not None:
-                            self.on_frame(frame)
+                            self._offer(frame)
                         self.frames_sent += 1
                         self._meter.tick()
                     presence.publish_if_due()

@@ -23,7 +23,7 @@ import zlib
 from fractions import Fraction
 
 import numpy as np
-from camnet.drivers.base import DeviceInfo, ReadTimeout
+from camnet.drivers.base import DeviceInfo, ReadTimeout, written_into
 
 from camnet.bus.frame import Frame
 from camnet.io.rig import CameraEntry, Rig
@@ -96,7 +96,7 @@ class SimCamera:
         image = self._renderer.render(quads, noise_sigma_dn=self.config.noise_sigma_dn, rng=rng)
         return _convert(image, self.config.encoding)
 
-    def read(self, *, timeout_s: float = 1.0) -> Frame:
+    def read(self, *, timeout_s: float = 1.0, out: np.ndarray | None = None) -> Frame:
         now_ns = time.time_ns()
         slot = self._next_slot
         late_slots = self.slot_at(now_ns) - slot
@@ -118,7 +118,7 @@ class SimCamera:
             time.sleep(wait_s)
         self._next_slot = slot + 1
         return Frame(camera_id=self._info.camera_id, seq=slot, timestamp_ns=timestamp_ns,
-                     encoding=self.config.encoding, image=self.render(slot))
+                     encoding=self.config.encoding, image=written_into(out, self.render(slot)))
 
 
 def groundtruth_document(rig: Rig) -> dict:

@@ -33,7 +33,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from camnet.drivers.base import DeviceError, DeviceInfo, EndOfStream, ReadTimeout
+from camnet.drivers.base import DeviceError, DeviceInfo, EndOfStream, ReadTimeout, written_into
 
 from camnet.bus.frame import Frame
 from camnet.io.rig import CameraEntry, Rig, V4l2Config, is_image_pattern
@@ -281,7 +281,7 @@ class V4l2Camera:
             raise EndOfStream(f"video {self.config.source} cannot be rewound")
         return image
 
-    def read(self, *, timeout_s: float = 1.0) -> Frame:
+    def read(self, *, timeout_s: float = 1.0, out: np.ndarray | None = None) -> Frame:
         if self._info is None:
             raise DeviceError(f"camera {self.camera_id!r}: read() before open")
         if self._is_device:
@@ -298,7 +298,7 @@ class V4l2Camera:
             image = self._next_image()
         frame = Frame(camera_id=self.camera_id, seq=self._seq, timestamp_ns=timestamp_ns,
                       encoding=self.config.encoding,
-                      image=np.ascontiguousarray(_to_encoding(image, self.config.encoding)))
+                      image=written_into(out, np.ascontiguousarray(_to_encoding(image, self.config.encoding))))
         self._seq += 1
         return frame
 

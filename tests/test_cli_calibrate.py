@@ -156,3 +156,25 @@ def test_calibrate_tells_a_person_on_stderr_and_json_only_when_asked(tmp_path, g
     proc = run_camnet("calibrate", str(src), "-o", str(out), "--json")
     summary = json.loads(proc.stdout)
     assert summary["verdict"] == verdict and summary["output"] == str(out)
+
+
+HEAVY_MODULES = ("scipy.optimize", "scipy.sparse", "cv2", "zenoh", "rerun", "pycolmap", "camnet.geometry.calibrate")
+
+
+@pytest.mark.parametrize("command", ["", "calibrate"])
+def test_help_imports_nothing_the_solve_needs(command):
+    """`camnet --help` and `camnet calibrate --help` build their parser without the solver, the
+    codecs, Zenoh or Rerun (a fresh interpreter: these tests' own imports would hide it)."""
+    code = (
+        "import sys, camnet.cli\n"
+        f"camnet.cli.build_parser(only={command!r})\n"
+        f"loaded = [m for m in {HEAVY_MODULES!r} if m in sys.modules]\n"
+        "assert not loaded, loaded\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+
+
+def test_calibrate_help_runs():
+    proc = run_camnet("calibrate", "--help")
+    assert proc.returncode == 0 and "--free" in proc.stdout

@@ -5,6 +5,7 @@ from dataclasses import replace
 import numpy as np
 import scipy.linalg
 
+from camnet.geometry import schur
 from camnet.geometry.bundle import CEN, CentreMode
 from camnet.geometry.calibrate import Options, calibrate
 from camnet.geometry.diagnostics import reported_points
@@ -147,7 +148,7 @@ def test_a_solve_reports_the_normal_equations_of_a_wider_problem():
         assert info.normal.U.shape == direct.U.shape != bundle.normal_equations(problem, solved).U.shape
         for name in ("U", "W", "V", "gc", "gp"):
             np.testing.assert_allclose(getattr(info.normal, name), getattr(direct, name), rtol=1e-12, atol=1e-9)
-        own = bundle.restrict(info.normal, bundle.columns_within(problem, wider))
+        own = schur.restrict(info.normal, bundle.columns_within(problem, wider))
         np.testing.assert_allclose(own.U, bundle.normal_equations(problem, solved).U, rtol=1e-12)
 
 
@@ -163,7 +164,7 @@ def test_a_track_seen_twice_by_one_camera_adds_to_the_normal_equations():
     row[len(row) // 2] = True
     twice = replace(problem, cam=np.append(problem.cam, problem.cam[row]), pt=np.append(problem.pt, problem.pt[row]),
                     uv=np.vstack([problem.uv, problem.uv[row]]))
-    assert problem.pairs_unique and not twice.pairs_unique
+    assert problem.layout.pairs_unique and not twice.layout.pairs_unique
     parts = [bundle.normal_equations(p, state) for p in (problem, problem.subset(row), twice)]
     for name in ("U", "W", "V", "gc", "gp"):
         np.testing.assert_allclose(getattr(parts[0], name) + getattr(parts[1], name), getattr(parts[2], name),

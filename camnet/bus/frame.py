@@ -111,11 +111,7 @@ def encode_frame(frame: Frame, *, compression: Compression = Compression.NONE,
                  jpeg_quality: int = 90) -> bytes:
     """The wire bytes of `frame`; PNG is lossless, JPEG is lossy and 8-bit only."""
     spec = ENCODINGS[frame.encoding]
-    id_bytes = frame.camera_id.encode("utf-8")
-    if not id_bytes or len(id_bytes) > MAX_ID_BYTES:
-        raise ValueError(f"camera id must be 1..{MAX_ID_BYTES} utf-8 bytes")
-    if frame.width > MAX_SIDE_PX or frame.height > MAX_SIDE_PX:
-        raise ValueError("image too large for the frame format")
+    id_bytes = _id_bytes(frame)
     image = np.ascontiguousarray(frame.image)
     if compression is Compression.NONE:
         # A view, not tobytes(): join copies the pixels once, straight into the message.
@@ -123,10 +119,61 @@ def encode_frame(frame: Frame, *, compression: Compression = Compression.NONE,
         payload = memoryview(image.astype(spec.dtype, copy=False).reshape(-1).view(np.uint8))
     else:
         payload = _compress(image, compression, frame.encoding, jpeg_quality)
-    header = _FIXED.pack(MAGIC, VERSION, spec.code, int(compression), 0,
-                         FIXED_HEADER_SIZE + len(id_bytes), len(id_bytes), frame.width,
-                         frame.height, frame.seq, frame.timestamp_ns, len(payload))
-    return b"".join((header, id_bytes, payload))
+    return b"".join((_header(frame, id_bytes, compression, len(payload)), id_bytes, payload))
+
+
+def _id_bytes(frame: Frame) -> bytes:
+    id_bytes = frame.camera_id.encode("utf-8")
+    if not id_bytes or len(id_bytes) > MAX_ID_BYTES:
+        raise ValueError(f"camera id must be 1..{MAX_ID_BYTES} utf-8 bytes")
+    if frame.width > MAX_SIDE_PX or frame.height > MAX_SIDE_PX:
+        raise ValueError("image too large for the frame format")
+    return id_bytes
+
+
+def _header(frame: Frame, id_bytes: bytes, compression: Compression, payload_size: int) -> bytes:
+    """The fixed header of `frame` (the camera id follows it)."""
+    return _FIXED.pack(MAGIC, VERSION, ENCODINGS[frame.encoding].code, int(compression), 0,
+                       FIXED_HEADER_SIZE + len(id_bytes), len(id_bytes), frame.width, frame.height,
+                       frame.seq, frame.timestamp_ns, payload_size)
+
+
+class FrameBuffer:
+    """One camera's wire message, reused frame after frame: the header's room, then the pixels.
+
+    A camera writes a frame's pixels straight into `pixels` (a view of the
+    message; `Camera.read(out=...)`), and `seal` writes the header in front:
+    a raw frame goes out without being copied into a new message. Zenoh
+    copies what `put` is given before it returns, so the next frame may
+    overwrite the buffer; anything that keeps a frame must copy its image.
+    """
+
+    def __init__(self, camera_id: str, encoding: str, shape: tuple[int, ...]) -> None:
+        spec = ENCODINGS[encoding]
+        self.camera_id, self.encoding = camera_id, encoding
+        self._id_bytes = camera_id.encode("utf-8")
+        header_size = FIXED_HEADER_SIZE + len(self._id_bytes)
+        self.message = bytearray(header_size + int(np.prod(shape)) * spec.dtype.itemsize)
+        self.message[FIXED_HEADER_SIZE:header_size] = self._id_bytes
+        self.pixels = np.frombuffer(self.message, dtype=spec.dtype, offset=header_size).reshape(shape)
+
+    @classmethod
+    def like(cls, frame: Frame) -> FrameBuffer:
+        """A buffer for frames of `frame`'s camera, encoding and size."""
+        return cls(frame.camera_id, frame.encoding, frame.image.shape)
+
+    def holds(self, frame: Frame) -> bool:
+        """Whether `frame`'s pixels are this buffer's (the camera wrote them in place)."""
+        return frame.image is self.pixels and frame.camera_id == self.camera_id and frame.encoding == self.encoding
+
+    def seal(self, frame: Frame) -> bytearray:
+        """The message of `frame`, whose pixels this buffer holds: its header written, ready to put."""
+        if not self.holds(frame):
+            raise ValueError(f"camera {frame.camera_id}: the frame's pixels are not in this buffer")
+        _id_bytes(frame)  # the same checks as encode_frame
+        header = _header(frame, self._id_bytes, Compression.NONE, self.pixels.nbytes)
+        self.message[:FIXED_HEADER_SIZE] = header
+        return self.message
 
 
 def _compress(image: np.ndarray, compression: Compression, encoding: str, quality: int) -> bytes:

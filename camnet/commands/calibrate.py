@@ -6,7 +6,7 @@ import argparse
 import json
 import sys
 
-from camnet.geometry.model import Loss, Method
+from camnet.geometry.choices import Loss, Method
 
 FREE_HELP = (
     "intrinsics to estimate: 'auto' (default: focal lengths, then whatever the data "

@@ -21,10 +21,10 @@ from dataclasses import dataclass, field, replace
 from functools import cached_property
 
 import numpy as np
-import scipy.linalg
 import scipy.sparse as sp
 
 from camnet.geometry.distances import Distances
+from camnet.geometry.model import Loss
 from camnet.geometry.projection import (
     FISHEYE_INTRINSIC_NAMES,
     INTRINSIC_NAMES,
@@ -34,6 +34,13 @@ from camnet.geometry.projection import (
     rotation_exp,
 )
 from camnet.geometry.robust import robust_loss
+from camnet.geometry.schur import (
+    GAUSS_NEWTON_LAMBDA,
+    NormalEquations,
+    predicted_decrease,
+    restrict,
+    solve_damped,
+)
 
 # Local parameter slots of a camera: intrinsics (9), rotation (3), centre (3).
 ROT = slice(N_INTRINSICS, N_INTRINSICS + 3)
@@ -51,9 +58,6 @@ class CentreMode(enum.IntEnum):
     ON_BASELINE = 2  # on the sphere of radius baseline_m about the left camera: two angles
 
 
-GAUSS_NEWTON_LAMBDA = 1e-9  # damping of the (almost) undamped step: keeps a singular direction solvable
-
-
 @dataclass(frozen=True)
 class State:
     """Parameters of a network: per camera intrinsics and pose, per track a point."""
@@ -65,6 +69,27 @@ class State:
 
     def copy(self) -> State:
         return State(self.intr.copy(), self.R.copy(), self.C.copy(), self.X.copy())
+
+
+@dataclass(frozen=True)
+class Layout:
+    """A problem's observations reordered for its normal equations.
+
+    Cameras with the same free local slots form a group; the observations
+    come group by group and, within a group, camera by camera (those of
+    cameras with nothing free last), so that each camera's and each group's
+    rows are one slice. Per group ``(intrinsic slots, rotation slots, centre
+    slots, cameras)``; ``runs[m]``: camera m's rows [start, stop).
+    """
+
+    order: np.ndarray  # (n,) observation index of each row
+    cam: np.ndarray  # (n,)
+    pt: np.ndarray  # (n,)
+    uv: np.ndarray  # (n, 2) pixels
+    runs: np.ndarray  # (M, 2)
+    groups: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]
+    pairs_unique: bool  # no camera observes a point twice
+    point_sum: sp.csr_matrix  # (N, n) summing per-row terms into their points
 
 
 @dataclass(frozen=True)
@@ -106,7 +131,11 @@ class Problem:
         return len(self.centre_mode)
 
     def columns(self) -> tuple[np.ndarray, int]:
-        """(M, 15) global column of each local camera slot (-1: held), and their count."""
+        """(M, 15) global column of each local camera slot (-1: held, read-only), and their count."""
+        return self._columns
+
+    @cached_property
+    def _columns(self) -> tuple[np.ndarray, int]:
         free = np.zeros((self.n_cameras, N_LOCAL), dtype=bool)
         free[:, :N_INTRINSICS] = self.intr_free
         free[:, ROT] = self.rot_free
@@ -114,40 +143,37 @@ class Problem:
         free[self.centre_mode == CentreMode.ON_BASELINE, CEN.start : CEN.start + 2] = True
         cols = np.full(free.shape, -1)
         cols[free] = np.arange(free.sum())
+        cols.setflags(write=False)  # shared by every caller
         return cols, int(free.sum())
 
     @cached_property
-    def camera_groups(self) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
-        """Cameras grouped by their free local slots, for the normal equations.
-
-        Per group ``(slots (k,), cameras (c,), rows, starts (c,))``: the
-        observations of its cameras that have any, sorted by camera, and where
-        each camera's run begins in `rows`.
-        """
+    def layout(self) -> Layout:
+        """The observations in the order the normal equations take them (see `Layout`)."""
         cols, _ = self.columns()
         counts = np.bincount(self.cam, minlength=self.n_cameras)
         patterns: dict[bytes, list[int]] = {}
         for m in np.flatnonzero((counts > 0) & np.any(cols >= 0, axis=1)):
             patterns.setdefault((cols[m] >= 0).tobytes(), []).append(int(m))
-        order = np.argsort(self.cam, kind="stable")
-        bounds = np.searchsorted(self.cam[order], np.arange(self.n_cameras + 1))
+        grouped = [m for cams in patterns.values() for m in cams]
+        cameras = grouped + [m for m in range(self.n_cameras) if m not in set(grouped)]
+        by_camera = np.argsort(self.cam, kind="stable")
+        bounds = np.searchsorted(self.cam[by_camera], np.arange(self.n_cameras + 1))
+        order = np.concatenate([by_camera[bounds[m] : bounds[m + 1]] for m in cameras] or [np.zeros(0, int)])
+        runs = np.zeros((self.n_cameras, 2), dtype=int)
+        runs[cameras, 1] = np.cumsum(counts[cameras])
+        runs[cameras, 0] = runs[cameras, 1] - counts[cameras]
         groups = []
         for cams in patterns.values():
-            rows = np.concatenate([order[bounds[m] : bounds[m + 1]] for m in cams])
-            starts = np.concatenate([[0], np.cumsum(counts[cams])[:-1]])
-            groups.append((np.flatnonzero(cols[cams[0]] >= 0), np.array(cams), rows, starts))
-        return groups
-
-    @cached_property
-    def pairs_unique(self) -> bool:
-        """Whether no camera observes a point twice."""
-        return len(self.cam) == 0 or np.bincount(self.cam * self.n_points + self.pt).max() == 1
-
-    @cached_property
-    def point_sum(self) -> sp.csr_matrix:
-        """(N, n) incidence matrix: summing per-observation terms into their points."""
-        n = len(self.pt)
-        return sp.csr_matrix((np.ones(n), (self.pt, np.arange(n))), shape=(self.n_points, n))
+            slots = np.flatnonzero(cols[cams[0]] >= 0)
+            groups.append((slots[slots < ROT.start], slots[(slots >= ROT.start) & (slots < CEN.start)] - ROT.start,
+                           slots[slots >= CEN.start] - CEN.start, np.array(cams)))
+        pt = self.pt[order]
+        n = len(order)
+        unique = n == 0 or np.bincount(self.cam * self.n_points + self.pt).max() == 1
+        by_point = np.argsort(pt, kind="stable")  # CSR by hand: scipy's COO conversion costs milliseconds
+        indptr = np.searchsorted(pt[by_point], np.arange(self.n_points + 1))
+        point_sum = sp.csr_matrix((np.ones(n), by_point, indptr), shape=(self.n_points, n))
+        return Layout(order, self.cam[order], pt, self.uv[order], runs, groups, unique, point_sum)
 
     def subset(self, keep: np.ndarray) -> Problem:
         """The same problem with only the observations where `keep` is true."""
@@ -176,7 +202,7 @@ def residuals(problem: Problem, state: State) -> np.ndarray:
 
 def _cost(problem: Problem, state: State, loss: str, scale_px: float) -> float:
     r = residuals(problem, state)
-    z = np.sum(r * r, axis=1) / scale_px**2
+    z = (r[:, 0] * r[:, 0] + r[:, 1] * r[:, 1]) / scale_px**2
     rho, _ = robust_loss(z, loss)
     if not np.all(np.isfinite(rho)):
         return np.inf
@@ -223,86 +249,62 @@ def _tangent_basis(u: np.ndarray) -> np.ndarray:
     return np.stack([b1, np.cross(u, b1)], axis=1)
 
 
-@dataclass(frozen=True)
-class NormalEquations:
-    """J^T J and J^T r split into camera (c) and point (p) blocks.
-
-    W is dense: a camera sees a good share of the points in the networks
-    camnet solves, and one BLAS product on it beats sparse bookkeeping.
-    """
-
-    U: np.ndarray  # (Pc, Pc)
-    W: np.ndarray  # (Pc, 3N)
-    V: np.ndarray  # (N, 3, 3)
-    gc: np.ndarray  # (Pc,)
-    gp: np.ndarray  # (N, 3)
-    cost: float
-
-
-def _row_products(A: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """A_k^T B_k for stacks of two-row matrices A (n, 2, i), B (n, 2, j): (n, i, j).
-
-    Faster than a batched matmul for 3x3 results, slower for wider ones.
-    """
-    return A[:, 0, :, None] * B[:, 0, None, :] + A[:, 1, :, None] * B[:, 1, None, :]
-
-
 def normal_equations(problem: Problem, state: State, *, loss: str = "linear", scale_px: float = 1.0) -> NormalEquations:
     """Gauss-Newton normal equations at `state`, rows weighted by the robust loss."""
-    c, p = problem.cam, problem.pt
-    n, N = len(c), problem.n_points
+    lay = problem.layout
+    c, p, N = lay.cam, lay.pt, problem.n_points
     uv, J_intr, J_rot, J_cen, J_pt = project_with_jacobians(
-        state.intr[c], state.R[c], state.C[c], state.X[p], problem.fisheye_rows(c)
+        state.intr[c], state.R[c], state.C[c], state.X[p], problem.fisheye_rows(c),
+        distortion=any(np.any(si >= INTRINSIC_NAMES.index("k1")) for si, *_ in lay.groups),
     )
-    r = uv - problem.uv
-    z = np.sum(r * r, axis=1) / scale_px**2
+    r = uv - lay.uv
+    z = (r[:, 0] * r[:, 0] + r[:, 1] * r[:, 1]) / scale_px**2
     rho, drho = robust_loss(z, loss)
-    sw = np.sqrt(drho)[:, None]
-    r = r * sw
-
-    J_local = np.concatenate([J_intr, J_rot, J_cen], axis=2) * sw[:, :, None]
-    J_pt = J_pt * sw[:, :, None]
+    sw = None if loss == Loss.LINEAR else np.sqrt(drho)[:, None, None]  # rho' = 1: the rows as they are
+    if sw is not None:
+        r, J_pt = r * sw[:, :, 0], J_pt * sw
     for m in np.flatnonzero(problem.centre_mode == CentreMode.ON_BASELINE):
-        rows = c == m
+        a, b = lay.runs[m]
         B = problem.baseline_m * _tangent_basis(state.C[m] / np.linalg.norm(state.C[m]))
-        J_local[rows, :, CEN.start : CEN.start + 2] = J_local[rows, :, CEN] @ B
-        J_local[rows, :, CEN.start + 2] = 0.0
+        J_cen[a:b, :, :2] = J_cen[a:b] @ B
+        J_cen[a:b, :, 2] = 0.0
 
     cols, n_cols = problem.columns()
     U = np.zeros((n_cols, n_cols))
     gc = np.zeros(n_cols)
     W = np.zeros((n_cols, N, 3))
-    # An observation touches one camera only: U is block diagonal, one block per camera.
-    # Cameras with the same free slots are handled together.
-    for slots, cams, rows, starts in problem.camera_groups:
-        cm = cols[cams][:, slots]  # (cameras, k)
-        Jg = J_local[rows][:, :, slots]  # (n_g, 2, k), rows sorted by camera
-        for c_m, (a, b) in zip(cm, zip(starts, [*starts[1:], len(rows)], strict=True), strict=True):
-            flat = Jg[a:b].reshape(-1, len(slots))
-            U[np.ix_(c_m, c_m)] = flat.T @ flat
-        g = np.add.reduceat(Jg[:, 0] * r[rows, :1] + Jg[:, 1] * r[rows, 1:], starts, axis=0)
-        gc[cm] = g
-        # W[column, point, axis]: one term per observation, so an assignment unless a camera
-        # sees a track twice (then the terms add up).
-        obs_cols = np.repeat(cm, np.diff(np.append(starts, len(rows))), axis=0)  # (n_g, k)
-        terms = Jg.transpose(0, 2, 1) @ J_pt[rows]  # (n_g, k, 3); a batched matmul beats _row_products here
-        if problem.pairs_unique:
-            W[obs_cols, p[rows][:, None]] = terms
-        else:
-            np.add.at(W, (obs_cols, p[rows][:, None]), terms)
+    # An observation touches one camera only: U is block diagonal, one block per camera, and
+    # a camera's free columns are consecutive. Cameras with the same free slots go together.
+    for si, sr, sc, cams in lay.groups:
+        a, b = lay.runs[cams[0], 0], lay.runs[cams[-1], 1]
+        Jg = np.concatenate([J_intr[a:b][:, :, si], J_rot[a:b][:, :, sr], J_cen[a:b][:, :, sc]], axis=2)
+        if sw is not None:
+            Jg *= sw[a:b]
+        k = Jg.shape[2]
+        terms = (Jg.transpose(0, 2, 1) @ J_pt[a:b]).transpose(1, 0, 2)  # (k, n_g, 3): a batched matmul
+        for m in cams:
+            s, e = lay.runs[m]
+            c0 = cols[m][cols[m] >= 0][0]
+            flat = Jg[s - a : e - a].reshape(-1, k)
+            U[c0 : c0 + k, c0 : c0 + k] = flat.T @ flat
+            gc[c0 : c0 + k] = flat.T @ r[s:e].reshape(-1)
+            # W[column, point, axis]: one term per observation, so an assignment unless a camera
+            # sees a track twice (then the terms add up).
+            if lay.pairs_unique:
+                W[c0 : c0 + k, p[s:e]] = terms[:, s - a : e - a]
+            else:
+                np.add.at(W[c0 : c0 + k], (slice(None), p[s:e]), terms[:, s - a : e - a])
 
-    point_terms = np.concatenate(
-        [_row_products(J_pt, J_pt).reshape(n, 9), J_pt[:, 0] * r[:, :1] + J_pt[:, 1] * r[:, 1:]], axis=1
-    )
-    summed = problem.point_sum @ point_terms
-    V, gp = summed[:, :9], summed[:, 9:]
+    # Per row J_pt^T [J_pt | r]: J_pt^T J_pt (3x3) beside J_pt^T r, in one batched matmul.
+    point_terms = (J_pt.transpose(0, 2, 1) @ np.concatenate([J_pt, r[:, :, None]], axis=2)).reshape(-1, 12)
+    summed = lay.point_sum @ point_terms
     r_dist, J_dist = distance_rows(problem, state)  # rows on camera columns only: U and gc
     return NormalEquations(
         U=U + J_dist.T @ J_dist,
         W=W.reshape(n_cols, 3 * N),
-        V=V.reshape(N, 3, 3),
+        V=np.ascontiguousarray(summed.reshape(N, 3, 4)[:, :, :3]),
         gc=gc + J_dist.T @ r_dist,
-        gp=gp,
+        gp=np.ascontiguousarray(summed.reshape(N, 3, 4)[:, :, 3]),
         cost=0.5 * scale_px**2 * float(np.sum(rho)) + 0.5 * float(r_dist @ r_dist),
     )
 
@@ -319,68 +321,20 @@ def columns_within(problem: Problem, wider: Problem) -> np.ndarray:
     return within
 
 
-def restrict(ne: NormalEquations, columns: np.ndarray) -> NormalEquations:
-    """The normal equations with only the camera parameters at `columns` free."""
-    return NormalEquations(ne.U[np.ix_(columns, columns)], ne.W[columns], ne.V, ne.gc[columns], ne.gp, ne.cost)
-
-
-def times_block_diag(W: np.ndarray, blocks: np.ndarray) -> np.ndarray:
-    """W (P, 3N) times the block-diagonal matrix of `blocks` (N, 3, 3)."""
-    P, N = len(W), len(blocks)
-    # optimize=True hands the products to BLAS: eight times faster than a batched matmul here.
-    return np.einsum("pni,nij->pnj", W.reshape(P, N, 3), blocks, optimize=True).reshape(P, 3 * N)
-
-
-def _solve_damped(ne: NormalEquations, lam: float) -> tuple[np.ndarray, np.ndarray] | None:
-    """Solve (H + lam diag H) d = -g by the Schur complement; None if not positive definite."""
-    dU = np.diag(ne.U).copy()
-    U = ne.U + np.diag(lam * np.maximum(dU, 1e-9))
-    dV = np.einsum("nii->ni", ne.V)
-    V = ne.V + (lam * np.maximum(dV, 1e-9))[:, :, None] * np.eye(3)
-    try:
-        Vinv = np.linalg.inv(V)
-    except np.linalg.LinAlgError:
-        return None
-    WVinv = times_block_diag(ne.W, Vinv)
-    S = U - WVinv @ ne.W.T
-    rhs = -ne.gc + WVinv @ ne.gp.reshape(-1)
-    try:
-        dc = scipy.linalg.cho_solve(scipy.linalg.cho_factor(S), rhs) if len(rhs) else rhs
-    except np.linalg.LinAlgError:
-        return None
-    dp = -np.einsum("nij,nj->ni", Vinv, ne.gp + (ne.W.T @ dc).reshape(-1, 3))
-    if not (np.all(np.isfinite(dc)) and np.all(np.isfinite(dp))):
-        return None
-    return dc, dp
-
-
 def apply_step(problem: Problem, state: State, dc: np.ndarray, dp: np.ndarray) -> State:
     """The state moved by a camera step `dc` (in `problem.columns()` order) and point step `dp`."""
     cols, _ = problem.columns()
-    intr, R, C = state.intr.copy(), state.R.copy(), state.C.copy()
-    for m in range(problem.n_cameras):
-        cm = cols[m]
-        d = np.where(cm >= 0, dc[np.maximum(cm, 0)] if len(dc) else 0.0, 0.0)
-        intr[m] += d[:N_INTRINSICS]
-        if np.any(d[ROT]):
-            R[m] = rotation_exp(d[ROT]) @ R[m]
-        mode = problem.centre_mode[m]
-        if mode == CentreMode.FREE:
-            C[m] += d[CEN]
-        elif mode == CentreMode.ON_BASELINE:
-            u = C[m] / np.linalg.norm(C[m])
-            u = u + _tangent_basis(u) @ d[CEN.start : CEN.start + 2]
-            C[m] = problem.baseline_m * u / np.linalg.norm(u)
+    d = np.where(cols >= 0, dc[np.maximum(cols, 0)] if len(dc) else 0.0, 0.0)  # (M, 15) local steps
+    intr, R, C = state.intr + d[:, :N_INTRINSICS], state.R.copy(), state.C.copy()
+    turning = np.any(d[:, ROT] != 0, axis=1)
+    R[turning] = rotation_exp(d[turning, ROT]) @ R[turning]
+    free = problem.centre_mode == CentreMode.FREE
+    C[free] += d[free, CEN]
+    for m in np.flatnonzero(problem.centre_mode == CentreMode.ON_BASELINE):
+        u = C[m] / np.linalg.norm(C[m])
+        u = u + _tangent_basis(u) @ d[m, CEN.start : CEN.start + 2]
+        C[m] = problem.baseline_m * u / np.linalg.norm(u)
     return State(intr, R, C, state.X + dp)
-
-
-def _predicted_decrease(ne: NormalEquations, lam: float, dc: np.ndarray, dp: np.ndarray) -> float:
-    """Decrease of the Gauss-Newton model cost along the damped step (dc, dp), >= 0."""
-    # With (H + lam D) d = -g: -g.d - d.H.d / 2 = (lam d.D.d - g.d) / 2.
-    dU = np.maximum(np.diag(ne.U), 1e-9)
-    dV = np.maximum(np.einsum("nii->ni", ne.V), 1e-9)
-    damped = lam * (float(dc @ (dU * dc)) + float(np.sum(dV * dp * dp)))
-    return 0.5 * (damped - float(ne.gc @ dc) - float(np.sum(ne.gp * dp)))
 
 
 def solve(
@@ -433,7 +387,7 @@ def solve(
         if gauss_newton_step is not None and lam <= GAUSS_NEWTON_LAMBDA:
             step, step_lam = gauss_newton_step, GAUSS_NEWTON_LAMBDA
         else:
-            step, step_lam = _solve_damped(ne, lam), lam
+            step, step_lam = solve_damped(ne, lam), lam
         gauss_newton_step = None
         if step is None:
             lam, nu = lam * nu, 2.0 * nu
@@ -445,7 +399,7 @@ def solve(
         trial_cost = _cost(problem, trial, loss, scale_px)
         decrease = ne.cost - trial_cost
         if decrease > 0:
-            gain = decrease / max(_predicted_decrease(ne, step_lam, *step), 1e-300)
+            gain = decrease / max(predicted_decrease(ne, step_lam, *step), 1e-300)
             state = trial
             ne, wide = equations(state)
             lam, nu = max(lam * max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3), 1e-12), 2.0
@@ -463,10 +417,6 @@ def solve(
     return state, SolveInfo(converged, reason, iterations, initial, ne.cost, ne if report is None else wide)
 
 
-def _gauss_newton_decrease(ne: NormalEquations, step: tuple[np.ndarray, np.ndarray] | None) -> float:
-    return np.inf if step is None else _predicted_decrease(ne, GAUSS_NEWTON_LAMBDA, *step)
-
-
 def _gauss_newton_test(
     ne: NormalEquations, ftol: float, *, decrease: float, lam: float
 ) -> tuple[tuple[np.ndarray, np.ndarray] | None, bool]:
@@ -476,14 +426,9 @@ def _gauss_newton_test(
     The step is returned so that the next iteration, if it is as undamped, need not solve again;
     `decrease` (the step's actual decrease) and `lam` are only logged.
     """
-    step = _solve_damped(ne, GAUSS_NEWTON_LAMBDA)
-    remaining = _gauss_newton_decrease(ne, step)
+    step = solve_damped(ne, GAUSS_NEWTON_LAMBDA)
+    remaining = np.inf if step is None else predicted_decrease(ne, GAUSS_NEWTON_LAMBDA, *step)
     log.debug(
         "LM: cost %.9g (-%.3g), lambda %.2g, a Gauss-Newton step would gain %.3g", ne.cost, decrease, lam, remaining
     )
     return step, remaining <= ftol * ne.cost
-
-
-def gauss_newton_decrease(ne: NormalEquations) -> float:
-    """The decrease an (almost) undamped step promises; infinite if it cannot be solved."""
-    return _gauss_newton_decrease(ne, _solve_damped(ne, GAUSS_NEWTON_LAMBDA))

@@ -87,13 +87,21 @@ def _parallax_deg(problem, state) -> np.ndarray:
     rays = state.X[problem.pt] - state.C[problem.cam]
     rays /= np.linalg.norm(rays, axis=1, keepdims=True)
     # The angle to the mean ray, doubled, is a cheap stand-in for the widest pair.
-    mean = np.zeros((problem.n_points, 3))
-    np.add.at(mean, problem.pt, rays)
+    mean = np.stack([np.bincount(problem.pt, rays[:, k], minlength=problem.n_points) for k in range(3)], axis=1)
     mean /= np.maximum(np.linalg.norm(mean, axis=1, keepdims=True), 1e-12)
     cosang = np.clip(np.sum(rays * mean[problem.pt], axis=1), -1.0, 1.0)
-    widest = np.zeros(problem.n_points)
-    np.maximum.at(widest, problem.pt, np.degrees(np.arccos(cosang)))
-    return 2.0 * widest
+    return 2.0 * _per_point_max(problem.pt, np.degrees(np.arccos(cosang)), problem.n_points, 0.0)
+
+
+def _per_point_max(pt: np.ndarray, values: np.ndarray, n_points: int, empty: float) -> np.ndarray:
+    """(n_points,) the largest of `values` (n,) per point `pt` (n,); `empty` where a point has none."""
+    order = np.argsort(pt, kind="stable")
+    starts = np.searchsorted(pt[order], np.arange(n_points))
+    seen = np.bincount(pt, minlength=n_points) > 0
+    out = np.full(n_points, empty)
+    if seen.any():
+        out[seen] = np.maximum.reduceat(values[order], starts[seen])
+    return out
 
 
 def _held_disparity_warning(obs, order, problem, state) -> list[str]:
@@ -148,8 +156,7 @@ def reported_points(
         _, xc = project_points(state.intr[problem.cam], state.R[problem.cam], state.C[problem.cam], state.X[problem.pt])
     behind = np.zeros(problem.n_points, dtype=bool)
     behind[problem.pt[xc[:, 2] <= 0]] = True
-    nearest = np.full(problem.n_points, np.inf)
-    np.minimum.at(nearest, problem.pt, np.linalg.norm(xc, axis=1))
+    nearest = -_per_point_max(problem.pt, -np.linalg.norm(xc, axis=1), problem.n_points, -np.inf)
     undetermined = np.zeros(problem.n_points, dtype=bool)
     if cov is not None:
         undetermined = np.sqrt(3.0) * cov.point_sigmas_m() >= nearest
@@ -164,8 +171,11 @@ def reported_points(
 
 
 def _uncertainty(ids: list[str], problem, state, cov: Covariance, kept, warnings: list[str],
-                 notes: list[str]) -> Uncertainty:
-    """The solution's uncertainty; appends the warnings and notes it gives rise to."""
+                 notes: list[str], normal) -> Uncertainty:
+    """The solution's uncertainty; appends the warnings and notes it gives rise to.
+
+    normal: the solve's unweighted normal equations at `state` in cov's layout (or None).
+    """
     weights = scale_weights(cov, state.X, kept)
     scale = scale_sigma(cov, state.X, weights) if kept.any() else None
     undetermined_scale = scale is not None and not np.isfinite(scale)
@@ -179,7 +189,7 @@ def _uncertainty(ids: list[str], problem, state, cov: Covariance, kept, warnings
     nonlinear = scale is not None and pair_focal_rel > MAX_LINEAR_FOCAL_REL
     if nonlinear:
         scale = None
-    warnings += _distance_warnings(ids, problem, state, cov)
+    warnings += _distance_warnings(ids, problem, state, cov, normal)
     for m, cam_id in enumerate(ids):
         unknown = _undetermined_names(per_cam[cam_id])
         if unknown:
@@ -226,11 +236,11 @@ def _uncertainty(ids: list[str], problem, state, cov: Covariance, kept, warnings
     )
 
 
-def _distance_warnings(ids: list[str], problem, state, cov: Covariance) -> list[str]:
+def _distance_warnings(ids: list[str], problem, state, cov: Covariance, normal) -> list[str]:
     """Known distances that the scene (every other row) contradicts."""
     if not len(problem.distances):
         return []
-    scene_m, sigma_m = distance_checks(problem, state, cov)
+    scene_m, sigma_m = distance_checks(problem, state, cov, normal=normal)
     known = problem.distances
     z = np.abs(scene_m - known.metres) / np.hypot(sigma_m, known.sigma_m)
     return [
@@ -298,7 +308,7 @@ def solve_report(
         warnings += structure_warnings(ids, problem.cam, problem.uv, residuals_px, state.intr,
                                        problem.intr_free[:, 4], observed)
     notes: list[str] = []
-    uncertainty = None if cov is None else _uncertainty(ids, problem, state, cov, kept, warnings, notes)
+    uncertainty = None if cov is None else _uncertainty(ids, problem, state, cov, kept, warnings, notes, info.normal)
     # The held column offset is priced into the scale's sigma when the principal points entered as
     # a guess with its prior: then a caveat (a note), else the sigma cannot show it (a warning).
     priced = uncertainty is not None and uncertainty.scale_rel_if_pp_exact.value is not None

@@ -27,7 +27,7 @@ from dataclasses import replace
 import numpy as np
 
 from camnet.errors import SolveError
-from camnet.geometry import bundle
+from camnet.geometry import bundle, schur
 from camnet.geometry.bundle import CEN, ROT, CentreMode, Problem, State
 from camnet.geometry.model import CameraInfo, FreeSet, LensModel
 from camnet.geometry.projection import FISHEYE_DIST_SIZE, FISHEYE_INTRINSIC_NAMES, INTRINSIC_NAMES, N_INTRINSICS
@@ -178,14 +178,14 @@ def _try_block(name, problem: Problem, state: State, determined_px, significance
     columns = everything.columns()[0]
 
     def restricted(trial: Problem):
-        return bundle.restrict(ne, columns[trial.columns()[0] >= 0])
+        return schur.restrict(ne, columns[trial.columns()[0] >= 0])
 
     variance = 2.0 * ne.cost / max(residual_dof(problem), 1)  # a posteriori pixel variance
-    base = bundle.gauss_newton_decrease(restricted(problem))
+    base = schur.gauss_newton_decrease(restricted(problem))
 
     def significant(trial: Problem, k: int) -> tuple[bool, float]:
         """Whether freeing the trial's new block lowers the cost beyond chance (chi-square, k dof)."""
-        statistic = 2.0 * (bundle.gauss_newton_decrease(restricted(trial)) - base) / max(variance, 1e-300)
+        statistic = 2.0 * (schur.gauss_newton_decrease(restricted(trial)) - base) / max(variance, 1e-300)
         # An infinite decrease means the block is not determined at all: no evidence for it.
         wanted = variance > 1e-12 and np.isfinite(statistic) and statistic > chdtri(k, significance)
         return bool(wanted), statistic

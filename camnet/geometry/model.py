@@ -17,6 +17,8 @@ from enum import StrEnum
 
 import numpy as np
 
+from camnet.geometry.choices import Loss as Loss  # the domain's names, defined apart (see choices)
+from camnet.geometry.choices import Method
 from camnet.geometry.projection import DIST_SIZE, FISHEYE_DIST_SIZE, normalised, project
 
 
@@ -30,23 +32,6 @@ class LensModel(StrEnum):
     def dist_size(self) -> int:
         """How many coefficients the model's `dist` has."""
         return FISHEYE_DIST_SIZE if self == LensModel.FISHEYE else DIST_SIZE
-
-
-class Method(StrEnum):
-    """How a calibration was solved (see camnet.geometry.calibrate)."""
-
-    PAPER = "paper"
-    REFINED = "refined"
-    UNCONSTRAINED = "unconstrained"
-
-
-class Loss(StrEnum):
-    """The robust losses of the adjustment (scipy.optimize.least_squares' names)."""
-
-    LINEAR = "linear"
-    HUBER = "huber"
-    SOFT_L1 = "soft_l1"
-    CAUCHY = "cauchy"
 
 
 class StartKind(StrEnum):

@@ -238,22 +238,25 @@ def project_points(
     return np.stack([f * xd[:, 0] + cx, a * f * xd[:, 1] + cy], axis=1), xc
 
 
-def _pinhole_jacobians(xc: np.ndarray, dist: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Distorted normalised points (n, 2) and their derivatives by dist (n, 2, 5) and by xc (n, 2, 3)."""
+def _pinhole_jacobians(xc: np.ndarray, dist: np.ndarray, distortion: bool = True):
+    """Distorted normalised points (n, 2) and their derivatives by dist (n, 2, 5; None unless
+    `distortion`) and by xc (n, 2, 3)."""
     k1, k2, p1, p2, k3 = dist.T
     iz = 1.0 / xc[:, 2]
     x = xc[:, 0] * iz
     y = xc[:, 1] * iz
     r2, radial, dx, dy = lens_terms(x, y, k1, k2, p1, p2, k3)
-    J_dist = np.zeros((len(xc), 2, 5))
-    for col, power in ((0, 1), (1, 2), (4, 3)):
-        rp = r2**power
-        J_dist[:, 0, col] = x * rp
-        J_dist[:, 1, col] = y * rp
-    J_dist[:, 0, 2] = 2.0 * x * y
-    J_dist[:, 1, 2] = r2 + 2.0 * y * y
-    J_dist[:, 0, 3] = r2 + 2.0 * x * x
-    J_dist[:, 1, 3] = 2.0 * x * y
+    J_dist = None
+    if distortion:
+        J_dist = np.zeros((len(xc), 2, 5))
+        for col, power in ((0, 1), (1, 2), (4, 3)):
+            rp = r2**power
+            J_dist[:, 0, col] = x * rp
+            J_dist[:, 1, col] = y * rp
+        J_dist[:, 0, 2] = 2.0 * x * y
+        J_dist[:, 1, 2] = r2 + 2.0 * y * y
+        J_dist[:, 0, 3] = r2 + 2.0 * x * x
+        J_dist[:, 1, 3] = 2.0 * x * y
     # d(xd, yd) / d(x, y)
     dradial = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)  # d radial / d r2
     dn = np.empty((len(xc), 2, 2))
@@ -268,15 +271,17 @@ def _pinhole_jacobians(xc: np.ndarray, dist: np.ndarray) -> tuple[np.ndarray, np
     return np.stack([x * radial + dx, y * radial + dy], axis=1), J_dist, J_xc
 
 
-def _fisheye_jacobians(xc: np.ndarray, dist: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _fisheye_jacobians(xc: np.ndarray, dist: np.ndarray, distortion: bool = True):
     """As `_pinhole_jacobians` for the fisheye model (dist (n, 5): k1..k4 and an unused slot)."""
     theta, rho, theta_d, dtheta_d, s = fisheye_terms(xc, *dist[:, :4].T)
     z = xc[:, 2]
     xd = xc[:, :2] * s[:, None]
-    J_dist = np.zeros((len(xc), 2, 5))
-    theta_over_rho = np.where(rho > 0, theta / np.where(rho > 0, rho, 1.0), 1.0 / z)
-    for col in range(4):
-        J_dist[:, :, col] = xc[:, :2] * (theta_over_rho * theta ** (2 * col + 2))[:, None]
+    J_dist = None
+    if distortion:
+        J_dist = np.zeros((len(xc), 2, 5))
+        theta_over_rho = np.where(rho > 0, theta / np.where(rho > 0, rho, 1.0), 1.0 / z)
+        for col in range(4):
+            J_dist[:, :, col] = xc[:, :2] * (theta_over_rho * theta ** (2 * col + 2))[:, None]
     # s = theta_d / rho with theta = atan2(rho, z): d s / d xc = (g x0, g x1, h), where
     # g = (dtheta_d z / (rho^2 + z^2) - s) / rho^2, h = -dtheta_d / (rho^2 + z^2). g's difference
     # cancels near the axis, but only g x0 x0 and g x0 x1 enter, whose error stays at rounding.
@@ -291,22 +296,32 @@ def _fisheye_jacobians(xc: np.ndarray, dist: np.ndarray) -> tuple[np.ndarray, np
 
 
 def project_with_jacobians(
-    intr: np.ndarray, R: np.ndarray, C: np.ndarray, X: np.ndarray, fisheye: np.ndarray | None = None
+    intr: np.ndarray, R: np.ndarray, C: np.ndarray, X: np.ndarray, fisheye: np.ndarray | None = None, *,
+    distortion: bool = True,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Pixels and their derivatives, one observation per row (fisheye as in `project_points`).
 
     Returns ``(uv (n,2), J_intr (n,2,9), J_rot (n,2,3), J_centre (n,2,3),
     J_point (n,2,3))``: derivatives of the pixel with respect to the
     intrinsic vector, a left rotation perturbation, the camera centre and
-    the world point.
+    the world point. distortion=False skips the derivatives by the
+    distortion coefficients (J_intr[..., 4:] stays zero), for a caller that
+    holds them.
     """
     f, a = intr[:, 0], intr[:, 1]
     xc = np.einsum("nij,nj->ni", R, X - C)
     n = len(xc)
-    xd, J_dist, J_xc = np.empty((n, 2)), np.empty((n, 2, 5)), np.empty((n, 2, 3))
-    for rows, fish in _model_rows(fisheye, n):
-        lens = _fisheye_jacobians if fish else _pinhole_jacobians
-        xd[rows], J_dist[rows], J_xc[rows] = lens(xc[rows], intr[rows, 4:])
+    models = _model_rows(fisheye, n)
+    if len(models) == 1:  # one lens model: no rows to pick out and copy back
+        lens = _fisheye_jacobians if models[0][1] else _pinhole_jacobians
+        xd, J_dist, J_xc = lens(xc, intr[:, 4:], distortion)
+    else:
+        xd, J_dist, J_xc = np.empty((n, 2)), np.empty((n, 2, 5)), np.empty((n, 2, 3))
+        for rows, fish in models:
+            lens = _fisheye_jacobians if fish else _pinhole_jacobians
+            xd[rows], J_dist_rows, J_xc[rows] = lens(xc[rows], intr[rows, 4:], distortion)
+            if distortion:
+                J_dist[rows] = J_dist_rows
     fy = a * f
     uv = np.stack([f * xd[:, 0] + intr[:, 2], fy * xd[:, 1] + intr[:, 3]], axis=1)
     scale = np.stack([f, fy], axis=1)[:, :, None]  # d pixel / d distorted normalised point, per axis
@@ -317,10 +332,15 @@ def project_with_jacobians(
     J_intr[:, 1, 1] = f * xd[:, 1]
     J_intr[:, 0, 2] = 1.0
     J_intr[:, 1, 3] = 1.0
-    J_intr[:, :, 4:] = scale * J_dist
+    if distortion:
+        J_intr[:, :, 4:] = scale * J_dist
     duv_dxc = scale * J_xc
     # a^T [xc]x = a x xc, so d pixel / d w = -duv_dxc [xc]x = xc x duv_dxc (row-wise).
-    J_rot = np.cross(xc[:, None, :], duv_dxc)
-    J_point = duv_dxc[:, :, :1] * R[:, None, 0] + duv_dxc[:, :, 1:2] * R[:, None, 1] + duv_dxc[:, :, 2:] * R[:, None, 2]
+    J_rot = np.empty((n, 2, 3))
+    x0, x1, x2 = xc[:, 0, None], xc[:, 1, None], xc[:, 2, None]
+    J_rot[:, :, 0] = x1 * duv_dxc[:, :, 2] - x2 * duv_dxc[:, :, 1]
+    J_rot[:, :, 1] = x2 * duv_dxc[:, :, 0] - x0 * duv_dxc[:, :, 2]
+    J_rot[:, :, 2] = x0 * duv_dxc[:, :, 1] - x1 * duv_dxc[:, :, 0]
+    J_point = duv_dxc @ R  # a batched matmul: faster than broadcasting for 2x3 by 3x3
     J_centre = -J_point
     return uv, J_intr, J_rot, J_centre, J_point

@@ -62,8 +62,10 @@ def structure_warnings(camera_ids: list[str], cam: np.ndarray, uv: np.ndarray, r
         return []
     sigma = float(np.sqrt(np.mean(residuals**2)))  # per axis
     M = len(camera_ids)
-    rms = np.array([np.sqrt(np.mean(np.sum(residuals[cam == m] ** 2, axis=1))) if np.any(cam == m) else np.nan
-                    for m in range(M)])
+    by_camera = np.argsort(cam, kind="stable")  # camera m's rows, in order: by_camera[bounds[m]:bounds[m + 1]]
+    bounds = np.searchsorted(cam[by_camera], np.arange(M + 1))
+    rows = [by_camera[bounds[m] : bounds[m + 1]] for m in range(M)]
+    rms = np.array([np.sqrt(np.mean(np.sum(residuals[mine] ** 2, axis=1))) if len(mine) else np.nan for mine in rows])
     # Outlier rejection clips a bad camera's residuals: what it rejected shows it as well.
     rejected = 1.0 - np.bincount(cam, minlength=M) / np.maximum(observed, 1)
     warnings = []
@@ -78,7 +80,7 @@ def structure_warnings(camera_ids: list[str], cam: np.ndarray, uv: np.ndarray, r
             )
         if distortion_free[m]:
             continue
-        mine = cam == m
+        mine = rows[m]
         edge_px = radial_pattern_px(uv[mine], residuals[mine], intr[m, 2:4], intr[m, 0], sigma)
         if edge_px > RADIAL_MIN_PX:
             warnings.append(

@@ -16,16 +16,9 @@ from functools import cached_property
 import numpy as np
 import scipy.linalg
 
-from camnet.geometry.bundle import (
-    NormalEquations,
-    Problem,
-    State,
-    distance_rows,
-    normal_equations,
-    residuals,
-    times_block_diag,
-)
+from camnet.geometry.bundle import Problem, State, distance_rows, normal_equations, residuals
 from camnet.geometry.projection import N_INTRINSICS
+from camnet.geometry.schur import NormalEquations, times_block_diag
 
 # A point block whose smallest eigenvalue is below this fraction of its largest leaves
 # the point undetermined along that direction (in metres, so the ratio has meaning).
@@ -135,7 +128,9 @@ def covariance(
     return Covariance(sigma_px, S_inv, ne.W, V_inv, ne.V, problem.columns()[0], null, unit, S)
 
 
-def distance_checks(problem: Problem, state: State, cov: Covariance) -> tuple[np.ndarray, np.ndarray]:
+def distance_checks(
+    problem: Problem, state: State, cov: Covariance, *, normal: NormalEquations | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """What the rest of the data say each known distance is: (metres (B,), their 1 sigma (B,)).
 
     Each distance's row is taken out of the Schur complement (exactly: it
@@ -143,10 +138,12 @@ def distance_checks(problem: Problem, state: State, cov: Covariance) -> tuple[np
     `state` moves the solution to where they put it. The step starts from
     the pixels' own gradient, not from the row's residual, which for a
     stiff row is rounding. Infinite sigma: nothing else fixes the distance.
-    `cov`: the covariance of `problem`, or of it with more intrinsics free.
+    `cov`: the covariance of `problem`, or of it with more intrinsics free;
+    normal: the unweighted normal equations at `state` in cov's column layout
+    (the solve's `SolveInfo.normal`), when the caller has them.
     """
     wider = replace(problem, intr_free=cov.columns[:, :N_INTRINSICS] >= 0)  # cov's column layout
-    ne = normal_equations(wider, state)
+    ne = normal if normal is not None and normal.U.shape == cov.S.shape else normal_equations(wider, state)
     r, J = distance_rows(wider, state)
     gradient = ne.gc - times_block_diag(ne.W, cov.V_inv) @ ne.gp.reshape(-1)  # points eliminated
     known = problem.distances

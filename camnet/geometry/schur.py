@@ -1,0 +1,110 @@
+"""The normal equations of a bundle adjustment, and their solution by the Schur complement.
+
+The Gauss-Newton system ``H d = -g`` splits into camera (c) and point (p)
+blocks, ``[[U, W], [W^T, V]]``; V is block diagonal, one 3x3 block per point
+(metres), so the points are eliminated and each step costs a dense solve of
+the camera parameters only: ``S = U - W V^-1 W^T``. Pure functions on arrays;
+the units are those of the parameters (pixels, radians, metres) and of the
+residuals (pixels).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+
+GAUSS_NEWTON_LAMBDA = 1e-9  # damping of the (almost) undamped step: keeps a singular direction solvable
+
+
+@dataclass(frozen=True)
+class NormalEquations:
+    """J^T J and J^T r split into camera (c) and point (p) blocks.
+
+    W is dense: a camera sees a good share of the points in the networks
+    camnet solves, and one BLAS product on it beats sparse bookkeeping.
+    """
+
+    U: np.ndarray  # (Pc, Pc)
+    W: np.ndarray  # (Pc, 3N)
+    V: np.ndarray  # (N, 3, 3)
+    gc: np.ndarray  # (Pc,)
+    gp: np.ndarray  # (N, 3)
+    cost: float
+
+
+def restrict(ne: NormalEquations, columns: np.ndarray) -> NormalEquations:
+    """The normal equations with only the camera parameters at `columns` free."""
+    return NormalEquations(ne.U[np.ix_(columns, columns)], ne.W[columns], ne.V, ne.gc[columns], ne.gp, ne.cost)
+
+
+def times_block_diag(W: np.ndarray, blocks: np.ndarray) -> np.ndarray:
+    """W (P, 3N) times the block-diagonal matrix of `blocks` (N, 3, 3)."""
+    P, N = len(W), len(blocks)
+    # optimize=True hands the products to BLAS: eight times faster than a batched matmul here.
+    return np.einsum("pni,nij->pnj", W.reshape(P, N, 3), blocks, optimize=True).reshape(P, 3 * N)
+
+
+def inverse_cholesky_3x3(V: np.ndarray) -> np.ndarray:
+    """L^-1 (N, 3, 3), lower triangular, of the Cholesky factors V = L L^T of V (N, 3, 3).
+
+    NaN where a block is not positive definite. In closed form: a batched
+    LAPACK call per 3x3 block costs more than the arithmetic. With it,
+    ``V^-1 = L^-T L^-1``, so ``W V^-1 W^T`` is the product of ``W L^-T`` with itself.
+    """
+    with np.errstate(invalid="ignore", divide="ignore"):
+        l00 = np.sqrt(V[:, 0, 0])
+        l10 = V[:, 1, 0] / l00
+        l20 = V[:, 2, 0] / l00
+        l11 = np.sqrt(V[:, 1, 1] - l10 * l10)
+        l21 = (V[:, 2, 1] - l20 * l10) / l11
+        l22 = np.sqrt(V[:, 2, 2] - l20 * l20 - l21 * l21)
+        inv = np.zeros_like(V)
+        inv[:, 0, 0] = 1.0 / l00
+        inv[:, 1, 1] = 1.0 / l11
+        inv[:, 2, 2] = 1.0 / l22
+        inv[:, 1, 0] = -l10 * inv[:, 0, 0] * inv[:, 1, 1]
+        inv[:, 2, 1] = -l21 * inv[:, 1, 1] * inv[:, 2, 2]
+        inv[:, 2, 0] = -(l20 * inv[:, 0, 0] + l21 * inv[:, 1, 0]) * inv[:, 2, 2]
+    return inv
+
+
+def solve_damped(ne: NormalEquations, lam: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """(dc (Pc,), dp (N, 3)) solving (H + lam diag H) d = -g; None if not positive definite."""
+    U = ne.U + np.diag(lam * np.maximum(np.diag(ne.U), 1e-9))
+    dV = np.einsum("nii->ni", ne.V)
+    L_inv = inverse_cholesky_3x3(ne.V + (lam * np.maximum(dV, 1e-9))[:, :, None] * np.eye(3))
+    if not np.all(np.isfinite(L_inv)):
+        return None
+    WL = times_block_diag(ne.W, L_inv.transpose(0, 2, 1))  # W L^-T
+    rhs = -ne.gc + WL @ np.einsum("nij,nj->ni", L_inv, ne.gp).reshape(-1)
+    dc = rhs
+    if len(rhs):
+        # S's upper triangle, all that the Cholesky factorisation reads: a symmetric
+        # rank-k update does half the work of the full product.
+        S = scipy.linalg.blas.dsyrk(-1.0, WL, beta=1.0, c=U, overwrite_c=True)
+        try:
+            dc = scipy.linalg.cho_solve(scipy.linalg.cho_factor(S, check_finite=False), rhs)
+        except np.linalg.LinAlgError:
+            return None
+    z = np.einsum("nij,nj->ni", L_inv, ne.gp + (ne.W.T @ dc).reshape(-1, 3))
+    dp = -np.einsum("nji,nj->ni", L_inv, z)  # -V^-1 (gp + W^T dc)
+    if not (np.all(np.isfinite(dc)) and np.all(np.isfinite(dp))):
+        return None
+    return dc, dp
+
+
+def predicted_decrease(ne: NormalEquations, lam: float, dc: np.ndarray, dp: np.ndarray) -> float:
+    """Decrease of the Gauss-Newton model cost along the damped step (dc, dp), >= 0."""
+    # With (H + lam D) d = -g: -g.d - d.H.d / 2 = (lam d.D.d - g.d) / 2.
+    dU = np.maximum(np.diag(ne.U), 1e-9)
+    dV = np.maximum(np.einsum("nii->ni", ne.V), 1e-9)
+    damped = lam * (float(dc @ (dU * dc)) + float(np.sum(dV * dp * dp)))
+    return 0.5 * (damped - float(ne.gc @ dc) - float(np.sum(ne.gp * dp)))
+
+
+def gauss_newton_decrease(ne: NormalEquations) -> float:
+    """The decrease an (almost) undamped step promises; infinite if it cannot be solved."""
+    step = solve_damped(ne, GAUSS_NEWTON_LAMBDA)
+    return np.inf if step is None else predicted_decrease(ne, GAUSS_NEWTON_LAMBDA, *step)
