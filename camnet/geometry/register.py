@@ -99,6 +99,10 @@ def resect(X: np.ndarray, xy: np.ndarray, *, f_px: float | None, width_px: int, 
     cost, err = _msac(X, xy, f, rvec, tvec, threshold_px)
     if np.sum(err < threshold_px) < enough:
         return failed
+    grid = focal_grid(width_px)
+    if not grid[0] <= f <= grid[-1]:  # nearly coplanar or distant points: f trades off against the distance
+        return (f"its {n} tracks shared with the cameras placed put its focal length at {f:.0f} px, outside "
+                f"{grid[0]:.0f}-{grid[-1]:.0f} px: they do not determine its pose")
     R = cv2.Rodrigues(rvec)[0]
     return Resection(f, R, -R.T @ tvec, err < threshold_px, cost / n)
 
