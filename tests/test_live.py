@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from camnet.geometry.change import drop_before, new_track_errors
-from camnet.geometry.live import LiveConfig, Tracker
+from camnet.geometry.live import LiveConfig, Tracker, judge
 from camnet.geometry.model import Camera, Observations
 from camnet.geometry.projection import rotation_exp
 from camnet.sim.simulate import make_rig, observe
@@ -155,3 +155,17 @@ def test_a_known_stereo_head_is_held():
     # Without the head the pair is held parallel: 0.5 degrees off.
     parallel = next(c for c in ideal.good.cameras if c.id == right.id)
     assert rotation_angle_deg(parallel.R @ right.R.T) > 0.4
+
+
+def test_a_converged_solve_with_an_absurd_focal_length_is_refused():
+    # A wrong start once converged to cameras at -76 px and 600,000 px with RMS 0.3-0.4 px and a scale
+    # sigma of 1-2%, which passed every other test of `judge`.
+    obs = observe(make_rig(n_points=300, seed=1), seed=1).observations
+    out = Tracker(LiveConfig()).update(obs)
+    assert out.status == "good" and judge(out.calibration, obs, LiveConfig()) == ""
+    for focal_px in (-76.0, 6e5):
+        last = out.calibration.cameras[-1]
+        K = last.K.copy()
+        K[0, 0] = K[1, 1] = focal_px
+        absurd = replace(out.calibration, cameras=(*out.calibration.cameras[:-1], replace(last, K=K)))
+        assert f"{last.id} {focal_px:.0f} px" in judge(absurd, obs, LiveConfig())

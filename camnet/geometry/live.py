@@ -22,6 +22,7 @@ from camnet.errors import CamnetError
 from camnet.geometry.calibrate import Options, calibrate
 from camnet.geometry.change import MoveRule, drop_before, moved_cameras, new_track_errors
 from camnet.geometry.model import Calibration, Camera, Observations
+from camnet.geometry.two_view import FOCAL_RANGE_REL
 
 log = logging.getLogger(__name__)
 
@@ -44,8 +45,9 @@ class LiveConfig:
     """How a live rig solves and when it trusts a solution.
 
     A solution is good when it converged, its reprojection RMS is at most
-    `max_rms_px`, its scale is known to `max_scale_rel` (1 sigma) and it holds
-    every camera of the observations.
+    `max_rms_px`, its scale is known to `max_scale_rel` (1 sigma), every focal
+    length lies within `two_view.FOCAL_RANGE_REL` image widths (10-170 degrees
+    across) and it holds every camera of the observations.
     """
 
     options: Options = Options(free=LIVE_FREE)
@@ -87,6 +89,12 @@ def judge(cal: Calibration, obs: Observations, config: LiveConfig) -> str:
     scale_rel = cal.uncertainty.scale_rel.value if cal.uncertainty is not None else None
     if scale_rel is None or not scale_rel <= config.max_scale_rel:
         return f"scale uncertain ({scale_rel} > {config.max_scale_rel})"
+    absurd = [f"{c.id} {c.K[0, 0]:.0f} px" for c in cal.cameras
+              if not FOCAL_RANGE_REL[0] * c.width <= c.K[0, 0] <= FOCAL_RANGE_REL[1] * c.width]
+    if absurd:
+        # A start gone wrong can converge to such a rig at a low RMS and a small scale sigma.
+        return (f"focal lengths outside {FOCAL_RANGE_REL[0]}-{FOCAL_RANGE_REL[1]} image widths: "
+                f"{', '.join(absurd)}")
     missing = set(obs.camera_ids) - {c.id for c in cal.cameras}
     if missing:
         why = "; ".join(f"{c}: {r}" for c, r in cal.report.cameras_left_out.items() if c in missing)
