@@ -169,3 +169,6 @@ def test_a_converged_solve_with_an_absurd_focal_length_is_refused():
         K[0, 0] = K[1, 1] = focal_px
         absurd = replace(out.calibration, cameras=(*out.calibration.cameras[:-1], replace(last, K=K)))
         assert f"{last.id} {focal_px:.0f} px" in judge(absurd, obs, LiveConfig())
+    # A focal length the rig file gives and holds is the user's (a long telephoto lens, say): never refused.
+    held = replace(obs.cameras[-1], K=K, fixed=frozenset({"K"}))
+    assert judge(absurd, replace(obs, cameras=(*obs.cameras[:-1], held)), LiveConfig()) == ""

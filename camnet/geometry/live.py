@@ -46,8 +46,8 @@ class LiveConfig:
 
     A solution is good when it converged, its reprojection RMS is at most
     `max_rms_px`, its scale is known to `max_scale_rel` (1 sigma), every focal
-    length lies within `two_view.FOCAL_RANGE_REL` image widths (10-170 degrees
-    across) and it holds every camera of the observations.
+    length it estimated lies within `two_view.FOCAL_RANGE_REL` image widths
+    (10-170 degrees across) and it holds every camera of the observations.
     """
 
     options: Options = Options(free=LIVE_FREE)
@@ -89,8 +89,9 @@ def judge(cal: Calibration, obs: Observations, config: LiveConfig) -> str:
     scale_rel = cal.uncertainty.scale_rel.value if cal.uncertainty is not None else None
     if scale_rel is None or not scale_rel <= config.max_scale_rel:
         return f"scale uncertain ({scale_rel} > {config.max_scale_rel})"
-    absurd = [f"{c.id} {c.K[0, 0]:.0f} px" for c in cal.cameras
-              if not FOCAL_RANGE_REL[0] * c.width <= c.K[0, 0] <= FOCAL_RANGE_REL[1] * c.width]
+    held = {c.id for c in obs.cameras if c.K is not None and "K" in c.fixed}
+    absurd = [f"{c.id} {c.K[0, 0]:.0f} px" for c in cal.cameras if c.id not in held
+              and not FOCAL_RANGE_REL[0] * c.width <= c.K[0, 0] <= FOCAL_RANGE_REL[1] * c.width]
     if absurd:
         # A start gone wrong can converge to such a rig at a low RMS and a small scale sigma.
         return (f"focal lengths outside {FOCAL_RANGE_REL[0]}-{FOCAL_RANGE_REL[1]} image widths: "
