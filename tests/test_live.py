@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from camnet.geometry.change import drop_before, new_track_errors
-from camnet.geometry.live import LiveConfig, Tracker
+from camnet.geometry.live import LiveConfig, Tracker, judge
 from camnet.geometry.model import Camera, Observations
 from camnet.geometry.projection import rotation_exp
 from camnet.sim.simulate import make_rig, observe
@@ -155,3 +155,33 @@ def test_a_known_stereo_head_is_held():
     # Without the head the pair is held parallel: 0.5 degrees off.
     parallel = next(c for c in ideal.good.cameras if c.id == right.id)
     assert rotation_angle_deg(parallel.R @ right.R.T) > 0.4
+
+
+def test_a_converged_solve_with_an_absurd_focal_length_is_refused():
+    # A wrong start once converged to cameras at -76 px and 600,000 px with RMS 0.3-0.4 px and a scale
+    # sigma of 1-2%, which passed every other test of `judge`.
+    obs = observe(make_rig(n_points=300, seed=1), seed=1).observations
+    out = Tracker(LiveConfig()).update(obs)
+    assert out.status == "good" and judge(out.calibration, obs, LiveConfig()) == ""
+    for focal_px in (-76.0, 6e5):
+        last = out.calibration.cameras[-1]
+        K = last.K.copy()
+        K[0, 0] = K[1, 1] = focal_px
+        absurd = replace(out.calibration, cameras=(*out.calibration.cameras[:-1], replace(last, K=K)))
+        assert f"{last.id} {focal_px:.0f} px" in judge(absurd, obs, LiveConfig())
+    # A focal length the rig file gives and holds is the user's (a long telephoto lens, say): never refused.
+    held = replace(obs.cameras[-1], K=K, fixed=frozenset({"K"}))
+    assert judge(absurd, replace(obs, cameras=(*obs.cameras[:-1], held)), LiveConfig()) == ""
+
+
+def test_a_camera_that_keeps_few_of_its_observations_is_not_trusted():
+    # On the surround rig a camera placed 1.7 m and 51 degrees off kept 28% of its observations (its
+    # two-view tracks fit any pose) in a solve that converged at RMS 0.21 px: it was kept as good.
+    obs = observe(make_rig(n_points=300, seed=1), seed=1).observations
+    mine = np.flatnonzero(obs.cam_index == 3)
+    false = np.random.default_rng(0).permutation(mine)[: int(0.7 * len(mine))]
+    uv = obs.uv.copy()
+    uv[false] = np.random.default_rng(1).uniform(0, obs.cameras[3].height, (len(false), 2))
+    out = Tracker(LiveConfig()).update(replace(obs, uv=uv))
+    assert out.status == "rejected" and f"cameras ['{obs.cameras[3].id}'] keep too few" in out.reason, out.reason
+    assert Tracker(LiveConfig(min_inlier_share=0.2)).update(replace(obs, uv=uv)).status == "good"

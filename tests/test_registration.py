@@ -75,6 +75,24 @@ def test_the_paper_rig_starts_from_the_paper_solver_and_a_tape_pair_from_the_ess
     assert np.degrees(np.arccos((np.trace(tape.R[1]) - 1) / 2)) > 30
 
 
+def test_a_camera_with_a_few_false_stereo_tracks_leaves_the_papers_start_to_the_others():
+    # As on the surround rig, where cameras 135 degrees from the head share 6-16 false tracks (or only
+    # floor points) with it. Such a camera used to enter eq. 13 (here: placed on its 7 random pixels,
+    # at least 6 agreeing at 8 px), or, where its DLT failed, to drop the paper's start for the essential matrix's.
+    obs = observe(make_rig(seed=2), noise_px=0.5, seed=2).observations
+    seen = np.zeros((len(obs.track_ids), len(obs.cameras)), dtype=bool)
+    seen[obs.track_index, obs.cam_index] = True
+    pair_tracks = np.flatnonzero(seen[:, obs.index_of("left")] & seen[:, obs.index_of("right")])[:7]
+    first = obs.cameras[0]
+    stray = replace(obs, cameras=(*obs.cameras, replace(first, id="stray")),
+                    cam_index=np.concatenate([obs.cam_index, np.full(7, len(obs.cameras))]),
+                    track_index=np.concatenate([obs.track_index, pair_tracks]),
+                    uv=np.concatenate([obs.uv, np.random.default_rng(0).uniform(0, first.height, (7, 2))]))
+    start = _start(stray)
+    assert start.parallel and np.isfinite(start.P0).all(axis=1).sum() > 40  # the paper's start
+    assert list(start.left_out) == ["stray"]
+
+
 def test_row_model_tells_a_parallel_pair_from_a_turned_one():
     def errors(obs):
         order = camera_order(obs)

@@ -19,7 +19,7 @@ from camnet.errors import SolveError
 from camnet.geometry import paper
 from camnet.geometry.model import Calibration, LensModel, Observations
 from camnet.geometry.projection import K_from_intrinsics, full_dist, intrinsics_from_K, normalised
-from camnet.geometry.register import register_over_graph, threshold_px, triangulate_missing
+from camnet.geometry.register import MIN_INLIER_SHARE, register_over_graph, threshold_px, triangulate_missing
 
 log = logging.getLogger(__name__)
 
@@ -136,16 +136,7 @@ def paper_start(
     P0 = np.full((T, 3), np.nan)
     P0_pair, valid = paper.triangulate_parallel(xy[left[pair]], xy[right[pair]], k, 1.0)
     P0[np.flatnonzero(pair)[valid]] = P0_pair[valid]
-    has_P0 = np.all(np.isfinite(P0), axis=1)
-
-    threshold = threshold_px(obs, order)
-    stretched = {}  # camera -> (DLT matrix on P0, its inlier tracks)
-    for m in range(2, M):
-        trk = np.flatnonzero(has_P0 & (rows[:, order[m]] >= 0))
-        if len(trk) < MIN_REGISTRATION_POINTS:
-            continue
-        P, inl = paper.dlt_ransac(P0[trk], xy[rows[trk, order[m]]], threshold_px=threshold, seed=seed)
-        stretched[m] = (P, trk[inl])
+    stretched = _stretched_cameras(obs, order, xy, rows, P0, seed)
     if np.isfinite(given_f[0]):
         f_left = given_f[0]
     else:
@@ -189,6 +180,41 @@ def paper_start(
     if register_rest:
         register_and_triangulate(obs, order, xy, rows, f, R, C, X, registered, seed=seed)
     return Start(f, R, C, X, registered, P0, k)
+
+
+def _stretched_cameras(obs, order, xy, rows, P0, seed) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """{problem index: (DLT matrix on the stretched stereo cloud P0, its inlier tracks)} of the other cameras."""
+    has_P0 = np.all(np.isfinite(P0), axis=1)
+    threshold = threshold_px(obs, order)
+    stretched = {}
+    for m in range(2, len(order)):
+        trk = np.flatnonzero(has_P0 & (rows[:, order[m]] >= 0))
+        if len(trk) < MIN_REGISTRATION_POINTS:
+            continue
+        got = _stretched_dlt(P0[trk], xy[rows[trk, order[m]]], threshold, seed)
+        if isinstance(got, str):
+            log.info("the paper's start leaves %s to the view graph: %s", obs.cameras[order[m]].id, got)
+            continue
+        stretched[m] = (got[0], trk[got[1]])
+    return stretched
+
+
+def _stretched_dlt(P0: np.ndarray, x: np.ndarray, threshold: float, seed: int) -> tuple[np.ndarray, np.ndarray] | str:
+    """(P, inliers) of a camera on the stretched stereo cloud, or why the camera cannot join eq. 13.
+
+    A camera that shares a few false tracks with the pair, or sees only the
+    floor among them (coplanar points leave a DLT undetermined), would pull
+    every focal length of the paper's start: it is placed later, through the view graph.
+    """
+    try:
+        P, inl = paper.dlt_ransac(P0, x, threshold_px=threshold, seed=seed)
+    except SolveError as exc:
+        return f"{len(P0)} stereo tracks, {exc}"
+    if inl.mean() < MIN_INLIER_SHARE:
+        return f"{int(inl.sum())} of its {len(P0)} stereo tracks agree on a camera (fewer than {MIN_INLIER_SHARE:.0%})"
+    if not np.all(np.isfinite(paper.focals_from_stretched_dlt(P))):
+        return f"its {int(inl.sum())} agreeing stereo tracks do not fix a camera (nearly on one plane, or too few)"
+    return P, inl
 
 
 def warm_start(

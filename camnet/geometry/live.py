@@ -22,6 +22,7 @@ from camnet.errors import CamnetError
 from camnet.geometry.calibrate import Options, calibrate
 from camnet.geometry.change import MoveRule, drop_before, moved_cameras, new_track_errors
 from camnet.geometry.model import Calibration, Camera, Observations
+from camnet.geometry.two_view import FOCAL_RANGE_REL
 
 log = logging.getLogger(__name__)
 
@@ -44,14 +45,20 @@ class LiveConfig:
     """How a live rig solves and when it trusts a solution.
 
     A solution is good when it converged, its reprojection RMS is at most
-    `max_rms_px`, its scale is known to `max_scale_rel` (1 sigma) and it holds
-    every camera of the observations.
+    `max_rms_px`, its scale is known to `max_scale_rel` (1 sigma), every focal
+    length it estimated lies within `two_view.FOCAL_RANGE_REL` image widths
+    (10-170 degrees across), every camera but the stereo pair keeps at least
+    `min_inlier_share` of its observations as inliers and it holds every
+    camera of the observations.
     """
 
     options: Options = Options(free=LIVE_FREE)
     move_rule: MoveRule = MoveRule()
     max_rms_px: float = 3.0
     max_scale_rel: float = 0.05
+    # A camera placed wrong fits its two-view tracks anyway and loses most of the others as outliers:
+    # on the surround rig 8-28% kept for cameras 0.5-1.7 m off, 80-99% for every camera placed right.
+    min_inlier_share: float = 0.5
     # A factory-calibrated stereo head (the rig file's stereo.R, stereo.t): the right camera's
     # pose in the left's frame, x_right = R x_left + t. Every solve without a good calibration
     # to start from starts from it, so that a free set without the pair's axes holds it.
@@ -87,6 +94,23 @@ def judge(cal: Calibration, obs: Observations, config: LiveConfig) -> str:
     scale_rel = cal.uncertainty.scale_rel.value if cal.uncertainty is not None else None
     if scale_rel is None or not scale_rel <= config.max_scale_rel:
         return f"scale uncertain ({scale_rel} > {config.max_scale_rel})"
+    held = {c.id for c in obs.cameras if c.K is not None and "K" in c.fixed}
+    absurd = [f"{c.id} {c.K[0, 0]:.0f} px" for c in cal.cameras if c.id not in held
+              and not FOCAL_RANGE_REL[0] * c.width <= c.K[0, 0] <= FOCAL_RANGE_REL[1] * c.width]
+    if absurd:
+        # A start gone wrong can converge to such a rig at a low RMS and a small scale sigma.
+        return (f"focal lengths outside {FOCAL_RANGE_REL[0]}-{FOCAL_RANGE_REL[1]} image widths: "
+                f"{', '.join(absurd)}")
+    total = np.bincount(obs.cam_index, minlength=len(obs.cameras))
+    stats = cal.report.cameras
+    # The pair is held by its baseline (and, held parallel or to a factory pose, may lose more).
+    others = [c.id for c in cal.cameras if c.id in stats and c.id not in (obs.stereo.left, obs.stereo.right)]
+    share = {c: stats[c].inliers / max(int(total[obs.index_of(c)]), 1) for c in others}
+    few = {c: s for c, s in share.items() if s < config.min_inlier_share}
+    if few:
+        kept = ", ".join(f"{c} {100 * s:.0f}%" for c, s in few.items())
+        return (f"cameras {sorted(few)} keep too few of their observations as inliers ({kept}, less than "
+                f"{100 * config.min_inlier_share:.0f}%): placed wrong, or their tracks are")
     missing = set(obs.camera_ids) - {c.id for c in cal.cameras}
     if missing:
         why = "; ".join(f"{c}: {r}" for c, r in cal.report.cameras_left_out.items() if c in missing)

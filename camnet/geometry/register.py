@@ -70,7 +70,8 @@ def resect(X: np.ndarray, xy: np.ndarray, *, f_px: float | None, width_px: int, 
     f_px: the focal length when known; else every focal length of
     `focal_grid` is tried with PnP RANSAC (which, unlike a DLT, also works
     on nearly planar points), and the best by MSAC is refined with its pose
-    on its inliers (`_refine`).
+    on its inliers (`_refine`); a refined focal length outside the sweep's
+    range places nothing.
     """
     import cv2
 
@@ -99,6 +100,10 @@ def resect(X: np.ndarray, xy: np.ndarray, *, f_px: float | None, width_px: int, 
     cost, err = _msac(X, xy, f, rvec, tvec, threshold_px)
     if np.sum(err < threshold_px) < enough:
         return failed
+    grid = focal_grid(width_px)
+    if f_px is None and not grid[0] <= f <= grid[-1]:  # nearly coplanar or distant points: f trades off with depth
+        return (f"its {n} tracks shared with the cameras placed put its focal length at {f:.0f} px, outside "
+                f"{grid[0]:.0f}-{grid[-1]:.0f} px: they do not determine its pose")
     R = cv2.Rodrigues(rvec)[0]
     return Resection(f, R, -R.T @ tvec, err < threshold_px, cost / n)
 
