@@ -226,9 +226,8 @@ def _calibrate(
     decisions: list[str] = []
     if options.free == "auto" and initial is None and options.method != Method.UNCONSTRAINED:
         t2 = time.perf_counter()
-        problem, state, decisions = _apply_free_rule(obs, order, problem, state, options, held_K, held_dist,
-                                                     ideal_pair=start.parallel)
-        full = replace(full, intr_free=problem.intr_free, rot_free=problem.rot_free, centre_mode=problem.centre_mode)
+        full, problem, state, inliers, decisions = _apply_free_rule(
+            obs, order, full, problem, state, inliers, options, held_K, held_dist, ideal_pair=start.parallel)
         timings["choose_free"] = time.perf_counter() - t2
 
     t3 = time.perf_counter()
@@ -282,26 +281,30 @@ def _full_problem(obs, order, start: Start, options: Options, initial: Calibrati
     return replace(full, distances=known), track_rows
 
 
-def _apply_free_rule(obs, order, problem: Problem, state: State, options: Options, held_K, held_dist, *, ideal_pair):
-    """(problem, state, decisions): the automatic free set, chosen at the least-squares solution (of the ideal
-    pair where the pair started as the paper's)."""
+def _apply_free_rule(obs, order, full: Problem, problem: Problem, state: State, inliers, options: Options, held_K,
+                     held_dist, *, ideal_pair):
+    """(full, problem, state, inliers, decisions): the automatic free set, chosen at the least-squares solution
+    (of the ideal pair where the pair started as the paper's); the inliers judged again if it frees distortion."""
     widths = [obs.cameras[i].width for i in order]
     heights = [obs.cameras[i].height for i in order]
     # The rule starts from the ideal pair: its rotation held at the identity.
     R = state.R.copy()
     R[1] = np.eye(3) if ideal_pair else R[1]
     state, _ = bundle.solve(problem, State(state.intr, R, state.C, state.X), max_iterations=options.max_iterations)
-    return choose_free(
-        problem,
-        state,
-        determined_px=options.determined_px,
-        significance=options.significance,
-        widths=widths,
-        heights=heights,
-        held_K=held_K,
-        held_dist=held_dist,
-        max_iterations=options.max_iterations,
-    )
+    problem, state, decisions = choose_free(
+        problem, state, determined_px=options.determined_px, significance=options.significance, widths=widths,
+        heights=heights, held_K=held_K, held_dist=held_dist, max_iterations=options.max_iterations)
+    freed_dist = (problem.intr_free[:, _DIST] & ~full.intr_free[:, _DIST]).any()
+    full = replace(full, intr_free=problem.intr_free, rot_free=problem.rot_free, centre_mode=problem.centre_mode)
+    if freed_dist:
+        # Outliers were judged with the lens held: a wide lens's good observations far from
+        # the centre lay off it. Judged again, after a robust solve, with it free.
+        state, _ = bundle.solve(full, state, loss=options.loss, scale_px=options.loss_scale_px,
+                                max_iterations=options.max_iterations)
+        inliers = _reject_outliers(full, state, options)
+        full = replace(full, distance_sigma_px=pixel_sigma(full.subset(inliers), state))
+        problem = full.subset(inliers)
+    return full, problem, state, inliers, decisions
 
 
 def _adjust_inliers(full: Problem, problem: Problem, state: State, inliers, guessed_pp, options: Options):
