@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections import Counter
 from itertools import combinations
 
 import numpy as np
@@ -94,6 +95,20 @@ def test_choose_pairs_cold_start_new_camera_and_exploration():
         assert len(chosen) == 7 + 2
         seen |= chosen
     assert seen == everything
+
+
+def test_pairs_that_matched_well_do_not_keep_every_pair_of_an_arc():
+    # Sixteen cameras that all see one object: every pair matched well at the cold start.
+    ids = [f"c{k:02d}" for k in range(16)]
+    everything = {frozenset(p) for p in combinations(ids, 2)}
+    ring_pairs = {frozenset((ids[k], ids[(k + 1) % 16])) for k in range(16)}
+    chosen, _ = choose_pairs(ids, calibrated=ids, overlapping=ring_pairs, matched_well=everything, neighbours=4)
+    degree = Counter(camera for pair in chosen for camera in pair)
+    assert ring_pairs <= chosen and max(degree.values()) <= 4 + 1 and len(chosen) <= 16 * 4 // 2 + 16
+    # A camera the geometry gives no partner still keeps the pairs it matched well.
+    chosen, _ = choose_pairs(ids, calibrated=ids, overlapping=ring_pairs - {p for p in ring_pairs if "c05" in p},
+                             matched_well={frozenset(("c05", "c09"))}, neighbours=4)
+    assert frozenset(("c05", "c09")) in chosen
 
 
 def test_view_graph_matches_everything_until_a_calibration():

@@ -8,7 +8,11 @@ calibration, a frame set matches:
   (`camnet.geometry.viewgraph.overlapping_pairs`, from the calibration's
   cameras and points);
 - the pairs that matched well before (at least `good_matches` inliers in
-  their last whole match), wherever the geometry puts them;
+  their last whole match), wherever the geometry puts them, but only where
+  both cameras have fewer than `neighbours` partners so far: where every
+  camera sees every other (an arc around one object), every pair matched
+  well at the cold start, and keeping them all would match M(M-1)/2 pairs
+  for ever;
 - every pair of a camera the calibration does not hold (new, or left out);
 - the stereo pair, always;
 - and `explore_per_set` of the other pairs, in rotation, so that a camera
@@ -19,6 +23,7 @@ Without a calibration every pair is matched.
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Collection, Sequence
 from dataclasses import dataclass
 from itertools import combinations
@@ -48,17 +53,24 @@ class ViewGraphConfig:
 
 def choose_pairs(camera_ids: Sequence[str], *, calibrated: Collection[str], overlapping: Collection[Pair],
                  matched_well: Collection[Pair] = (), always: Collection[Pair] = (), explore: int = 0,
-                 cursor: int = 0) -> tuple[set[Pair], int]:
+                 cursor: int = 0, neighbours: int | None = None) -> tuple[set[Pair], int]:
     """The pairs of `camera_ids` to match in one frame set, and the exploration cursor for the next.
 
     Chosen: every pair with a camera not in `calibrated`, and every pair in
-    `overlapping`, `matched_well` or `always`; then `explore` of the remaining
-    pairs (sorted by their ids), taken in rotation from `cursor`, so that
-    frame set after frame set every remaining pair comes round.
+    `overlapping` or `always`; a pair in `matched_well` where both its
+    cameras have fewer than `neighbours` partners so far (any, if None); then
+    `explore` of the remaining pairs (sorted by their ids), taken in rotation
+    from `cursor`, so that frame set after frame set every remaining pair
+    comes round.
     """
     all_pairs = [frozenset(p) for p in combinations(sorted(set(camera_ids)), 2)]
-    chosen_from = set(overlapping) | set(matched_well) | set(always)
+    chosen_from = set(overlapping) | set(always)
     chosen = {p for p in all_pairs if p in chosen_from or not p <= set(calibrated)}
+    degree = Counter(camera for pair in chosen for camera in pair)
+    for pair in sorted(set(matched_well) & set(all_pairs) - chosen, key=sorted):
+        if neighbours is None or max(degree[camera] for camera in pair) < neighbours:
+            chosen.add(pair)
+            degree.update(pair)
     rest = sorted((p for p in all_pairs if p not in chosen), key=sorted)
     if explore <= 0 or not rest:
         return chosen, cursor
@@ -93,5 +105,6 @@ class ViewGraph:
             return None
         chosen, self._cursor = choose_pairs(camera_ids, calibrated=self.calibrated, overlapping=self.overlapping,
                                             matched_well=matched_well, always=self.always,
-                                            explore=self.config.explore_per_set, cursor=self._cursor)
+                                            explore=self.config.explore_per_set, cursor=self._cursor,
+                                            neighbours=self.config.neighbours)
         return chosen
