@@ -69,12 +69,17 @@ def router_process(secrets: Path, log_path: Path, port: int | None = None):
         assert process.poll() is None, log_path.read_text()
         yield f"tls/localhost:{port}", log_path
     finally:
-        process.terminate()
-        try:
-            process.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            process.wait()
+        stop(process)
+
+
+def stop(process: subprocess.Popen) -> None:
+    """End a process this test started: politely, then for sure."""
+    process.terminate()
+    try:
+        process.wait(timeout=30)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        process.wait()
 
 
 def client(secrets: Path, identity: str, endpoint: str):
@@ -466,10 +471,5 @@ def test_a_camera_host_sends_its_features_through_the_access_control(secrets, tm
                     (seen, (tmp_path / "driver.log").read_text()[-2000:], router_log.read_text()[-2000:])
                 assert seen["frames"] == {keys.frame(RIG, "left"), keys.frame(RIG, "mono_a")}
         finally:
-            driver.terminate()
-            try:
-                driver.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                driver.kill()
-                driver.wait()
+            stop(driver)
     assert driver.returncode == 0, (tmp_path / "driver.log").read_text()[-2000:]
