@@ -25,13 +25,10 @@ import time
 from pathlib import Path
 
 from camnet.commands.up import calibrate_live
-from camnet.datasets.kitti import SCENARIOS, KittiExtract, prepare_scenario, read_image
+from camnet.datasets.kitti import SCENARIOS, KittiExtract, pooled_observations, prepare_scenario
 from camnet.datasets.published import VsPublished, compare
 from camnet.errors import CamnetError
 from camnet.geometry.calibrate import Options, calibrate
-from camnet.io.formats import CameraInfo
-from camnet.matching.pipeline import observations_from_frame_sets
-from camnet.matching.pool import PoolConfig
 
 ROOT = Path(__file__).resolve().parents[1]
 KITTI = ROOT.parent / "shared" / "data" / "kitti_raw_2011_09_26_extract_3cam"
@@ -82,12 +79,8 @@ def main() -> int:
         print(f"KITTI extract not found at {KITTI}; nothing to do", file=sys.stderr)
         return 1
     kitti = KittiExtract.open(KITTI)
-    infos = [CameraInfo(c.id, c.width, c.height) for c in kitti.cameras.values()]
     t0 = time.perf_counter()
-    frame_sets = ({c: read_image(p) for c, p in f.images.items()} for f in kitti.frames())
-    obs = observations_from_frame_sets(
-        frame_sets, cameras=infos, stereo=kitti.stereo, pool=PoolConfig(max_tracks=args.max_tracks)
-    )
+    obs = pooled_observations(kitti, max_tracks=args.max_tracks)
     match_s = time.perf_counter() - t0
     print(f"matching: {len(obs.track_ids)} tracks, {len(obs.uv)} observations in {match_s:.1f} s", file=sys.stderr)
 

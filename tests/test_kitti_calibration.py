@@ -15,13 +15,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from camnet.datasets.kitti import SCENARIOS, KittiExtract, prepare_scenario, read_image
+from camnet.datasets.kitti import SCENARIOS, KittiExtract, pooled_observations, prepare_scenario, read_image
 from camnet.datasets.published import compare, compare_cameras, distance_scale
 from camnet.errors import InputError, SolveError
 from camnet.geometry.calibrate import Options, calibrate
 from camnet.geometry.model import Calibration, Camera, CameraInfo, Observations, Stereo
-from camnet.matching.pipeline import observations_from_frame_sets, with_known_intrinsics
-from camnet.matching.pool import PoolConfig
+from camnet.matching.pipeline import with_known_intrinsics
 from tests._groundtruth import KITTI_ROOT, require
 
 
@@ -29,11 +28,7 @@ from tests._groundtruth import KITTI_ROOT, require
 def kitti_obs():
     """The pooled observations of the 4 frame sets (about 6 s of SIFT), once per module."""
     kitti = KittiExtract.open(require(KITTI_ROOT))
-    infos = [CameraInfo(c.id, c.width, c.height) for c in kitti.cameras.values()]
-    frame_sets = ({c: read_image(p) for c, p in f.images.items()} for f in kitti.frames())
-    obs = observations_from_frame_sets(frame_sets, cameras=infos, stereo=kitti.stereo,
-                                       pool=PoolConfig(max_tracks=3000))
-    return kitti, obs
+    return kitti, pooled_observations(kitti)
 
 
 @pytest.fixture(scope="module")

@@ -19,13 +19,10 @@ import numpy as np
 import pytest
 
 from camnet.commands.up import calibrate_live
-from camnet.datasets.kitti import KittiExtract, prepare_scenario, read_image
+from camnet.datasets.kitti import KittiExtract, pooled_observations, prepare_scenario
 from camnet.datasets.published import compare
 from camnet.geometry.calibrate import Options, calibrate
-from camnet.geometry.model import CameraInfo
 from camnet.io.rig import load_rig
-from camnet.matching.pipeline import observations_from_frame_sets
-from camnet.matching.pool import PoolConfig
 from tests._groundtruth import KITTI_ROOT, require
 from tests.conftest import free_port
 
@@ -41,10 +38,7 @@ def kitti():
 @pytest.fixture(scope="module")
 def offline(kitti):
     """The offline all-K result on the same four frame sets, with the live matcher's pool size."""
-    infos = [CameraInfo(c.id, c.width, c.height) for c in kitti.cameras.values()]
-    frame_sets = ({c: read_image(p) for c, p in f.images.items()} for f in kitti.frames())
-    obs = observations_from_frame_sets(frame_sets, cameras=infos, stereo=kitti.stereo,
-                                       pool=PoolConfig(max_tracks=3000))
+    obs = pooled_observations(kitti)
     prepared, head = prepare_scenario(obs, kitti.cameras, "all-K")
     cal = calibrate(prepared, Options(), initial=head).calibration
     return compare(cal, obs, kitti.cameras)

@@ -82,16 +82,10 @@ def test_the_ring_rig(tmp_path):
 
 @pytest.mark.skipif(not KITTI_ROOT.exists(), reason="the KITTI extract is not in the shared data")
 def test_kitti(tmp_path):
-    from camnet.datasets.kitti import KittiExtract, prepare_scenario, read_image
-    from camnet.geometry.model import CameraInfo
-    from camnet.matching.pipeline import observations_from_frame_sets
-    from camnet.matching.pool import PoolConfig
+    from camnet.datasets.kitti import KittiExtract, pooled_observations, prepare_scenario
 
     kitti = KittiExtract.open(KITTI_ROOT)
-    infos = [CameraInfo(c.id, c.width, c.height) for c in kitti.cameras.values()]
-    frame_sets = ({c: read_image(p) for c, p in f.images.items()} for f in kitti.frames())
-    obs = observations_from_frame_sets(frame_sets, cameras=infos, stereo=kitti.stereo,
-                                       pool=PoolConfig(max_tracks=3000))
+    obs = pooled_observations(kitti)
     prepared, head = prepare_scenario(obs, kitti.cameras, "all-K")
     cal = calibrate(prepared, Options(), initial=head).calibration
     assert_plots_end_near_the_body(cal)

@@ -22,6 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from camnet.bus.frame import check_prefix
+
 MAGIC = b"CNFT"
 VERSION = 1
 _FIXED = struct.Struct("<4sBBBBHHIIQQQIIHH")
@@ -97,14 +99,7 @@ def encode_features(message: FeaturesMessage) -> bytes:
 def decode_features(data: bytes | bytearray | memoryview) -> FeaturesMessage:
     """The FeaturesMessage in `data`; raises FeaturesError (never anything else) if malformed."""
     buf = memoryview(data).cast("B")
-    if len(buf) < 5:
-        raise FeaturesError("truncated", f"{len(buf)} bytes, shorter than any header")
-    if bytes(buf[:4]) != MAGIC:
-        raise FeaturesError("bad-magic", f"starts with {bytes(buf[:4])!r}, expected {MAGIC!r}")
-    if buf[4] != VERSION:
-        raise FeaturesError("unknown-version", f"version {buf[4]}, this camnet reads {VERSION}")
-    if len(buf) < FIXED_HEADER_SIZE:
-        raise FeaturesError("truncated", f"{len(buf)} bytes, header needs {FIXED_HEADER_SIZE}")
+    check_prefix(buf, MAGIC, VERSION, FIXED_HEADER_SIZE, FeaturesError)
     (_, _, code, _flags, _, header_size, id_len, width, height, seq, timestamp_ns, keyframe_seq, count, reused,
      size, _) = _FIXED.unpack_from(buf, 0)
     if header_size != FIXED_HEADER_SIZE + id_len or id_len == 0:

@@ -37,6 +37,19 @@ class FrameError(ValueError):
         self.kind = kind
 
 
+def check_prefix(buf: memoryview, magic: bytes, version: int, fixed_size: int, error: type[ValueError]) -> None:
+    """Raise `error(kind, message)` unless `buf` starts with `magic` and `version` and holds a fixed
+    header of `fixed_size` bytes: the checks every camnet wire message starts with."""
+    if len(buf) < 5:
+        raise error("truncated", f"{len(buf)} bytes, shorter than any header")
+    if bytes(buf[:4]) != magic:
+        raise error("bad-magic", f"starts with {bytes(buf[:4])!r}, expected {magic!r}")
+    if buf[4] != version:
+        raise error("unknown-version", f"version {buf[4]}, this camnet reads {version}")
+    if len(buf) < fixed_size:
+        raise error("truncated", f"{len(buf)} bytes, header needs {fixed_size}")
+
+
 class Compression(enum.IntEnum):
     """How a frame's pixels travel; the values are wire codes: never renumber."""
 
@@ -213,14 +226,7 @@ def decode_header(data: bytes | bytearray | memoryview) -> FrameHeader:
     otherwise.
     """
     buf = memoryview(data).cast("B")
-    if len(buf) < 5:
-        raise FrameError("truncated", f"{len(buf)} bytes, shorter than any header")
-    if bytes(buf[:4]) != MAGIC:
-        raise FrameError("bad-magic", f"starts with {bytes(buf[:4])!r}, expected {MAGIC!r}")
-    if buf[4] != VERSION:
-        raise FrameError("unknown-version", f"version {buf[4]}, this camnet reads {VERSION}")
-    if len(buf) < FIXED_HEADER_SIZE:
-        raise FrameError("truncated", f"{len(buf)} bytes, header needs {FIXED_HEADER_SIZE}")
+    check_prefix(buf, MAGIC, VERSION, FIXED_HEADER_SIZE, FrameError)
     (_, _, code, comp, _flags, header_size, id_len, width, height, seq, timestamp_ns,
      payload_size) = _FIXED.unpack_from(buf, 0)
     if header_size != FIXED_HEADER_SIZE + id_len or id_len == 0:

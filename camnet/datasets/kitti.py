@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 
 from camnet.errors import InputError
-from camnet.geometry.model import Calibration, Camera, Observations, Stereo
+from camnet.geometry.model import Calibration, Camera, CameraInfo, Observations, Stereo
 
 CALIB_FILE = "calib_cam_to_cam.txt"
 STEREO_LEFT, STEREO_RIGHT = "0", "1"
@@ -129,6 +129,18 @@ def read_image(path: str | Path) -> np.ndarray:
     if image is None:
         raise InputError(f"{path}: cannot read image")
     return image
+
+
+def pooled_observations(kitti: KittiExtract, *, max_tracks: int = 3000) -> Observations:
+    """The extract's frame sets matched and pooled into tracks as camnet's matcher does (SIFT), with
+    the cameras' sizes and nothing else known of them."""
+    from camnet.matching.pipeline import observations_from_frame_sets  # SIFT and the pool: only when asked
+    from camnet.matching.pool import PoolConfig
+
+    infos = [CameraInfo(c.id, c.width, c.height) for c in kitti.cameras.values()]
+    frame_sets = ({c: read_image(p) for c, p in f.images.items()} for f in kitti.frames())
+    return observations_from_frame_sets(frame_sets, cameras=infos, stereo=kitti.stereo,
+                                        pool=PoolConfig(max_tracks=max_tracks))
 
 
 # What a user may know before calibrating, from nothing to everything but the poses.
