@@ -58,14 +58,12 @@ from camnet.geometry.initialise import (
 )
 from camnet.geometry.model import Calibration, Camera, Loss, Method, Observations, StartKind
 from camnet.geometry.projection import INTRINSIC_NAMES, N_INTRINSICS, K_from_intrinsics, project_points
+from camnet.geometry.robust_passes import fit_points, near_solution, reject_outliers, robust_passes
 from camnet.geometry.uncertainty import Covariance, covariance_with_pp_prior, pixel_sigma, with_guessed_pp
 
 log = logging.getLogger(__name__)
 
 MIN_CAMERA_INLIERS = 6  # fewer observations cannot fix a camera's pose and focal length
-# The median length of a 2-D residual with Gaussian noise of sigma per axis (Rayleigh):
-# sqrt(2 ln 2) sigma. Dividing a median residual by it gives a sigma that outliers barely move.
-MEDIAN_RESIDUAL_PER_SIGMA = 1.1774
 _DIST = slice(INTRINSIC_NAMES.index("k1"), N_INTRINSICS)  # a camera's distortion among its intrinsics
 
 
@@ -125,15 +123,6 @@ def _problem(obs, order, rows_kept, track_rows, intr_free, rot_free, right_centr
         n_points=len(track_rows),
         fisheye=obs.fisheye(order),
     )
-
-
-def _reject_outliers(problem: Problem, state: State, options: Options) -> np.ndarray:
-    """Observations to keep: residual within outlier_sigmas robust sigmas, tracks with >= 2 views."""
-    r = np.linalg.norm(bundle.residuals(problem, state), axis=1)
-    sigma = np.median(r) / MEDIAN_RESIDUAL_PER_SIGMA
-    keep = r <= max(options.outlier_sigmas * sigma, options.min_outlier_px)
-    views = np.bincount(problem.pt[keep], minlength=problem.n_points)
-    return keep & (views[problem.pt] >= 2)
 
 
 @functools.cache
@@ -212,13 +201,13 @@ def _calibrate(
     near, start_kind = False, StartKind.COLD
     if initial is not None:
         new_points = ~np.isin(obs.track_ids[track_rows], initial.point_ids)
-        state = _fit_points(full, state, new_points, options)
-        near = _near_solution(full, state, options)
+        state = fit_points(full, state, new_points, options)
+        near = near_solution(full, state, options)
         start_kind = StartKind.WARM if near else StartKind.WARM_ROBUST
     if not near:
-        state = _robust_passes(full, state, options, cold=initial is None, held_K=held_K, held_dist=held_dist,
+        state = robust_passes(full, state, options, cold=initial is None, held_K=held_K, held_dist=held_dist,
                                hold_pair=start.parallel)
-    inliers = _reject_outliers(full, state, options)
+    inliers = reject_outliers(full, state, options)
     full = replace(full, distance_sigma_px=pixel_sigma(full.subset(inliers), state))  # the distances' weight
     problem = full.subset(inliers)
     timings["robust_adjustment"] = time.perf_counter() - t1
@@ -301,7 +290,7 @@ def _apply_free_rule(obs, order, full: Problem, problem: Problem, state: State, 
         # the centre lay off it. Judged again, after a robust solve, with it free.
         state, _ = bundle.solve(full, state, loss=options.loss, scale_px=options.loss_scale_px,
                                 max_iterations=options.max_iterations)
-        inliers = _reject_outliers(full, state, options)
+        inliers = reject_outliers(full, state, options)
         full = replace(full, distance_sigma_px=pixel_sigma(full.subset(inliers), state))
         problem = full.subset(inliers)
     return full, problem, state, inliers, decisions
@@ -320,7 +309,7 @@ def _adjust_inliers(full: Problem, problem: Problem, state: State, inliers, gues
 
     state, info, wider = adjust(problem, state)
     for _ in range(3):
-        new_inliers = _reject_outliers(full, state, options)
+        new_inliers = reject_outliers(full, state, options)
         if np.array_equal(new_inliers, inliers):
             break
         inliers = new_inliers
@@ -349,78 +338,6 @@ def _reset_indices(obs: Observations, order: list[int], reset_cameras: Collectio
     if unknown:
         raise SolveError(f"reset_cameras: unknown camera(s) {unknown}; the observations have {ids}")
     return {ids.index(c) for c in reset_cameras}
-
-
-def _robust_passes(full: Problem, state: State, options: Options, *, cold: bool, held_K, held_dist,
-                   hold_pair: bool) -> State:
-    """The robust adjustment of every parameter that moves, from a rough start.
-
-    hold_pair: the stereo pair held as the ideal pair in the first pass. Of the
-    known distances only the stereo pair's: the start knows no other, and held
-    to one far from it a network tears; they enter the least squares that follows.
-    """
-    full = replace(full, distances=full.distances.between(0, 1))
-    robust = dict(loss=options.loss, scale_px=options.loss_scale_px, max_iterations=options.max_iterations)
-    if cold and options.method != "unconstrained":
-        # Continuation: a first pass moves focal lengths and the poses outside the
-        # stereo pair only; freeing
-        # principal points or distortion far from the solution lets the adjustment
-        # settle in a wrong valley.
-        M = full.n_cameras
-        pair = (np.arange(M) == 1) & hold_pair
-        first = replace(
-            full,
-            intr_free=full.intr_free & free_mask(M, frozenset({"f"}), held_K, held_dist),
-            rot_free=full.rot_free & ~pair[:, None],
-            centre_mode=np.where(pair, CentreMode.FIXED, full.centre_mode),
-        )
-        state, _ = bundle.solve(first, state, **robust)
-    if cold and options.free == "auto" and options.method == "refined":
-        # Outliers are judged with the stereo pair free to turn: a pair that is not quite
-        # parallel, or principal points off centre, must not cost it its observations.
-        full = replace(full, rot_free=full.rot_free | (np.arange(full.n_cameras) == 1)[:, None])
-    state, _ = bundle.solve(full, state, **robust)
-    return state
-
-
-def _fit_points(full: Problem, state: State, which: np.ndarray, options: Options) -> State:
-    """Robust fit of the points marked in `which` (N,) with every camera held."""
-    rows = which[full.pt]
-    if not rows.any():
-        return state
-    # Only these points and their observations: with the cameras held, the rest take no part.
-    points = np.flatnonzero(which)
-    points_only = replace(
-        full.subset(rows),
-        pt=np.searchsorted(points, full.pt[rows]),
-        n_points=len(points),
-        intr_free=np.zeros_like(full.intr_free),
-        rot_free=np.zeros_like(full.rot_free),
-        centre_mode=np.full_like(full.centre_mode, CentreMode.FIXED),
-    )
-    # A start for the joint adjustment, which refines these points again: loose tolerance.
-    fitted, _ = bundle.solve(
-        points_only,
-        replace(state, X=state.X[points]),
-        loss=options.loss,
-        scale_px=options.loss_scale_px,
-        max_iterations=options.max_iterations,
-        ftol=1e-6,
-    )
-    X = state.X.copy()
-    X[points] = fitted.X
-    return replace(state, X=X)
-
-
-def _near_solution(problem: Problem, state: State, options: Options) -> bool:
-    """Whether every camera's median residual is within the outlier threshold (no camera moved)."""
-    r = np.linalg.norm(bundle.residuals(problem, state), axis=1)
-    threshold = max(options.outlier_sigmas * np.median(r) / MEDIAN_RESIDUAL_PER_SIGMA, options.min_outlier_px)
-    for m in range(problem.n_cameras):
-        mine = r[problem.cam == m]
-        if len(mine) and np.median(mine) > threshold:
-            return False
-    return True
 
 
 def _paper_result(obs, order, intr, rows, start: Start, timings) -> Result:
