@@ -200,16 +200,6 @@ def residuals(problem: Problem, state: State) -> np.ndarray:
     return uv - problem.uv
 
 
-def _cost(problem: Problem, state: State, loss: str, scale_px: float) -> float:
-    r = residuals(problem, state)
-    z = (r[:, 0] * r[:, 0] + r[:, 1] * r[:, 1]) / scale_px**2
-    rho, _ = robust_loss(z, loss)
-    if not np.all(np.isfinite(rho)):
-        return np.inf
-    distance_px = problem.distances.weights_px_per_m(problem.distance_sigma_px) * problem.distances.errors_m(state.C)
-    return 0.5 * scale_px**2 * float(np.sum(rho)) + 0.5 * float(distance_px @ distance_px)
-
-
 def _centre_derivative(problem: Problem, state: State, m: int) -> np.ndarray:
     """(3, 3): how camera m's centre moves with its three centre slots (zero where held)."""
     mode = problem.centre_mode[m]
@@ -396,12 +386,13 @@ def solve(
                 break
             continue
         trial = apply_step(problem, state, *step)
-        trial_cost = _cost(problem, trial, loss, scale_px)
-        decrease = ne.cost - trial_cost
+        # The normal equations at the trial carry its cost: nearly every step is taken, and
+        # then they are needed, so building them first saves evaluating the cost apart.
+        trial_ne, trial_wide = equations(trial)
+        decrease = ne.cost - trial_ne.cost
         if decrease > 0:
             gain = decrease / max(predicted_decrease(ne, step_lam, *step), 1e-300)
-            state = trial
-            ne, wide = equations(state)
+            state, ne, wide = trial, trial_ne, trial_wide
             lam, nu = max(lam * max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3), 1e-12), 2.0
             gauss_newton_step, small = _gauss_newton_test(ne, ftol, decrease=decrease, lam=lam)
             if small:

@@ -68,9 +68,13 @@ def structure_warnings(camera_ids: list[str], cam: np.ndarray, uv: np.ndarray, r
     rms = np.array([np.sqrt(np.mean(np.sum(residuals[mine] ** 2, axis=1))) if len(mine) else np.nan for mine in rows])
     # Outlier rejection clips a bad camera's residuals: what it rejected shows it as well.
     rejected = 1.0 - np.bincount(cam, minlength=M) / np.maximum(observed, 1)
+    others = ~np.eye(M, dtype=bool)  # row m: every camera but m
+    with np.errstate(all="ignore"):  # a lone camera has no others: NaN, no warning
+        typicals = np.nanmedian(np.where(others, rms[None, :], np.nan), axis=1) if M > 1 else np.full(M, np.nan)
+        typicals_rejected = np.median(rejected[None, :].repeat(M, axis=0)[others].reshape(M, M - 1), axis=1)
     warnings = []
     for m, cam_id in enumerate(camera_ids):
-        typical, typical_rejected = np.nanmedian(np.delete(rms, m)), np.median(np.delete(rejected, m))
+        typical, typical_rejected = typicals[m], typicals_rejected[m]
         high = rms[m] > OUTLIER_CAMERA_RATIO * typical and rms[m] > typical + OUTLIER_CAMERA_EXCESS_PX
         if high or rejected[m] > OUTLIER_CAMERA_RATIO * typical_rejected + OUTLIER_CAMERA_REJECTED:
             warnings.append(

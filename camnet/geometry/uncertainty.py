@@ -18,7 +18,7 @@ import scipy.linalg
 
 from camnet.geometry.bundle import Problem, State, distance_rows, normal_equations, residuals
 from camnet.geometry.projection import N_INTRINSICS
-from camnet.geometry.schur import NormalEquations, times_block_diag
+from camnet.geometry.schur import NormalEquations, inverse_cholesky_3x3, times_block_diag
 
 # A point block whose smallest eigenvalue is below this fraction of its largest leaves
 # the point undetermined along that direction (in metres, so the ratio has meaning).
@@ -92,8 +92,7 @@ class Covariance:
         SWV = (self.S_inv @ WV).reshape(-1, N, 3)
         # extra[n] = WV_n^T S_inv WV_n, one 3x3 per point: a batched matmul (plain einsum takes 6x as long).
         extra = WV.reshape(-1, N, 3).transpose(1, 2, 0) @ SWV.transpose(1, 0, 2)
-        eig = np.linalg.eigvalsh(self.V)
-        determined = eig[:, 0] > POINT_RCOND * np.maximum(eig[:, -1], 1e-300)
+        determined = points_determined(self.V)
         cov = self.sigma_px**2 * (self.V_inv + extra)
         cov[~determined] = np.inf
         if self.null is not None and self.null.shape[1]:  # points a free camera direction moves
@@ -120,12 +119,49 @@ def covariance(
     # (no parallax), carries no information in some directions: the pseudo-inverse
     # gives it no weight in the cameras' equations, and `point_sigmas_m` an
     # infinite error.
-    V_inv = np.linalg.pinv(ne.V, rcond=POINT_RCOND, hermitian=True)
+    V_inv = point_inverses(ne.V)
     S = ne.U - times_block_diag(ne.W, V_inv) @ ne.W.T
     S_inv, null, unit = inverse_spd(S)
     if sigma_px is None:
         sigma_px = float(np.sqrt(2.0 * ne.cost / max(residual_dof(problem), 1)))
     return Covariance(sigma_px, S_inv, ne.W, V_inv, ne.V, problem.columns()[0], null, unit, S)
+
+
+def point_inverses(V: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) pseudo-inverses of the point blocks V (N, 3, 3), cut off at POINT_RCOND.
+
+    In closed form (``L^-T L^-1`` of the Cholesky factors) where a block is
+    well conditioned: a LAPACK call per 3x3 block costs more than the
+    arithmetic. The others (a point seen along one ray) take the pseudo-inverse.
+    """
+    V_inv, well = _closed_form_inverses(V)
+    if not well.all():
+        V_inv[~well] = np.linalg.pinv(V[~well], rcond=POINT_RCOND, hermitian=True)
+    return V_inv
+
+
+def points_determined(V: np.ndarray) -> np.ndarray:
+    """(N,) whether each point block V (N, 3, 3) fixes its point in every direction (no eigenvalue
+    under POINT_RCOND of the largest)."""
+    _, determined = _closed_form_inverses(V)
+    if not determined.all():
+        eig = np.linalg.eigvalsh(V[~determined])
+        determined[~determined] = eig[:, 0] > POINT_RCOND * np.maximum(eig[:, -1], 1e-300)
+    return determined
+
+
+def _closed_form_inverses(V: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(inverses (N, 3, 3), well (N,)): V^-1 from its Cholesky factors, and where it is well conditioned.
+
+    ``|V|_F |V^-1|_F`` bounds the condition number from above: a block under
+    a tenth of 1 / POINT_RCOND has no eigenvalue under the cut-off, so its
+    pseudo-inverse is its inverse. NaN (no Cholesky factor) is not well.
+    """
+    L_inv = inverse_cholesky_3x3(V)
+    with np.errstate(invalid="ignore", over="ignore"):
+        V_inv = L_inv.transpose(0, 2, 1) @ L_inv
+        bound = np.linalg.norm(V, axis=(1, 2)) * np.linalg.norm(V_inv, axis=(1, 2))
+    return V_inv, bound < 0.1 / POINT_RCOND
 
 
 def distance_checks(
