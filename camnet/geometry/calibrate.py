@@ -58,8 +58,8 @@ from camnet.geometry.initialise import (
 )
 from camnet.geometry.model import Calibration, Camera, Loss, Method, Observations, StartKind
 from camnet.geometry.projection import INTRINSIC_NAMES, N_INTRINSICS, K_from_intrinsics, project_points
-from camnet.geometry.robust_passes import fit_points, near_solution, reject_outliers, robust_passes
-from camnet.geometry.uncertainty import Covariance, covariance_with_pp_prior, pixel_sigma, with_guessed_pp
+from camnet.geometry.robust_passes import fit_points, inliers_and_sigma, near_solution, reject_outliers, robust_passes
+from camnet.geometry.uncertainty import Covariance, covariance_with_pp_prior, with_guessed_pp
 
 log = logging.getLogger(__name__)
 
@@ -202,13 +202,15 @@ def _calibrate(
     if initial is not None:
         new_points = ~np.isin(obs.track_ids[track_rows], initial.point_ids)
         state = fit_points(full, state, new_points, options)
-        near = near_solution(full, state, options)
+        r = bundle.residuals(full, state)
+        near = near_solution(full, r, options)
         start_kind = StartKind.WARM if near else StartKind.WARM_ROBUST
     if not near:
         state = robust_passes(full, state, options, cold=initial is None, held_K=held_K, held_dist=held_dist,
                                hold_pair=start.parallel)
-    inliers = reject_outliers(full, state, options)
-    full = replace(full, distance_sigma_px=pixel_sigma(full.subset(inliers), state))  # the distances' weight
+        r = None
+    inliers, sigma_px = inliers_and_sigma(full, state, options, residuals=r)
+    full = replace(full, distance_sigma_px=sigma_px)  # the distances' weight
     problem = full.subset(inliers)
     timings["robust_adjustment"] = time.perf_counter() - t1
 
@@ -290,8 +292,8 @@ def _apply_free_rule(obs, order, full: Problem, problem: Problem, state: State, 
         # the centre lay off it. Judged again, after a robust solve, with it free.
         state, _ = bundle.solve(full, state, loss=options.loss, scale_px=options.loss_scale_px,
                                 max_iterations=options.max_iterations)
-        inliers = reject_outliers(full, state, options)
-        full = replace(full, distance_sigma_px=pixel_sigma(full.subset(inliers), state))
+        inliers, sigma_px = inliers_and_sigma(full, state, options)
+        full = replace(full, distance_sigma_px=sigma_px)
         problem = full.subset(inliers)
     return full, problem, state, inliers, decisions
 

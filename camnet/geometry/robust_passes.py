@@ -15,6 +15,7 @@ import numpy as np
 from camnet.geometry import bundle
 from camnet.geometry.bundle import CentreMode, Problem, State
 from camnet.geometry.free_rule import free_mask
+from camnet.geometry.uncertainty import pixel_sigma
 
 if TYPE_CHECKING:
     from camnet.geometry.calibrate import Options
@@ -24,13 +25,26 @@ if TYPE_CHECKING:
 MEDIAN_RESIDUAL_PER_SIGMA = 1.1774
 
 
-def reject_outliers(problem: Problem, state: State, options: Options) -> np.ndarray:
-    """Observations to keep: residual within outlier_sigmas robust sigmas, tracks with >= 2 views."""
-    r = np.linalg.norm(bundle.residuals(problem, state), axis=1)
+def reject_outliers(problem: Problem, state: State, options: Options, *, residuals: np.ndarray | None = None
+                    ) -> np.ndarray:
+    """Observations to keep: residual within outlier_sigmas robust sigmas, tracks with >= 2 views.
+
+    residuals (n, 2): `bundle.residuals` at `state`, pixels, where the caller has them.
+    """
+    r = np.linalg.norm(bundle.residuals(problem, state) if residuals is None else residuals, axis=1)
     sigma = np.median(r) / MEDIAN_RESIDUAL_PER_SIGMA
     keep = r <= max(options.outlier_sigmas * sigma, options.min_outlier_px)
     views = np.bincount(problem.pt[keep], minlength=problem.n_points)
     return keep & (views[problem.pt] >= 2)
+
+
+def inliers_and_sigma(full: Problem, state: State, options: Options, *, residuals: np.ndarray | None = None
+                      ) -> tuple[np.ndarray, float]:
+    """(inliers (n,), pixel sigma): `reject_outliers`, and the a-posteriori pixel sigma of the inliers
+    (`uncertainty.pixel_sigma`) from the same residuals."""
+    r = bundle.residuals(full, state) if residuals is None else residuals
+    inliers = reject_outliers(full, state, options, residuals=r)
+    return inliers, pixel_sigma(full.subset(inliers), state, residuals=r[inliers])
 
 
 def robust_passes(full: Problem, state: State, options: Options, *, cold: bool, held_K, held_dist,
@@ -43,6 +57,10 @@ def robust_passes(full: Problem, state: State, options: Options, *, cold: bool, 
     """
     full = replace(full, distances=full.distances.between(0, 1))
     robust = dict(loss=options.loss, scale_px=options.loss_scale_px, max_iterations=options.max_iterations)
+    if cold and options.free == "auto" and options.method == "refined":
+        # Outliers are judged with the stereo pair free to turn: a pair that is not quite
+        # parallel, or principal points off centre, must not cost it its observations.
+        full = replace(full, rot_free=full.rot_free | (np.arange(full.n_cameras) == 1)[:, None])
     if cold and options.method != "unconstrained":
         # Continuation: a first pass moves focal lengths and the poses outside the
         # stereo pair only; freeing
@@ -56,13 +74,17 @@ def robust_passes(full: Problem, state: State, options: Options, *, cold: bool, 
             rot_free=full.rot_free & ~pair[:, None],
             centre_mode=np.where(pair, CentreMode.FIXED, full.centre_mode),
         )
-        state, _ = bundle.solve(first, state, **robust)
-    if cold and options.free == "auto" and options.method == "refined":
-        # Outliers are judged with the stereo pair free to turn: a pair that is not quite
-        # parallel, or principal points off centre, must not cost it its observations.
-        full = replace(full, rot_free=full.rot_free | (np.arange(full.n_cameras) == 1)[:, None])
+        state, info = bundle.solve(first, state, **robust)
+        if info.converged and _same_free(first, full):  # the second pass would repeat the first
+            return state
     state, _ = bundle.solve(full, state, **robust)
     return state
+
+
+def _same_free(a: Problem, b: Problem) -> bool:
+    """Whether two problems move the same parameters."""
+    return (np.array_equal(a.intr_free, b.intr_free) and np.array_equal(a.rot_free, b.rot_free)
+            and np.array_equal(a.centre_mode, b.centre_mode))
 
 
 def fit_points(full: Problem, state: State, which: np.ndarray, options: Options) -> State:
@@ -94,9 +116,12 @@ def fit_points(full: Problem, state: State, which: np.ndarray, options: Options)
     return replace(state, X=X)
 
 
-def near_solution(problem: Problem, state: State, options: Options) -> bool:
-    """Whether every camera's median residual is within the outlier threshold (no camera moved)."""
-    r = np.linalg.norm(bundle.residuals(problem, state), axis=1)
+def near_solution(problem: Problem, residuals: np.ndarray, options: Options) -> bool:
+    """Whether every camera's median residual is within the outlier threshold (no camera moved).
+
+    residuals (n, 2): `bundle.residuals` of `problem`, pixels.
+    """
+    r = np.linalg.norm(residuals, axis=1)
     threshold = max(options.outlier_sigmas * np.median(r) / MEDIAN_RESIDUAL_PER_SIGMA, options.min_outlier_px)
     for m in range(problem.n_cameras):
         mine = r[problem.cam == m]

@@ -16,7 +16,8 @@ from functools import cached_property
 import numpy as np
 import scipy.linalg
 
-from camnet.geometry.bundle import Problem, State, distance_rows, normal_equations, residuals
+from camnet.geometry.bundle import Problem, State, distance_rows, normal_equations
+from camnet.geometry.bundle import residuals as reprojection_residuals
 from camnet.geometry.projection import N_INTRINSICS
 from camnet.geometry.schur import NormalEquations, inverse_cholesky_3x3, times_block_diag
 
@@ -211,9 +212,12 @@ def residual_dof(problem: Problem) -> int:
     return int(n_rows - problem.columns()[1] - np.minimum(3, 2 * views).sum())
 
 
-def pixel_sigma(problem: Problem, state: State) -> float:
-    """The a-posteriori pixel noise sigma of the (least-squares) reprojection residuals at `state`."""
-    r = residuals(problem, state)
+def pixel_sigma(problem: Problem, state: State, *, residuals: np.ndarray | None = None) -> float:
+    """The a-posteriori pixel noise sigma of the (least-squares) reprojection residuals at `state`.
+
+    residuals (n, 2): `bundle.residuals` of `problem` at `state`, pixels, where the caller has them.
+    """
+    r = reprojection_residuals(problem, state) if residuals is None else residuals
     return float(np.sqrt(np.sum(r * r) / max(residual_dof(problem) - len(problem.distances), 1)))
 
 
