@@ -20,33 +20,51 @@ OUTLIER_CAMERA_REJECTED = 0.15  # as does a camera that lost this much more of i
 MIN_OBSERVATIONS = 12
 
 
-def radial_pattern_px(uv: np.ndarray, residuals: np.ndarray, principal_point: np.ndarray, f_px: float,
-                      sigma_px: float) -> float:
-    """Size (px, at the outermost observation) of a radial pattern in one camera's residuals; 0 if none.
+def radial_patterns_px(cam: np.ndarray, uv: np.ndarray, residuals: np.ndarray, intr: np.ndarray,
+                       sigma_px: float) -> np.ndarray:
+    """(M,) size (px, at the outermost observation) of a radial pattern in each camera's residuals; 0 if none.
 
-    The residuals' radial component is fitted with ``a rho + b rho^3 + c rho^5``
+    cam (n,), uv (n, 2), residuals (n, 2): observations by camera index;
+    intr (M, 9): the intrinsics (camnet.geometry.projection). Per camera, the
+    residuals' radial component is fitted with ``a rho + b rho^3 + c rho^5``
     (rho the normalised radius): the linear term is what a focal length
     absorbs, the others the shape of radial distortion. The pattern counts
     when the higher terms lower the sum of squares beyond chance (chi-square,
-    2 dof, at `RADIAL_SIGNIFICANCE`, noise `sigma_px` per axis).
+    2 dof, at `RADIAL_SIGNIFICANCE`, noise `sigma_px` per axis). Every camera
+    at once: per-camera fits of a dozen numpy calls each cost more than the sums.
     """
     from scipy.special import chdtri
 
-    p = uv - principal_point
+    M = len(intr)
+    p = uv - intr[cam, 2:4]
     radius = np.linalg.norm(p, axis=1)
     ok = radius > 1.0
-    if ok.sum() < MIN_OBSERVATIONS or sigma_px <= 0:
-        return 0.0
+    c = cam[ok]
+    enough = (np.bincount(c, minlength=M) >= MIN_OBSERVATIONS) & (sigma_px > 0)
+    if not enough.any():
+        return np.zeros(M)
     e = np.einsum("ni,ni->n", residuals[ok], p[ok]) / radius[ok]
-    rho = radius[ok] / f_px
-    A = np.column_stack([rho, rho**3, rho**5])
-    linear = np.sum((e - rho * (rho @ e) / (rho @ rho)) ** 2)
-    coef, *_ = np.linalg.lstsq(A, e, rcond=None)
-    full = np.sum((e - A @ coef) ** 2)
-    if (linear - full) / sigma_px**2 < chdtri(2, RADIAL_SIGNIFICANCE):
-        return 0.0
-    edge = rho.max()
-    return float(abs(coef[1] * edge**3 + coef[2] * edge**5))
+    rho = radius[ok] / intr[c, 0]
+    A = np.stack([rho, rho**3, rho**5], axis=1)
+
+    def per_camera(w: np.ndarray) -> np.ndarray:
+        return np.bincount(c, weights=w, minlength=M)
+
+    k = per_camera(rho * e) / np.maximum(per_camera(rho * rho), 1e-300)  # the linear term alone
+    linear = per_camera((e - rho * k[c]) ** 2)
+    AtA = np.stack([np.stack([per_camera(A[:, i] * A[:, j]) for j in range(3)], axis=1) for i in range(3)], axis=1)
+    Ate = np.stack([per_camera(A[:, i] * e) for i in range(3)], axis=1)
+    AtA[~enough] = np.eye(3)  # cameras with too few observations: any solvable system, their result is dropped
+    try:
+        coef = np.linalg.solve(AtA, Ate[:, :, None])[:, :, 0]
+    except np.linalg.LinAlgError:  # a camera whose radii do not fix three terms: the least-squares solution
+        coef = np.stack([np.linalg.lstsq(A[c == m], e[c == m], rcond=None)[0] if enough[m] else np.zeros(3)
+                         for m in range(M)])
+    full = per_camera((e - np.einsum("ni,ni->n", A, coef[c])) ** 2)
+    significant = enough & ((linear - full) / max(sigma_px, 1e-300) ** 2 >= chdtri(2, RADIAL_SIGNIFICANCE))
+    edge = np.zeros(M)
+    np.maximum.at(edge, c, rho)
+    return np.where(significant, np.abs(coef[:, 1] * edge**3 + coef[:, 2] * edge**5), 0.0)
 
 
 def structure_warnings(camera_ids: list[str], cam: np.ndarray, uv: np.ndarray, residuals: np.ndarray,
@@ -62,12 +80,13 @@ def structure_warnings(camera_ids: list[str], cam: np.ndarray, uv: np.ndarray, r
         return []
     sigma = float(np.sqrt(np.mean(residuals**2)))  # per axis
     M = len(camera_ids)
-    by_camera = np.argsort(cam, kind="stable")  # camera m's rows, in order: by_camera[bounds[m]:bounds[m + 1]]
-    bounds = np.searchsorted(cam[by_camera], np.arange(M + 1))
-    rows = [by_camera[bounds[m] : bounds[m + 1]] for m in range(M)]
-    rms = np.array([np.sqrt(np.mean(np.sum(residuals[mine] ** 2, axis=1))) if len(mine) else np.nan for mine in rows])
+    counts = np.bincount(cam, minlength=M)
+    with np.errstate(invalid="ignore", divide="ignore"):  # NaN: a camera without inliers
+        rms = np.sqrt(np.bincount(cam, weights=np.sum(residuals**2, axis=1), minlength=M) / counts)
+    rms[counts == 0] = np.nan
+    radial = radial_patterns_px(cam, uv, residuals, intr, sigma)
     # Outlier rejection clips a bad camera's residuals: what it rejected shows it as well.
-    rejected = 1.0 - np.bincount(cam, minlength=M) / np.maximum(observed, 1)
+    rejected = 1.0 - counts / np.maximum(observed, 1)
     others = ~np.eye(M, dtype=bool)  # row m: every camera but m
     with np.errstate(all="ignore"):  # a lone camera has no others: NaN, no warning
         typicals = np.nanmedian(np.where(others, rms[None, :], np.nan), axis=1) if M > 1 else np.full(M, np.nan)
@@ -84,8 +103,7 @@ def structure_warnings(camera_ids: list[str], cam: np.ndarray, uv: np.ndarray, r
             )
         if distortion_free[m]:
             continue
-        mine = rows[m]
-        edge_px = radial_pattern_px(uv[mine], residuals[mine], intr[m, 2:4], intr[m, 0], sigma)
+        edge_px = radial[m]
         if edge_px > RADIAL_MIN_PX:
             warnings.append(
                 f"camera {cam_id}: its residuals grow with the distance from the image centre "
