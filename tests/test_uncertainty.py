@@ -11,7 +11,16 @@ from camnet.geometry.calibrate import Options, calibrate
 from camnet.geometry.diagnostics import reported_points
 from camnet.geometry.evaluate import compare
 from camnet.geometry.model import PointsLeftOut
-from camnet.geometry.uncertainty import covariance, inverse_spd, residual_dof, scale_sigma, scale_weights
+from camnet.geometry.uncertainty import (
+    POINT_RCOND,
+    covariance,
+    inverse_spd,
+    point_inverses,
+    points_determined,
+    residual_dof,
+    scale_sigma,
+    scale_weights,
+)
 from camnet.sim.simulate import make_rig, observe
 
 
@@ -186,3 +195,24 @@ def test_a_free_scale_is_reported_undetermined_and_the_rest_keeps_its_sigmas():
     sd = np.sqrt(np.diag(free_scale.cameras))[cols[:, 0]]
     assert np.all(sd > 0) and np.all(sd < 10 * np.sqrt(np.diag(held.cameras))[held.columns[:, 0]])
     assert np.isinf(scale_sigma(free_scale, result.state.X)) and np.isfinite(scale_sigma(held, result.state.X))
+
+
+def test_point_blocks_invert_in_closed_form_as_the_pseudo_inverse_does():
+    # Point blocks as a solve meets them: well seen, seen along nearly one ray (ill conditioned
+    # but determined), along one ray exactly (rank 1 or 2), and not at all.
+    rng = np.random.default_rng(3)
+    A = rng.normal(size=(300, 3, 4))
+    V = A @ A.transpose(0, 2, 1)
+    ray = rng.normal(size=(300, 3))
+    V[100:150] = 1e4 * ray[100:150, :, None] * ray[100:150, None, :] + 1e-6 * np.eye(3)  # 1e10 conditioned
+    V[150:200] = 1e4 * ray[150:200, :, None] * ray[150:200, None, :]  # rank 1
+    side = rng.normal(size=(50, 3))
+    V[200:250] = V[150:200] + side[:, :, None] * side[:, None, :]  # rank 2
+    V[250:260] = 0.0
+    reference = np.linalg.pinv(V, rcond=POINT_RCOND, hermitian=True)
+    scale = np.maximum(np.abs(reference).max(axis=(1, 2), keepdims=True), 1e-300)
+    np.testing.assert_allclose(point_inverses(V) / scale, reference / scale, rtol=0, atol=1e-5)
+    eig = np.linalg.eigvalsh(V)
+    full_rank = eig[:, 0] > POINT_RCOND * np.maximum(eig[:, -1], 1e-300)
+    np.testing.assert_array_equal(points_determined(V), full_rank)
+    assert full_rank[:150].all() and full_rank[260:].all() and not full_rank[150:260].any()
