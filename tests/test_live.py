@@ -185,3 +185,25 @@ def test_a_camera_that_keeps_few_of_its_observations_is_not_trusted():
     out = Tracker(LiveConfig()).update(replace(obs, uv=uv))
     assert out.status == "rejected" and f"cameras ['{obs.cameras[3].id}'] keep too few" in out.reason, out.reason
     assert Tracker(LiveConfig(min_inlier_share=0.2)).update(replace(obs, uv=uv)).status == "good"
+
+
+def test_a_camera_that_shares_nothing_yet_is_named_and_the_others_are_published():
+    # A fifth camera whose tracks have not arrived (pointing away, or not yet matched): the calibration of
+    # the four others is kept, the fifth named with the reason; once it shares tracks it is placed warm.
+    # Before, every such solve was refused ("cameras ['mono_04'] not calibrated") and nothing was published.
+    rig = make_rig(n_cameras=5, n_points=300, seed=1)
+    full = observe(rig, seed=1).observations
+    away = full.camera_ids[4]
+    blind = drop_before(full, {away: int(full.track_ids.max()) + 1})
+    assert away in blind.camera_ids and not np.any(blind.cam_index == 4)
+    tracker = Tracker(LiveConfig())
+    out = tracker.update(blind)
+    assert out.status == "good", out.reason
+    cal = out.calibration
+    assert {c.id for c in cal.cameras} == set(full.camera_ids) - {away}
+    assert set(cal.report.cameras_left_out) == {away} and any(away in w for w in cal.warnings)
+    again = tracker.update(pooled(blind, observe(replace(rig, points=rig.points[:30] + 0.002), seed=2).observations))
+    assert again.status == "good" and again.warm, again.reason
+    seen = tracker.update(pooled(blind, observe(replace(rig, points=rig.points[:200] + 0.003), seed=3).observations))
+    assert seen.status == "good" and seen.warm, seen.reason
+    assert away in {c.id for c in seen.calibration.cameras} and not seen.calibration.report.cameras_left_out

@@ -49,7 +49,9 @@ class LiveConfig:
     length it estimated lies within `two_view.FOCAL_RANGE_REL` image widths
     (10-170 degrees across), every camera but the stereo pair keeps at least
     `min_inlier_share` of its observations as inliers and it holds every
-    camera of the observations.
+    camera of the observations that its report does not name as left out
+    (with the reason): a partial calibration is published, its missing
+    cameras named.
     """
 
     options: Options = Options(free=LIVE_FREE)
@@ -111,10 +113,11 @@ def judge(cal: Calibration, obs: Observations, config: LiveConfig) -> str:
         kept = ", ".join(f"{c} {100 * s:.0f}%" for c, s in few.items())
         return (f"cameras {sorted(few)} keep too few of their observations as inliers ({kept}, less than "
                 f"{100 * config.min_inlier_share:.0f}%): placed wrong, or their tracks are")
-    missing = set(obs.camera_ids) - {c.id for c in cal.cameras}
-    if missing:
-        why = "; ".join(f"{c}: {r}" for c, r in cal.report.cameras_left_out.items() if c in missing)
-        return f"cameras {sorted(missing)} not calibrated" + (f" ({why})" if why else "")
+    # A camera the solve could not place (it shares too little yet, or no pose agrees) is named with its
+    # reason in the report and the calibration of the others stands; one missing without a reason does not.
+    unexplained = set(obs.camera_ids) - {c.id for c in cal.cameras} - set(cal.report.cameras_left_out)
+    if unexplained:
+        return f"cameras {sorted(unexplained)} not calibrated, and the solve does not say why"
     return ""
 
 
