@@ -1,14 +1,15 @@
 """The calibrator's state machine on simulated observations: warm re-solves,
 moved cameras, and solves that must not replace a good calibration."""
 
+import re
 from dataclasses import replace
 
 import numpy as np
 import pytest
 
-from camnet.geometry.change import drop_before, new_track_errors
+from camnet.geometry.change import drop_before, new_track_errors, without_cameras
 from camnet.geometry.live import LiveConfig, Tracker, judge
-from camnet.geometry.model import Camera, Observations
+from camnet.geometry.model import Baseline, Camera, Observations
 from camnet.geometry.projection import rotation_exp
 from camnet.sim.simulate import make_rig, observe
 
@@ -92,6 +93,13 @@ def test_drop_before_removes_old_observations_of_one_camera():
     assert out.track_ids[out.track_index[out.cam_index == mono]].min() >= 20
     assert len(out.uv) == len(obs.uv) - np.sum((obs.cam_index == mono) & (obs.track_ids[obs.track_index] < 20))
     np.testing.assert_array_equal(np.bincount(out.track_index) >= 2, True)
+    # Known distances beyond the stereo pair's stay (they were lost), and go with a camera left out.
+    taped = replace(obs, baselines=(Baseline("mono_a", "mono_b", 0.725, 0.002),))
+    assert drop_before(taped, {"mono_a": 20}).baselines == taped.baselines
+    less = without_cameras(taped, ["mono_a"])
+    assert less.camera_ids == ["left", "right", "mono_b"] and less.baselines == ()
+    assert len(less.uv) == np.sum(obs.cam_index != obs.index_of("mono_a"))  # the pair sees every track here
+    np.testing.assert_array_equal(less.uv, obs.uv[obs.cam_index != obs.index_of("mono_a")])
 
 
 @pytest.mark.parametrize("broken", ["too_few_tracks", "noise"])
@@ -182,9 +190,22 @@ def test_a_camera_that_keeps_few_of_its_observations_is_not_trusted():
     false = np.random.default_rng(0).permutation(mine)[: int(0.7 * len(mine))]
     uv = obs.uv.copy()
     uv[false] = np.random.default_rng(1).uniform(0, obs.cameras[3].height, (len(false), 2))
+    # It is left out, named with the share it kept, and the others are calibrated without it. Before, the
+    # whole solve was refused and nothing was published.
     out = Tracker(LiveConfig()).update(replace(obs, uv=uv))
-    assert out.status == "rejected" and f"cameras ['{obs.cameras[3].id}'] keep too few" in out.reason, out.reason
-    assert Tracker(LiveConfig(min_inlier_share=0.2)).update(replace(obs, uv=uv)).status == "good"
+    assert out.status == "good", out.reason
+    mine = obs.cameras[3].id
+    assert {c.id for c in out.calibration.cameras} == set(obs.camera_ids) - {mine}
+    why = out.calibration.report.cameras_left_out[mine]
+    assert re.match(r"keeps only [1-4]\d% of its observations", why) and "placed wrong" in why, why
+    assert any(mine in w and "keeps only" in w for w in out.calibration.warnings)
+    assert judge(out.calibration, obs, LiveConfig()) == ""
+    kept = Tracker(LiveConfig(min_inlier_share=0.2)).update(replace(obs, uv=uv))
+    assert kept.status == "good" and mine in {c.id for c in kept.calibration.cameras}
+    # Where too few cameras would be left, the solve is refused as before.
+    three = without_cameras(replace(obs, uv=uv), [obs.cameras[2].id])
+    out = Tracker(LiveConfig()).update(three)
+    assert out.status == "rejected" and f"cameras ['{mine}'] keep too few" in out.reason, out.reason
 
 
 def test_a_camera_that_shares_nothing_yet_is_named_and_the_others_are_published():

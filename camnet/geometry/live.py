@@ -20,7 +20,8 @@ import numpy as np
 
 from camnet.errors import CamnetError
 from camnet.geometry.calibrate import Options, calibrate
-from camnet.geometry.change import MoveRule, drop_before, moved_cameras, new_track_errors
+from camnet.geometry.change import MoveRule, drop_before, moved_cameras, new_track_errors, without_cameras
+from camnet.geometry.cold_start import MIN_CAMERAS, with_cameras_left_out
 from camnet.geometry.model import Calibration, Camera, Observations
 from camnet.geometry.two_view import FOCAL_RANGE_REL
 
@@ -103,12 +104,7 @@ def judge(cal: Calibration, obs: Observations, config: LiveConfig) -> str:
         # A start gone wrong can converge to such a rig at a low RMS and a small scale sigma.
         return (f"focal lengths outside {FOCAL_RANGE_REL[0]}-{FOCAL_RANGE_REL[1]} image widths: "
                 f"{', '.join(absurd)}")
-    total = np.bincount(obs.cam_index, minlength=len(obs.cameras))
-    stats = cal.report.cameras
-    # The pair is held by its baseline (and, held parallel or to a factory pose, may lose more).
-    others = [c.id for c in cal.cameras if c.id in stats and c.id not in (obs.stereo.left, obs.stereo.right)]
-    share = {c: stats[c].inliers / max(int(total[obs.index_of(c)]), 1) for c in others}
-    few = {c: s for c, s in share.items() if s < config.min_inlier_share}
+    few = misplaced(cal, obs, config)
     if few:
         kept = ", ".join(f"{c} {100 * s:.0f}%" for c, s in few.items())
         return (f"cameras {sorted(few)} keep too few of their observations as inliers ({kept}, less than "
@@ -119,6 +115,17 @@ def judge(cal: Calibration, obs: Observations, config: LiveConfig) -> str:
     if unexplained:
         return f"cameras {sorted(unexplained)} not calibrated, and the solve does not say why"
     return ""
+
+
+def misplaced(cal: Calibration, obs: Observations, config: LiveConfig) -> dict[str, float]:
+    """The cameras but the stereo pair that keep less than `min_inlier_share` of their observations as
+    inliers, with the share kept: placed wrong, or their tracks are."""
+    total = np.bincount(obs.cam_index, minlength=len(obs.cameras))
+    stats = cal.report.cameras if cal.report is not None else {}
+    # The pair is held by its baseline (and, held parallel or to a factory pose, may lose more).
+    others = [c.id for c in cal.cameras if c.id in stats and c.id not in (obs.stereo.left, obs.stereo.right)]
+    share = {c: stats[c].inliers / max(int(total[obs.index_of(c)]), 1) for c in others}
+    return {c: s for c, s in share.items() if s < config.min_inlier_share}
 
 
 @dataclass
@@ -204,22 +211,36 @@ class Tracker:
         initial = self._initial()
         cold = None if self.config.stereo_pose is None else stereo_head(obs, *self.config.stereo_pose)
         attempts = [initial, cold] if initial is not None else [cold]
-        reason = ""
+        status, reason = Status.FAILED, ""
         for start in attempts:
-            try:
-                reset = self._reset if start is not None else ()
-                result = calibrate(obs, self.config.options, initial=start, reset_cameras=reset)
-            except CamnetError as exc:
-                reason, status = f"solve failed: {exc}", Status.FAILED
-                continue
-            if not result.converged:
-                reason, status = f"solve failed: the adjustment did not converge: {result.reason}", Status.FAILED
-                continue
-            reason = judge(result.calibration, obs, self.config)
-            if not reason:
-                return Outcome(Status.GOOD, "", result.calibration, moved, warm=start is not None)
-            status = Status.REJECTED
+            status, reason, cal = self._attempt(obs, start)
+            few = misplaced(cal, obs, self.config) if status == Status.REJECTED else {}
+            if few and len(obs.cameras) - len(few) >= MIN_CAMERAS and "keep too few" in reason:
+                # A camera placed wrong does not hold the others back: solved again without it, it is named.
+                status, reason, cal = self._attempt(without_cameras(obs, few), start, left_out={
+                    c: f"keeps only {100 * s:.0f}% of its observations as inliers (less than "
+                       f"{100 * self.config.min_inlier_share:.0f}%): placed wrong, or its tracks are"
+                    for c, s in few.items()})
+            if status == Status.GOOD:
+                return Outcome(Status.GOOD, "", cal, moved, warm=start is not None)
         return Outcome(status, reason, None, moved, warm=False)
+
+    def _attempt(self, obs: Observations, start: Calibration | None, *,
+                 left_out: dict[str, str] | None = None) -> tuple[Status, str, Calibration | None]:
+        """One solve of `obs` from `start` (None: cold), judged; `left_out`: cameras not in `obs`, and why."""
+        try:
+            reset = self._reset & set(obs.camera_ids) if start is not None else ()
+            result = calibrate(obs, self.config.options, initial=start, reset_cameras=reset)
+        except CamnetError as exc:
+            return Status.FAILED, f"solve failed: {exc}", None
+        if not result.converged:
+            return Status.FAILED, f"solve failed: the adjustment did not converge: {result.reason}", None
+        cal = result.calibration
+        if left_out:
+            report = with_cameras_left_out(cal.report, left_out)
+            cal = replace(cal, report=replace(report, cameras_left_out={**cal.report.cameras_left_out, **left_out}))
+        reason = judge(cal, obs, self.config)
+        return (Status.REJECTED, reason, cal) if reason else (Status.GOOD, "", cal)
 
 
 def stereo_head(obs: Observations, R: np.ndarray, t: np.ndarray) -> Calibration | None:
