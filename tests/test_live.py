@@ -9,7 +9,7 @@ import pytest
 
 from camnet.geometry.change import drop_before, new_track_errors, without_cameras
 from camnet.geometry.live import LiveConfig, Tracker, judge
-from camnet.geometry.model import Baseline, Camera, Observations
+from camnet.geometry.model import Baseline, Camera, Observations, StartKind
 from camnet.geometry.projection import rotation_exp
 from camnet.sim.simulate import make_rig, observe
 
@@ -228,3 +228,27 @@ def test_a_camera_that_shares_nothing_yet_is_named_and_the_others_are_published(
     seen = tracker.update(pooled(blind, observe(replace(rig, points=rig.points[:200] + 0.003), seed=3).observations))
     assert seen.status == "good" and seen.warm, seen.reason
     assert away in {c.id for c in seen.calibration.cameras} and not seen.calibration.report.cameras_left_out
+
+
+
+def test_a_long_pools_cold_solve_starts_on_its_newest_tracks():
+    # A restarted calibrator with no state meets a long pool. On config/surround.yaml's rendered pools
+    # (benchmarks/bench_cold_pool.py) the older tracks were the falsest (multi-view tracks of the older half
+    # 37-42% false, of the newer 5-9%), and a 16-frame-set pool solved cold as a whole was refused (ring3,
+    # then ring5 placed wrong); its newest 2500 tracks solved cold, and the whole pool warm from there,
+    # placed every camera. Here the older tracks have 70% of their mono observations false.
+    rig = make_rig(n_points=300, seed=21)
+    old = observe(rig, seed=21).observations
+    uv = old.uv.copy()
+    mono = np.flatnonzero(old.cam_index >= 2)
+    false = np.random.default_rng(2).permutation(mono)[: int(0.7 * len(mono))]
+    uv[false] = np.random.default_rng(3).uniform(0, old.cameras[2].height, (len(false), 2))
+    pool = pooled(replace(old, uv=uv), observe(replace(rig, points=rig.points + 0.004), seed=22).observations)
+    out = Tracker(LiveConfig(cold_start_tracks=300)).update(pool)
+    assert out.status == "good" and not out.warm, out.reason
+    assert {c.id for c in out.calibration.cameras} == set(pool.camera_ids)
+    # The whole pool, solved from the newest tracks' calibration (a cold start says "cold").
+    assert out.calibration.report.start in (StartKind.WARM, StartKind.WARM_ROBUST), out.calibration.report.start
+    assert len(out.calibration.points) > 300
+    within = Tracker(LiveConfig(cold_start_tracks=len(pool.track_ids))).update(pool)
+    assert within.status == "good" and within.calibration.report.start == StartKind.COLD
