@@ -42,6 +42,10 @@ log = logging.getLogger(__name__)
 LIVE_FREE = frozenset({"f", "fisheye", "stereo_rotation", "stereo_direction"})
 
 
+REFUSED_RETRIES = 2  # a solve refused for cameras placed wrong is solved again without them at most this often
+REFUSED_BY = ("focal lengths outside", "keep too few of their observations")  # `judge`'s, of `refused_cameras`
+
+
 @dataclass(frozen=True)
 class LiveConfig:
     """How a live rig solves and when it trusts a solution.
@@ -102,13 +106,11 @@ def judge(cal: Calibration, obs: Observations, config: LiveConfig) -> str:
     scale_rel = cal.uncertainty.scale_rel.value if cal.uncertainty is not None else None
     if scale_rel is None or not scale_rel <= config.max_scale_rel:
         return f"scale uncertain ({scale_rel} > {config.max_scale_rel})"
-    held = {c.id for c in obs.cameras if c.K is not None and "K" in c.fixed}
-    absurd = [f"{c.id} {c.K[0, 0]:.0f} px" for c in cal.cameras if c.id not in held
-              and not FOCAL_RANGE_REL[0] * c.width <= c.K[0, 0] <= FOCAL_RANGE_REL[1] * c.width]
+    absurd = absurd_focals(cal, obs)
     if absurd:
         # A start gone wrong can converge to such a rig at a low RMS and a small scale sigma.
         return (f"focal lengths outside {FOCAL_RANGE_REL[0]}-{FOCAL_RANGE_REL[1]} image widths: "
-                f"{', '.join(absurd)}")
+                f"{', '.join(f'{c} {f:.0f} px' for c, f in absurd.items())}")
     few = misplaced(cal, obs, config)
     if few:
         kept = ", ".join(f"{c} {100 * s:.0f}%" for c, s in few.items())
@@ -120,6 +122,25 @@ def judge(cal: Calibration, obs: Observations, config: LiveConfig) -> str:
     if unexplained:
         return f"cameras {sorted(unexplained)} not calibrated, and the solve does not say why"
     return ""
+
+
+def absurd_focals(cal: Calibration, obs: Observations) -> dict[str, float]:
+    """The cameras whose estimated focal length (px) lies outside `two_view.FOCAL_RANGE_REL` image widths."""
+    held = {c.id for c in obs.cameras if c.K is not None and "K" in c.fixed}
+    return {c.id: float(c.K[0, 0]) for c in cal.cameras if c.id not in held
+            and not FOCAL_RANGE_REL[0] * c.width <= c.K[0, 0] <= FOCAL_RANGE_REL[1] * c.width}
+
+
+def refused_cameras(cal: Calibration, obs: Observations, config: LiveConfig) -> dict[str, str]:
+    """The cameras but the stereo pair that `judge` refuses `cal` for (a focal length out of range, too few
+    inliers), each with why: placed wrong, while the others may stand."""
+    pair = (obs.stereo.left, obs.stereo.right)
+    refused = {c: (f"focal length {f:.0f} px, outside {FOCAL_RANGE_REL[0]}-{FOCAL_RANGE_REL[1]} image widths: "
+                   "placed wrong, or its tracks are") for c, f in absurd_focals(cal, obs).items() if c not in pair}
+    for c, share in misplaced(cal, obs, config).items():
+        refused.setdefault(c, f"keeps only {100 * share:.0f}% of its observations as inliers (less than "
+                              f"{100 * config.min_inlier_share:.0f}%): placed wrong, or its tracks are")
+    return refused
 
 
 def misplaced(cal: Calibration, obs: Observations, config: LiveConfig) -> dict[str, float]:
@@ -235,15 +256,18 @@ class Tracker:
 
     def _placing(self, obs: Observations, start: Calibration | None,
                  reset: Collection[str] = ()) -> tuple[Status, str, Calibration | None]:
-        """`_attempt`, and where cameras but the pair keep too few inliers, again without them, named."""
+        """`_attempt`; where only cameras placed wrong refuse it, again without them (named), up to twice."""
         status, reason, cal = self._attempt(obs, start, reset=reset)
-        few = misplaced(cal, obs, self.config) if status == Status.REJECTED else {}
-        if few and len(obs.cameras) - len(few) >= MIN_CAMERAS and "keep too few" in reason:
+        left_out: dict[str, str] = {}
+        for _ in range(REFUSED_RETRIES):
+            refused = refused_cameras(cal, obs, self.config) if status == Status.REJECTED else {}
+            # Only where nothing else refuses it: the checks before these concern the whole rig.
+            if not refused or len(obs.cameras) - len(refused) < MIN_CAMERAS or not any(r in reason for r in REFUSED_BY):
+                break
             # A camera placed wrong does not hold the others back: solved again without it, it is named.
-            status, reason, cal = self._attempt(without_cameras(obs, few), start, reset=reset, left_out={
-                c: f"keeps only {100 * s:.0f}% of its observations as inliers (less than "
-                   f"{100 * self.config.min_inlier_share:.0f}%): placed wrong, or its tracks are"
-                for c, s in few.items()})
+            left_out.update(refused)
+            obs = without_cameras(obs, refused)
+            status, reason, cal = self._attempt(obs, start, reset=reset, left_out=left_out)
         return status, reason, cal
 
     def _attempt(self, obs: Observations, start: Calibration | None, *, reset: Collection[str] = (),
