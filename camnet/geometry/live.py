@@ -71,7 +71,8 @@ class LiveConfig:
     # pose in the left's frame, x_right = R x_left + t. Every solve without a good calibration
     # to start from starts from it, so that a free set without the pair's axes holds it.
     stereo_pose: tuple[np.ndarray, np.ndarray] | None = None
-    # A cold solve of a larger pool starts on its newest this many tracks. On config/surround.yaml's
+    # A cold solve of a pool of at least twice as many starts on its newest this many tracks (the
+    # matcher's pool of 5000 is full after two frame sets of nine cameras). On config/surround.yaml's
     # pools of 5000 tracks (rendered every 7.5 s, as a loaded live matcher sees them) the multi-view
     # tracks of the older half were 37-42% false against the truth, the newer half's 5-9%.
     cold_start_tracks: int = 2500
@@ -241,9 +242,10 @@ class Tracker:
             status, reason, cal = self._placing(obs, initial, reset=self._reset)
             if status == Status.GOOD:
                 return Outcome(Status.GOOD, "", cal, moved, warm=True)
-        if len(obs.track_ids) > self.config.cold_start_tracks:
+        if len(obs.track_ids) >= 2 * self.config.cold_start_tracks:
             # The oldest tracks of a long pool are the falsest: its cold start is solved on the newest,
-            # and the whole pool warm from there (or, failing that, cold as it is).
+            # and the whole pool warm from there (or, failing that, cold as it is). A smaller pool is of
+            # a frame set or two, whose tracks' ids say nothing of their age.
             status, reason, seed = self._placing(newest_tracks(obs, self.config.cold_start_tracks), cold)
             if status == Status.GOOD:
                 status, reason, cal = self._placing(obs, seed)
