@@ -200,10 +200,11 @@ class CalibratorNode:
         if outcome.status == "good":
             self._publish(publisher, outcome.calibration, doc, outcome)
             cal = outcome.calibration
-            log.info("solve %d: good (%s, %.2f s): %d cameras, %d points, rms %.3f px, scale sigma %.3f%%",
+            left_out = cal.report.cameras_left_out if cal.report is not None else {}
+            log.info("solve %d: good (%s, %.2f s): %d cameras, %d points, rms %.3f px, scale sigma %.3f%%%s",
                      self.tracker.solves, "warm" if outcome.warm else "cold", outcome.solve_s,
                      len(cal.cameras), len(cal.points), cal.rms_reprojection_px,
-                     100 * scale_sigma_rel(cal))
+                     100 * scale_sigma_rel(cal), "".join(f"; {c} left out: {why}" for c, why in left_out.items()))
         else:
             # A rig that keeps failing must not flood the console: its status line counts every one.
             now_s = time.monotonic()

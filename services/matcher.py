@@ -28,8 +28,9 @@ place of frames. The frames of the other cameras are detected here, each
 camera on its own `camnet.matching.edge.FeatureExtractor` (only where the
 image changed since its keyframe), in a thread pool over the cores (OpenCV
 releases the GIL). `camnet.matching.reuse.IncrementalMatcher` matches only what is new since a
-pair's last whole match, on every pair until the rig's calibration (``keys.calibration``)
-arrives, then on the view graph's pairs (`camnet.matching.viewgraph`).
+pair's last whole match, on every pair until the rig's calibration (``keys.calibration``,
+also asked of the calibrator at start: `matcher_calibration`) arrives, then on the view graph's
+pairs (`camnet.matching.viewgraph`).
 
 Cameras are listed with the sizes of their frames (or of the rig file before
 the first frame) and what the rig file's `intrinsics` section knows of them
@@ -50,6 +51,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from camnet.services.features import from_message
+from camnet.services.matcher_calibration import CalibrationInbox
 
 from camnet.bus import keys, lockstep
 from camnet.bus.features_wire import FeaturesError, FeaturesMessage, decode_features
@@ -61,9 +63,8 @@ from camnet.bus.stats import Activity, CameraSeen, RateMeter
 from camnet.bus.sync import FrameSet, FrameSynchronizer, SyncCounts
 from camnet.errors import InputError
 from camnet.geometry.model import Stereo
-from camnet.io.formats import observations_to_doc, parse_calibration
+from camnet.io.formats import observations_to_doc
 from camnet.io.rig import Rig, camera_info, configured_size
-from camnet.io.validate import decode_json
 from camnet.matching.edge import CameraFeatures, EdgeConfig, FeatureExtractor
 from camnet.matching.features import Detector, MatcherConfig, to_grey
 from camnet.matching.pool import PoolConfig, PoolUpdate, TrackPool, regrow_pool
@@ -161,7 +162,6 @@ class MatcherNode:
         self._matcher = IncrementalMatcher(self._matcher_config, stereo=self.stereo)
         self.view_graph = ViewGraph(ViewGraphConfig(explore_per_set=config.explore_pairs),
                                      always={frozenset((self.stereo.left, self.stereo.right))})
-        self._calibration: bytes | None = None  # the latest calibration, for the worker to take
         self.pairs = (0, 0)  # in the last frame set: pairs matched, pairs of its cameras
         self._workers = ThreadPoolExecutor(max_workers=max(1, min(len(self.camera_ids), os.cpu_count() or 1)),
                                            thread_name_prefix="detect")
@@ -177,6 +177,7 @@ class MatcherNode:
         self.rejected = Tally(log)  # frames decoded but not usable, and malformed steps, by kind
         self.failures = Tally(log)  # handlers that raised (matching a frame set, say), by what and type
         self.few_features = Tally(log)  # images with too few keypoints, by camera
+        self.calibration = CalibrationInbox(rig.name, rejected=self.rejected)  # for the worker to take
         self._process_safely = guarded(self.process, self.failures, "matching a frame set")
         self.frame_sets_matched = 0
         self.frame_sets_pooled = 0
@@ -243,19 +244,10 @@ class MatcherNode:
             self._sync.add(message, now_s=time.monotonic())
             self._ready.notify()
 
-    def on_calibration(self, sample) -> None:
-        """Calibration callback: kept for the worker to parse; not in lockstep, which must not depend on timing."""
-        self._calibration = sample.payload.to_bytes() if self.config.view_graph and self._inbox is None else None
-
     def _take_calibration(self) -> None:
-        """Choose pairs with the latest calibration from now on; one that does not parse is counted."""
-        payload, self._calibration = self._calibration, None
-        if payload is None:
-            return
-        try:
-            calibration = parse_calibration(decode_json(payload, keys.calibration(self.rig.name)))
-        except InputError as exc:
-            self.rejected.count("calibration", "ignoring a calibration that does not parse (%s)", exc)
+        """Choose pairs with the latest calibration from now on."""
+        calibration = self.calibration.take()
+        if calibration is None:
             return
         guarded(self.view_graph.update, self.failures, "taking a calibration")(calibration)  # counted if it raises
         log.info("calibration of %d cameras: %d overlapping pairs", len(calibration.cameras),
@@ -468,7 +460,9 @@ class MatcherNode:
                                                     guarded(self.on_sample, self.failures, "receiving a frame")),
                     self.session.declare_subscriber(keys.all_features(rig),
                                                     guarded(self.on_features, self.failures, "receiving features")),
-                    self.session.declare_subscriber(keys.calibration(rig), self.on_calibration),
+                    # Not in lockstep, whose matching must not depend on when a calibration arrives.
+                    *([self.calibration.declare(self.session, self.failures)]
+                      if self.config.view_graph and self._inbox is None else []),
                     self.session.declare_queryable(keys.observations(rig),
                                                    guarded(self._on_query, self.failures, "answering a query"))]
         ack_publisher = None

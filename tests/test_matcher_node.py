@@ -52,7 +52,7 @@ def rig_document(name: str, *, v4l2_camera: str | None = None) -> dict:
 class Network:
     """A matcher node, sim driver nodes and an observer, each on its own loopback session."""
 
-    def __init__(self, rig, config: MatcherNodeConfig) -> None:
+    def __init__(self, rig, config: MatcherNodeConfig, *, start: bool = True) -> None:
         self.rig = rig
         endpoint = f"tcp/127.0.0.1:{free_port()}"
         self.sessions = [open_session(BusOptions(listen=(endpoint,)))]
@@ -69,6 +69,10 @@ class Network:
         self.observer.declare_subscriber(keys.observations(rig.name), self._on_observations)
         self.observer.declare_subscriber(keys.node_stats(rig.name, "matcher", "matcher"),
                                          lambda s: self.stats.append(NodeStats.from_json(s.payload.to_bytes())))
+        if start:
+            self.start_matcher()
+
+    def start_matcher(self) -> None:
         self.threads[0].start()
 
     def _on_observations(self, sample) -> None:
@@ -98,7 +102,8 @@ class Network:
         for driver in self.drivers:
             driver.stop.set()
         for thread in self.threads:
-            thread.join(timeout=30)
+            if thread.ident is not None:  # started
+                thread.join(timeout=30)
         for session in reversed(self.sessions):
             session.close()
         assert not any(t.is_alive() for t in self.threads), "a node thread did not stop"
@@ -108,8 +113,8 @@ class Network:
 def network():
     made = []
 
-    def make(rig, config: MatcherNodeConfig) -> Network:
-        made.append(Network(rig, config))
+    def make(rig, config: MatcherNodeConfig, *, start: bool = True) -> Network:
+        made.append(Network(rig, config, start=start))
         return made[-1]
 
     try:

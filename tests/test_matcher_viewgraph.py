@@ -7,13 +7,14 @@ import time
 from dataclasses import replace
 
 import numpy as np
+from camnet.services.calibrator import CalibratorConfig, CalibratorNode
 from camnet.services.matcher import MatcherNodeConfig
 
 from camnet.bus import keys
 from camnet.geometry.model import Calibration
 from camnet.io.formats import calibration_to_doc
 from camnet.io.rig import parse_rig
-from tests.conftest import matched_publisher, wait_for
+from tests.conftest import matched_publisher, running_node, wait_for
 from tests.test_matcher_node import network, rig_document  # noqa: F401 (network: the fixture)
 
 AWAY_M = np.array([20.0, 0.0, 0.0])  # mono_b, as the calibration has it: 20 m to the right
@@ -34,21 +35,26 @@ def calibration_with_mono_b_elsewhere(rig) -> dict:
     return calibration_to_doc(cal)
 
 
-def test_a_calibration_narrows_the_pairs_and_exploration_finds_the_rest_again(network):  # noqa: F811
-    rig = parse_rig(rig_document("vgtest"))
-    net = network(rig, MatcherNodeConfig(publish_period_s=0.5, max_wait_s=0.3, explore_pairs=1))
-    publisher = matched_publisher(net.observer, keys.calibration(rig.name), timeout_s=30.0)
-    publisher.put(json.dumps(calibration_with_mono_b_elsewhere(rig)).encode())
-    assert wait_for(lambda: net.node._calibration is not None, 60.0), "the calibration never reached the matcher"
-    for camera_id in rig_document("vgtest")["cameras"]:
-        net.start_driver(camera_id["id"])
-    seen: list[tuple[int, int]] = []  # (pairs matched, pairs of its cameras) in the last frame set, as they change
+def pairs_matched(net) -> tuple[list[int], list[tuple[int, int]]]:
+    """Pairs matched in each frame set of all four cameras until all six are; (pairs matched, of) as they change."""
+    seen: list[tuple[int, int]] = []
     deadline = time.monotonic() + 120.0
     while time.monotonic() < deadline and (not seen or seen[-1][0] < 6):
         if net.node.frame_sets_matched and (not seen or net.node.pairs != seen[-1]):
             seen.append(net.node.pairs)
         time.sleep(0.01)
-    full = [matched for matched, possible in seen if possible == 6]  # frame sets of all four cameras
+    return [matched for matched, possible in seen if possible == 6], seen
+
+
+def test_a_calibration_narrows_the_pairs_and_exploration_finds_the_rest_again(network):  # noqa: F811
+    rig = parse_rig(rig_document("vgtest"))
+    net = network(rig, MatcherNodeConfig(publish_period_s=0.5, max_wait_s=0.3, explore_pairs=1))
+    publisher = matched_publisher(net.observer, keys.calibration(rig.name), timeout_s=30.0)
+    publisher.put(json.dumps(calibration_with_mono_b_elsewhere(rig)).encode())
+    assert wait_for(lambda: net.node.calibration.waiting, 60.0), "the calibration never reached the matcher"
+    for camera_id in rig_document("vgtest")["cameras"]:
+        net.start_driver(camera_id["id"])
+    full, seen = pairs_matched(net)
     # The three overlapping pairs and one explored pair of mono_b, not all six: the calibration was read.
     assert full and full[0] == 4, seen
     # mono_b's pairs, explored one per frame set, match well and stay: the camera is found again.
@@ -59,3 +65,22 @@ def test_a_calibration_narrows_the_pairs_and_exploration_finds_the_rest_again(ne
     assert net.node.view_graph.calibrated == {"left", "right", "mono_a", "mono_b"}
     assert wait_for(lambda: net.count() >= 1 and any("mono_b" in t["observations"]
                                                      for t in net.latest()["tracks"]), 60.0)
+
+
+def test_a_matcher_started_after_the_calibrator_asks_it_for_the_latest_calibration(network, tmp_path):  # noqa: F811
+    # The calibrator resumed its calibration before the matcher started: nothing is published again until
+    # the next solve. Before, the restarted matcher matched all six pairs until then.
+    rig = parse_rig(rig_document("vgquery"))
+    net = network(rig, MatcherNodeConfig(publish_period_s=0.5, max_wait_s=0.3, explore_pairs=1), start=False)
+    state = tmp_path / "calibration.json"
+    state.write_text(json.dumps(calibration_with_mono_b_elsewhere(rig)))
+    with running_node(CalibratorNode(net.observer, rig.name, CalibratorConfig(state_path=state))) as calibrator:
+        assert wait_for(lambda: calibrator.latest_doc is not None, 60.0), "the calibrator did not resume"
+        net.start_matcher()
+        assert wait_for(lambda: net.node.calibration.waiting, 60.0), "the matcher never got the calibration"
+    # The calibrator has answered and gone: no solve of its own replaces the calibration under test.
+    for camera_id in rig_document("vgquery")["cameras"]:
+        net.start_driver(camera_id["id"])
+    full, seen = pairs_matched(net)
+    assert full and full[0] == 4, seen  # the view graph's pairs from the first frame set on
+    assert net.node.view_graph.calibrated == {"left", "right", "mono_a", "mono_b"}

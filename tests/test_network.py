@@ -9,6 +9,7 @@ import re
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -164,3 +165,35 @@ def test_up_with_feature_stages_beside_the_drivers_calibrates(tmp_path):
     assert len(cal.cameras) == 4
     assert abs(comparison.scale_rel) < 0.005, stdout
     assert max(abs(e.focal_rel) for e in comparison.cameras) < 0.01, stdout
+
+
+def test_up_publishes_the_cameras_it_can_place_and_names_the_one_looking_away(tmp_path):
+    """A fifth camera that sees nothing the others see: the four are calibrated and published, the fifth
+    is named with its reason on every console line and in the final table. Before, every solve was refused
+    for it and `camnet up` ended with no calibration."""
+    doc = yaml.safe_load(Path(rig_file(tmp_path, 4)).read_text())
+    doc["rig"] = "away5"
+    doc["cameras"].append({"id": "away", "driver": "sim",
+                           "sim": sim_camera(700, [0.0, 0.0, 0.0], look_at=[0.0, 0.0, -1.0])})
+    rig_path = tmp_path / "away5.yaml"
+    rig_path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    out = tmp_path / "calibration.json"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "camnet.cli", "up", str(rig_path), "--duration-s", "45", "--run-dir",
+         str(tmp_path / "run"), "-o", str(out), "--listen", f"tcp/127.0.0.1:{free_port()}"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        stdout, stderr = proc.communicate(timeout=180)
+    finally:
+        proc.kill()
+    logs = "\n".join(p.read_text()[-1500:] for p in (tmp_path / "run").rglob("*.log"))
+    assert proc.returncode == 0, stdout + stderr + logs
+    published = json.loads(out.read_text())
+    cal = parse_calibration(published)
+    assert {c.id for c in cal.cameras} == {"left", "right", "mono_a", "mono_b"}
+    assert set(published["diagnostics"]["cameras_left_out"]) == {"away"}
+    comparison = compare_cameras(cal, load_rig(rig_path).simulated_truth())
+    assert abs(comparison.scale_rel) < 0.01, stdout
+    lines = [line for line in stdout.splitlines() if re.match(r"\s*[\d.]+ s  solve ", line)]
+    assert lines and all("missing: away (" in line for line in lines), stdout
+    assert re.search(r"^away\s+not calibrated: \S", stdout, flags=re.MULTILINE), stdout

@@ -7,8 +7,9 @@ import re
 import cv2
 import pytest
 
-from camnet.commands.up import RunFollower, _finish, final_report
+from camnet.commands.up import RunFollower, _finish, final_report, progress_line, summarise
 from camnet.geometry.calibrate import Options, calibrate
+from camnet.geometry.change import drop_before
 from camnet.geometry.live import LIVE_FREE
 from camnet.io.formats import calibration_to_doc, observations_to_doc, parse_calibration
 from camnet.io.run_dir import RecentObservations, default_run_dir, source_key
@@ -93,3 +94,24 @@ def test_up_replays_a_recording_into_a_run_directory(tmp_path):
     assert not list((out / "logs").glob("driver-*.log")), "a replay starts no driver"
     assert (out / "calibration.json").exists() and (out / "report.html").exists()
     assert f"files in {out}:" in proc.stdout
+
+
+def test_a_partial_calibrations_run_directory_and_final_table_name_the_camera_left_out(tmp_path):
+    # A live calibration without a camera that shares nothing yet: its observations still list it. Before,
+    # the report and the COLMAP export refused them ("camera 'mono_04' is not in the calibration").
+    obs = observe(make_rig(n_cameras=5, n_points=300, seed=4), noise_px=0.3, seed=4).observations
+    away = obs.camera_ids[4]
+    obs = drop_before(obs, {away: int(obs.track_ids.max()) + 1})
+    cal = calibrate(obs, Options(free=LIVE_FREE)).calibration
+    assert away not in {c.id for c in cal.cameras}
+    obs_doc = {**observations_to_doc(obs), "frame_sets": 7, "latest_capture_ns": 1}
+    cal_doc = {**calibration_to_doc(cal), "frame_sets": 7, "latest_capture_ns": 1, "solve": 3}
+    follower = RunFollower(argparse.Namespace(), truth=None)
+    follower.observations.add(source_key(obs_doc), json.dumps(obs_doc).encode())
+    text = _finish(argparse.Namespace(output=None), tmp_path / "run", cal_doc, follower, truth=None)
+    assert re.search(rf"^{away}\s+not calibrated: it shares only 0 tracks", text, flags=re.MULTILINE), text
+    assert "Needs the observations" not in (tmp_path / "run" / "report.html").read_text()
+    images = (tmp_path / "run" / "colmap" / "images.txt").read_text()
+    assert away not in images and "mono_a" in images
+    line = progress_line(summarise(1.0, cal_doc, truth=None))
+    assert f"missing: {away} (it shares only 0 tracks" in line, line

@@ -448,6 +448,7 @@ def summarise(elapsed_s: float, doc: dict, truth) -> dict:
         "rms_px": doc.get("rms_reprojection_px"),
         "scale_sigma_rel": doc.get("uncertainty", {}).get("scale_rel"),
         "moved": doc.get("moved", []),
+        "left_out": _left_out(doc),
     }
     if "latest_capture_ns" in doc and "solved_ns" in doc:
         latency_s = (doc["solved_ns"] - doc["latest_capture_ns"]) / 1e9
@@ -476,7 +477,15 @@ def progress_line(s: dict) -> str:
                  f"focal <= {100 * s['max_focal_error_rel']:.2f}%, centres <= {s['max_centre_error_mm']:.1f} mm")
     if s["moved"]:
         line += f"  moved: {', '.join(s['moved'])}"
+    if s.get("left_out"):
+        line += "  missing: " + "; ".join(f"{cam_id} ({why})" for cam_id, why in s["left_out"].items())
     return line
+
+
+def _left_out(doc: dict) -> dict[str, str]:
+    """The cameras a calibration left out, each with why (its `diagnostics.cameras_left_out`)."""
+    left_out = doc.get("diagnostics", {}).get("cameras_left_out", {})
+    return {str(k): str(v) for k, v in left_out.items()} if isinstance(left_out, dict) else {}
 
 
 def final_report(cal, truth) -> str:

@@ -14,7 +14,8 @@ Conventions: pixels with the origin at the centre of the top-left pixel,
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Collection
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -118,6 +119,17 @@ def drop_before(obs: Observations, cutoffs: dict[str, int]) -> Observations:
     rows = np.flatnonzero(views >= 2)
     new_row = np.full(len(obs.track_ids), -1)
     new_row[rows] = np.arange(len(rows))
-    return Observations(cameras=obs.cameras, stereo=obs.stereo, track_ids=obs.track_ids[rows],
-                        cam_index=obs.cam_index[keep], track_index=new_row[obs.track_index[keep]],
-                        uv=obs.uv[keep])
+    # replace(): the known distances beyond the stereo pair's stay (a new Observations lost them).
+    return replace(obs, track_ids=obs.track_ids[rows], cam_index=obs.cam_index[keep],
+                   track_index=new_row[obs.track_index[keep]], uv=obs.uv[keep])
+
+
+def without_cameras(obs: Observations, camera_ids: Collection[str]) -> Observations:
+    """`obs` without the cameras `camera_ids`, their observations and their known distances; tracks left with
+    fewer than two observations go too."""
+    dropped = drop_before(obs, {cam_id: int(obs.track_ids.max(initial=-1)) + 1 for cam_id in camera_ids})
+    kept = np.array([c.id not in camera_ids for c in obs.cameras])
+    new_index = np.cumsum(kept) - 1
+    return replace(dropped, cameras=tuple(c for c, k in zip(obs.cameras, kept, strict=True) if k),
+                   cam_index=new_index[dropped.cam_index],
+                   baselines=tuple(b for b in obs.baselines if b.a not in camera_ids and b.b not in camera_ids))

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Collection
 from dataclasses import dataclass, field, replace
 from enum import StrEnum
 
@@ -20,7 +21,8 @@ import numpy as np
 
 from camnet.errors import CamnetError
 from camnet.geometry.calibrate import Options, calibrate
-from camnet.geometry.change import MoveRule, drop_before, moved_cameras, new_track_errors
+from camnet.geometry.change import MoveRule, drop_before, moved_cameras, new_track_errors, without_cameras
+from camnet.geometry.cold_start import MIN_CAMERAS, with_cameras_left_out
 from camnet.geometry.model import Calibration, Camera, Observations
 from camnet.geometry.two_view import FOCAL_RANGE_REL
 
@@ -40,6 +42,10 @@ log = logging.getLogger(__name__)
 LIVE_FREE = frozenset({"f", "fisheye", "stereo_rotation", "stereo_direction"})
 
 
+REFUSED_RETRIES = 2  # a solve refused for cameras placed wrong is solved again without them at most this often
+REFUSED_BY = ("focal lengths outside", "keep too few of their observations")  # `judge`'s, of `refused_cameras`
+
+
 @dataclass(frozen=True)
 class LiveConfig:
     """How a live rig solves and when it trusts a solution.
@@ -49,7 +55,9 @@ class LiveConfig:
     length it estimated lies within `two_view.FOCAL_RANGE_REL` image widths
     (10-170 degrees across), every camera but the stereo pair keeps at least
     `min_inlier_share` of its observations as inliers and it holds every
-    camera of the observations.
+    camera of the observations that its report does not name as left out
+    (with the reason): a partial calibration is published, its missing
+    cameras named.
     """
 
     options: Options = Options(free=LIVE_FREE)
@@ -63,6 +71,11 @@ class LiveConfig:
     # pose in the left's frame, x_right = R x_left + t. Every solve without a good calibration
     # to start from starts from it, so that a free set without the pair's axes holds it.
     stereo_pose: tuple[np.ndarray, np.ndarray] | None = None
+    # A cold solve of a pool of at least twice as many starts on its newest this many tracks (the
+    # matcher's pool of 5000 is full after two frame sets of nine cameras). On config/surround.yaml's
+    # pools of 5000 tracks (rendered every 7.5 s, as a loaded live matcher sees them) the multi-view
+    # tracks of the older half were 37-42% false against the truth, the newer half's 5-9%.
+    cold_start_tracks: int = 2500
 
 
 class Status(StrEnum):
@@ -94,28 +107,52 @@ def judge(cal: Calibration, obs: Observations, config: LiveConfig) -> str:
     scale_rel = cal.uncertainty.scale_rel.value if cal.uncertainty is not None else None
     if scale_rel is None or not scale_rel <= config.max_scale_rel:
         return f"scale uncertain ({scale_rel} > {config.max_scale_rel})"
-    held = {c.id for c in obs.cameras if c.K is not None and "K" in c.fixed}
-    absurd = [f"{c.id} {c.K[0, 0]:.0f} px" for c in cal.cameras if c.id not in held
-              and not FOCAL_RANGE_REL[0] * c.width <= c.K[0, 0] <= FOCAL_RANGE_REL[1] * c.width]
+    absurd = absurd_focals(cal, obs)
     if absurd:
         # A start gone wrong can converge to such a rig at a low RMS and a small scale sigma.
         return (f"focal lengths outside {FOCAL_RANGE_REL[0]}-{FOCAL_RANGE_REL[1]} image widths: "
-                f"{', '.join(absurd)}")
-    total = np.bincount(obs.cam_index, minlength=len(obs.cameras))
-    stats = cal.report.cameras
-    # The pair is held by its baseline (and, held parallel or to a factory pose, may lose more).
-    others = [c.id for c in cal.cameras if c.id in stats and c.id not in (obs.stereo.left, obs.stereo.right)]
-    share = {c: stats[c].inliers / max(int(total[obs.index_of(c)]), 1) for c in others}
-    few = {c: s for c, s in share.items() if s < config.min_inlier_share}
+                f"{', '.join(f'{c} {f:.0f} px' for c, f in absurd.items())}")
+    few = misplaced(cal, obs, config)
     if few:
         kept = ", ".join(f"{c} {100 * s:.0f}%" for c, s in few.items())
         return (f"cameras {sorted(few)} keep too few of their observations as inliers ({kept}, less than "
                 f"{100 * config.min_inlier_share:.0f}%): placed wrong, or their tracks are")
-    missing = set(obs.camera_ids) - {c.id for c in cal.cameras}
-    if missing:
-        why = "; ".join(f"{c}: {r}" for c, r in cal.report.cameras_left_out.items() if c in missing)
-        return f"cameras {sorted(missing)} not calibrated" + (f" ({why})" if why else "")
+    # A camera the solve could not place (it shares too little yet, or no pose agrees) is named with its
+    # reason in the report and the calibration of the others stands; one missing without a reason does not.
+    unexplained = set(obs.camera_ids) - {c.id for c in cal.cameras} - set(cal.report.cameras_left_out)
+    if unexplained:
+        return f"cameras {sorted(unexplained)} not calibrated, and the solve does not say why"
     return ""
+
+
+def absurd_focals(cal: Calibration, obs: Observations) -> dict[str, float]:
+    """The cameras whose estimated focal length (px) lies outside `two_view.FOCAL_RANGE_REL` image widths."""
+    held = {c.id for c in obs.cameras if c.K is not None and "K" in c.fixed}
+    return {c.id: float(c.K[0, 0]) for c in cal.cameras if c.id not in held
+            and not FOCAL_RANGE_REL[0] * c.width <= c.K[0, 0] <= FOCAL_RANGE_REL[1] * c.width}
+
+
+def refused_cameras(cal: Calibration, obs: Observations, config: LiveConfig) -> dict[str, str]:
+    """The cameras but the stereo pair that `judge` refuses `cal` for (a focal length out of range, too few
+    inliers), each with why: placed wrong, while the others may stand."""
+    pair = (obs.stereo.left, obs.stereo.right)
+    refused = {c: (f"focal length {f:.0f} px, outside {FOCAL_RANGE_REL[0]}-{FOCAL_RANGE_REL[1]} image widths: "
+                   "placed wrong, or its tracks are") for c, f in absurd_focals(cal, obs).items() if c not in pair}
+    for c, share in misplaced(cal, obs, config).items():
+        refused.setdefault(c, f"keeps only {100 * share:.0f}% of its observations as inliers (less than "
+                              f"{100 * config.min_inlier_share:.0f}%): placed wrong, or its tracks are")
+    return refused
+
+
+def misplaced(cal: Calibration, obs: Observations, config: LiveConfig) -> dict[str, float]:
+    """The cameras but the stereo pair that keep less than `min_inlier_share` of their observations as
+    inliers, with the share kept: placed wrong, or their tracks are."""
+    total = np.bincount(obs.cam_index, minlength=len(obs.cameras))
+    stats = cal.report.cameras if cal.report is not None else {}
+    # The pair is held by its baseline (and, held parallel or to a factory pose, may lose more).
+    others = [c.id for c in cal.cameras if c.id in stats and c.id not in (obs.stereo.left, obs.stereo.right)]
+    share = {c: stats[c].inliers / max(int(total[obs.index_of(c)]), 1) for c in others}
+    return {c: s for c, s in share.items() if s < config.min_inlier_share}
 
 
 @dataclass
@@ -200,23 +237,67 @@ class Tracker:
     def _solve(self, obs: Observations, moved: tuple[str, ...]) -> Outcome:
         initial = self._initial()
         cold = None if self.config.stereo_pose is None else stereo_head(obs, *self.config.stereo_pose)
-        attempts = [initial, cold] if initial is not None else [cold]
-        reason = ""
-        for start in attempts:
-            try:
-                reset = self._reset if start is not None else ()
-                result = calibrate(obs, self.config.options, initial=start, reset_cameras=reset)
-            except CamnetError as exc:
-                reason, status = f"solve failed: {exc}", Status.FAILED
-                continue
-            if not result.converged:
-                reason, status = f"solve failed: the adjustment did not converge: {result.reason}", Status.FAILED
-                continue
-            reason = judge(result.calibration, obs, self.config)
-            if not reason:
-                return Outcome(Status.GOOD, "", result.calibration, moved, warm=start is not None)
-            status = Status.REJECTED
+        status, reason = Status.FAILED, ""
+        if initial is not None:
+            status, reason, cal = self._placing(obs, initial, reset=self._reset)
+            if status == Status.GOOD:
+                return Outcome(Status.GOOD, "", cal, moved, warm=True)
+        if len(obs.track_ids) >= 2 * self.config.cold_start_tracks:
+            # The oldest tracks of a long pool are the falsest: its cold start is solved on the newest,
+            # and the whole pool warm from there (or, failing that, cold as it is). A smaller pool is of
+            # a frame set or two, whose tracks' ids say nothing of their age.
+            status, reason, seed = self._placing(newest_tracks(obs, self.config.cold_start_tracks), cold)
+            if status == Status.GOOD:
+                status, reason, cal = self._placing(obs, seed)
+                if status == Status.GOOD:
+                    return Outcome(Status.GOOD, "", cal, moved, warm=cold is not None)
+        status, reason, cal = self._placing(obs, cold)
+        if status == Status.GOOD:
+            return Outcome(Status.GOOD, "", cal, moved, warm=cold is not None)
         return Outcome(status, reason, None, moved, warm=False)
+
+    def _placing(self, obs: Observations, start: Calibration | None,
+                 reset: Collection[str] = ()) -> tuple[Status, str, Calibration | None]:
+        """`_attempt`; where only cameras placed wrong refuse it, again without them (named), up to twice."""
+        status, reason, cal = self._attempt(obs, start, reset=reset)
+        left_out: dict[str, str] = {}
+        for _ in range(REFUSED_RETRIES):
+            refused = refused_cameras(cal, obs, self.config) if status == Status.REJECTED else {}
+            # Only where nothing else refuses it: the checks before these concern the whole rig.
+            if not refused or len(obs.cameras) - len(refused) < MIN_CAMERAS or not any(r in reason for r in REFUSED_BY):
+                break
+            # A camera placed wrong does not hold the others back: solved again without it, it is named.
+            left_out.update(refused)
+            obs = without_cameras(obs, refused)
+            status, reason, cal = self._attempt(obs, start, reset=reset, left_out=left_out)
+        return status, reason, cal
+
+    def _attempt(self, obs: Observations, start: Calibration | None, *, reset: Collection[str] = (),
+                 left_out: dict[str, str] | None = None) -> tuple[Status, str, Calibration | None]:
+        """One solve of `obs` from `start` (None: cold), judged; `left_out`: cameras not in `obs`, and why."""
+        try:
+            reset = set(reset) & set(obs.camera_ids) if start is not None else ()
+            result = calibrate(obs, self.config.options, initial=start, reset_cameras=reset)
+        except CamnetError as exc:
+            return Status.FAILED, f"solve failed: {exc}", None
+        if not result.converged:
+            return Status.FAILED, f"solve failed: the adjustment did not converge: {result.reason}", None
+        cal = result.calibration
+        if left_out:
+            report = with_cameras_left_out(cal.report, left_out)
+            cal = replace(cal, report=replace(report, cameras_left_out={**cal.report.cameras_left_out, **left_out}))
+        reason = judge(cal, obs, self.config)
+        return (Status.REJECTED, reason, cal) if reason else (Status.GOOD, "", cal)
+
+
+def newest_tracks(obs: Observations, count: int) -> Observations:
+    """`obs` with only its `count` newest tracks (the largest ids: a pool numbers them in time)."""
+    keep = np.zeros(len(obs.track_ids), dtype=bool)
+    keep[np.argsort(obs.track_ids, kind="stable")[-count:]] = True
+    rows = keep[obs.track_index]
+    new_row = np.cumsum(keep) - 1
+    return replace(obs, track_ids=obs.track_ids[keep], cam_index=obs.cam_index[rows],
+                   track_index=new_row[obs.track_index[rows]], uv=obs.uv[rows])
 
 
 def stereo_head(obs: Observations, R: np.ndarray, t: np.ndarray) -> Calibration | None:

@@ -56,17 +56,21 @@ def outlier_limit_px(cal: Calibration) -> float:
 def reprojection_residuals(cal: Calibration, obs: Observations) -> Residuals:
     """Project every kept point into every camera that observed it.
 
-    An observation camera that the calibration lacks is an `InputError`.
+    The observations of a camera that the calibration's report names as
+    left out are skipped; any other observation camera that the calibration
+    lacks is an `InputError`.
     """
     cal_index = {cam.id: m for m, cam in enumerate(cal.cameras)}
+    left_out = cal.report.cameras_left_out if cal.report is not None else {}
     for cam in obs.cameras:
-        if cam.id not in cal_index:
+        if cam.id not in cal_index and cam.id not in left_out:
             raise InputError(f"observations: camera {cam.id!r} is not in the calibration")
-    cam_of_obs_camera = np.array([cal_index[c.id] for c in obs.cameras], dtype=np.int64)
+    cam_of_obs_camera = np.array([cal_index.get(c.id, -1) for c in obs.cameras], dtype=np.int64)
     point_of_id = {int(pid): j for j, pid in enumerate(cal.point_ids)}
     point_of_track = np.array([point_of_id.get(int(t), -1) for t in obs.track_ids], dtype=np.int64)
     point_index = point_of_track[obs.track_index] if len(obs.track_index) else np.zeros(0, dtype=np.int64)
-    kept = point_index >= 0
+    placed = cam_of_obs_camera[obs.cam_index] >= 0 if len(obs.cam_index) else np.zeros(0, dtype=bool)
+    kept = (point_index >= 0) & placed
     rows = np.flatnonzero(kept)
     cam_index = cam_of_obs_camera[obs.cam_index[rows]]
     point_index = point_index[rows]
@@ -82,5 +86,5 @@ def reprojection_residuals(cal: Calibration, obs: Observations) -> Residuals:
         obs_row=rows,
         uv_px=uv,
         residual_px=projected - uv,
-        dropped_observations=int(np.sum(~kept)),
+        dropped_observations=int(np.sum(~kept & placed)),
     )

@@ -144,7 +144,8 @@ def colmap_model(
 
 
 def _link_observations(cal: Calibration, observations: Observations, max_error_px: float | None):
-    """Per observation: its camera's index in `cal`, the index of the point it joins (-1: none), its error (px)."""
+    """Per observation: its camera's index in `cal` (-1: left out), the index of the point it joins (-1: none),
+    its error (px)."""
     from camnet.geometry.residuals import outlier_limit_px, reprojection_residuals
 
     res = reprojection_residuals(cal, observations)
@@ -155,7 +156,8 @@ def _link_observations(cal: Calibration, observations: Observations, max_error_p
     error = np.full(len(observations.uv), np.nan)
     error[res.obs_row] = res.error_px
     cal_index = {cam.id: k for k, cam in enumerate(cal.cameras)}
-    to_cal = np.array([cal_index[cam.id] for cam in observations.cameras], dtype=np.int64)
+    # A camera the calibration left out (named in its report) has no image: its observations join nothing.
+    to_cal = np.array([cal_index.get(cam.id, -1) for cam in observations.cameras], dtype=np.int64)
     return to_cal[np.asarray(observations.cam_index, dtype=np.int64)], point_j, error
 
 

@@ -30,7 +30,8 @@ def camera_rows(cal: Calibration) -> list[str]:
     report, verdict = cal.report, judge(cal)
     sigmas = cal.uncertainty.cameras if cal.uncertainty is not None else {}
     levels = {c.camera: c.level.value for c in verdict.cameras} if verdict is not None else {}
-    width = max(6, *(len(c.id) for c in cal.cameras))
+    left_out = report.cameras_left_out if report is not None else {}
+    width = max(6, *(len(c.id) for c in cal.cameras), *(len(c) for c in left_out))
     rows = [f"{'camera':<{width}}  {'focal px':>18}  {'centre x, y, z mm':>34}  {'rotation deg':>16}  "
             f"{'RMS px':>6}  {'inliers':>7}  verdict"]
     for cam in cal.cameras:
@@ -48,6 +49,8 @@ def camera_rows(cal: Calibration) -> list[str]:
         inliers = str(stats.inliers) if stats is not None else "-"
         rows.append(f"{cam.id:<{width}}  {focal:>18}  {centre:>34}  {rotation:>16}  {rms:>6}  {inliers:>7}  "
                     f"{levels.get(cam.id, '-')}")
+    for cam_id, why in left_out.items():
+        rows.append(f"{cam_id:<{width}}  not calibrated: {why}")
     return rows
 
 
