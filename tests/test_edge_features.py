@@ -18,7 +18,7 @@ from camnet.matching.edge import CameraFeatures, EdgeConfig, FeatureExtractor
 from camnet.matching.features import MatcherConfig
 from camnet.matching.reuse import IncrementalMatcher
 from camnet.matching.tracks import build_tracks
-from tests._groundtruth import pairwise_epipolar_fractions
+from tests._groundtruth import epipolar_distance_px, pairwise_epipolar_fractions
 
 RIG = Path(__file__).resolve().parents[1] / "config" / "sim.yaml"
 CAMERAS = ("left", "right", "mono_a")
@@ -78,14 +78,34 @@ def test_incremental_matches_lie_on_the_true_epipolar_lines(rig_images):
     matcher = IncrementalMatcher(MatcherConfig(), stereo=rig_stereo(rig))
     new_tracks = []
     for cameras in sets:
-        tracks = build_tracks(matcher.match(cameras))
+        matches = matcher.match(cameras)
+        for p in matches.pairs:
+            d = epipolar_distance_px(cameras[p.a].features.uv[p.index_a], cameras[p.b].features.uv[p.index_b],
+                                     truth[p.a], truth[p.b])
+            assert len(d) >= 20 and np.mean(d <= 1.5) >= 0.95, (p.a, p.b, len(d), np.mean(d <= 1.5))
+        tracks = build_tracks(matches)
         new_tracks.append(len(tracks))
-        for (a, b), (count, fraction) in pairwise_epipolar_fractions(tracks.uv, truth, 1.5).items():
+        # A pair of views that a track joins through a third camera adds two matches' errors: 3 px.
+        for (a, b), (count, fraction) in pairwise_epipolar_fractions(tracks.uv, truth, 3.0).items():
             if count >= 20:
-                assert fraction >= 0.95, (a, b, count, fraction)
+                assert fraction >= 0.98, (a, b, count, fraction)
     assert matcher.whole == 3 and matcher.incremental == 6
     # Later sets bring the box's new points (hundreds of tracks), not the background again.
     assert all(200 <= n < new_tracks[0] for n in new_tracks[1:])
+
+
+def test_later_sets_match_new_keypoints_against_new_ones_only(rig_images):
+    # A reused keypoint is static background, pooled by the pair's whole match: an incremental match
+    # pairs no reused keypoint, on either side.
+    rig, images, _ = rig_images
+    sets, _ = extract_all(images)
+    matcher = IncrementalMatcher(MatcherConfig(), stereo=rig_stereo(rig))
+    matcher.match(sets[0])
+    for cameras in sets[1:]:
+        matches = matcher.match(cameras)
+        assert sum(len(p) for p in matches.pairs) >= 100
+        for p in matches.pairs:
+            assert np.all(p.index_a >= cameras[p.a].reused) and np.all(p.index_b >= cameras[p.b].reused)
 
 
 def test_camera_features_refuse_a_reused_count_beyond_the_keypoints(rig_images):

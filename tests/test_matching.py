@@ -175,3 +175,37 @@ def test_too_few_features_say_why():
     assert detect(sharp, config).shortage is None
     flat = np.full((480, 640), 128, np.uint8)
     assert "low contrast (1-99% of grey levels span 0 of 255)" in detect(flat).shortage
+
+
+def _reference_mutual_ratio(da, db, *, ratio, allowed=None, margin=1.1):
+    """The ratio test and cross check on the whole squared-distance matrix, arg-mins both ways."""
+    d = ((da[:, None, :] - db[None, :, :]) ** 2).sum(axis=2)
+    best_outside = np.full(len(da), np.inf)
+    if allowed is not None:
+        best_outside = np.where(allowed, np.inf, d).min(axis=1)
+        d = np.where(allowed, d, np.inf)
+    first = d.argmin(axis=1)
+    d1 = d[np.arange(len(da)), first]
+    rest = d.copy()
+    rest[np.arange(len(da)), first] = np.inf
+    keep = np.isfinite(d1) & (d1 < ratio**2 * rest.min(axis=1)) & (d1 <= margin**2 * best_outside)
+    keep &= d.argmin(axis=0)[first] == np.arange(len(da))
+    return np.flatnonzero(keep), first[keep]
+
+
+@pytest.mark.parametrize("prior", [False, True])
+def test_cross_check_equals_the_whole_matrix_arg_min_ties_included(prior):
+    # Whole-number descriptors (as SIFT's are), with repeated rows in both images: equal distances, whose
+    # first row must win as an arg-min down the whole column picks it.
+    rng = np.random.default_rng(7)
+    base = rng.integers(0, 40, size=(300, 16)).astype(np.float32)
+    da = np.vstack([base[:200], base[:20]])
+    db = np.vstack([base[100:300] + rng.integers(0, 2, size=(200, 16)), base[150:170]]).astype(np.float32)
+    uv_a, uv_b = rng.random((len(da), 2)) * 100, rng.random((len(db), 2)) * 100
+    fa, fb = Features(uv_a, da, Detector.SIFT), Features(uv_b, db, Detector.SIFT)
+    allowed = stereo_candidate_mask(uv_a, uv_b, row_tolerance_px=30.0, min_disparity_px=-20.0) if prior else None
+    got = mutual_ratio_matches(fa, fb, ratio=0.9, cross_check=True,
+                               allowed=None if allowed is None else (lambda rows: allowed[rows]))
+    want = _reference_mutual_ratio(da.astype(float), db.astype(float), ratio=0.9, allowed=allowed)
+    assert len(want[0]) > 20
+    assert [x.tolist() for x in got] == [x.tolist() for x in want]

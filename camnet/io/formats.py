@@ -184,9 +184,13 @@ def observations_to_doc(obs: Observations) -> dict:
         if c.fixed:
             entry["fixed"] = sorted(c.fixed)
         cameras.append(entry)
-    tracks: list[dict] = [{"id": int(t), "observations": {}} for t in obs.track_ids]
-    for cam, trk, (u_px, v_px) in zip(obs.cam_index, obs.track_index, obs.uv, strict=True):
-        tracks[trk]["observations"][obs.cameras[cam].id] = [float(u_px), float(v_px)]
+    tracks: list[dict] = [{"id": t, "observations": {}} for t in np.asarray(obs.track_ids).tolist()]
+    # Lists of Python numbers made by numpy at once: a live pool holds tens of thousands of observations.
+    names = [c.id for c in obs.cameras]
+    uv = np.asarray(obs.uv, dtype=float).tolist()
+    for cam, trk, uv_px in zip(np.asarray(obs.cam_index).tolist(), np.asarray(obs.track_index).tolist(), uv,
+                               strict=True):
+        tracks[trk]["observations"][names[cam]] = uv_px
     doc = {
         "format": OBSERVATIONS_FORMAT,
         "cameras": cameras,

@@ -265,9 +265,6 @@ def mutual_ratio_matches(
     ratio_p, margin_p = np.float32(ratio**power), np.float32(outside_margin**power)
     best = np.full(na_pts, -1, dtype=np.int64)
     keep = np.zeros(na_pts, dtype=bool)
-    col_best = np.full(nb_pts, -1, dtype=np.int64)
-    col_best_d = np.full(nb_pts, np.inf, dtype=np.float32)
-    columns = np.arange(nb_pts)
     for start in range(0, na_pts, ROW_BLOCK):
         rows = np.arange(start, min(start + ROW_BLOCK, na_pts))
         local = np.arange(len(rows))
@@ -277,11 +274,6 @@ def mutual_ratio_matches(
             outside = ~allowed(rows)
             best_outside = np.where(outside, d, np.inf).min(axis=1)
             d[outside] = np.inf
-        block_arg = np.argmin(d, axis=0)
-        block_min = d[block_arg, columns]
-        better = block_min < col_best_d
-        col_best_d[better] = block_min[better]
-        col_best[better] = rows[block_arg[better]]
         # The two smallest of each row: the smallest, then the smallest with it set aside.
         first = np.argmin(d, axis=1)
         d1 = d[local, first]
@@ -293,9 +285,30 @@ def mutual_ratio_matches(
     ia = np.flatnonzero(keep)
     ib = best[ia]
     if cross_check:
-        mutual = col_best[ib] == ia
+        columns, column = np.unique(ib, return_inverse=True)
+        mutual = _nearest_rows(va, sa, vb, sb, columns, allowed)[column] == ia
         ia, ib = ia[mutual], ib[mutual]
     return ia.astype(np.int64), ib.astype(np.int64)
+
+
+def _nearest_rows(va: np.ndarray, sa: np.ndarray, vb: np.ndarray, sb: np.ndarray, columns: np.ndarray,
+                  allowed) -> np.ndarray:
+    """For each of `columns` (indices into b), the first nearest row of a among the allowed ones (-1: none).
+
+    The cross check needs this only for the columns some row chose: a product of those columns against a
+    is cheaper than an arg-min down the columns of the whole distance matrix (a strided pass). Descriptors
+    are whole numbers, so every distance is an integer held exactly in float32 and equals the row pass's.
+    """
+    out = np.full(len(columns), -1, dtype=np.int64)
+    mask = None if allowed is None or len(columns) == 0 else allowed(np.arange(len(va)))[:, columns].T
+    for start in range(0, len(columns), ROW_BLOCK):
+        block = slice(start, min(start + ROW_BLOCK, len(columns)))
+        d = _distance_block(vb[columns[block]], sb[columns[block]], va, sa)
+        if mask is not None:
+            d[~mask[block]] = np.inf
+        nearest = np.argmin(d, axis=1)
+        out[block] = np.where(np.isfinite(d[np.arange(len(nearest)), nearest]), nearest, -1)
+    return out
 
 
 def _bf_mutual_ratio(fa: Features, fb: Features, *, ratio: float, cross_check: bool) -> tuple[np.ndarray, np.ndarray]:

@@ -143,20 +143,21 @@ def crowding(uv: np.ndarray, sizes_px: np.ndarray, grid_cols: int, grid_rows: in
 
     `uv`: (T, C, 2) pixels, NaN = unseen; `sizes_px`: (C, 2) image width, height.
     """
-    n, n_cams = uv.shape[:2]
-    out = np.zeros(n, dtype=np.int64)
-    for c in range(n_cams):
-        seen = np.isfinite(uv[:, c, 0])
-        if not seen.any():
-            continue
-        w, h = sizes_px[c]
-        # +0.5: pixel centres run from 0 to w - 1, the image area from -0.5 to w - 0.5.
-        col = np.clip(((uv[seen, c, 0] + 0.5) / w * grid_cols).astype(int), 0, grid_cols - 1)
-        row = np.clip(((uv[seen, c, 1] + 0.5) / h * grid_rows).astype(int), 0, grid_rows - 1)
-        cell = row * grid_cols + col
-        count = np.bincount(cell, minlength=grid_cols * grid_rows)
-        out[seen] = np.maximum(out[seen], count[cell])
-    return out
+    n_cells = grid_cols * grid_rows
+    seen = np.isfinite(uv[:, :, 0])
+    track, cam = np.nonzero(seen)
+    if track.size == 0:
+        return np.zeros(uv.shape[0], dtype=np.int64)
+    # Every camera at once: one count over (camera, cell), not one pass per camera.
+    w, h = sizes_px[cam, 0], sizes_px[cam, 1]
+    # +0.5: pixel centres run from 0 to w - 1, the image area from -0.5 to w - 0.5.
+    col = np.clip(((uv[track, cam, 0] + 0.5) / w * grid_cols).astype(int), 0, grid_cols - 1)
+    row = np.clip(((uv[track, cam, 1] + 0.5) / h * grid_rows).astype(int), 0, grid_rows - 1)
+    cell = cam * n_cells + row * grid_cols + col
+    count = np.bincount(cell, minlength=uv.shape[1] * n_cells)
+    per_camera = np.zeros(seen.shape, dtype=np.int64)
+    per_camera[track, cam] = count[cell]
+    return per_camera.max(axis=1)
 
 
 class TrackPool:
