@@ -34,7 +34,6 @@ bumped cameras again (see `calibrate`).
 
 from __future__ import annotations
 
-import functools
 import logging
 import time
 from collections.abc import Collection
@@ -42,6 +41,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from camnet import blas
 from camnet.errors import SolveError
 from camnet.geometry import bundle, distances
 from camnet.geometry.bundle import CentreMode, Problem, State
@@ -125,14 +125,6 @@ def _problem(obs, order, rows_kept, track_rows, intr_free, rot_free, right_centr
     )
 
 
-@functools.cache
-def _blas_controller():
-    """The BLAS libraries loaded (numpy's, scipy's), found once: a search costs milliseconds."""
-    from threadpoolctl import ThreadpoolController
-
-    return ThreadpoolController()
-
-
 def calibrate(
     obs: Observations,
     options: Options = Options(),
@@ -156,7 +148,7 @@ def calibrate(
     try:
         # The dense products here have a few hundred rows: BLAS threads gain little on
         # them, and on a machine shared with drivers and the matcher they stall each other.
-        with _blas_controller().limit(limits=1, user_api="blas"):
+        with blas.one_thread():
             return _calibrate(obs, options, initial, reset_cameras)
     except np.linalg.LinAlgError:
         raise SolveError(f"the observations do not determine the calibration (singular equations){pair_advice(obs)}"

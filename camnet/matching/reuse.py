@@ -23,7 +23,6 @@ gives nothing this time (a moved camera then gets a new keyframe and a new F).
 
 from __future__ import annotations
 
-import functools
 import logging
 from collections.abc import Collection, Sequence
 from dataclasses import dataclass
@@ -31,6 +30,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from camnet import blas
 from camnet.geometry.model import Stereo
 from camnet.matching.edge import CameraFeatures
 from camnet.matching.features import (
@@ -45,14 +45,6 @@ from camnet.matching.features import (
 log = logging.getLogger(__name__)
 
 MIN_AGREEING = 0.5  # of the new candidates within the old F's threshold, to trust the old F
-
-
-@functools.cache
-def _blas_controller():
-    """The BLAS libraries loaded, found once: a search costs milliseconds."""
-    from threadpoolctl import ThreadpoolController
-
-    return ThreadpoolController()
 
 
 @dataclass(frozen=True)
@@ -122,7 +114,7 @@ class IncrementalMatcher:
         out = []
         # The distance products of a pair are a few thousand rows: BLAS threads halve no wall time on them
         # but double the CPU (measured: 23 against 11.5 ms a product), spinning beside the other nodes.
-        with _blas_controller().limit(limits=1, user_api="blas"):
+        with blas.one_thread():
             for i in range(len(ids)):
                 for j in range(i + 1, len(ids)):
                     if pairs is not None and frozenset((ids[i], ids[j])) not in pairs:
