@@ -137,6 +137,8 @@ def test_a_feature_node_of_its_own_detects_a_cameras_frames_from_the_bus(zenoh_p
     got: list[FeaturesMessage] = []
     peer.declare_subscriber(keys.features(rig.name, "left"),
                             lambda sample: got.append(decode_features(sample.payload.to_bytes())))
+    # The node's session must know of this subscriber before its first features go out, or they go nowhere.
+    matched_publisher(node_session, keys.features(rig.name, "left"), timeout_s=30.0).undeclare()
     node = FeatureNode(node_session, rig.name, "left", FeatureStageConfig(period_s=0.25))
     with running_node(node):
         frames = matched_publisher(peer, keys.frame(rig.name, "left"), timeout_s=30.0)
