@@ -55,12 +55,12 @@ this order. So the rotation blocks the rule freed are tried again, from the
 ideal pair, once a camera block has been freed after them. Where the
 principal points are guessed, the yaw costs the scale nothing beyond the
 guess and is freed again (on `wide` as before), but where the pair's K is
-given the yaw, with the lens free, no longer asks (chi2 0-9 on seeds 0-5),
-costs the scale x2.7-3, and is held again. What the lens's misfit also cost
-was observations: outliers are judged before this rule, and a wide lens's
-good observations far from the image centre lie off a lens held at zero.
-camnet.geometry.calibrate therefore judges them again, after a robust solve
-with the free set, whenever the rule frees a distortion coefficient.
+given the yaw, with the lens free, no longer asks (chi2 0-9 on seeds 0, 1,
+3-5), costs the scale x2.7-3, and is held again. What the lens's misfit also
+cost was observations: outliers are judged before this rule, and a wide
+lens's good observations far from the image centre lie off a lens held at
+zero. camnet.geometry.calibrate therefore judges them again, after a robust
+solve with the free set, whenever the rule frees a distortion coefficient.
 
 The name `fisheye` frees the four coefficients k1..k4 of every fisheye
 camera (the blocks `k1`, `k2` alone free the first two of either model).
