@@ -6,8 +6,7 @@ length lie within 3 reported sigmas in at least 95% of the checks, per
 family and quantity (one miss in 20). A camera whose K the observations
 give is held and has no focal check; a camera the solve leaves out is named
 in its report and has none either. The ring with its head's K given must
-also keep its scale error below 0.5%, or say it has not (a scale sigma
-above 0.5%). The paper's rig is checked the same way in tests/test_engine.py;
+also keep its scale error below 0.5%. The paper's rig is checked the same way in tests/test_engine.py;
 here the rigs it is unlike.
 """
 
@@ -40,21 +39,20 @@ def z_scores(name: str, seed: int) -> tuple[float, list[float], float, float]:
 
 @pytest.mark.parametrize("name", FAMILIES)
 def test_scale_and_focal_errors_lie_within_three_reported_sigmas(name):
-    scale_z, focal_z, scale_rel, scale_sigma = [], [], [], []
+    scale_z, focal_z, scale_rel = [], [], []
     for seed in range(FIRST_SEED, FIRST_SEED + SEEDS):
-        s, f, rel, sigma = z_scores(name, seed)
+        s, f, rel, _ = z_scores(name, seed)
         scale_z.append(s)
         focal_z += f
         scale_rel.append(abs(rel))
-        scale_sigma.append(sigma)
     scale_z, focal_z = np.array(scale_z), np.array(focal_z)
     assert np.mean(scale_z <= 3) >= WITHIN, f"{name}: scale errors / sigma {np.round(scale_z, 2).tolist()}"
     assert np.mean(focal_z <= 3) >= WITHIN, f"{name}: focal errors / sigma, worst {np.sort(focal_z)[-3:].tolist()}"
     if name == "ring_K":
-        # The target, or a reported sigma that says it is not reached: where the rule frees the head's yaw
-        # (3 seeds of 0-39: 25, 28, 30) the scale sigma grows to 1.6-1.8%.
-        reached = (np.array(scale_rel) < RING_K_MAX_SCALE_REL) | (np.array(scale_sigma) > RING_K_MAX_SCALE_REL)
-        assert reached.all(), f"ring_K: scale errors % {np.round(100 * np.array(scale_rel), 3).tolist()}"
+        # On every seed: the free rule keeps the head's yaw held, which freed would put the scale's sigma up
+        # to 1.6-1.8% (it freed it on seeds 25, 28 and 30, and seed 25 ended 6.1% off).
+        assert (np.array(scale_rel) < RING_K_MAX_SCALE_REL).all(), (
+            f"ring_K: scale errors % {np.round(100 * np.array(scale_rel), 3).tolist()}")
 
 
 @pytest.mark.xfail(strict=True, reason="open: a start the adjustment cannot recover from, returned with warnings")

@@ -268,15 +268,15 @@ def _apply_free_rule(obs, order, full: Problem, problem: Problem, state: State, 
                      held_dist, *, ideal_pair):
     """(full, problem, state, inliers, decisions): the automatic free set, chosen at the least-squares solution
     (of the ideal pair where the pair started as the paper's); the inliers judged again if it frees distortion."""
-    widths = [obs.cameras[i].width for i in order]
-    heights = [obs.cameras[i].height for i in order]
+    widths, heights = [obs.cameras[i].width for i in order], [obs.cameras[i].height for i in order]
     # The rule starts from the ideal pair: its rotation held at the identity.
     R = state.R.copy()
     R[1] = np.eye(3) if ideal_pair else R[1]
     state, _ = bundle.solve(problem, State(state.intr, R, state.C, state.X), max_iterations=options.max_iterations)
     problem, state, decisions = choose_free(
         problem, state, determined_px=options.determined_px, significance=options.significance, widths=widths,
-        heights=heights, held_K=held_K, held_dist=held_dist, max_iterations=options.max_iterations)
+        heights=heights, held_K=held_K, held_dist=held_dist, max_iterations=options.max_iterations,
+        guessed_pp=np.array([obs.cameras[i].K is None for i in order]) & ~held_K, pp_prior_rel=options.pp_prior_rel)
     freed_dist = (problem.intr_free[:, _DIST] & ~full.intr_free[:, _DIST]).any()
     full = replace(full, intr_free=problem.intr_free, rot_free=problem.rot_free, centre_mode=problem.centre_mode)
     if freed_dist:

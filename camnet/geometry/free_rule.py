@@ -12,21 +12,55 @@ camera block the cameras ask for together, but none alone, is freed for all
 of them; the cameras still held are then tried again (a 100 degree lens's k2
 shows in one camera only once the others' is free).
 
+A stereo block is weighed by what freeing it costs the scale as well as by
+the image. Freeing a block whose true value is the held one (the ideal,
+parallel pair) buys nothing and adds D = sigma_free^2 - sigma_held^2 to the
+scale's variance; holding a block whose true value is not biases the scale
+by some b. Freeing pays, in the scale's mean square error, only where b^2 >
+D. A block that barely moves the image can cost the scale dearly: a ring
+head's yaw (0.12 m baseline, 2 m away, 950 px) is determined to about 1 px,
+but one pixel is 1.75% of its disparity, and freed, it puts the scale's
+sigma up from 0.07% to 1.6-1.8%. So where freeing a stereo block more than
+doubles the scale's sigma (`COSTLY_INFLATION`: more than a determined
+block's price), it is freed only when the data ask for it (the score test)
+and the scale's shift with it free shows, beyond chance at `significance`,
+that b^2 > D: the shift in units of sqrt D is normal with unit variance and
+mean b / sqrt D, and its square must pass the noncentral chi-square quantile
+(1 dof, noncentrality 1; 16.7 at 1e-3 against the score test's 10.8). Where
+freeing costs the scale little (the pitch and roll, the baseline's
+direction: x1.0-1.4) the pixel rule above decides. The sigmas are those the
+report gives: with principal points nobody gave uncertain (their prior,
+`pp_prior_rel`), and the right camera's horizontal principal point is its
+yaw to first order, so where those are guessed, freeing the yaw costs the
+scale little more than the guess has (x1.04 on a six-camera rig whose
+principal points are up to 10 px off: held, the yaw takes none of their
+column offset's misfit, chi2 12.6, and the scale was 5.2% off, freed 0.3%).
+On `ring_K` (camnet.sim.families, seeds 0-39) the pixel rule freed the yaw
+on three seeds, twice at 0.97-0.99 px with no evidence (chi2 0.002-0.08) and
+once on a 3.7 sigma false alarm that ended 6.1% off at a reported 1.6%; this
+rule holds it on all 40. A toed-in head still has its yaw freed (0.5
+degrees, 8 px: 8 of its sigmas). The price is the threshold: a yaw is freed
+at 4.1 of its sigmas rather than 3.3 (about 0.25 degrees on the ring), and
+below it a toed-in head's scale is off by 1.75% per pixel of yaw under
+either rule: a parallel pair is the paper's assumption, and each stereo line
+of the report's free_rule says what freeing the block would cost the scale.
+
 The stereo pair's blocks are tried before the lens blocks, although a 100
 degree lens held at k1 = k2 = 0 lends some of its misfit to the pair's yaw,
-which its score test then frees. Trying k1 and k2 first does not keep the
-pair held: with the lens free, the pair's rotation is determined to
-0.07-0.4 px (seeds 0-2), within `determined_px`, and is freed all the
-same (and tried on significance alone, the pair stays held but the stereo
-cameras' principal points are determined and freed instead: the right
-camera's horizontal principal point is its yaw to first order). On the
-`wide` family (camnet.sim.families, seeds 0-19) the median scale error was
-0.29% with k1, k2 tried first against 0.12% in this order. What the lens's
-misfit did cost was observations: outliers are judged before this rule,
-and a wide lens's good observations far from the image centre lie off a
-lens held at zero. camnet.geometry.calibrate therefore judges them again,
-after a robust solve with the free set, whenever the rule frees a
-distortion coefficient.
+which its score test then frees (chi2 450-580 on `wide` seeds 0-4). Trying
+k1 and k2 first, the stereo cameras' principal points were freed instead
+(the right camera's horizontal principal point is its yaw to first order):
+the median scale error on `wide` (seeds 0-19) was 0.29% against 0.12% in
+this order. So the rotation blocks the rule freed are tried again, from the
+ideal pair, once a camera block has been freed after them. Where the
+principal points are guessed, the yaw costs the scale nothing beyond the
+guess and is freed again (on `wide` as before), but where the pair's K is
+given the yaw, with the lens free, no longer asks (chi2 0-9 on seeds 0, 1,
+3-5), costs the scale x2.7-3, and is held again. What the lens's misfit also
+cost was observations: outliers are judged before this rule, and a wide
+lens's good observations far from the image centre lie off a lens held at
+zero. camnet.geometry.calibrate therefore judges them again, after a robust
+solve with the free set, whenever the rule frees a distortion coefficient.
 
 The name `fisheye` frees the four coefficients k1..k4 of every fisheye
 camera (the blocks `k1`, `k2` alone free the first two of either model).
@@ -38,7 +72,7 @@ several sigmas.
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -47,14 +81,28 @@ from camnet.geometry import bundle, schur
 from camnet.geometry.bundle import CEN, ROT, CentreMode, Problem, State
 from camnet.geometry.model import CameraInfo, FreeSet, LensModel
 from camnet.geometry.projection import FISHEYE_DIST_SIZE, FISHEYE_INTRINSIC_NAMES, INTRINSIC_NAMES, N_INTRINSICS
-from camnet.geometry.uncertainty import Covariance, covariance, residual_dof
+from camnet.geometry.uncertainty import (
+    Covariance,
+    covariance,
+    covariance_with_pp_prior,
+    residual_dof,
+    scale_gradient,
+    scale_sigma,
+    scale_weights,
+    with_guessed_pp,
+)
 
 FREE_NAMES = ("f", "aspect", "pp", "k1", "k2", "fisheye", "stereo_rotation", "stereo_direction")
 CANDIDATES = ("stereo_pitch_roll", "stereo_direction", "stereo_yaw", "pp", "k1", "k2")
 
+# Freeing a stereo block that moves the scale's sigma by more than this needs the data to ask for it (module
+# docstring): the pitch, roll and baseline direction cost x1.0-1.4 on every family, the yaw x3-26 where
+# the principal points are given or free.
+COSTLY_INFLATION = 2.0
 _SLOT = {name: i for i, name in enumerate(INTRINSIC_NAMES)}  # a camera's intrinsic columns
 _SLOTS = {"pp": (_SLOT["cx"], _SLOT["cy"]), "k1": (_SLOT["k1"],), "k2": (_SLOT["k2"],)}
 _PITCH, _YAW, _ROLL = ROT.start, ROT.start + 1, ROT.start + 2  # rotation about x, y, z
+_TURNS = {"stereo_pitch_roll": (0, 2), "stereo_yaw": (1,)}  # the right camera's rotation axes a block frees
 _DIRECTION = (CEN.start, CEN.start + 1)  # the two tangent slots of a centre on the baseline sphere
 _FISHEYE_K = slice(_SLOT["k1"], _SLOT["k1"] + FISHEYE_DIST_SIZE)  # a fisheye camera's coefficients
 
@@ -131,16 +179,80 @@ def _pixel_effect(name: str, state: State, cov: Covariance, widths, heights) -> 
     return np.array([f[m] * r_max[m] ** 5 * sigma(m, _SLOT["k2"]) for m in cams])
 
 
+@dataclass(frozen=True)
+class ScaleCost:
+    """What freeing a block does to the network's scale (relative, 0.001 = 0.1%), at the held solution."""
+
+    held: float  # the scale's standard deviation with the block held
+    free: float  # with it free
+    shift: float  # the change of the scale the Gauss-Newton step with the block free makes
+
+    @property
+    def added_variance(self) -> float:
+        return max(self.free**2 - self.held**2, 0.0)
+
+    @property
+    def inflation(self) -> float:
+        """free / held: how much the scale's sigma grows with the block free."""
+        return self.free / self.held if self.held > 0 else np.inf
+
+    @property
+    def costly(self) -> bool:
+        """Whether freeing the block more than doubles the scale's sigma (`COSTLY_INFLATION`)."""
+        return bool(np.isfinite(self.held) and self.free > COSTLY_INFLATION * self.held)
+
+    @property
+    def shift_sigmas(self) -> float:
+        """The shift in units of the sigma freeing adds: a standard normal if the block's true value is the held
+        one (the Hausman statistic's root); its mean is the held block's bias on the scale in those units."""
+        return abs(self.shift) / np.sqrt(self.added_variance) if self.added_variance > 0 else 0.0
+
+
+def _scale_covariance(everything: Problem, problem: Problem, state: State, cov: Covariance, prior_px):
+    """(covariance, block): the covariance with the block free that the scale's sigmas are taken from, and the
+    block's columns in it; with the guessed principal points uncertain where prior_px (as `_try_block`'s)."""
+    new = (problem.columns()[0] < 0) & (everything.columns()[0] >= 0)
+    wider = None if prior_px is None else with_guessed_pp(everything, prior_px[:, 0] > 0)
+    if wider is None:
+        return cov, everything.columns()[0][new]
+    prior = covariance_with_pp_prior(everything, wider, state, bundle.normal_equations(wider, state), prior_px)
+    return prior, wider.columns()[0][new]
+
+
+def _scale_cost(cov: Covariance, block: np.ndarray, ne_free, ne_held, points: np.ndarray) -> ScaleCost:
+    """The ScaleCost of freeing the camera columns `block` of `cov` (the covariance with them free).
+
+    ne_free, ne_held: the normal equations with the block free and held, at the held least-squares solution.
+    """
+    weights = scale_weights(cov, points)
+    free, held = scale_sigma(cov, points, weights), scale_sigma(cov, points, weights, given=block)
+    steps = [schur.solve_damped(ne, schur.GAUSS_NEWTON_LAMBDA) for ne in (ne_free, ne_held)]
+    if steps[0] is None or steps[1] is None:
+        return ScaleCost(held, free, 0.0)
+    shift = float(np.sum(scale_gradient(points, weights) * (steps[0][1] - steps[1][1])))
+    return ScaleCost(held, free, shift)
+
+
+def _stereo_free(effect: float, wanted: bool, cost: ScaleCost, determined_px: float, significance: float) -> bool:
+    """Whether the module docstring's rule frees a stereo block: determined or asked for, and where freeing
+    it costs the scale, its scale shift showing beyond chance that holding it costs the scale more."""
+    from scipy.stats import ncx2
+
+    if not cost.costly:
+        return bool(effect <= determined_px or wanted)
+    # H0: the held block's bias on the scale is at most the sigma freeing it adds (holding costs the scale's
+    # mean square error no more than freeing): the shift in added sigmas is then N(<= 1, 1).
+    return bool(wanted and cost.shift_sigmas**2 > ncx2.isf(significance, 1, 1.0))
+
+
 def with_block(problem: Problem, name: str, cameras: np.ndarray) -> Problem:
     """`problem` with the candidate block `name` also free (for `cameras` (M,) bool, per-camera blocks)."""
     intr_free, rot_free, centre_mode = problem.intr_free.copy(), problem.rot_free.copy(), problem.centre_mode.copy()
-    if name == "stereo_pitch_roll":
-        rot_free[1, [0, 2]] = True
+    if name in _TURNS:
+        rot_free[1, list(_TURNS[name])] = True
     elif name == "stereo_direction":
         if centre_mode[1] == CentreMode.FIXED:  # a FREE centre (a soft stereo baseline) turns already
             centre_mode[1] = CentreMode.ON_BASELINE
-    elif name == "stereo_yaw":
-        rot_free[1, 1] = True
     else:
         for s in _SLOTS[name]:
             intr_free[cameras, s] = True
@@ -149,7 +261,7 @@ def with_block(problem: Problem, name: str, cameras: np.ndarray) -> Problem:
 
 def choose_free(
     problem: Problem, state: State, *, determined_px: float, significance: float, widths, heights, held_K, held_dist,
-    max_iterations: int = 300,
+    max_iterations: int = 300, guessed_pp: np.ndarray | None = None, pp_prior_rel: float = 0.0,
 ) -> tuple[Problem, State, list[str]]:
     """Apply the rule of the module docstring; returns (problem, state, decisions).
 
@@ -160,25 +272,54 @@ def choose_free(
     first-order equal to the likelihood ratio). Each freed block moves the
     solution, so it is solved again before the next test: a test made away
     from the minimum measures the distance to it, not the block.
+
+    guessed_pp (M,) bool: the cameras whose principal point is held at the
+    image centre because nobody gave one; pp_prior_rel: 1 sigma of such a
+    guess, relative to the image's width and height. A stereo block's cost
+    to the scale is weighed with them uncertain, as the reported sigma is.
     """
-    decisions = []
+    prior_px = None
+    if guessed_pp is not None and pp_prior_rel > 0 and guessed_pp.any():
+        prior_px = np.where(guessed_pp[:, None], pp_prior_rel * np.column_stack([widths, heights]), 0.0)
+    tests = (determined_px, significance, widths, heights, held_K, held_dist, prior_px)
+    decisions, turned = [], []
+    after_stereo = problem.intr_free  # what the camera blocks free comes after the stereo blocks
     for name in CANDIDATES:
         # A camera block is tried again for the cameras still held once others are freed:
         # their misfit, spread over every camera before, then stands out.
         for _ in range(1 if name.startswith("stereo") else problem.n_cameras):
-            trial, decision = _try_block(name, problem, state, determined_px, significance, widths, heights,
-                                         held_K, held_dist)
+            trial, decision = _try_block(name, problem, state, *tests)
             if decision:
                 decisions.append(decision)
             if trial is problem:
                 break
+            if name in _TURNS and trial.columns()[1] > problem.columns()[1]:
+                turned.append(name)
             problem = trial
             state, _ = bundle.solve(problem, state, max_iterations=max_iterations)
+        if name == "stereo_yaw":  # the last of the stereo blocks
+            after_stereo = problem.intr_free
+    # Tried again where a camera block was freed after them: its misfit may have been what asked for them.
+    for name in turned if (problem.intr_free != after_stereo).any() else ():
+        rot_free = problem.rot_free.copy()
+        rot_free[1, list(_TURNS[name])] = False
+        held = replace(problem, rot_free=rot_free)
+        R = state.R.copy()
+        R[1] = np.eye(3)  # the ideal pair's, where the rule started; the axes still free find their angles again
+        held_state, _ = bundle.solve(held, replace(state, R=R), max_iterations=max_iterations)
+        trial, decision = _try_block(name, held, held_state, *tests)
+        if trial is held:
+            problem, state = held, held_state
+            decisions.append(f"{decision}, tried again")
     return problem, state, decisions
 
 
-def _try_block(name, problem: Problem, state: State, determined_px, significance, widths, heights, held_K, held_dist):
-    """(problem with the block `name` freed where the rule says so, the decision's text)."""
+def _try_block(name, problem: Problem, state: State, determined_px, significance, widths, heights, held_K, held_dist,
+               prior_px):
+    """(problem with the block `name` freed where the rule says so, the decision's text).
+
+    prior_px (M, 2) or None: 1 sigma of the guessed principal points, pixels (0: not guessed).
+    """
     from scipy.special import chdtri
 
     M = problem.n_cameras
@@ -209,12 +350,18 @@ def _try_block(name, problem: Problem, state: State, determined_px, significance
     if name == "stereo_direction" and everything.columns()[1] == problem.columns()[1]:
         return problem, f"{name}: free (the right camera's centre is free: its baseline is soft)"
     # Infinite where the block is not fixed at all by these observations.
-    effect = _pixel_effect(name, state, covariance(everything, state, normal=restricted(everything)), widths, heights)
+    cov = covariance(everything, state, normal=restricted(everything))
+    effect = _pixel_effect(name, state, cov, widths, heights)
     if name.startswith("stereo"):
         k = int(everything.columns()[1] - problem.columns()[1])
         wanted, statistic = significant(everything, k)
-        free = effect <= determined_px or wanted
-        text = f"{name}: {'free' if free else 'held'} (sigma {effect:.2g} px, chi2 {statistic:.3g} on {k} dof)"
+        cost = _scale_cost(*_scale_covariance(everything, problem, state, cov, prior_px), restricted(everything),
+                           restricted(problem), state.X)
+        free = _stereo_free(effect, wanted, cost, determined_px, significance)
+        # What freeing costs the scale, and where it is costly, the scale's evidence for it.
+        shift = f", its shift {cost.shift_sigmas:.2g} of the sigma it adds" if cost.costly else ""
+        text = (f"{name}: {'free' if free else 'held'} (sigma {effect:.2g} px, chi2 {statistic:.3g} on {k} dof; "
+                f"free, the scale's sigma x{cost.inflation:.2g}{shift})")
         return (everything if free else problem), text
     k = len(_SLOTS[name])
     determined = np.isfinite(effect) & (effect <= determined_px) & movable

@@ -29,7 +29,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from camnet.geometry.model import Baseline, Camera, LensModel, Observations
-from camnet.geometry.projection import distort_fisheye, look_at
+from camnet.geometry.projection import distort_fisheye, look_at, rotation_exp
 from camnet.sim.simulate import HEIGHT, WIDTH, SimRig, make_rig, observe
 
 FAMILIES = ("ring", "ring_K", "two_heads", "tape_pair", "wide", "fisheye")
@@ -89,8 +89,12 @@ def _in_left_frame(cameras: list[Camera], points: np.ndarray, normals: np.ndarra
     return moved, points @ R0.T + t0, normals @ R0.T
 
 
-def ring(*, seed: int = 0, n_points: int = 600, heads: int = 1) -> FamilyRig:
-    """8 ring positions; `heads` of them (1 or 2, opposite) hold a parallel head, the rest one camera."""
+def ring(*, seed: int = 0, n_points: int = 600, heads: int = 1, head_yaw_deg: float = 0.0) -> FamilyRig:
+    """8 ring positions; `heads` of them (1 or 2, opposite) hold a parallel head, the rest one camera.
+
+    head_yaw_deg: every head's right camera turned by this about its own y axis (a head toed in, not
+    parallel: positive turns it towards the left camera's side).
+    """
     rng = np.random.default_rng(seed)
     angles = np.radians(np.arange(8) * 45.0 + rng.uniform(-5, 5, 8))
     cameras: list[Camera] = []
@@ -98,8 +102,9 @@ def ring(*, seed: int = 0, n_points: int = 600, heads: int = 1) -> FamilyRig:
     for k, slot in enumerate(head_slots):
         left = _ring_camera(f"head{k}_left", angles[slot], rng)
         right_centre = left.centre + HEAD_BASELINE_M * left.R[0]
-        right = Camera(f"head{k}_right", WIDTH, HEIGHT, _K(RING_FOCAL_PX, rng), np.zeros(5), left.R,
-                       -left.R @ right_centre)
+        R_right = rotation_exp(np.array([0.0, np.radians(head_yaw_deg), 0.0])) @ left.R
+        right = Camera(f"head{k}_right", WIDTH, HEIGHT, _K(RING_FOCAL_PX, rng), np.zeros(5), R_right,
+                       -R_right @ right_centre)
         cameras += [left, right]
     # Every head after the first is a further known distance.
     known = tuple(Baseline(f"head{k}_left", f"head{k}_right", HEAD_BASELINE_M) for k in range(1, len(head_slots)))
@@ -153,15 +158,17 @@ def fisheye(*, seed: int = 0, n_points: int = 600) -> FamilyRig:
     return FamilyRig(SimRig(cameras, rig.baseline_m, points), np.full((n_points, 3), np.nan))
 
 
-def family(name: str, *, seed: int = 0) -> FamilyRig:
-    """The family `name` (one of FAMILIES) drawn with `seed`."""
+def family(name: str, *, seed: int = 0, head_yaw_deg: float = 0.0) -> FamilyRig:
+    """The family `name` (one of FAMILIES) drawn with `seed`; head_yaw_deg: as `ring`'s, for the ring families."""
+    if head_yaw_deg and name not in ("ring", "ring_K", "two_heads"):
+        raise ValueError(f"head_yaw_deg: family {name!r} has no parallel head; the ring families have")
     if name == "ring":
-        return ring(seed=seed)
+        return ring(seed=seed, head_yaw_deg=head_yaw_deg)
     if name == "ring_K":
-        drawn = ring(seed=seed)
+        drawn = ring(seed=seed, head_yaw_deg=head_yaw_deg)
         return replace(drawn, given=tuple(c.id for c in drawn.rig.cameras[:2]))
     if name == "two_heads":
-        return ring(seed=seed, heads=2)
+        return ring(seed=seed, heads=2, head_yaw_deg=head_yaw_deg)
     if name == "tape_pair":
         return tape_pair(seed=seed)
     if name == "wide":
