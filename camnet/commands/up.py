@@ -453,7 +453,10 @@ def summarise(elapsed_s: float, doc: dict, truth) -> dict:
         latency_s = (doc["solved_ns"] - doc["latest_capture_ns"]) / 1e9
         # Recorded frames (an image sequence with its timestamps) keep their own clock: no latency then.
         if abs(latency_s) < RECORDED_CLOCK_S:
+            from camnet.bus.latency import stage_durations_s
+
             summary["capture_to_solution_s"] = latency_s
+            summary["stages_s"] = stage_durations_s(doc)
     if truth:
         from camnet.geometry.evaluate import compare_cameras
         from camnet.io.formats import parse_calibration
