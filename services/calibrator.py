@@ -191,11 +191,12 @@ class CalibratorNode:
         doc["latency_ns"] = {**{k: v for k, v in latency.stamps(doc_in).items() if k in latency.MATCHER_STAGES[1:]
                                 or k == "published"}, **stamps}
         payload = json.dumps(doc, allow_nan=False).encode()
-        if self.config.state_path is not None:
-            write_json_atomic(self.config.state_path, doc, private=True)  # the rig's layout: not for every user
         with self._lock:
             self.latest_doc = payload
         publisher.put(payload)
+        # Kept for a restart after it is published: writing it must not delay the rig's consumers.
+        if self.config.state_path is not None:
+            write_json_atomic(self.config.state_path, doc, private=True)  # the rig's layout: not for every user
 
     def handle(self, payload: bytes, publisher, *, received_ns: int | None = None) -> Outcome | None:
         """Solve one observations message (received at `received_ns`, Unix epoch) and publish what came of it."""
