@@ -26,11 +26,11 @@ class MatcherNodeConfig:
     max_features: int = 4000  # per image
     max_image_side_px: int | None = None  # detect on a downscaled copy above this size
     # Once the pool holds max_tracks, a frame set's new tracks only replace others: then detect on a copy
-    # downscaled to this size (if smaller than the above). On config/sim.yaml (1280x1024, 20 frame sets
-    # 1 s apart) it halved the matcher's CPU per set once the pool was full (0.35 s, was 0.68 s); over the
-    # last 10 solves the median scale error stayed 0.07% and the largest focal error went from 0.03% to
-    # 0.06% (sigmas 1.3% and 1.1%). 960 px: 0.58 s, 0.06% and 0.05%.
-    full_pool_image_side_px: int | None = 640
+    # downscaled to this size (if smaller than the above; None: never). On config/sim.yaml (1280x1024, 20
+    # frame sets 1 s apart) 640 px halved the matcher's CPU per set once the pool was full (0.35 s, was
+    # 0.68 s) but over the last 10 solves the largest focal error went from 0.03% to 0.06% (median scale
+    # error 0.07% both; 960 px: 0.58 s, 0.05%), and live runs showed the same: off unless asked for.
+    full_pool_image_side_px: int | None = None
     normalise_contrast: bool = True  # stretch and equalise each image before detection
     stats_period_s: float = 1.0
     lockstep: bool = False  # frames come from `camnet replay --lockstep`, one step at a time

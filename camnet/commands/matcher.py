@@ -28,8 +28,8 @@ def _node_flags() -> tuple[tuple[str, dict], ...]:
                                      help="detect on a downscaled copy of larger images (default: None, full size)")),
         ("--full-pool-image-side-px", dict(type=int, metavar="PX",
                                            help="once the pool is full, detect on a downscaled copy of larger "
-                                                "images, as the pool's new tracks only replace others "
-                                                "(default: 640)")),
+                                                "images: less time per frame set, larger focal errors "
+                                                "(default: None, full size)")),
         ("--normalise-contrast", dict(action=argparse.BooleanOptionalAction,
                                       help="stretch and equalise (CLAHE) each image before detection, for dark or "
                                            "flat images (default: True)")),
