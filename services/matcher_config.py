@@ -27,10 +27,11 @@ class MatcherNodeConfig:
     max_image_side_px: int | None = None  # detect on a downscaled copy above this size
     # Once the pool holds max_tracks, a frame set's new tracks only replace others: then detect on a copy
     # downscaled to this size (if smaller than the above; None: never). On config/sim.yaml (1280x1024, 20
-    # frame sets 1 s apart) 640 px halved the matcher's CPU per set once the pool was full (0.35 s, was
-    # 0.68 s) but over the last 10 solves the largest focal error went from 0.03% to 0.06% (median scale
-    # error 0.07% both; 960 px: 0.58 s, 0.05%), and live runs showed the same: off unless asked for.
-    full_pool_image_side_px: int | None = None
+    # frame sets 1 s apart, offline) the matcher's CPU per set once the pool was full was 0.58 s at 960 px,
+    # 0.35 s at 640 px, 0.68 s at full size; the largest focal error against the truth over the last 10
+    # solves 0.05%, 0.06% and 0.03% (median scale error 0.06-0.07% each; sigmas 1.1% and 1.3%). Live, 640
+    # px doubled the focal errors run after run (README, "The live network"); 960 px did not show it.
+    full_pool_image_side_px: int | None = 960
     normalise_contrast: bool = True  # stretch and equalise each image before detection
     stats_period_s: float = 1.0
     lockstep: bool = False  # frames come from `camnet replay --lockstep`, one step at a time
