@@ -4,7 +4,10 @@
 Runs `camnet up RIG` (drivers, matcher, calibrator as processes on loopback
 Zenoh, simulated time on the wall clock) and tabulates every calibration it
 publishes: when it came, how long after the newest frame set it includes
-was captured, and its errors against the simulation's ground truth.
+was captured, and its errors against the simulation's ground truth. Then
+the latency's median and max, and its budget: the median of every stage
+between capture and publication (`camnet.bus.latency`), from the stage times
+the matcher and the calibrator stamp in their documents.
 
     python benchmarks/bench_live.py [--rig config/sim.yaml] [--seconds 120] [--detector sift]
 """
@@ -19,6 +22,7 @@ import sys
 import tempfile
 from pathlib import Path
 
+from camnet.bus.latency import STAGES
 from camnet.matching.features import Detector
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -28,6 +32,24 @@ def free_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+def median(values: list[float]) -> float:
+    ordered = sorted(values)
+    return ordered[len(ordered) // 2] if len(ordered) % 2 else (ordered[len(ordered) // 2 - 1]
+                                                                 + ordered[len(ordered) // 2]) / 2
+
+
+def print_stages(rows: list[dict]) -> None:
+    """The latency budget: each stage's median and max over the calibrations that stamp it."""
+    print("\n| stage (ends when) | median s | max s | calibrations |\n|---|---|---|---|")
+    total = 0.0
+    for stage in STAGES[1:]:
+        values = [r["stages_s"][stage] for r in rows if stage in r.get("stages_s", {})]
+        if values:
+            total += median(values)
+            print(f"| {stage} | {median(values):.3f} | {max(values):.3f} | {len(values)} |")
+    print(f"| sum of the medians | {total:.3f} | | |")
 
 
 def main() -> int:
@@ -59,8 +81,16 @@ def main() -> int:
               f"| {100 * r.get('max_focal_error_rel', nan):.2f} | {r.get('max_centre_error_mm', nan):.2f} |")
     latencies = sorted(r["capture_to_solution_s"] for r in rows if "capture_to_solution_s" in r)
     if latencies:
-        print(f"\ncapture→calibration: median {latencies[len(latencies) // 2]:.1f} s, max {latencies[-1]:.1f} s "
+        print(f"\ncapture→calibration: median {median(latencies):.2f} s, max {latencies[-1]:.2f} s "
               f"over {len(latencies)} calibrations")
+        print_stages(rows)
+    if rows and "scale_error_rel" in rows[-1]:
+        last = rows[-1]
+        print(f"last calibration against the truth: scale {100 * last['scale_error_rel']:+.3f}% "
+              f"(sigma {100 * (last['scale_sigma_rel'] or nan):.3f}%), max focal error "
+              f"{100 * last['max_focal_error_rel']:.3f}%; median over the run: |scale| "
+              f"{100 * median([abs(r['scale_error_rel']) for r in rows]):.3f}%, max focal "
+              f"{100 * median([r['max_focal_error_rel'] for r in rows]):.3f}%")
     return 0
 
 

@@ -52,9 +52,9 @@ class SimCamera:
         self.config = config
         self.scene = scene
         self.groundtruth = groundtruth  # the whole rig's, for the node to publish
-        self._renderer = Renderer(config.camera(camera_id))
         # Each camera its own noise, reproducible from the rig's seed and the camera id.
         self._noise_seed = (seed, scene.config.seed, zlib.crc32(camera_id.encode()))
+        self._renderer = Renderer(config.camera(camera_id), noise_seed=self._noise_seed)
         self._info = DeviceInfo(camera_id=camera_id, driver="sim", width=config.width,
                                 height=config.height, encoding=config.encoding, fps=config.fps,
                                 description="simulated camera (camnet.sim.render)")

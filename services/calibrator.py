@@ -3,7 +3,8 @@
 Every observations message (the matcher's pooled tracks, latest value only)
 is handed to the live policy (`camnet.geometry.live`), which solves it warm
 from the last good calibration and says whether the result may replace it.
-Good calibrations are published on the rig's calibration key, answered to
+Good calibrations are published on the rig's calibration key (with the
+stage times of `camnet.bus.latency`), answered to
 late joiners by a queryable, and written atomically to a state file from
 which a restarted calibrator resumes.
 
@@ -21,7 +22,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from camnet.bus import keys, lockstep
+from camnet.bus import keys, latency, lockstep
 from camnet.bus.node import Presence, Tally, guarded, stop_on_signals
 from camnet.bus.session import declare_liveliness
 from camnet.bus.stats import Activity, RateMeter
@@ -66,21 +67,28 @@ class LatestMessage:
     def __init__(self) -> None:
         self._ready = threading.Condition()
         self._payload: bytes | None = None
+        self._received_ns = 0
         self.superseded = 0
 
     def put(self, payload: bytes) -> None:
+        received_ns = latency.now_ns()
         with self._ready:
             if self._payload is not None:
                 self.superseded += 1
-            self._payload = payload
+            self._payload, self._received_ns = payload, received_ns
             self._ready.notify()
 
     def take(self, *, timeout_s: float) -> bytes | None:
+        taken = self.take_timed(timeout_s=timeout_s)
+        return None if taken is None else taken[0]
+
+    def take_timed(self, *, timeout_s: float) -> tuple[bytes, int] | None:
+        """(payload, when it was put: Unix epoch, ns), or None when nothing came within `timeout_s`."""
         with self._ready:
             if not self._ready.wait_for(lambda: self._payload is not None, timeout=timeout_s):
                 return None
             payload, self._payload = self._payload, None
-            return payload
+            return payload, self._received_ns
 
 
 def load_state(path: Path | None, rig: Rig | None = None) -> Calibration | None:
@@ -171,23 +179,30 @@ class CalibratorNode:
                                  MAX_TRACKS)
         return obs, doc
 
-    def _publish(self, publisher, cal: Calibration, doc_in: dict, outcome: Outcome) -> None:
+    def _publish(self, publisher, cal: Calibration, doc_in: dict, outcome: Outcome, stamps: dict[str, int]) -> None:
         doc = calibration_to_doc(cal)
         # The status is the verdict's level (camnet.geometry.verdict): a poor result is published, never "good".
         doc.update({"rig": self.rig_name, "solve": self.tracker.solves, "status": doc["verdict"]["level"],
-                    "warm_start": outcome.warm, "moved": list(outcome.moved), "solved_ns": time.time_ns()})
+                    "warm_start": outcome.warm, "moved": list(outcome.moved), "solved_ns": latency.now_ns()})
         for key in ("latest_capture_ns", "frame_sets"):
             if key in doc_in:
                 doc[key] = doc_in[key]
+        # The matcher's stamps as they came (any peer may publish: only integers are kept), then ours.
+        doc["latency_ns"] = {**{k: v for k, v in latency.stamps(doc_in).items() if k in latency.MATCHER_STAGES[1:]
+                                or k == "published"}, **stamps}
         payload = json.dumps(doc, allow_nan=False).encode()
-        if self.config.state_path is not None:
-            write_json_atomic(self.config.state_path, doc, private=True)  # the rig's layout: not for every user
         with self._lock:
             self.latest_doc = payload
         publisher.put(payload)
+        # Kept for a restart after it is published: writing it must not delay the rig's consumers.
+        if self.config.state_path is not None:
+            write_json_atomic(self.config.state_path, doc, private=True)  # the rig's layout: not for every user
 
-    def handle(self, payload: bytes, publisher) -> Outcome | None:
-        """Solve one observations message and publish what came of it."""
+    def handle(self, payload: bytes, publisher, *, received_ns: int | None = None) -> Outcome | None:
+        """Solve one observations message (received at `received_ns`, Unix epoch) and publish what came of it."""
+        stamps = {"solving": latency.now_ns()}
+        if received_ns is not None:
+            stamps["received"] = received_ns
         parsed = self._parse(payload)
         if parsed is None:
             return None
@@ -198,7 +213,7 @@ class CalibratorNode:
             return None
         self._meter.tick()
         if outcome.status == "good":
-            self._publish(publisher, outcome.calibration, doc, outcome)
+            self._publish(publisher, outcome.calibration, doc, outcome, stamps)
             cal = outcome.calibration
             left_out = cal.report.cameras_left_out if cal.report is not None else {}
             log.info("solve %d: good (%s, %.2f s): %d cameras, %d points, rms %.3f px, scale sigma %.3f%%%s",
@@ -269,9 +284,10 @@ class CalibratorNode:
         try:
             with stop_on_signals(self.stop), presence:
                 while not self.stop.is_set():
-                    payload = self.mailbox.take(timeout_s=0.2)
-                    if payload is not None:
-                        outcome = self.handle(payload, publisher)
+                    taken = self.mailbox.take_timed(timeout_s=0.2)
+                    if taken is not None:
+                        payload, received_ns = taken
+                        outcome = self.handle(payload, publisher, received_ns=received_ns)
                         if ack_publisher is not None:
                             status = outcome.status if outcome is not None else "not solved"
                             ack_publisher.put(lockstep.Ack.for_observations(payload, status=status).to_json())

@@ -5,8 +5,8 @@ Zenoh's callback threads only decode frames and hand them to a
 frames per camera and counts what it drops. `MatcherNode.run` is the worker:
 it takes the newest ready frame set, matches it (`camnet.matching.features`), chains
 tracks (`camnet.matching.tracks`) and pools them (`camnet.matching.pool`); when the pool
-changed it publishes the pool on ``keys.observations(rig)``, at most once per
-publish period. The document carries, beside the contract's keys:
+changed it publishes the pool on ``keys.observations(rig)`` (by default at once, or at most
+once per publish period). The document carries, beside the contract's keys:
 
 - ``rig``: the rig name;
 - ``pool_id``: new whenever the pool starts afresh (a node start, or a camera
@@ -14,6 +14,8 @@ publish period. The document carries, beside the contract's keys:
 - ``frame_sets``: how many frame sets contributed to the pool;
 - ``latest_capture_ns``: capture time of the newest of them (Unix epoch, ns),
   from which a consumer measures capture-to-result latency;
+- ``latency_ns``: when that frame set was taken, detected, matched and pooled
+  (`camnet.bus.latency`);
 - ``published_ns``: when this document was published (Unix epoch, ns).
 
 With ``lockstep`` the node takes its frames from a lockstep replay
@@ -47,13 +49,14 @@ import threading
 import time
 import uuid
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 from camnet.services.features import from_message
 from camnet.services.matcher_calibration import CalibrationInbox
+from camnet.services.matcher_config import MatcherNodeConfig, rig_options, rig_stereo
 
-from camnet.bus import keys, lockstep
+from camnet.bus import keys, latency, lockstep
 from camnet.bus.features_wire import FeaturesError, FeaturesMessage, decode_features
 from camnet.bus.frame import Frame
 from camnet.bus.node import Presence, Tally, guarded, stop_on_signals
@@ -62,16 +65,16 @@ from camnet.bus.session import declare_liveliness
 from camnet.bus.stats import Activity, CameraSeen, RateMeter
 from camnet.bus.sync import FrameSet, FrameSynchronizer, SyncCounts
 from camnet.errors import InputError
-from camnet.geometry.model import Stereo
 from camnet.io.formats import observations_to_doc
 from camnet.io.rig import Rig, camera_info, configured_size
 from camnet.matching.edge import CameraFeatures, EdgeConfig, FeatureExtractor
-from camnet.matching.features import Detector, MatcherConfig, to_grey
-from camnet.matching.pool import PoolConfig, PoolUpdate, TrackPool, regrow_pool
+from camnet.matching.features import FrameSetMatches, to_grey
+from camnet.matching.pool import PoolUpdate, TrackPool, regrow_pool
 from camnet.matching.reuse import IncrementalMatcher
 from camnet.matching.tracks import build_tracks
 from camnet.matching.viewgraph import ViewGraph, ViewGraphConfig
 
+__all__ = ["MatcherNode", "MatcherNodeConfig", "rig_options", "rig_stereo"]  # the options live in matcher_config
 log = logging.getLogger(__name__)
 
 NODE_KIND = "matcher"
@@ -82,72 +85,11 @@ MIN_SILENCE_S = 1.0  # a camera silent this long (and longer than a set waits) i
 LOCKSTEP_FRAME_WAIT_S = 10.0  # a step's frames are on their way when it is announced
 
 
-@dataclass(frozen=True)
-class MatcherNodeConfig:
-    """Options of the matcher node; see `camnet matcher --help` for their meaning."""
-
-    detector: Detector = Detector.SIFT
-    sync_tolerance_ms: float = 5.0  # capture times of one frame set differ by at most this
-    max_wait_s: float = 0.5  # then a frame set goes without its late cameras (never without the stereo pair)
-    frames_per_camera: int = 4  # latest frames kept per camera while matching runs
-    publish_period_s: float = 1.0  # at most one observations document per period
-    max_tracks: int = 5000  # pool bound
-    max_features: int = 4000  # per image
-    max_image_side_px: int | None = None  # detect on a downscaled copy above this size
-    normalise_contrast: bool = True  # stretch and equalise each image before detection
-    stats_period_s: float = 1.0
-    lockstep: bool = False  # frames come from `camnet replay --lockstep`, one step at a time
-    keyframe_period: int = 30  # frames detected here: whole at least every this many (1: always)
-    view_graph: bool = True  # once calibrated, match only the pairs that overlap (and a few others)
-    explore_pairs: int = 2  # with the view graph: other pairs matched per frame set, in rotation
-
-    def __post_init__(self) -> None:
-        if not isinstance(self.detector, Detector):
-            raise InputError(f"detector: expected a Detector, got {self.detector!r}")
-        for name in ("sync_tolerance_ms", "max_wait_s"):
-            if not getattr(self, name) >= 0:
-                raise InputError(f"{name}: must be >= 0, got {getattr(self, name)}")
-        for name in ("publish_period_s", "stats_period_s"):
-            if not getattr(self, name) > 0:
-                raise InputError(f"{name}: must be > 0, got {getattr(self, name)}")
-        for name in ("frames_per_camera", "max_tracks", "max_features"):
-            if getattr(self, name) < 1:
-                raise InputError(f"{name}: must be at least 1, got {getattr(self, name)}")
-        if self.keyframe_period < 1 or self.explore_pairs < 0:
-            raise InputError(f"keyframe_period, explore_pairs: must be >= 1 and >= 0, got {self.keyframe_period}, "
-                             f"{self.explore_pairs}")
-        if self.max_image_side_px is not None and self.max_image_side_px < 16:
-            raise InputError(f"max_image_side_px: must be at least 16, got {self.max_image_side_px}")
-
-    def matcher_config(self) -> MatcherConfig:
-        return MatcherConfig(detector=self.detector, max_features=self.max_features,
-                             max_image_side_px=self.max_image_side_px, normalise_contrast=self.normalise_contrast)
-
-    def pool_config(self) -> PoolConfig:
-        return PoolConfig(max_tracks=self.max_tracks)
-
-
-def rig_stereo(rig: Rig) -> Stereo:
-    """The rig's stereo pair; InputError if it has none."""
-    if rig.stereo is None:
-        raise InputError(f"{rig.source}: rig {rig.name!r} has no stereo pair; the matcher needs one "
-                         "(add a 'stereo:' section with left, right and baseline_m)")
-    return Stereo(rig.stereo.left, rig.stereo.right, rig.stereo.baseline_m, sigma_m=rig.stereo.sigma_m,
-                  parallel=rig.stereo.parallel)
-
-
-def rig_options(rig: Rig) -> dict:
-    """The MatcherNodeConfig fields the rig file sets (its `sync` section); the node's flags override them."""
-    if rig.sync is None:
-        return {}
-    given = {"sync_tolerance_ms": rig.sync.tolerance_ms, "max_wait_s": rig.sync.max_wait_s}
-    return {name: value for name, value in given.items() if value is not None}
-
-
 class MatcherNode:
     """Matches the frames of `rig` published on `session`; `run` until `stop` is set."""
 
-    def __init__(self, session, rig: Rig, *, config: MatcherNodeConfig = MatcherNodeConfig()) -> None:
+    def __init__(self, session, rig: Rig, *, config: MatcherNodeConfig | None = None) -> None:
+        config = MatcherNodeConfig() if config is None else config
         self.stereo = rig_stereo(rig)
         self.session = session
         self.rig = rig
@@ -159,6 +101,7 @@ class MatcherNode:
         self._matcher_config = config.matcher_config()
         edge = EdgeConfig(keyframe_period=config.keyframe_period)
         self._extractors = {c: FeatureExtractor(c, self._matcher_config, edge) for c in self.camera_ids}
+        self._full_pool_detection = False  # the extractors detect as config.full_pool_matcher_config()
         self._matcher = IncrementalMatcher(self._matcher_config, stereo=self.stereo)
         self.view_graph = ViewGraph(ViewGraphConfig(explore_per_set=config.explore_pairs),
                                      always={frozenset((self.stereo.left, self.stereo.right))})
@@ -182,6 +125,7 @@ class MatcherNode:
         self.frame_sets_matched = 0
         self.frame_sets_pooled = 0
         self.latest_capture_ns = 0
+        self._stamps: dict[str, int] = {}  # the newest pooled frame set's way through (camnet.bus.latency)
         self.last_match_s = 0.0
         self.published = 0
         self._dirty = False
@@ -317,15 +261,24 @@ class MatcherNode:
     def process(self, frame_set: FrameSet) -> PoolUpdate:
         """Match one frame set and pool its tracks."""
         start_s = time.perf_counter()
+        stamps = {"taken": latency.now_ns()}
         for camera_id, frame in frame_set.frames.items():
             self._sizes[camera_id] = (frame.width, frame.height)
         pool = self._ensure_pool()
+        if len(pool) >= self.config.max_tracks and not self._full_pool_detection:
+            self._full_pool_detection = True
+            for extractor in self._extractors.values():
+                extractor.config = self.config.full_pool_matcher_config()
+            log.info("pool full (%d tracks): detecting on images of at most %s px a side from now on", len(pool),
+                     self.config.full_pool_matcher_config().max_image_side_px)
         cameras = list(self._workers.map(self._features, frame_set.frames.values()))
+        stamps["detected"] = latency.now_ns()
         self._take_calibration()
         ids = [c.camera_id for c in cameras]
         pairs = self.view_graph.pairs(ids, matched_well=self._matcher.matched_well(
             self.view_graph.config.good_matches))
-        matches = self._matcher.match(cameras, pairs=pairs)
+        matches = self._match_pairs(cameras, pairs)
+        stamps["matched"] = latency.now_ns()
         possible = len(ids) * (len(ids) - 1) // 2
         self.pairs = (possible if pairs is None else len(pairs), possible)
         for camera_id, features in zip(matches.camera_ids, matches.features, strict=True):
@@ -333,12 +286,14 @@ class MatcherNode:
                 self.few_features.count(f"few features: {camera_id}", "camera %r: %s", camera_id, features.shortage)
         tracks = build_tracks(matches)
         update = pool.add(tracks, frame_seq=self.frame_sets_matched)
+        stamps["pooled"] = latency.now_ns()
         self.last_match_s = time.perf_counter() - start_s
         self.frame_sets_matched += 1
         self._rate.tick()
         if update.added or update.reobserved:
             self.frame_sets_pooled += 1
-            self.latest_capture_ns = max(self.latest_capture_ns, frame_set.timestamp_ns)
+            if frame_set.timestamp_ns >= self.latest_capture_ns:
+                self.latest_capture_ns, self._stamps = frame_set.timestamp_ns, stamps
         if update.added or update.reobserved or update.evicted:
             self._dirty = True
         missing = f" (without {', '.join(frame_set.missing)})" if frame_set.missing else ""
@@ -347,6 +302,17 @@ class MatcherNode:
                  len(tracks),
                  int(np.sum(tracks.views >= 3)), update.added, len(pool), 1e3 * self.last_match_s)
         return update
+
+    def _match_pairs(self, cameras: list[CameraFeatures], pairs: set[frozenset[str]] | None) -> FrameSetMatches:
+        """`pairs` of `cameras` (None: all) matched in the thread pool, one pair per task, in the order of
+        one `IncrementalMatcher.match` call. Each task seeds OpenCV's RNG, which is per thread, so a frame
+        set gives the same matches whichever thread takes a pair; tasks touch only their own pair's state."""
+        ids = [c.camera_id for c in cameras]
+        every = [frozenset((a, b)) for i, a in enumerate(ids) for b in ids[i + 1:]]
+        chosen = every if pairs is None else [pair for pair in every if pair in pairs]
+        parts = self._workers.map(lambda pair: self._matcher.match(cameras, pairs={pair}), chosen)
+        return FrameSetMatches(tuple(ids), tuple(c.features for c in cameras),
+                               tuple(matched for part in parts for matched in part.pairs))
 
     def _features(self, item: Frame | FeaturesMessage) -> CameraFeatures:
         """The features of one camera's part of a frame set: as its stage sent them, or detected here."""
@@ -362,7 +328,7 @@ class MatcherNode:
         baselines = tuple(b for b in self.rig.baselines if {b.a, b.b} <= set(obs.camera_ids))
         doc = observations_to_doc(replace(obs, baselines=baselines))
         doc.update(rig=self.rig.name, pool_id=self._pool_id, frame_sets=self.frame_sets_pooled,
-                   latest_capture_ns=self.latest_capture_ns, published_ns=time.time_ns())
+                   latest_capture_ns=self.latest_capture_ns, latency_ns=self._stamps, published_ns=latency.now_ns())
         return doc
 
     def sync_counts(self) -> SyncCounts:  # frames received, frame sets formed, frames dropped by synchronization

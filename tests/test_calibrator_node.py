@@ -46,7 +46,8 @@ def test_solves_publishes_persists_and_answers_late_joiners(zenoh_pair, tmp_path
             cal = parse_calibration(doc)
             assert doc["status"] == judge(cal).level.value  # the verdict's level, not a fixed "good"
             assert {c.id for c in cal.cameras} == {"left", "right", "mono_a", "mono_b"}
-            assert json.loads(state.read_text())["solve"] == doc["solve"]
+            # Written after it is published.
+            assert wait_for(lambda: state.exists() and json.loads(state.read_text())["solve"] == doc["solve"])
             replies = list(b.get(keys.calibration(RIG), timeout=5.0))
             assert len(replies) == 1
             assert json.loads(replies[0].ok.payload.to_bytes())["solve"] == doc["solve"]

@@ -69,6 +69,7 @@ def test_calibrator_restart_resumes_and_a_moved_camera_is_recalibrated(tmp_path)
         launch.start("matcher", ["matcher", "--rig", rig_path, *bus])
         calibrator = launch.start("calibrator", calibrator_cmd)
         assert wait_for(lambda: seen.since(0), 90), "no calibration: " + calibrator.log_tail()
+        assert wait_for(state.exists, 30), "no state written after a calibration: " + calibrator.log_tail()
 
         # Kill -9 mid-run: the restarted calibrator first republishes what it persisted,
         # then goes on warm from it.

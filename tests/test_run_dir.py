@@ -7,7 +7,8 @@ import re
 import cv2
 import pytest
 
-from camnet.commands.up import RunFollower, _finish, final_report, progress_line, summarise
+from camnet.commands.up import RunFollower, _finish
+from camnet.commands.up_console import final_report, progress_line, summarise
 from camnet.geometry.calibrate import Options, calibrate
 from camnet.geometry.change import drop_before
 from camnet.geometry.live import LIVE_FREE

@@ -20,11 +20,16 @@ def _node_flags() -> tuple[tuple[str, dict], ...]:
         ("--frames-per-camera", dict(type=int, metavar="N",
                                      help="latest frames kept per camera while matching runs (default: 4)")),
         ("--publish-period-s", dict(type=float, metavar="S",
-                                    help="at most one observations message per period (default: 1.0)")),
+                                    help="at most one observations message per period; 0: one after every "
+                                         "frame set that changed the pool (default: 0.0)")),
         ("--max-tracks", dict(type=int, metavar="N", help="tracks kept in the pool (default: 5000)")),
         ("--max-features", dict(type=int, metavar="N", help="features per image (default: 4000)")),
         ("--max-image-side-px", dict(type=int, metavar="PX",
                                      help="detect on a downscaled copy of larger images (default: None, full size)")),
+        ("--full-pool-image-side-px", dict(type=int, metavar="PX",
+                                           help="once the pool is full, detect on a downscaled copy of larger "
+                                                "images: less time per frame set, larger focal errors "
+                                                "(default: 960)")),
         ("--normalise-contrast", dict(action=argparse.BooleanOptionalAction,
                                       help="stretch and equalise (CLAHE) each image before detection, for dark or "
                                            "flat images (default: True)")),

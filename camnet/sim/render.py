@@ -76,10 +76,14 @@ def _clip_near(points_cam: np.ndarray) -> np.ndarray:
 
 
 def render_ideal(quads: list[Quad], *, K: np.ndarray, R: np.ndarray, t: np.ndarray,
-                 size: tuple[int, int], background: int = 0) -> np.ndarray:
-    """Undistorted pinhole image (height, width) uint8 of `quads`; `size` is (width, height)."""
+                 size: tuple[int, int], background: int = 0, base: np.ndarray | None = None) -> np.ndarray:
+    """Undistorted pinhole image (height, width) uint8 of `quads`; `size` is (width, height).
+
+    `quads` are drawn over a copy of `base` (an image of this size) when given,
+    else over a uniform `background` grey.
+    """
     width, height = size
-    image = np.full((height, width), background, dtype=np.uint8)
+    image = np.full((height, width), background, dtype=np.uint8) if base is None else base.copy()
     centre = -R.T @ t
     visible = []
     for quad in quads:
@@ -214,31 +218,76 @@ def undistort_normalised(xd: np.ndarray, dist: np.ndarray, iterations: int = 40)
     return x
 
 
-class Renderer:
-    """Renders one camera's images; holds its precomputed distortion maps."""
+NOISE_MARGIN_PX = 64  # a frame's noise is a window of its camera's noise field, shifted by up to this
 
-    def __init__(self, camera: Camera) -> None:
+
+class Renderer:
+    """Renders one camera's images; holds its precomputed distortion maps.
+
+    The lowest layer of the quads (the static background of a scene) is drawn
+    once and kept while the same quad objects come back: painter's order draws
+    that layer first whatever the depths of the others, so drawing the higher
+    layers over the kept canvas gives the same image as drawing them all.
+    Quads are values: one that changes is a new Quad.
+
+    With `noise_seed`, a frame's sensor noise is a window, at an offset drawn
+    from that frame's `rng`, of one Gaussian field per camera seeded from it
+    (drawing a full frame of normal deviates took longer than the rest of the
+    frame); without it, every frame's noise is drawn afresh from `rng`.
+    """
+
+    def __init__(self, camera: Camera, *, noise_seed: object = None) -> None:
         self.camera = camera
         self.distortion = distortion_map(camera)
+        self._noise_seed = noise_seed
+        self._noise: tuple[float, np.ndarray] | None = None  # (sigma, field) of the latest sigma
+        self._static: tuple[tuple[Quad, ...], np.ndarray] | None = None  # the lowest layer and its canvas
 
     def render(self, quads: list[Quad], *, noise_sigma_dn: float = 0.0,
                rng: np.random.Generator | None = None) -> np.ndarray:
         """The camera's (height, width) uint8 image of `quads`, noise std in digital numbers."""
+        lowest = min((quad.layer for quad in quads), default=0)
+        static = tuple(quad for quad in quads if quad.layer == lowest)
+        moving = [quad for quad in quads if quad.layer != lowest]
+        if self._static is None or len(self._static[0]) != len(static) or any(
+                a is not b for a, b in zip(self._static[0], static, strict=True)):
+            self._static = (static, self._canvas(list(static), None))
+        canvas = self._canvas(moving, self._static[1]) if moving else self._static[1]
+        d = self.distortion
+        image = canvas.copy() if d is None else cv2.remap(canvas, d.map_x, d.map_y, cv2.INTER_LINEAR,
+                                                          borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        if noise_sigma_dn > 0:
+            rng = rng or np.random.default_rng()
+            if self._noise_seed is None:
+                return add_noise(image, noise_sigma_dn, rng)
+            return self._add_field_noise(image, noise_sigma_dn, rng)
+        return image
+
+    def _canvas(self, quads: list[Quad], base: np.ndarray | None) -> np.ndarray:
+        """The ideal image (no lens) or, for a distorted lens, the atlas of its faces, over `base`."""
         cam = self.camera
         if self.distortion is None:
-            image = render_ideal(quads, K=cam.K, R=cam.R, t=cam.t, size=(cam.width, cam.height))
-        else:
-            d = self.distortion
-            atlas = np.zeros((d.atlas_size[1], d.atlas_size[0]), dtype=np.uint8)
-            for face in d.faces:
-                width, height = face.size
-                atlas[face.row : face.row + height, :width] = render_ideal(
-                    quads, K=face.K, R=face.R @ cam.R, t=face.R @ cam.t, size=face.size
-                )
-            image = cv2.remap(atlas, d.map_x, d.map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-        if noise_sigma_dn > 0:
-            image = add_noise(image, noise_sigma_dn, rng or np.random.default_rng())
-        return image
+            return render_ideal(quads, K=cam.K, R=cam.R, t=cam.t, size=(cam.width, cam.height), base=base)
+        d = self.distortion
+        atlas = np.zeros((d.atlas_size[1], d.atlas_size[0]), dtype=np.uint8) if base is None else base.copy()
+        for face in d.faces:
+            width, height = face.size
+            rows = slice(face.row, face.row + height)
+            atlas[rows, :width] = render_ideal(quads, K=face.K, R=face.R @ cam.R, t=face.R @ cam.t, size=face.size,
+                                               base=None if base is None else base[rows, :width])
+        return atlas
+
+    def _add_field_noise(self, image: np.ndarray, sigma_dn: float, rng: np.random.Generator) -> np.ndarray:
+        height, width = image.shape[:2]
+        if self._noise is None or self._noise[0] != sigma_dn:
+            field = np.empty((height + NOISE_MARGIN_PX, width + NOISE_MARGIN_PX, *image.shape[2:]), dtype=np.int16)
+            cv2.setRNGSeed(int(np.random.default_rng(self._noise_seed).integers(2**31)))
+            cv2.randn(field, 0, sigma_dn)
+            self._noise = (sigma_dn, field)
+        dy, dx = (int(o) for o in rng.integers(0, NOISE_MARGIN_PX + 1, size=2))
+        window = self._noise[1][dy:dy + height, dx:dx + width]
+        # Saturating uint8 + int16: the same as adding in int16 and clipping to 0-255.
+        return cv2.add(image, window, dtype=cv2.CV_8U)
 
 
 def add_noise(image: np.ndarray, sigma_dn: float, rng: np.random.Generator) -> np.ndarray:

@@ -1,0 +1,91 @@
+"""The matcher node's options, and what of them the rig file sets."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+from camnet.errors import InputError
+from camnet.geometry.model import Stereo
+from camnet.io.rig import Rig
+from camnet.matching.features import Detector, MatcherConfig
+from camnet.matching.pool import PoolConfig
+
+
+@dataclass(frozen=True)
+class MatcherNodeConfig:
+    """Options of the matcher node; see `camnet matcher --help` for their meaning."""
+
+    detector: Detector = Detector.SIFT
+    sync_tolerance_ms: float = 5.0  # capture times of one frame set differ by at most this
+    max_wait_s: float = 0.5  # then a frame set goes without its late cameras (never without the stereo pair)
+    frames_per_camera: int = 4  # latest frames kept per camera while matching runs
+    # At most one observations document per period; 0: after every frame set that changed the pool, so that
+    # the calibrator, which always solves the latest document, never waits for a period to end.
+    publish_period_s: float = 0.0
+    max_tracks: int = 5000  # pool bound
+    max_features: int = 4000  # per image
+    max_image_side_px: int | None = None  # detect on a downscaled copy above this size
+    # Once the pool holds max_tracks, a frame set's new tracks only replace others: then detect on a copy
+    # downscaled to this size (if smaller than the above; None: never). On config/sim.yaml (1280x1024, 20
+    # frame sets 1 s apart, offline) the matcher's CPU per set once the pool was full was 0.58 s at 960 px,
+    # 0.35 s at 640 px, 0.68 s at full size; the largest focal error against the truth over the last 10
+    # solves 0.05%, 0.06% and 0.03% (median scale error 0.06-0.07% each; sigmas 1.1% and 1.3%). Live, 640
+    # px doubled the focal errors run after run (README, "The live network"); 960 px did not show it.
+    full_pool_image_side_px: int | None = 960
+    normalise_contrast: bool = True  # stretch and equalise each image before detection
+    stats_period_s: float = 1.0
+    lockstep: bool = False  # frames come from `camnet replay --lockstep`, one step at a time
+    keyframe_period: int = 30  # frames detected here: whole at least every this many (1: always)
+    view_graph: bool = True  # once calibrated, match only the pairs that overlap (and a few others)
+    explore_pairs: int = 2  # with the view graph: other pairs matched per frame set, in rotation
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.detector, Detector):
+            raise InputError(f"detector: expected a Detector, got {self.detector!r}")
+        for name in ("sync_tolerance_ms", "max_wait_s"):
+            if not getattr(self, name) >= 0:
+                raise InputError(f"{name}: must be >= 0, got {getattr(self, name)}")
+        if not self.publish_period_s >= 0 or not self.stats_period_s > 0:
+            raise InputError(f"publish_period_s, stats_period_s: must be >= 0 and > 0, got {self.publish_period_s}, "
+                             f"{self.stats_period_s}")
+        for name in ("frames_per_camera", "max_tracks", "max_features"):
+            if getattr(self, name) < 1:
+                raise InputError(f"{name}: must be at least 1, got {getattr(self, name)}")
+        if self.keyframe_period < 1 or self.explore_pairs < 0:
+            raise InputError(f"keyframe_period, explore_pairs: must be >= 1 and >= 0, got {self.keyframe_period}, "
+                             f"{self.explore_pairs}")
+        for name in ("max_image_side_px", "full_pool_image_side_px"):
+            if getattr(self, name) is not None and getattr(self, name) < 16:
+                raise InputError(f"{name}: must be at least 16, got {getattr(self, name)}")
+
+    def matcher_config(self) -> MatcherConfig:
+        return MatcherConfig(detector=self.detector, max_features=self.max_features,
+                             max_image_side_px=self.max_image_side_px, normalise_contrast=self.normalise_contrast)
+
+    def full_pool_matcher_config(self) -> MatcherConfig:
+        """How images are detected once the pool is full."""
+        config = self.matcher_config()
+        side = self.full_pool_image_side_px
+        if side is None or (config.max_image_side_px is not None and config.max_image_side_px <= side):
+            return config
+        return replace(config, max_image_side_px=side)
+
+    def pool_config(self) -> PoolConfig:
+        return PoolConfig(max_tracks=self.max_tracks)
+
+
+def rig_stereo(rig: Rig) -> Stereo:
+    """The rig's stereo pair; InputError if it has none."""
+    if rig.stereo is None:
+        raise InputError(f"{rig.source}: rig {rig.name!r} has no stereo pair; the matcher needs one "
+                         "(add a 'stereo:' section with left, right and baseline_m)")
+    return Stereo(rig.stereo.left, rig.stereo.right, rig.stereo.baseline_m, sigma_m=rig.stereo.sigma_m,
+                  parallel=rig.stereo.parallel)
+
+
+def rig_options(rig: Rig) -> dict:
+    """The MatcherNodeConfig fields the rig file sets (its `sync` section); the node's flags override them."""
+    if rig.sync is None:
+        return {}
+    given = {"sync_tolerance_ms": rig.sync.tolerance_ms, "max_wait_s": rig.sync.max_wait_s}
+    return {name: value for name, value in given.items() if value is not None}
