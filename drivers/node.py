@@ -4,7 +4,8 @@ Frames go out with congestion control DROP: a slow subscriber or link loses
 frames (seen as sequence gaps) instead of stalling the camera. Raw frames
 are written by the camera straight into a message buffer that is reused
 frame after frame (`camnet.bus.frame.FrameBuffer`), so the pixels are not
-copied into a new message before `put`. A camera that
+copied into a new message before `put`; large messages then go out through
+Zenoh shared memory (`camnet.drivers.frame_publisher`). A camera that
 knows the rig's ground truth (a simulated one) also publishes it on the
 groundtruth key and answers queries on it. `on_frame`, when given, sees every
 frame published (the feature stage beside the driver takes its frames so).

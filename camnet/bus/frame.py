@@ -159,9 +159,10 @@ class FrameBuffer:
 
     A camera writes a frame's pixels straight into `pixels` (a view of the
     message; `Camera.read(out=...)`), and `seal` writes the header in front:
-    a raw frame goes out without being copied into a new message. Zenoh
-    copies what `put` is given before it returns, so the next frame may
-    overwrite the buffer; anything that keeps a frame must copy its image.
+    a raw frame goes out without being copied into a new message. The
+    message is copied before `put` returns (by Zenoh, or into shared memory
+    by the driver node), so the next frame may overwrite the buffer;
+    anything that keeps a frame must copy its image.
     """
 
     def __init__(self, camera_id: str, encoding: str, shape: tuple[int, ...]) -> None:
