@@ -98,7 +98,7 @@ def run_phase(mode: str, *, cameras: int, fps: float, seconds: float, size=(1280
             received.setdefault(camera, []).append((seq, receipt_ns, ready_ns))
             received_bytes[0] += size_bytes
 
-    if mode == "camnet":
+    if mode.startswith("camnet"):
         def on_sample(sample):
             receipt_ns = time.time_ns()
             payload = sample.payload.to_bytes()

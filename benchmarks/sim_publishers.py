@@ -11,6 +11,8 @@ one reused payload, the same encoded bytes, only the sequence number and
 timestamp stamped into the header, then `put`. So both produce their pixels
 the same way and the camera's copy is counted in both. "bare-ready" puts
 ready-made bytes with no capture at all: a floor no camera publisher reaches.
+"camnet-bytes" is camnet with its frames put as bytes instead of through
+Zenoh shared memory.
 
 Every mode records, per frame, the host CLOCK_REALTIME just before `put`
 (and, for camnet, the capture time from the frame header), and send them
@@ -142,15 +144,19 @@ class TimedPublisher:
         return getattr(self._publisher, name)
 
 
-def time_frame_puts(log: PutLog) -> None:
+def time_frame_puts(log: PutLog, *, shared_memory: bool = True) -> None:
     """Make the driver node's frame publishers (this process's) log the time just before each put.
 
     Timed around `FramePublisher.put`, which copies the message into shared
     memory when it can: that copy is then inside "in put", as Zenoh's own copy is for bare.
+    `shared_memory=False`: they put bytes, as the driver node did before it used shared memory.
     """
     from camnet.drivers import node as driver_node
 
     class TimedFramePublisher(driver_node.FramePublisher):
+        def __init__(self, publisher) -> None:
+            super().__init__(publisher, shared_memory=shared_memory)
+
         def put(self, message) -> None:
             put_ns, t0_ns = time.time_ns(), time.perf_counter_ns()
             super().put(message)
@@ -182,10 +188,10 @@ def publisher(mode: str, index: int, endpoint: str, fps: float, n_frames: int, s
     cam_id = camera_id(index)
     log = PutLog(n_frames)
     with open_session(BusOptions(connect=(endpoint,))) as session:
-        if mode == "camnet":
+        if mode in ("camnet", "camnet-bytes"):
             from camnet.drivers.node import DriverNode
 
-            time_frame_puts(log)
+            time_frame_puts(log, shared_memory=mode == "camnet")
             node = DriverNode(session, load_rig(RIG_FILE), PooledCamera(cam_id, pool, fps))
             start.wait()
             cpu0, wall0 = time.process_time(), time.monotonic()
@@ -219,7 +225,7 @@ def publisher(mode: str, index: int, endpoint: str, fps: float, n_frames: int, s
 
 def rig_name(mode: str) -> str:
     """The rig the frames of `mode` are published under (DriverNode uses the sim rig's)."""
-    return "sim" if mode == "camnet" else "bench"
+    return "sim" if mode.startswith("camnet") else "bench"
 
 
 def run_publishers(session, endpoint: str, *, mode: str, cameras: int, fps: float,
