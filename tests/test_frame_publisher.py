@@ -85,3 +85,22 @@ def test_small_messages_and_shared_memory_off_go_as_bytes(zenoh_pair, size):
     finally:
         sub.undeclare()
     assert (out.shared, out.copied) == (0, 1) and got[0] == bytes(range(256)) * (size // 256)
+
+
+def test_messages_of_varying_size_share_one_growing_pool(zenoh_pair):
+    from camnet.drivers.frame_publisher import FramePublisher
+
+    sizes = [90_000, 70_000, 120_000, 100_000, 65_536, 130_000]  # compressed frames vary so
+    listener, connector = zenoh_pair
+    got: list[bytes] = []
+    sub = listener.declare_subscriber(KEY, lambda sample: got.append(sample.payload.to_bytes()))
+    try:
+        out = FramePublisher(matched_publisher(connector, KEY))
+        for seq, size in enumerate(sizes):
+            out.put(message(seq)[:size])
+        assert wait_for(lambda: len(got) == len(sizes), 30.0), f"{len(got)} of {len(sizes)} arrived"
+    finally:
+        sub.undeclare()
+    assert (out.shared, out.copied) == (len(sizes), 0)
+    assert sorted(got, key=len) == sorted((message(seq)[:size] for seq, size in enumerate(sizes)), key=len)
+    assert out.pools == 2  # 120 000 bytes grew the pool by half, enough for 130 000
