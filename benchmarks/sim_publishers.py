@@ -11,8 +11,8 @@ one reused payload, the same encoded bytes, only the sequence number and
 timestamp stamped into the header, then `put`. So both produce their pixels
 the same way and the camera's copy is counted in both. "bare-ready" puts
 ready-made bytes with no capture at all: a floor no camera publisher reaches.
-"camnet-bytes" is camnet with its frames put as bytes instead of through
-Zenoh shared memory.
+"camnet-shm" is camnet with its frames put through Zenoh shared memory
+(`DriverNode(shared_memory=True)`) instead of as bytes.
 
 Every mode records, per frame, the host CLOCK_REALTIME just before `put`
 (and, for camnet, the capture time from the frame header), and send them
@@ -144,12 +144,12 @@ class TimedPublisher:
         return getattr(self._publisher, name)
 
 
-def time_frame_puts(log: PutLog, *, shared_memory: bool = True) -> None:
+def time_frame_puts(log: PutLog, *, shared_memory: bool) -> None:
     """Make the driver node's frame publishers (this process's) log the time just before each put.
 
     Timed around `FramePublisher.put`, which copies the message into shared
     memory when it can: that copy is then inside "in put", as Zenoh's own copy is for bare.
-    `shared_memory=False`: they put bytes, as the driver node did before it used shared memory.
+    `shared_memory`: whether they put through Zenoh shared memory (the driver node's default: no).
     """
     from camnet.drivers import node as driver_node
 
@@ -188,10 +188,10 @@ def publisher(mode: str, index: int, endpoint: str, fps: float, n_frames: int, s
     cam_id = camera_id(index)
     log = PutLog(n_frames)
     with open_session(BusOptions(connect=(endpoint,))) as session:
-        if mode in ("camnet", "camnet-bytes"):
+        if mode in ("camnet", "camnet-shm"):
             from camnet.drivers.node import DriverNode
 
-            time_frame_puts(log, shared_memory=mode == "camnet")
+            time_frame_puts(log, shared_memory=mode == "camnet-shm")
             node = DriverNode(session, load_rig(RIG_FILE), PooledCamera(cam_id, pool, fps))
             start.wait()
             cpu0, wall0 = time.process_time(), time.monotonic()

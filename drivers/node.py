@@ -4,8 +4,10 @@ Frames go out with congestion control DROP: a slow subscriber or link loses
 frames (seen as sequence gaps) instead of stalling the camera. Raw frames
 are written by the camera straight into a message buffer that is reused
 frame after frame (`camnet.bus.frame.FrameBuffer`), so the pixels are not
-copied into a new message before `put`; large messages then go out through
-Zenoh shared memory (`camnet.drivers.frame_publisher`). A camera that
+copied into a new message before `put`. They can go out through Zenoh
+shared memory instead of as bytes (`shared_memory`,
+`camnet.drivers.frame_publisher`): less CPU, but off by default, since it
+lost frames under load where bytes did not. A camera that
 knows the rig's ground truth (a simulated one) also publishes it on the
 groundtruth key and answers queries on it. `on_frame`, when given, sees every
 frame published (the feature stage beside the driver takes its frames so).
@@ -39,7 +41,8 @@ RATE_WINDOW_S = 2.0  # the reported fps: frames sent over about the last two sec
 
 class DriverNode:
     def __init__(self, session, rig: Rig, camera: Camera, *, compression: Compression = Compression.NONE,
-                 stats_period_s: float = 1.0, on_frame: Callable[[Frame], None] | None = None) -> None:
+                 stats_period_s: float = 1.0, on_frame: Callable[[Frame], None] | None = None,
+                 shared_memory: bool = False) -> None:
         self.session = session
         self.rig = rig
         self.camera = camera
@@ -47,6 +50,7 @@ class DriverNode:
         self.compression = compression
         self.stats_period_s = stats_period_s
         self.on_frame = on_frame
+        self.shared_memory = shared_memory
         self.stop = threading.Event()
         self.frames_sent = 0
         # (monotonic s, frames sent) at each report: the rate comes from counts, not from a clock
@@ -104,7 +108,7 @@ class DriverNode:
 
         self.frames_out = publisher = FramePublisher(self.session.declare_publisher(
             keys.frame(self.rig.name, self.camera_id),
-            congestion_control=zenoh.CongestionControl.DROP))
+            congestion_control=zenoh.CongestionControl.DROP), shared_memory=self.shared_memory)
         presence = Presence(self.session, rig=self.rig.name, kind=NODE_KIND, node_id=self.camera_id,
                             report=self._activity, period_s=self.stats_period_s, counted="frames sent",
                             dropped="dropped by the camera")
