@@ -154,7 +154,7 @@ def time_frame_puts(log: PutLog, *, shared_memory: bool) -> None:
     from camnet.drivers import node as driver_node
 
     class TimedFramePublisher(driver_node.FramePublisher):
-        def __init__(self, publisher) -> None:
+        def __init__(self, publisher, **_node_choice) -> None:  # the mode decides, not the node
             super().__init__(publisher, shared_memory=shared_memory)
 
         def put(self, message) -> None:
