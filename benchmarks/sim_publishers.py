@@ -5,10 +5,14 @@ node (camnet.drivers.node.DriverNode: frame encoding, publish with congestion
 control DROP, liveliness, statistics) on a camera that cycles through frames
 pre-rendered by the sim renderer, so that rendering cost does not hide the
 bus cost; the camera writes each frame into the node's reused message, the
-one copy a capture costs. In "bare" mode it puts the same encoded bytes with
-a bare Zenoh publisher (also DROP), stamping only the sequence number into
-the header: no capture at all. "bare+copy" is bare Zenoh with that capture:
-each frame's pixels copied into one reused payload before `put`.
+one copy a capture costs. In "bare" mode a bare Zenoh publisher (also DROP)
+does the same capture: each frame's pixels copied from the same pool into
+one reused payload, the same encoded bytes, only the sequence number and
+timestamp stamped into the header, then `put`. So both produce their pixels
+the same way and the camera's copy is counted in both. "bare-ready" puts
+ready-made bytes with no capture at all: a floor no camera publisher reaches.
+"camnet-shm" is camnet with its frames put through Zenoh shared memory
+(`DriverNode(shared_memory=True)`) instead of as bytes.
 
 Every mode records, per frame, the host CLOCK_REALTIME just before `put`
 (and, for camnet, the capture time from the frame header), and send them
@@ -31,6 +35,10 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
+
+from camnet.drivers.base import written_into  # noqa: E402
+
+from camnet.bus.frame import Frame  # noqa: E402
 
 RIG_FILE = ROOT / "config" / "sim.yaml"
 POOL_FRAMES = 4
@@ -91,10 +99,6 @@ class PooledCamera:
         return None
 
     def read(self, *, timeout_s: float = 1.0, out=None):
-        from camnet.drivers.base import written_into
-
-        from camnet.bus.frame import Frame
-
         sleep_until(self.t0_ns, self.seq, self.fps)
         # Into the node's reused message, as a camera would write it: the capture's one copy.
         frame = Frame(self.camera_id, self.seq, time.time_ns(), "mono8",
@@ -140,19 +144,25 @@ class TimedPublisher:
         return getattr(self._publisher, name)
 
 
-class TimedSession:
-    """A Zenoh session whose frame publishers are TimedPublishers; the rest passes through."""
+def time_frame_puts(log: PutLog, *, shared_memory: bool) -> None:
+    """Make the driver node's frame publishers (this process's) log the time just before each put.
 
-    def __init__(self, session, log: PutLog) -> None:
-        self._session = session
-        self._log = log
+    Timed around `FramePublisher.put`, which copies the message into shared
+    memory when it can: that copy is then inside "in put", as Zenoh's own copy is for bare.
+    `shared_memory`: whether they put through Zenoh shared memory (the driver node's default: no).
+    """
+    from camnet.drivers import node as driver_node
 
-    def declare_publisher(self, key_expr, **kwargs):
-        publisher = self._session.declare_publisher(key_expr, **kwargs)
-        return TimedPublisher(publisher, self._log) if str(key_expr).endswith("/frame") else publisher
+    class TimedFramePublisher(driver_node.FramePublisher):
+        def __init__(self, publisher, **_node_choice) -> None:  # the mode decides, not the node
+            super().__init__(publisher, shared_memory=shared_memory)
 
-    def __getattr__(self, name):
-        return getattr(self._session, name)
+        def put(self, message) -> None:
+            put_ns, t0_ns = time.time_ns(), time.perf_counter_ns()
+            super().put(message)
+            log.add(message, put_ns, time.perf_counter_ns() - t0_ns)
+
+    driver_node.FramePublisher = TimedFramePublisher
 
 
 @dataclass
@@ -170,7 +180,7 @@ def publisher(mode: str, index: int, endpoint: str, fps: float, n_frames: int, s
     import zenoh
 
     from camnet.bus import keys
-    from camnet.bus.frame import Frame, encode_frame
+    from camnet.bus.frame import encode_frame
     from camnet.bus.session import BusOptions, open_session
     from camnet.io.rig import load_rig
 
@@ -178,20 +188,21 @@ def publisher(mode: str, index: int, endpoint: str, fps: float, n_frames: int, s
     cam_id = camera_id(index)
     log = PutLog(n_frames)
     with open_session(BusOptions(connect=(endpoint,))) as session:
-        if mode == "camnet":
+        if mode in ("camnet", "camnet-shm"):
             from camnet.drivers.node import DriverNode
 
-            node = DriverNode(TimedSession(session, log), load_rig(RIG_FILE),
-                              PooledCamera(cam_id, pool, fps))
+            time_frame_puts(log, shared_memory=mode == "camnet-shm")
+            node = DriverNode(session, load_rig(RIG_FILE), PooledCamera(cam_id, pool, fps))
             start.wait()
             cpu0, wall0 = time.process_time(), time.monotonic()
             node.run(max_frames=n_frames)
             sent = node.frames_sent
         else:
-            # The same bytes as camnet would send; only seq and timestamp change per frame. "bare+copy"
-            # copies each frame's pixels into one reused payload first, as a publisher of a camera must.
+            # The same bytes as camnet would send; only seq and timestamp change per frame. "bare" copies
+            # each frame's pixels into one reused payload first, as a camera publisher must.
             payloads = [bytearray(encode_frame(Frame(cam_id, 0, 0, "mono8", img))) for img in pool]
-            if mode == "bare+copy":
+            capture = mode == "bare"
+            if capture:
                 payloads = payloads[:1]
                 pixels = np.frombuffer(payloads[0], np.uint8, offset=len(payloads[0]) - pool[0].size)
             pub = TimedPublisher(session.declare_publisher(
@@ -202,7 +213,7 @@ def publisher(mode: str, index: int, endpoint: str, fps: float, n_frames: int, s
             for seq in range(n_frames):
                 sleep_until(t0_ns, seq, fps)
                 payload = payloads[seq % len(payloads)]
-                if mode == "bare+copy":
+                if capture:
                     np.copyto(pixels, pool[seq % len(pool)].reshape(-1))
                 SEQ_AND_TIMESTAMP.pack_into(payload, SEQ_OFFSET, seq, time.time_ns())
                 pub.put(payload)
@@ -214,7 +225,7 @@ def publisher(mode: str, index: int, endpoint: str, fps: float, n_frames: int, s
 
 def rig_name(mode: str) -> str:
     """The rig the frames of `mode` are published under (DriverNode uses the sim rig's)."""
-    return "sim" if mode == "camnet" else "bench"
+    return "sim" if mode.startswith("camnet") else "bench"
 
 
 def run_publishers(session, endpoint: str, *, mode: str, cameras: int, fps: float,

@@ -51,7 +51,7 @@ def test_seal_refuses_pixels_that_are_not_in_the_buffer():
 class PatternCamera:
     """A Camera whose frame `seq` is `pattern(seq)`, written into `out` when given; logs what it got."""
 
-    def __init__(self, n_frames: int, shape=(48, 64)) -> None:
+    def __init__(self, n_frames: int, shape=(240, 320)) -> None:
         self.camera_id, self.groundtruth, self.dropped = "left", None, 0
         self.shape, self.n_frames, self.seq = shape, n_frames, 0
         self.outs: list[np.ndarray | None] = []
@@ -107,4 +107,6 @@ def test_the_driver_node_publishes_each_frame_with_its_own_pixels_through_one_bu
     for frame in received + offered:
         assert np.array_equal(frame.image, pattern(frame.seq, camera.shape, np.uint8)), frame.seq
     assert [f.seq for f in offered] == list(range(12))
+    # Large enough for Zenoh shared memory, which the node leaves off by default: all went as bytes.
+    assert (node.frames_out.shared, node.frames_out.copied) == (0, 12)
     assert len({f.seq for f in received}) == len(received)

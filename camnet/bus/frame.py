@@ -25,6 +25,9 @@ MAGIC = b"CNFR"
 VERSION = 1
 _FIXED = struct.Struct("<4sBBBBHHIIQQI")
 FIXED_HEADER_SIZE = _FIXED.size  # 40 bytes
+# Where seq and timestamp_ns lie in the fixed header: all that changes from one frame to the next.
+_SEQ_OFFSET = struct.calcsize("<4sBBBBHHII")
+_SEQ_AND_TIMESTAMP = struct.Struct("<QQ")
 MAX_ID_BYTES = 255
 MAX_SIDE_PX = 65535
 
@@ -156,18 +159,21 @@ class FrameBuffer:
 
     A camera writes a frame's pixels straight into `pixels` (a view of the
     message; `Camera.read(out=...)`), and `seal` writes the header in front:
-    a raw frame goes out without being copied into a new message. Zenoh
-    copies what `put` is given before it returns, so the next frame may
-    overwrite the buffer; anything that keeps a frame must copy its image.
+    a raw frame goes out without being copied into a new message. The
+    message is copied before `put` returns (by Zenoh, or into shared memory
+    by the driver node), so the next frame may overwrite the buffer;
+    anything that keeps a frame must copy its image.
     """
 
     def __init__(self, camera_id: str, encoding: str, shape: tuple[int, ...]) -> None:
         spec = ENCODINGS[encoding]
         self.camera_id, self.encoding = camera_id, encoding
-        self._id_bytes = camera_id.encode("utf-8")
-        header_size = FIXED_HEADER_SIZE + len(self._id_bytes)
-        self.message = bytearray(header_size + int(np.prod(shape)) * spec.dtype.itemsize)
-        self.message[FIXED_HEADER_SIZE:header_size] = self._id_bytes
+        probe = Frame(camera_id, 0, 0, encoding, np.empty(shape, spec.dtype))  # the checks encode_frame makes
+        id_bytes = _id_bytes(probe)
+        header_size = FIXED_HEADER_SIZE + len(id_bytes)
+        self.message = bytearray(header_size + probe.image.nbytes)
+        # Everything but seq and timestamp is the same for every frame of the buffer: written once.
+        self.message[:header_size] = _header(probe, id_bytes, Compression.NONE, probe.image.nbytes) + id_bytes
         self.pixels = np.frombuffer(self.message, dtype=spec.dtype, offset=header_size).reshape(shape)
 
     @classmethod
@@ -183,9 +189,8 @@ class FrameBuffer:
         """The message of `frame`, whose pixels this buffer holds: its header written, ready to put."""
         if not self.holds(frame):
             raise ValueError(f"camera {frame.camera_id}: the frame's pixels are not in this buffer")
-        _id_bytes(frame)  # the same checks as encode_frame
-        header = _header(frame, self._id_bytes, Compression.NONE, self.pixels.nbytes)
-        self.message[:FIXED_HEADER_SIZE] = header
+        # Frame checked seq and timestamp; the rest of the header was written with the buffer.
+        _SEQ_AND_TIMESTAMP.pack_into(self.message, _SEQ_OFFSET, frame.seq, frame.timestamp_ns)
         return self.message
 
 
