@@ -58,9 +58,9 @@ def test_scale_and_focal_errors_lie_within_three_reported_sigmas(name):
 
 
 def test_a_tape_pair_that_started_wrong_is_refused_or_within_its_sigmas():
-    # Seed 30 of tape_pair: its two cameras 45 degrees apart were taken for the paper's parallel pair (RANSAC's
-    # fundamental matrix, not refitted, fitted their matches no better than matching rows), which left ring3-5
-    # out, kept 60% of the observations at 1.37 px, and put the scale 87% off; warned, not refused.
+    # Seed 30 of tape_pair: its two cameras 45 degrees apart pass for the paper's parallel pair (RANSAC's
+    # fundamental matrix fits their matches no better than matching rows), which leaves ring3-5 out and keeps
+    # 60% of the observations at 1.37 px, the scale 87% off: refused now, where it was returned with warnings.
     try:
         s, f, _, _ = z_scores("tape_pair", 30)
     except SolveError:

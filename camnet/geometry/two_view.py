@@ -116,23 +116,13 @@ def pair_focals(xy1: np.ndarray, xy2: np.ndarray, *, threshold_px: float) -> tup
     return (np.nan, np.nan) if found is None else bougnoux_focals(found[0])
 
 
-def _epipolar_px(F: np.ndarray, xy1: np.ndarray, xy2: np.ndarray) -> np.ndarray:
-    """(n,) distances (px) of the second view's pixels from their epipolar lines under F."""
-    import cv2
-
-    lines = cv2.computeCorrespondEpilines(xy1.reshape(-1, 1, 2), 1, F).reshape(-1, 3)
-    return np.abs(np.sum(lines[:, :2] * xy2, axis=1) + lines[:, 2])
-
-
 def row_and_epipolar_errors(xy1: np.ndarray, xy2: np.ndarray, *, threshold_px: float) -> tuple[float, float]:
     """(rows_px, epipolar_px): how well the paper's parallel pair, and any pair, explain two views' matches.
 
     rows_px: the median distance of the second view's pixels from the rows
     ``y2 = k y1 + c`` (eq. 4, with an offset for principal points that
     differ), fitted robustly; epipolar_px: the median distance from their
-    epipolar lines under the fundamental matrix, fitted as robustly: RANSAC's
-    (at a start's loose threshold) or, where it does better, its refit on
-    the matches that agree.
+    epipolar lines under the RANSAC fundamental matrix, over its inliers.
     """
     import cv2
 
@@ -146,20 +136,6 @@ def row_and_epipolar_errors(xy1: np.ndarray, xy2: np.ndarray, *, threshold_px: f
     if found is None:
         return float(np.median(off)), np.inf
     F, inliers = found
-    # RANSAC's F fits its sample alone, to within the loose threshold: several pixels off the
-    # rest, which made two cameras 45 degrees apart look no worse on matching rows (seed 30 of
-    # tape_pair). Refitted on the matches that agree, as the rows are, it is as good as the noise;
-    # a refit on few matches can be worse, so the best F by the median over every match (as the rows') is kept.
-    epipolar = float(np.median(_epipolar_px(F, xy1, xy2)))
-    for _ in range(3):
-        if inliers.sum() < MIN_PAIR_POINTS:
-            break
-        refit, _ = cv2.findFundamentalMat(xy1[inliers], xy2[inliers], cv2.FM_8POINT)
-        if refit is None or refit.shape != (3, 3):
-            break
-        off_epipolar = _epipolar_px(refit, xy1, xy2)
-        if np.median(off_epipolar) >= epipolar:
-            break
-        epipolar = float(np.median(off_epipolar))
-        inliers = off_epipolar <= max(3.0 * epipolar, 1.0)
-    return float(np.median(off)), epipolar
+    lines = cv2.computeCorrespondEpilines(xy1[inliers].reshape(-1, 1, 2), 1, F).reshape(-1, 3)
+    epipolar = np.abs(np.sum(lines[:, :2] * xy2[inliers], axis=1) + lines[:, 2])
+    return float(np.median(off)), float(np.median(epipolar))
