@@ -5,7 +5,8 @@ does not use, at default options: the scale and every estimated focal
 length lie within 3 reported sigmas in at least 95% of the checks, per
 family and quantity (one miss in 20). A camera whose K the observations
 give is held and has no focal check; a camera the solve leaves out is named
-in its report and has none either. The ring with its head's K given must
+in its report and has none either; a refused solve (a wrong start) has no check, and at most one per
+family is allowed. The ring with its head's K given must
 also keep its scale error below 0.5%. The paper's rig is checked the same way in tests/test_engine.py;
 here the rigs it is unlike.
 """
@@ -40,11 +41,17 @@ def z_scores(name: str, seed: int) -> tuple[float, list[float], float, float]:
 @pytest.mark.parametrize("name", FAMILIES)
 def test_scale_and_focal_errors_lie_within_three_reported_sigmas(name):
     scale_z, focal_z, scale_rel = [], [], []
+    refused = []
     for seed in range(FIRST_SEED, FIRST_SEED + SEEDS):
-        s, f, rel, _ = z_scores(name, seed)
+        try:
+            s, f, rel, _ = z_scores(name, seed)
+        except SolveError:
+            refused.append(seed)  # said, not silent; but a rule that refused everything would pass the rest
+            continue
         scale_z.append(s)
         focal_z += f
         scale_rel.append(abs(rel))
+    assert len(refused) <= round(SEEDS * (1 - WITHIN)), f"{name}: refused seeds {refused}"  # tape_pair's 30
     scale_z, focal_z = np.array(scale_z), np.array(focal_z)
     assert np.mean(scale_z <= 3) >= WITHIN, f"{name}: scale errors / sigma {np.round(scale_z, 2).tolist()}"
     assert np.mean(focal_z <= 3) >= WITHIN, f"{name}: focal errors / sigma, worst {np.sort(focal_z)[-3:].tolist()}"
@@ -55,10 +62,10 @@ def test_scale_and_focal_errors_lie_within_three_reported_sigmas(name):
             f"ring_K: scale errors % {np.round(100 * np.array(scale_rel), 3).tolist()}")
 
 
-@pytest.mark.xfail(strict=True, reason="open: a start the adjustment cannot recover from, returned with warnings")
-def test_a_tape_pair_that_starts_wrong_is_refused_or_within_its_sigmas():
-    # Seed 30 of tape_pair: ring3 and ring4 left out, 40% of the observations rejected, RMS 1.55 px, and a
-    # scale 585% off at a reported 14.3% (41 sigma), the focal lengths 67-231% off; warned, not refused.
+def test_a_tape_pair_that_started_wrong_is_refused_or_within_its_sigmas():
+    # Seed 30 of tape_pair: its two cameras 45 degrees apart pass for the paper's parallel pair (RANSAC's
+    # fundamental matrix fits their matches no better than matching rows), which leaves ring3-5 out and keeps
+    # 60% of the observations at 1.37 px, the scale 87% off: refused now, where it was returned with warnings.
     try:
         s, f, _, _ = z_scores("tape_pair", 30)
     except SolveError:

@@ -46,7 +46,7 @@ from camnet.errors import SolveError
 from camnet.geometry import bundle, distances
 from camnet.geometry.bundle import CentreMode, Problem, State
 from camnet.geometry.cold_start import check_solvable, cold_start, pair_advice, with_cameras_left_out, without_cameras
-from camnet.geometry.diagnostics import refuse_undetermined, reported_points, solve_report
+from camnet.geometry.diagnostics import refuse_undetermined, refuse_wrong_start, reported_points, solve_report
 from camnet.geometry.free_rule import choose_free, free_mask, free_names, restore_free
 from camnet.geometry.initialise import (
     Start,
@@ -358,19 +358,8 @@ def _paper_result(obs, order, intr, rows, start: Start, timings) -> Result:
     timings["eq13"] = time.perf_counter() - t0
     timings["total"] = sum(timings.values())
     info = bundle.SolveInfo(True, "eq. 13 minimised", 0, np.nan, np.nan)
-    return _result(
-        obs,
-        order,
-        problem,
-        state,
-        track_rows,
-        np.ones(len(problem.cam), bool),
-        info,
-        None,
-        ["paper: principal points at the image centre, no distortion"],
-        Method.PAPER,
-        timings,
-    )
+    return _result(obs, order, problem, state, track_rows, np.ones(len(problem.cam), bool), info, None,
+                   ["paper: principal points at the image centre, no distortion"], Method.PAPER, timings)
 
 
 def _result(
@@ -395,6 +384,7 @@ def _result(
     report = with_cameras_left_out(report, left_out or {})
     try:
         refuse_undetermined(report)
+        refuse_wrong_start(report, rms)
     except SolveError as exc:
         raise SolveError(f"{exc}{pair_advice(obs)}") from None
     calibration = Calibration(
