@@ -32,8 +32,8 @@ ROOT = Path(__file__).resolve().parent.parent
 SLOTS = range(20, 26)
 # Wall-clock values, different on every run by nature: left out of the comparison.
 WALL_CLOCK_KEYS = {
-    "calibration": ("solved_ns", "timings_s"),
-    "observations": ("published_ns", "pool_id"),  # pool_id: a fresh random id per matcher start
+    "calibration": ("solved_ns", "timings_s", "latency_ns"),
+    "observations": ("published_ns", "pool_id", "latency_ns"),  # pool_id: a fresh random id per matcher start
 }
 
 
