@@ -167,11 +167,14 @@ def test_a_warm_start_places_a_camera_new_to_it_through_the_graph():
     assert max(abs(e.focal_rel) for e in c.cameras) < 0.02
 
 
-def test_the_live_calibrator_says_why_a_camera_is_missing():
+def test_the_live_calibrator_keeps_the_others_and_says_why_a_camera_is_missing():
     _, obs = family_observations("ring", 1)
     cal = calibrate(_isolated(obs, "ring4")).calibration
-    why = judge(cal, obs, LiveConfig(max_scale_rel=1.0))
-    assert why.startswith("cameras ['ring4'] not calibrated (ring4: it shares only 0 tracks")
+    assert judge(cal, obs, LiveConfig(max_scale_rel=1.0)) == ""
+    assert cal.report.cameras_left_out["ring4"].startswith("it shares only 0 tracks")
+    unexplained = replace(cal, report=replace(cal.report, cameras_left_out={}))
+    assert judge(unexplained, obs, LiveConfig(max_scale_rel=1.0)) == (
+        "cameras ['ring4'] not calibrated, and the solve does not say why")
 
 
 @pytest.mark.parametrize("seed", [0, 1, 11])
