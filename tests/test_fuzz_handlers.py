@@ -200,7 +200,7 @@ CALIBRATION = calibration_to_doc(sim_calibration())
 @given(payload=st.one_of(RANDOM_BYTES, near_valid(CALIBRATION)))
 def test_the_matcher_survives_any_calibration(matcher, payload):
     """What the view graph takes from the calibration key: counted when it does not parse, never raising."""
-    matcher.on_calibration(sample(payload, keys.calibration("fuzz")))
+    matcher.calibration.on_sample(sample(payload, keys.calibration("fuzz")))
     matcher._take_calibration()
 
 
