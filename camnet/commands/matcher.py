@@ -29,7 +29,7 @@ def _node_flags() -> tuple[tuple[str, dict], ...]:
         ("--full-pool-image-side-px", dict(type=int, metavar="PX",
                                            help="once the pool is full, detect on a downscaled copy of larger "
                                                 "images: less time per frame set, larger focal errors "
-                                                "(default: 960)")),
+                                                "(default: None, full size; 960 halves a loaded host's latency)")),
         ("--normalise-contrast", dict(action=argparse.BooleanOptionalAction,
                                       help="stretch and equalise (CLAHE) each image before detection, for dark or "
                                            "flat images (default: True)")),
