@@ -77,6 +77,21 @@ def publish_junk_calibrations(endpoint: str, rig_name: str) -> None:
             time.sleep(2.0)
 
 
+def run_up(tmp_path, args: list[str], *, timeout_s: float) -> str:
+    """`camnet up ARGS` with its run directory in tmp_path/run, on a loopback port of its own; its stdout,
+    after asserting it ended well (else its output and the nodes' log tails)."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "camnet.cli", "up", *args, "--run-dir", str(tmp_path / "run"), "--listen",
+         f"tcp/127.0.0.1:{free_port()}"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        stdout, stderr = proc.communicate(timeout=timeout_s)
+    finally:
+        proc.kill()
+    logs = "\n".join(p.read_text()[-1500:] for p in (tmp_path / "run").rglob("*.log"))
+    assert proc.returncode == 0, stdout + stderr + logs
+    return stdout
+
+
 @pytest.mark.parametrize("n_cameras", [4, 8])
 def test_simulated_network_calibrates_to_scale_within_a_minute(tmp_path, n_cameras):
     rig_path = rig_file(tmp_path, n_cameras)
@@ -147,16 +162,8 @@ def test_up_with_feature_stages_beside_the_drivers_calibrates(tmp_path):
     """`camnet up --features`: each driver detects its own camera's features; the matcher only matches them."""
     rig_path = rig_file(tmp_path, 4)
     out = tmp_path / "calibration.json"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "camnet.cli", "up", rig_path, "--features", "--duration-s", "60", "--run-dir",
-         str(tmp_path / "run"), "-o", str(out), "--listen", f"tcp/127.0.0.1:{free_port()}"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        stdout, stderr = proc.communicate(timeout=240)
-    finally:
-        proc.kill()
+    stdout = run_up(tmp_path, [rig_path, "--features", "--duration-s", "60", "-o", str(out)], timeout_s=240)
     logs = {p.stem: p.read_text() for p in (tmp_path / "run" / "logs").glob("*.log")}
-    assert proc.returncode == 0, stdout + stderr + "".join(text[-1500:] for text in logs.values())
     # Every camera's features came from its own stage, none was detected by the matcher.
     for camera_id in ("left", "right", "mono_a", "mono_b"):
         assert f"camera '{camera_id}': features from its own stage" in logs["matcher"], logs["matcher"][-3000:]
@@ -178,16 +185,7 @@ def test_up_publishes_the_cameras_it_can_place_and_names_the_one_looking_away(tm
     rig_path = tmp_path / "away5.yaml"
     rig_path.write_text(yaml.safe_dump(doc, sort_keys=False))
     out = tmp_path / "calibration.json"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "camnet.cli", "up", str(rig_path), "--duration-s", "45", "--run-dir",
-         str(tmp_path / "run"), "-o", str(out), "--listen", f"tcp/127.0.0.1:{free_port()}"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        stdout, stderr = proc.communicate(timeout=180)
-    finally:
-        proc.kill()
-    logs = "\n".join(p.read_text()[-1500:] for p in (tmp_path / "run").rglob("*.log"))
-    assert proc.returncode == 0, stdout + stderr + logs
+    stdout = run_up(tmp_path, [str(rig_path), "--duration-s", "45", "-o", str(out)], timeout_s=180)
     published = json.loads(out.read_text())
     cal = parse_calibration(published)
     assert {c.id for c in cal.cameras} == {"left", "right", "mono_a", "mono_b"}
