@@ -78,11 +78,7 @@ class LatestMessage:
             self._payload, self._received_ns = payload, received_ns
             self._ready.notify()
 
-    def take(self, *, timeout_s: float) -> bytes | None:
-        taken = self.take_timed(timeout_s=timeout_s)
-        return None if taken is None else taken[0]
-
-    def take_timed(self, *, timeout_s: float) -> tuple[bytes, int] | None:
+    def take(self, *, timeout_s: float) -> tuple[bytes, int] | None:
         """(payload, when it was put: Unix epoch, ns), or None when nothing came within `timeout_s`."""
         with self._ready:
             if not self._ready.wait_for(lambda: self._payload is not None, timeout=timeout_s):
@@ -284,7 +280,7 @@ class CalibratorNode:
         try:
             with stop_on_signals(self.stop), presence:
                 while not self.stop.is_set():
-                    taken = self.mailbox.take_timed(timeout_s=0.2)
+                    taken = self.mailbox.take(timeout_s=0.2)
                     if taken is not None:
                         payload, received_ns = taken
                         outcome = self.handle(payload, publisher, received_ns=received_ns)

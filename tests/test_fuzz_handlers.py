@@ -130,7 +130,7 @@ OBSERVATIONS = observations_to_doc(observe(make_rig(n_points=20, seed=1), seed=1
 def test_the_calibrator_survives_any_observations_message(calibrator, payload):
     node, publisher = calibrator
     node._on_observations(sample(payload, keys.observations("fuzz")))
-    node.handle(node.mailbox.take(timeout_s=1.0), publisher)
+    node.handle(node.mailbox.take(timeout_s=1.0)[0], publisher)
 
 
 def test_the_calibrator_still_calibrates_after_the_fuzz(calibrator):

@@ -43,7 +43,6 @@ LIVE_FREE = frozenset({"f", "fisheye", "stereo_rotation", "stereo_direction"})
 
 
 REFUSED_RETRIES = 2  # a solve refused for cameras placed wrong is solved again without them at most this often
-REFUSED_BY = ("focal lengths outside", "keep too few of their observations")  # `judge`'s, of `refused_cameras`
 
 
 @dataclass(frozen=True)
@@ -100,13 +99,9 @@ class Outcome:
 
 def judge(cal: Calibration, obs: Observations, config: LiveConfig) -> str:
     """Why `cal` must not replace a good calibration, or "" if it may."""
-    if cal.report is None or not cal.report.converged:
-        return f"not converged ({cal.report.reason if cal.report is not None else 'unknown'})"
-    if not cal.rms_reprojection_px <= config.max_rms_px:
-        return f"reprojection RMS {cal.rms_reprojection_px:.2f} px > {config.max_rms_px} px"
-    scale_rel = cal.uncertainty.scale_rel.value if cal.uncertainty is not None else None
-    if scale_rel is None or not scale_rel <= config.max_scale_rel:
-        return f"scale uncertain ({scale_rel} > {config.max_scale_rel})"
+    whole = judge_rig(cal, config)
+    if whole:
+        return whole
     absurd = absurd_focals(cal, obs)
     if absurd:
         # A start gone wrong can converge to such a rig at a low RMS and a small scale sigma.
@@ -122,6 +117,18 @@ def judge(cal: Calibration, obs: Observations, config: LiveConfig) -> str:
     unexplained = set(obs.camera_ids) - {c.id for c in cal.cameras} - set(cal.report.cameras_left_out)
     if unexplained:
         return f"cameras {sorted(unexplained)} not calibrated, and the solve does not say why"
+    return ""
+
+
+def judge_rig(cal: Calibration, config: LiveConfig) -> str:
+    """`judge`'s checks of the rig as a whole (convergence, RMS, scale): why they refuse `cal`, or ""."""
+    if cal.report is None or not cal.report.converged:
+        return f"not converged ({cal.report.reason if cal.report is not None else 'unknown'})"
+    if not cal.rms_reprojection_px <= config.max_rms_px:
+        return f"reprojection RMS {cal.rms_reprojection_px:.2f} px > {config.max_rms_px} px"
+    scale_rel = cal.uncertainty.scale_rel.value if cal.uncertainty is not None else None
+    if scale_rel is None or not scale_rel <= config.max_scale_rel:
+        return f"scale uncertain ({scale_rel} > {config.max_scale_rel})"
     return ""
 
 
@@ -262,9 +269,10 @@ class Tracker:
         status, reason, cal = self._attempt(obs, start, reset=reset)
         left_out: dict[str, str] = {}
         for _ in range(REFUSED_RETRIES):
-            refused = refused_cameras(cal, obs, self.config) if status == Status.REJECTED else {}
-            # Only where nothing else refuses it: the checks before these concern the whole rig.
-            if not refused or len(obs.cameras) - len(refused) < MIN_CAMERAS or not any(r in reason for r in REFUSED_BY):
+            # Only where the rig as a whole passes: then the cameras placed wrong are what refuses it.
+            whole_ok = status == Status.REJECTED and not judge_rig(cal, self.config)
+            refused = refused_cameras(cal, obs, self.config) if whole_ok else {}
+            if not refused or len(obs.cameras) - len(refused) < MIN_CAMERAS:
                 break
             # A camera placed wrong does not hold the others back: solved again without it, it is named.
             left_out.update(refused)
