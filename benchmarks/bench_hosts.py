@@ -47,6 +47,8 @@ from bench_faults import Network, rss_mb
 from soak import GROWTH_LIMIT, SETTLE_S, MatcherStats, growth
 
 from camnet.bus import keys
+from camnet.commands.up_console import summarise
+from camnet.io.rig import parse_rig
 
 ROOT = Path(__file__).resolve().parent.parent
 CAMERAS_PER_HOST = 4
@@ -63,6 +65,35 @@ def cpu_s(pid: int) -> float:
         return 0.0
     fields = stat[stat.rindex(")") + 2:].split()  # after the command name, which may hold spaces
     return (int(fields[11]) + int(fields[12])) / CLOCK_TICKS_PER_S  # utime, stime: fields 14 and 15
+
+
+def thread_part(name: str) -> str:
+    """The part of a camera host a thread belongs to, from its name (as the kernel keeps it: 15 characters)."""
+    for prefix, part in (("driver-", "drivers"), ("features-", "features")):
+        if name.startswith(prefix):
+            return part
+    return "zenoh+main"
+
+
+HOST_PARTS = ("drivers", "features", "zenoh+main")  # drivers: rendering and putting frames
+
+
+def host_parts_cpu_s(pid: int) -> dict[str, float]:
+    """CPU seconds of a camera host's live threads, summed by part (`thread_part`)."""
+    parts = dict.fromkeys(HOST_PARTS, 0.0)
+    try:
+        tasks = list(Path(f"/proc/{pid}/task").iterdir())
+    except OSError:
+        return parts
+    for task in tasks:
+        try:
+            stat = (task / "stat").read_text()
+        except OSError:
+            continue  # the thread ended
+        fields = stat[stat.rindex(")") + 2:].split()
+        name = stat[stat.index("(") + 1:stat.rindex(")")]
+        parts[thread_part(name)] += (int(fields[11]) + int(fields[12])) / CLOCK_TICKS_PER_S
+    return parts
 
 
 class HostsNetwork(Network):
@@ -90,6 +121,7 @@ class Phase:
     minutes: float
     samples: list[dict]  # t_s, cpu_s and rss_mb per process, matcher frame sets
     calibrations: list[tuple[float, dict]]  # (s since the start, document) of every good calibration
+    truth: list  # the simulated cameras (camnet.geometry.model.Camera)
 
     @property
     def window_s(self) -> float:
@@ -122,6 +154,20 @@ class Phase:
         return {name: 100 * (last["cpu_s"][name] - cpu) / span_s for name, cpu in first["cpu_s"].items()
                 if name in last["cpu_s"]}
 
+    def host_parts_percent(self) -> dict[str, float]:
+        """CPU of the camera hosts' threads over the window, by part, summed over the hosts, in % of one core."""
+        first, last = self.settled(), self.samples[-1]
+        span_s = max(last["t_s"] - first["t_s"], 1e-9)
+        totals = dict.fromkeys(HOST_PARTS, 0.0)
+        for name, parts in last["parts_cpu_s"].items():
+            for part, cpu in parts.items():
+                totals[part] += 100 * (cpu - first["parts_cpu_s"].get(name, {}).get(part, 0.0)) / span_s
+        return totals
+
+    def errors(self) -> list[dict]:
+        """Against the simulation's truth, each good calibration of the window (`summarise`'s keys)."""
+        return [summarise(t, d, self.truth) for t, d in self.calibrations if t >= self.window_s]
+
     def matcher_cpu_per_set_s(self) -> float | None:
         first, last = self.settled(), self.samples[-1]
         sets = last["frame_sets"] - first["frame_sets"]
@@ -143,11 +189,13 @@ def run_phase(work: Path, rig: dict, *, minutes: float, sample_s: float, feature
             children = net.launch.children
             samples.append({"t_s": round(time.monotonic() - start_s, 1),
                             "cpu_s": {c.name: cpu_s(c.process.pid) for c in children},
+                            "parts_cpu_s": {c.name: host_parts_cpu_s(c.process.pid) for c in children
+                                            if c.name.startswith("host-")},
                             "rss_mb": {c.name: round(rss_mb(c.process.pid), 1) for c in children},
                             "frame_sets": stats.frames if stats else 0})
             print(progress(samples, len(net.calibrations)), file=sys.stderr, flush=True)
         calibrations = [(t - start_s, d) for t, d in net.calibrations]
-    return Phase(len(rig["cameras"]), minutes, samples, calibrations)
+    return Phase(len(rig["cameras"]), minutes, samples, calibrations, parse_rig(rig).simulated_truth())
 
 
 def progress(samples: list[dict], n_calibrations: int) -> str:
@@ -178,6 +226,26 @@ def table(phase: Phase) -> list[str]:
                 f"{'n/a (fewer than two calibrations)' if rate is None else f'{rate:.2f}'}")
     if latencies:
         rows.append(f"capture->calibration: median {statistics.median(latencies):.1f} s, max {latencies[-1]:.1f} s")
+    errors = [e for e in phase.errors() if "scale_error_rel" in e]
+    if errors:
+        final = errors[-1]
+        scale = statistics.median(abs(e["scale_error_rel"]) for e in errors)
+        rows.append(f"vs truth, the last of {final['cameras']} cameras: scale {100 * final['scale_error_rel']:+.3f}% "
+                    f"(sigma {100 * (final['scale_sigma_rel'] or float('nan')):.3f}%), "
+                    f"focal <= {100 * final['max_focal_error_rel']:.3f}%; median of the {len(errors)} from "
+                    f"{phase.window_s:.0f} s: |scale| {100 * scale:.3f}%, "
+                    f"focal <= {100 * statistics.median(e['max_focal_error_rel'] for e in errors):.3f}%")
+    parts = phase.host_parts_percent()
+    rows.append("camera hosts' threads, % of a core: "
+                + ", ".join(f"{part} {percent:.0f}" for part, percent in parts.items()))
+    if rate:
+        per_set = {name: percent / 100 / rate for name, percent in cpu.items()}
+        hosts = sum(v for name, v in per_set.items() if name.startswith("host-"))
+        rows.append(f"CPU s per calibrated frame set: hosts {hosts:.2f} ("
+                    + ", ".join(f"{part} {percent / 100 / rate:.2f}" for part, percent in parts.items()) + "), "
+                    + ", ".join(f"{name} {v:.2f}" for name, v in per_set.items() if not name.startswith("host-"))
+                    + f"; all {sum(per_set.values()):.2f}: {2 / sum(per_set.values()):.2f} sets/s on 2 free cores "
+                    "at this mix")
     per_set = phase.matcher_cpu_per_set_s()
     rows.append(f"matcher: {last['frame_sets']} frame sets matched, "
                 f"{'n/a' if per_set is None else f'{per_set:.2f}'} CPU s per frame set")

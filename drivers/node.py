@@ -29,7 +29,7 @@ from camnet.drivers.frame_publisher import FramePublisher
 
 from camnet.bus import keys
 from camnet.bus.frame import Compression, Frame, FrameBuffer, encode_frame
-from camnet.bus.node import Presence, stop_on_signals
+from camnet.bus.node import Presence, name_os_thread, stop_on_signals
 from camnet.bus.stats import Activity
 from camnet.io.rig import Rig
 
@@ -149,6 +149,7 @@ def run_together(nodes: Sequence[DriverNode], *, max_frames: int = 0) -> int:
     errors: list[BaseException] = []
 
     def run_one(node: DriverNode) -> None:
+        name_os_thread(threading.current_thread().name)
         try:
             node.run(max_frames=max_frames)
         except BaseException as exc:  # noqa: BLE001 (raised again in the main thread below)

@@ -13,24 +13,37 @@ every stage takes the frame nearest to the latest point of a common grid of
 capture times (multiples of `period_s` since the epoch), at most one per grid
 point: cameras on one clock then pick the same instant. A stage slower than
 the period skips grid points (counted as skipped).
+
+How often: detecting a frame set the matcher has no time for is wasted (on
+a loaded rig most of the host's CPU went so). With a `MatcherPace`, fed
+the matcher's statistics, a stage detects only on every 2**k-th grid point,
+the smallest k that offers at most `PACE_HEADROOM` times the frame sets the
+matcher matched per second. Every stage hears the same reports and takes
+the same k; and a coarser grid's points are points of every finer one, so
+stages that differ for a moment still meet on the coarser one.
 """
 
 from __future__ import annotations
 
 import collections
+import collections.abc
 import logging
 import threading
 from dataclasses import dataclass
 
 from camnet.bus.features_wire import FeaturesMessage, encode_features
 from camnet.bus.frame import Frame
-from camnet.bus.node import Tally, guarded
+from camnet.bus.node import Tally, guarded, name_os_thread
+from camnet.bus.stats import NodeStats
 from camnet.matching.edge import CameraFeatures, EdgeConfig, FeatureExtractor
 from camnet.matching.features import Detector, Features, MatcherConfig
 
 log = logging.getLogger(__name__)
 
 BUFFERED_FRAMES = 8  # the latest frames kept for the worker to pick from
+PACE_WINDOW_S = 10.0  # the matcher's rate is measured over this much of its reports; a new pace holds as long
+PACE_HEADROOM = 2.0  # offer at most this many times the frame sets matched: room to find out it can take more
+MAX_PACE_LEVEL = 3  # at most 2**3 grid periods between the frame sets detected
 
 
 @dataclass(frozen=True)
@@ -57,12 +70,92 @@ def from_message(message: FeaturesMessage) -> CameraFeatures:
                           features, keyframe_seq=message.keyframe_seq, reused=message.reused)
 
 
-class FeatureWorker:
-    """Detects and publishes one camera's features on its own thread while the context lasts."""
+def pace_level(offered_per_s: float, matched_per_s: float, *, max_level: int = MAX_PACE_LEVEL) -> int:
+    """The smallest k (at most `max_level`) for which `offered_per_s` / 2**k frame sets per second are
+    at most `PACE_HEADROOM` times the `matched_per_s` of the matcher."""
+    for level in range(max_level + 1):
+        if offered_per_s / (1 << level) <= PACE_HEADROOM * matched_per_s:
+            return level
+    return max_level
 
-    def __init__(self, publisher, camera_id: str, config: FeatureStageConfig = FeatureStageConfig()) -> None:
+
+class MatcherPace:
+    """The level k of a feature grid of `period_s` (detect every 2**k-th point) from the matcher's reports.
+
+    The level is a function of the reports alone, not of when they arrived: it is decided at the
+    first report of each window of `window_s` of the reports' stamps (windows aligned to the epoch),
+    from the frame sets matched per second over the window before, by a pace that heard all of
+    that window. So every stage that has listened for two windows takes the same level at the
+    same report, and a level holds for a whole window (what the matcher matches at a new pace has
+    to show before the next decision). It is 0 (every grid point) until the first decision, and
+    again when the matcher starts anew (its count goes down). Thread-safe.
+    """
+
+    def __init__(self, period_s: float, *, window_s: float = PACE_WINDOW_S, max_level: int = MAX_PACE_LEVEL) -> None:
+        self.offered_per_s = 1.0 / period_s
+        self.max_level = max_level
+        self.level = 0
+        self.changes = 0
+        self._window_ns = round(window_s * 1e9)
+        self._reports: collections.deque[tuple[int, int]] = collections.deque()  # (timestamp_ns, frame sets)
+        self._heard_since_ns: int | None = None  # the stamp of the first report heard (since the matcher started)
+        self._lock = threading.Lock()
+
+    def on_sample(self, sample) -> None:
+        """A Zenoh sample of the matcher's statistics (``keys.node_stats(rig, "matcher", "matcher")``)."""
+        self.on_stats(NodeStats.from_json(sample.payload.to_bytes()))
+
+    def on_stats(self, stats: NodeStats) -> None:
+        with self._lock:
+            reports, window_ns = self._reports, self._window_ns
+            if reports and stats.frames < reports[-1][1]:
+                reports.clear()
+                self.level, self._heard_since_ns = 0, None
+            elif reports and stats.timestamp_ns <= reports[-1][0]:
+                return  # one heard before (a late copy)
+            if self._heard_since_ns is None:
+                self._heard_since_ns = stats.timestamp_ns
+            window = stats.timestamp_ns // window_ns
+            decide = bool(reports) and window > reports[-1][0] // window_ns
+            reports.append((stats.timestamp_ns, stats.frames))
+            while reports[0][0] < (window - 1) * window_ns:
+                reports.popleft()
+            if not decide or self._heard_since_ns >= (window - 1) * window_ns:
+                return  # within a window, or not heard from the start of the one before
+            (first_ns, first), (last_ns, last) = reports[0], reports[-1]
+            matched_per_s = (last - first) / ((last_ns - first_ns) / 1e9)
+            level = pace_level(self.offered_per_s, matched_per_s, max_level=self.max_level)
+            if level != self.level:
+                log.info("feature pace: every %d grid point(s); the matcher matched %.2f frame sets/s",
+                         1 << level, matched_per_s)
+                self.level = level
+                self.changes += 1
+
+
+def pick_frame(frames: collections.abc.Sequence[Frame], period_ns: int,
+               after_grid_ns: int) -> tuple[Frame, int] | None:
+    """Of `frames` (oldest first), the one nearest the latest point of the grid of `period_ns`
+    (multiples since the epoch) that the newest has reached, and that point; None when that
+    point is not after `after_grid_ns`."""
+    if not frames:
+        return None
+    grid_ns = frames[-1].timestamp_ns // period_ns * period_ns
+    if grid_ns <= after_grid_ns:
+        return None
+    return min(frames, key=lambda f: abs(f.timestamp_ns - grid_ns)), grid_ns
+
+
+class FeatureWorker:
+    """Detects and publishes one camera's features on its own thread while the context lasts.
+
+    With `pace`, only on the grid points of its level (`MatcherPace`); without, on every one.
+    """
+
+    def __init__(self, publisher, camera_id: str, config: FeatureStageConfig = FeatureStageConfig(), *,
+                 pace: MatcherPace | None = None) -> None:
         self.publisher = publisher
         self.config = config
+        self.pace = pace
         self.extractor = FeatureExtractor(camera_id, config.matcher, config.edge)
         self.failures = Tally(log)
         self.published = 0
@@ -84,6 +177,11 @@ class FeatureWorker:
             self._arrived.notify()
         self._thread.join()
 
+    @property
+    def period_ns(self) -> int:
+        """The grid the stage detects on now: the configured one, coarsened by the pace's level."""
+        return self._period_ns << (self.pace.level if self.pace is not None else 0)
+
     def offer(self, frame: Frame) -> None:
         """A new frame of the camera (called by the driver's loop)."""
         with self._arrived:
@@ -94,24 +192,23 @@ class FeatureWorker:
         """The buffered frame nearest the latest grid point after `after_grid_ns`, and that point."""
         with self._arrived:
             while not self._stop.is_set():
-                if self._frames:
-                    grid_ns = self._frames[-1].timestamp_ns // self._period_ns * self._period_ns
-                    if grid_ns > after_grid_ns:
-                        frame = min(self._frames, key=lambda f: abs(f.timestamp_ns - grid_ns))
-                        self._frames.clear()
-                        return frame, grid_ns
+                chosen = pick_frame(self._frames, self.period_ns, after_grid_ns)
+                if chosen is not None:
+                    self._frames.clear()
+                    return chosen
                 self._arrived.wait(0.5)
         return None
 
     def _run(self) -> None:
         import time
 
+        name_os_thread(self._thread.name)
         detect = guarded(self._detect_and_publish, self.failures, "detecting features")
         last_grid_ns = -1
         while (chosen := self._next_frame(last_grid_ns)) is not None:
             frame, grid_ns = chosen
             if last_grid_ns >= 0:
-                self.skipped += max(0, (grid_ns - last_grid_ns) // self._period_ns - 1)
+                self.skipped += max(0, (grid_ns - last_grid_ns) // self.period_ns - 1)
             last_grid_ns = grid_ns
             start_s = time.perf_counter()
             detect(frame)
@@ -128,12 +225,12 @@ class FeatureNode:
 
     For a camera whose driver cannot host the stage (another process, another
     host near the camera): it subscribes to ``keys.frame(rig, camera)`` and
-    publishes what `FeatureWorker` detects on ``keys.features(rig, camera)``.
-    `run` until `stop` is set (or SIGTERM, Ctrl-C).
+    publishes what `FeatureWorker` detects on ``keys.features(rig, camera)``, at the matcher's
+    pace (`MatcherPace`) unless `pace` is False. `run` until `stop` is set (or SIGTERM, Ctrl-C).
     """
 
     def __init__(self, session, rig: str, camera_id: str, config: FeatureStageConfig = FeatureStageConfig(), *,
-                 stats_period_s: float = 1.0) -> None:
+                 stats_period_s: float = 1.0, pace: bool = True) -> None:
         from camnet.bus.receiver import FrameReceiver
 
         self.session, self.rig, self.camera_id = session, rig, camera_id
@@ -142,6 +239,7 @@ class FeatureNode:
         self.stop = threading.Event()
         self.receiver = FrameReceiver({camera_id: None})  # another camera's frames are refused from their header
         self.worker: FeatureWorker | None = None
+        self.pace = MatcherPace(config.period_s) if pace else None
 
     def _on_frame(self, sample) -> None:
         frame = self.receiver.accept(sample.payload.to_bytes())
@@ -171,10 +269,14 @@ class FeatureNode:
         presence = Presence(self.session, rig=self.rig, kind="features", node_id=self.camera_id,
                             report=self._activity, tallies=(self.receiver.malformed, failures),
                             period_s=self.stats_period_s)
-        with FeatureWorker(publisher, self.camera_id, self.config) as worker, presence:
+        with FeatureWorker(publisher, self.camera_id, self.config, pace=self.pace) as worker, presence:
             self.worker = worker
-            subscriber = self.session.declare_subscriber(keys.frame(self.rig, self.camera_id),
-                                                         guarded(self._on_frame, failures, "receiving a frame"))
+            subscribers = [self.session.declare_subscriber(keys.frame(self.rig, self.camera_id),
+                                                           guarded(self._on_frame, failures, "receiving a frame"))]
+            if self.pace is not None:
+                subscribers.append(self.session.declare_subscriber(
+                    keys.node_stats(self.rig, "matcher", "matcher"),
+                    guarded(self.pace.on_sample, failures, "reading the matcher's statistics")))
             log.info("detecting the features of camera %r of rig %r (%s), publishing %s", self.camera_id, self.rig,
                      self.config.matcher.detector, keys.features(self.rig, self.camera_id))
             try:
@@ -182,5 +284,6 @@ class FeatureNode:
                     while not self.stop.wait(0.2):
                         presence.publish_if_due()
             finally:
-                subscriber.undeclare()
+                for subscriber in subscribers:
+                    subscriber.undeclare()
         return 0

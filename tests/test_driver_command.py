@@ -3,6 +3,7 @@ see it."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import subprocess
 import sys
@@ -141,6 +142,56 @@ def test_one_driver_process_runs_several_cameras_with_their_feature_stages(tmp_p
     finally:
         err = stop(driver)
     assert driver.returncode == 0, err  # SIGTERM stops every camera and the process cleanly
+
+
+def os_thread_names(pid: int) -> set[str]:
+    names = set()
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        with contextlib.suppress(OSError):  # the thread ended
+            names.add((task / "comm").read_text().strip())
+    return names
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="thread names are read from /proc")
+def test_a_camera_hosts_feature_stages_slow_to_the_matchers_pace(tmp_path):
+    """A matcher that reports no frame set matched for two windows: the host's stages then detect only on
+    every 8th point of their 0.5 s grid (capture times on multiples of 4 s). Its threads carry their names
+    in the operating system, where a benchmark reads each one's CPU time."""
+    from camnet.services.features import MAX_PACE_LEVEL, PACE_WINDOW_S
+
+    from camnet.bus.stats import NodeStats
+    from tests.conftest import matched_publisher
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    cameras = ("left", "mono_a")
+    driver = camnet("driver", "sim", "--rig", str(small_rig(tmp_path / "rig.yaml")),
+                    *[a for c in cameras for a in ("--camera", c)], "--features", "--features-period-s", "0.5",
+                    "--listen", endpoint)
+    try:
+        stamps: dict[str, list[int]] = {c: [] for c in cameras}
+
+        def on_features(sample) -> None:
+            message = decode_features(sample.payload.to_bytes())
+            stamps[message.camera_id].append(message.timestamp_ns)
+
+        with open_session(BusOptions(connect=(endpoint,))) as session:
+            session.declare_subscriber(keys.all_features("sim"), on_features)
+            assert wait_for(lambda: all(len(stamps[c]) >= 2 for c in cameras), 120.0), (stamps, stop(driver))
+            reports = matched_publisher(session, keys.node_stats("sim", "matcher", "matcher"), timeout_s=30.0)
+            # Reports of their own stamps: the pace goes by them, not by when they arrive.
+            for t_s in range(round(3 * PACE_WINDOW_S) + 1):
+                reports.put(NodeStats(rig="sim", kind="matcher", node_id="matcher", fps=0.0, frames=0, dropped=0,
+                                      timestamp_ns=t_s * 1_000_000_000).to_json())
+            # One stage may have a detection under way when the pace changes: three more each, the last two paced.
+            seen = {c: len(stamps[c]) for c in cameras}
+            assert wait_for(lambda: all(len(stamps[c]) >= seen[c] + 3 for c in cameras), 120.0), (stamps, stop(driver))
+            period_ns = 500_000_000 << MAX_PACE_LEVEL
+            assert all(t % period_ns == 0 for c in cameras for t in stamps[c][-2:]), stamps
+            names = os_thread_names(driver.pid)
+            assert {f"{prefix}-{c}"[:15] for prefix in ("driver", "features") for c in cameras} <= names, names
+    finally:
+        err = stop(driver)
+    assert driver.returncode == 0, err
 
 
 @pytest.mark.parametrize(("cameras", "message"), [

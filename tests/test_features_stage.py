@@ -2,16 +2,28 @@
 
 from __future__ import annotations
 
+import collections
 import struct
 import threading
 
 import numpy as np
 import pytest
-from camnet.services.features import FeatureNode, FeatureStageConfig, FeatureWorker, from_message, to_message
+from camnet.services.features import (
+    BUFFERED_FRAMES,
+    FeatureNode,
+    FeatureStageConfig,
+    FeatureWorker,
+    MatcherPace,
+    from_message,
+    pick_frame,
+    to_message,
+)
 from camnet.services.matcher import MatcherNodeConfig
 
 from camnet.bus import keys
 from camnet.bus.features_wire import FeaturesError, FeaturesMessage, decode_features, encode_features
+from camnet.bus.frame import Frame
+from camnet.bus.stats import NodeStats
 from camnet.errors import InputError
 from camnet.io.rig import parse_rig
 from tests.conftest import matched_publisher, running_node, wait_for
@@ -167,3 +179,64 @@ def test_the_features_command_refuses_a_camera_not_in_the_rig(tmp_path):
                            "nope"], capture_output=True, text=True, timeout=60)
     lines = proc.stderr.strip().splitlines()
     assert proc.returncode == 2 and len(lines) == 1 and "nope" in lines[0], proc.stderr
+
+
+def matcher_report(t_s: float, frame_sets: int) -> NodeStats:
+    return NodeStats(rig="r", kind="matcher", node_id="matcher", fps=0.0, frames=frame_sets, dropped=0,
+                     timestamp_ns=round(t_s * 1e9))
+
+
+def test_stages_on_different_hosts_detect_the_same_slots_at_the_matchers_pace():
+    """Host 0 hears the matcher from the start and takes frames one by one; host 1 joins 25 s later
+    and takes them three at a time (a loaded host). Once host 1 has heard two windows of reports,
+    both detect the same capture slots: few while the matcher is slow, every grid point once it keeps up."""
+    fps, period_s, join_s, slow_until_s = 10, 0.5, 25.0, 60.0
+    paces = [MatcherPace(period_s), MatcherPace(period_s)]
+    # Not entered: the stages' threads would take frames when they are free; here the test hands them over.
+    stages = [FeatureWorker(None, f"cam{host}", FeatureStageConfig(period_s=period_s), pace=pace)
+              for host, pace in enumerate(paces)]
+    buffers = [collections.deque(maxlen=BUFFERED_FRAMES) for _ in paces]
+    last_grid_ns, picked = [-1, -1], [[], []]
+    image = np.zeros((4, 4), np.uint8)
+    frame_sets = 0.0
+    for slot in range(130 * fps):
+        t_s = slot / fps
+        if slot % fps == 0:  # the matcher reports every second what it matched of host 0's offer
+            # Slow and uneven (as a loaded matcher is), then keeping up with anything.
+            capacity_per_s = (1.2 if slot // (7 * fps) % 2 else 0.3) if t_s < slow_until_s else 5.0
+            frame_sets += min(capacity_per_s, 1 / (period_s * (1 << paces[0].level)))
+            for host, pace in enumerate(paces):
+                if host == 0 or t_s >= join_s:
+                    pace.on_stats(matcher_report(t_s, int(frame_sets)))
+        frame = Frame("cam", slot, slot * 1_000_000_000 // fps, "mono8", image)
+        for host, batch in enumerate((1, 3)):
+            buffers[host].append(frame)
+            if slot % batch != batch - 1:
+                continue
+            chosen = pick_frame(buffers[host], stages[host].period_ns, last_grid_ns[host])
+            if chosen is not None:
+                buffers[host].clear()
+                picked[host].append(chosen[0].seq)
+                last_grid_ns[host] = chosen[1]
+
+    def between(seqs, start_s, end_s):
+        return [seq for seq in seqs if start_s * fps <= seq < end_s * fps]
+
+    grid_points = lambda start_s, end_s: round((end_s - start_s) / period_s)  # noqa: E731
+    both_s = 40.0  # host 1's first decision: at the first report of the window after the one it joined in
+    assert between(picked[0], both_s, 130) == between(picked[1], both_s, 130)
+    assert set(between(picked[0], join_s, both_s)) <= set(picked[1])  # a coarser grid's points are on the finer
+    assert len(between(picked[0], 30, slow_until_s)) <= grid_points(30, slow_until_s) // 2
+    assert len(between(picked[0], 110, 130)) == grid_points(110, 130)
+    assert paces[0].changes >= 2 and paces[0].level == paces[1].level == 0
+
+
+def test_the_pace_waits_for_a_whole_window_and_starts_again_with_the_matcher():
+    pace = MatcherPace(0.5, window_s=10.0)
+    for t_s in range(0, 25):  # a matcher that matches nothing
+        pace.on_stats(matcher_report(t_s, 3))
+        assert pace.level == (0 if t_s < 20 else pace.max_level), t_s  # heard from 0: decided at 20
+    pace.on_stats(matcher_report(25, 0))  # a new matcher
+    assert pace.level == 0
+    pace.on_stats(matcher_report(24.5, 5))  # a late copy of an old report changes nothing
+    assert pace.level == 0

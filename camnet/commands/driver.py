@@ -35,6 +35,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "camnet/<rig>/cam/<id>/features (the matcher then only matches)")
     parser.add_argument("--features-period-s", type=float, default=0.25, metavar="S",
                         help="with --features: detect at capture times on this grid (default: 0.25)")
+    parser.add_argument("--features-pace", action=argparse.BooleanOptionalAction, default=True,
+                        help="with --features: detect only on every 2**k-th grid point, the k that offers the "
+                             "matcher at most twice the frame sets it matches a second (default: on)")
     parser.add_argument("--detector", choices=["sift", "orb"], default="sift",
                         help="with --features: the detector; the matcher must use the same (default: sift)")
     add_bus_arguments(parser)
@@ -60,9 +63,10 @@ def run(args: argparse.Namespace) -> int:
         from camnet.drivers.node import DriverNode, run_together
 
         with contextlib.ExitStack() as stack:
+            pace = _matcher_pace(session, rig.name, args, stack) if args.features and args.features_pace else None
             nodes = []
             for camera in cameras:
-                on_frame = stack.enter_context(_feature_worker(session, rig.name, camera.camera_id, args)).offer \
+                on_frame = stack.enter_context(_feature_worker(session, rig.name, camera.camera_id, args, pace)).offer \
                     if args.features else None
                 nodes.append(DriverNode(session, rig, camera, compression=Compression[args.compression.upper()],
                                         stats_period_s=args.stats_period_s, on_frame=on_frame))
@@ -71,7 +75,20 @@ def run(args: argparse.Namespace) -> int:
             return run_together(nodes, max_frames=args.max_frames)
 
 
-def _feature_worker(session, rig_name: str, camera_id: str, args: argparse.Namespace):
+def _matcher_pace(session, rig_name: str, args: argparse.Namespace, stack: contextlib.ExitStack):
+    """One pace for the feature stages of this process, from the matcher's statistics."""
+    from camnet.bus import keys
+    from camnet.bus.node import Tally, guarded
+    from camnet.services.features import MatcherPace
+
+    pace = MatcherPace(args.features_period_s)
+    subscriber = session.declare_subscriber(keys.node_stats(rig_name, "matcher", "matcher"),
+                                            guarded(pace.on_sample, Tally(log), "reading the matcher's statistics"))
+    stack.callback(subscriber.undeclare)
+    return pace
+
+
+def _feature_worker(session, rig_name: str, camera_id: str, args: argparse.Namespace, pace):
     """The feature stage of the camera, publishing beside its driver."""
     import zenoh
 
@@ -84,4 +101,4 @@ def _feature_worker(session, rig_name: str, camera_id: str, args: argparse.Names
                                           congestion_control=zenoh.CongestionControl.DROP)
     config = FeatureStageConfig(period_s=args.features_period_s,
                                 matcher=MatcherConfig(detector=Detector(args.detector)))
-    return FeatureWorker(publisher, camera_id, config)
+    return FeatureWorker(publisher, camera_id, config, pace=pace)
