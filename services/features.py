@@ -120,9 +120,9 @@ class MatcherPace:
             reports.append((stats.timestamp_ns, stats.frames))
             while reports[0][0] < (window - 1) * window_ns:
                 reports.popleft()
-            if not decide or self._heard_since_ns >= (window - 1) * window_ns:
-                return  # within a window, or not heard from the start of the one before
             (first_ns, first), (last_ns, last) = reports[0], reports[-1]
+            if not decide or self._heard_since_ns >= (window - 1) * window_ns or last_ns - first_ns < window_ns // 2:
+                return  # within a window, not heard from the start of the one before, or the matcher was silent
             matched_per_s = (last - first) / ((last_ns - first_ns) / 1e9)
             level = pace_level(self.offered_per_s, matched_per_s, max_level=self.max_level)
             if level != self.level:

@@ -240,3 +240,11 @@ def test_the_pace_waits_for_a_whole_window_and_starts_again_with_the_matcher():
     assert pace.level == 0
     pace.on_stats(matcher_report(24.5, 5))  # a late copy of an old report changes nothing
     assert pace.level == 0
+
+
+def test_a_matcher_silent_for_a_window_leaves_the_pace_as_it_was():
+    pace = MatcherPace(0.5, window_s=10.0)
+    for t_s in range(0, 21):
+        pace.on_stats(matcher_report(t_s, 2 * t_s))  # matching all it is offered: every grid point
+    pace.on_stats(matcher_report(45, 50))  # the only report of its window: no rate to decide on
+    assert pace.level == 0 and pace.changes == 0
