@@ -25,12 +25,12 @@ capture times, not the wall clock, and every step is acknowledged.
 
 A camera whose feature stage runs beside its driver (`camnet driver
 --features`) publishes keypoints and descriptors on ``keys.features``; once
-they arrive, its frames are ignored and its features join the frame sets in
-place of frames, and the matcher stops receiving its frames (`matcher_frames`: until its
-stage stops). The frames of the other cameras are detected here, each
-camera on its own `camnet.matching.edge.FeatureExtractor` (only where the
-image changed since its keyframe), in a thread pool over the cores (OpenCV
-releases the GIL). `camnet.matching.reuse.IncrementalMatcher` matches only what is new since a
+they arrive, the matcher stops receiving its frames (`matcher_frames`, until
+its stage stops) and its features join the frame sets in place of frames.
+The frames of the other cameras are detected here, each camera on its own
+`camnet.matching.edge.FeatureExtractor` (only where the image changed since
+its keyframe), in a thread pool over the cores (OpenCV releases the GIL).
+`camnet.matching.reuse.IncrementalMatcher` matches only what is new since a
 pair's last whole match, on every pair until the rig's calibration (``keys.calibration``,
 also asked of the calibrator at start: `matcher_calibration`) arrives, then on the view graph's
 pairs (`camnet.matching.viewgraph`).
@@ -357,13 +357,18 @@ class MatcherNode:
                         detail=detail, cameras=self.cameras_seen())
 
     def cameras_seen(self) -> dict[str, CameraSeen]:
-        """Per rig camera: seconds since its last frame and its rate; missing once silent for longer
-        than a frame set waits for it (or before its first frame)."""
-        arrivals = self.receiver.arrivals()
+        """Per rig camera: seconds since its last frame (or features, from its own stage) and their rate;
+        missing once silent for longer than a frame set waits for it, or two intervals of its features
+        (or before its first frame)."""
+        arrivals, stages = self.receiver.arrivals(), self.frames.arrivals(time.monotonic())
         seen = {}
         for camera_id in self.camera_ids:
             age_s, fps = arrivals.get(camera_id, (None, 0.0))
-            missing = age_s is None or age_s > max(self.config.max_wait_s, MIN_SILENCE_S)
+            silence_s = max(self.config.max_wait_s, MIN_SILENCE_S)
+            if camera_id in stages:  # its frames are not received
+                age_s, interval_s = stages[camera_id]
+                fps, silence_s = 1 / interval_s if interval_s > 0 else 0.0, max(silence_s, 2 * interval_s)
+            missing = age_s is None or age_s > silence_s
             seen[camera_id] = CameraSeen(age_s=None if age_s is None else round(age_s, 3), fps=round(fps, 2),
                                          missing=missing)
         return seen

@@ -82,6 +82,11 @@ class FrameSubscriptions:
     def sends_features(self, camera_id: str) -> bool:
         return camera_id in self._stages  # a dict lookup is atomic: no lock on the frame path
 
+    def arrivals(self, now_s: float) -> dict[str, tuple[float, float]]:
+        """(seconds since its latest features, its interval between features) per camera whose stage sends them."""
+        with self._lock:
+            return {c: (now_s - stage.last_s, stage.interval_s()) for c, stage in self._stages.items()}
+
     @property
     def feature_cameras(self) -> frozenset[str]:
         with self._lock:

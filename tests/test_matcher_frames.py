@@ -136,6 +136,8 @@ def test_a_camera_sending_features_has_its_frames_unsubscribed_until_its_feature
             before, sent = node.delivered["mono_b"], running[0].sent
             assert wait_for(lambda: running[0].sent >= sent + 10 and features.sent >= 5, 60.0)
             assert node.delivered["mono_b"] == before, "frames of a camera with features still delivered"
+            # Its features say it is there (`camnet status`), not its frames.
+            assert wait_for(lambda: not node.cameras_seen()["mono_b"].missing, 60.0), node.cameras_seen()["mono_b"]
             # The other cameras' frames are still received.
             matched_publisher(peer, keys.frame(rig.name, "left"), timeout_s=30.0).undeclare()
 
