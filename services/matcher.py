@@ -25,11 +25,12 @@ capture times, not the wall clock, and every step is acknowledged.
 
 A camera whose feature stage runs beside its driver (`camnet driver
 --features`) publishes keypoints and descriptors on ``keys.features``; once
-they arrive, its frames are ignored and its features join the frame sets in
-place of frames. The frames of the other cameras are detected here, each
-camera on its own `camnet.matching.edge.FeatureExtractor` (only where the
-image changed since its keyframe), in a thread pool over the cores (OpenCV
-releases the GIL). `camnet.matching.reuse.IncrementalMatcher` matches only what is new since a
+they arrive, the matcher stops receiving its frames (`matcher_frames`, until
+its stage stops) and its features join the frame sets in place of frames.
+The frames of the other cameras are detected here, each camera on its own
+`camnet.matching.edge.FeatureExtractor` (only where the image changed since
+its keyframe), in a thread pool over the cores (OpenCV releases the GIL).
+`camnet.matching.reuse.IncrementalMatcher` matches only what is new since a
 pair's last whole match, on every pair until the rig's calibration (``keys.calibration``,
 also asked of the calibrator at start: `matcher_calibration`) arrives, then on the view graph's
 pairs (`camnet.matching.viewgraph`).
@@ -42,7 +43,6 @@ ground truth. The latest document also answers queries on the same key.
 
 from __future__ import annotations
 
-import json
 import logging
 import os
 import threading
@@ -55,6 +55,7 @@ import numpy as np
 from camnet.services.features import from_message
 from camnet.services.matcher_calibration import CalibrationInbox
 from camnet.services.matcher_config import MatcherNodeConfig, rig_options, rig_stereo
+from camnet.services.matcher_frames import FrameSubscriptions
 
 from camnet.bus import keys, latency, lockstep
 from camnet.bus.features_wire import FeaturesError, FeaturesMessage, decode_features
@@ -65,7 +66,9 @@ from camnet.bus.session import declare_liveliness
 from camnet.bus.stats import Activity, CameraSeen, RateMeter
 from camnet.bus.sync import FrameSet, FrameSynchronizer, SyncCounts
 from camnet.errors import InputError
+from camnet.geometry.model import Observations
 from camnet.io.formats import observations_to_doc
+from camnet.io.observations_encoder import ObservationsEncoder
 from camnet.io.rig import Rig, camera_info, configured_size
 from camnet.matching.edge import CameraFeatures, EdgeConfig, FeatureExtractor
 from camnet.matching.features import FrameSetMatches, to_grey
@@ -108,7 +111,6 @@ class MatcherNode:
         self.pairs = (0, 0)  # in the last frame set: pairs matched, pairs of its cameras
         self._workers = ThreadPoolExecutor(max_workers=max(1, min(len(self.camera_ids), os.cpu_count() or 1)),
                                            thread_name_prefix="detect")
-        self._feature_cameras: set[str] = set()  # cameras whose features come from their own stage
         self._ready = threading.Condition()
         self._sync = FrameSynchronizer(self.camera_ids, required=(self.stereo.left, self.stereo.right),
                                        tolerance_ns=round(config.sync_tolerance_ms * 1e6),
@@ -120,8 +122,13 @@ class MatcherNode:
         self.rejected = Tally(log)  # frames decoded but not usable, and malformed steps, by kind
         self.failures = Tally(log)  # handlers that raised (matching a frame set, say), by what and type
         self.few_features = Tally(log)  # images with too few keypoints, by camera
+        handler = guarded(self.on_sample, self.failures, "receiving a frame")
+        self.frames = FrameSubscriptions(  # whose frames to receive; the worker (un)declares
+            self.camera_ids, declare_all=lambda: session.declare_subscriber(keys.all_frames(rig.name), handler),
+            declare_one=lambda camera_id: session.declare_subscriber(keys.frame(rig.name, camera_id), handler))
         self.calibration = CalibrationInbox(rig.name, rejected=self.rejected)  # for the worker to take
         self._process_safely = guarded(self.process, self.failures, "matching a frame set")
+        self._update_frames = guarded(self.frames.update, self.failures, "subscribing to frames")
         self.frame_sets_matched = 0
         self.frame_sets_pooled = 0
         self.latest_capture_ns = 0
@@ -130,6 +137,7 @@ class MatcherNode:
         self.published = 0
         self._dirty = False
         self._latest_document: bytes | None = None
+        self._encoder = ObservationsEncoder()
         self._rate = RateMeter(window_s=10.0)
         self._last_set_s = time.monotonic()
         self._warned_s: dict[str, float] = {}
@@ -143,8 +151,8 @@ class MatcherNode:
     def on_sample(self, sample) -> None:
         """Subscriber callback: decode, check, hand over; nothing heavy, never raises."""
         key = str(sample.key_expr)
-        if self._feature_cameras and key.rsplit("/", 2)[-2] in self._feature_cameras:
-            return  # its features come from its own stage: not worth decoding
+        if self.frames.sends_features(key.rsplit("/", 2)[-2]):
+            return  # its features come from its own stage: not worth decoding (received while switching)
         frame = self.receiver.accept(sample.payload.to_bytes())
         if frame is None:
             return
@@ -180,10 +188,7 @@ class MatcherNode:
             self.rejected.count(kind, "dropping the features of camera %r (%s; this matcher uses %s)",
                                 message.camera_id, kind, self._matcher_config.detector)
             return
-        if message.camera_id not in self._feature_cameras:
-            log.info("camera %r: features from its own stage; its frames are no longer detected here",
-                     message.camera_id)
-            self._feature_cameras.add(message.camera_id)
+        self.frames.features_arrived(message.camera_id, time.monotonic())
         with self._ready:
             self._sync.add(message, now_s=time.monotonic())
             self._ready.notify()
@@ -323,13 +328,19 @@ class MatcherNode:
 
     def document(self) -> dict:
         """The observations document of the pool now (contract keys plus the node's own)."""
+        obs, own = self._document_parts()
+        doc = observations_to_doc(obs)
+        doc.update(own)
+        return doc
+
+    def _document_parts(self) -> tuple[Observations, dict]:
+        """The pool's observations now, and the node's own keys of their document."""
         obs = self._ensure_pool().observations()
         # The rig's further known distances, of the cameras pooled so far (one of unknown size joins later).
         baselines = tuple(b for b in self.rig.baselines if {b.a, b.b} <= set(obs.camera_ids))
-        doc = observations_to_doc(replace(obs, baselines=baselines))
-        doc.update(rig=self.rig.name, pool_id=self._pool_id, frame_sets=self.frame_sets_pooled,
-                   latest_capture_ns=self.latest_capture_ns, latency_ns=self._stamps, published_ns=latency.now_ns())
-        return doc
+        return replace(obs, baselines=baselines), dict(
+            rig=self.rig.name, pool_id=self._pool_id, frame_sets=self.frame_sets_pooled,
+            latest_capture_ns=self.latest_capture_ns, latency_ns=self._stamps, published_ns=latency.now_ns())
 
     def sync_counts(self) -> SyncCounts:  # frames received, frame sets formed, frames dropped by synchronization
         with self._ready:
@@ -346,13 +357,18 @@ class MatcherNode:
                         detail=detail, cameras=self.cameras_seen())
 
     def cameras_seen(self) -> dict[str, CameraSeen]:
-        """Per rig camera: seconds since its last frame and its rate; missing once silent for longer
-        than a frame set waits for it (or before its first frame)."""
-        arrivals = self.receiver.arrivals()
+        """Per rig camera: seconds since its last frame (or features, from its own stage) and their rate;
+        missing once silent for longer than a frame set waits for it, or two intervals of its features
+        (or before its first frame)."""
+        arrivals, stages = self.receiver.arrivals(), self.frames.arrivals(time.monotonic())
         seen = {}
         for camera_id in self.camera_ids:
             age_s, fps = arrivals.get(camera_id, (None, 0.0))
-            missing = age_s is None or age_s > max(self.config.max_wait_s, MIN_SILENCE_S)
+            silence_s = max(self.config.max_wait_s, MIN_SILENCE_S)
+            if camera_id in stages:  # its frames are not received
+                age_s, interval_s = stages[camera_id]
+                fps, silence_s = 1 / interval_s if interval_s > 0 else 0.0, max(silence_s, 2 * interval_s)
+            missing = age_s is None or age_s > silence_s
             seen[camera_id] = CameraSeen(age_s=None if age_s is None else round(age_s, 3), fps=round(fps, 2),
                                          missing=missing)
         return seen
@@ -385,7 +401,8 @@ class MatcherNode:
         """Publish the pool if it changed and a publish period has passed on `clock_s` (or `force`)."""
         if not self._dirty or (clock_s < self._next_publish_s and not force):
             return False
-        self._latest_document = json.dumps(self.document()).encode()
+        # The bytes of json.dumps(self.document()), only the tracks that changed encoded anew.
+        self._latest_document = self._encoder.encode(*self._document_parts())
         publisher.put(self._latest_document)
         self.published += 1
         self._dirty = False
@@ -393,6 +410,7 @@ class MatcherNode:
         return True
 
     def _live_iteration(self, publisher) -> None:
+        self._update_frames(time.monotonic())
         frame_set = self.next_frame_set(timeout_s=0.05)
         now_s = time.monotonic()
         if frame_set is not None:
@@ -422,8 +440,9 @@ class MatcherNode:
         rig = self.rig.name
         publisher = self.session.declare_publisher(keys.observations(rig),
                                                    congestion_control=zenoh.CongestionControl.BLOCK)
-        declared = [self.session.declare_subscriber(keys.all_frames(rig),
-                                                    guarded(self.on_sample, self.failures, "receiving a frame")),
+        # Live, frames are subscribed to by camera as they switch to features and back (self.frames.update).
+        declared = [*([self.session.declare_subscriber(keys.all_frames(rig), guarded(
+                        self.on_sample, self.failures, "receiving a frame"))] if self._inbox is not None else []),
                     self.session.declare_subscriber(keys.all_features(rig),
                                                     guarded(self.on_features, self.failures, "receiving features")),
                     # Not in lockstep, whose matching must not depend on when a calibration arrives.
@@ -456,5 +475,6 @@ class MatcherNode:
         finally:
             for entity in declared:
                 entity.undeclare()
+            self.frames.close()
             self._workers.shutdown()
         return 0

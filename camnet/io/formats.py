@@ -214,6 +214,20 @@ def _cap_tracks(tracks: list, max_tracks: int | None, seed: int | None) -> list:
 
 def observations_to_doc(obs: Observations) -> dict:
     """The ``camnet.observations/1`` document of `obs`."""
+    doc = observations_head_to_doc(obs)
+    tracks: list[dict] = [{"id": t, "observations": {}} for t in np.asarray(obs.track_ids).tolist()]
+    # Lists of Python numbers made by numpy at once: a live pool holds tens of thousands of observations.
+    names = [c.id for c in obs.cameras]
+    uv = np.asarray(obs.uv, dtype=float).tolist()
+    for cam, trk, uv_px in zip(np.asarray(obs.cam_index).tolist(), np.asarray(obs.track_index).tolist(), uv,
+                               strict=True):
+        tracks[trk]["observations"][names[cam]] = uv_px
+    doc["tracks"] = tracks
+    return doc
+
+
+def observations_head_to_doc(obs: Observations) -> dict:
+    """The ``camnet.observations/1`` document of `obs` but its tracks, which come last in the document."""
     cameras = []
     for c in obs.cameras:
         entry: dict[str, Any] = {"id": c.id, "width": c.width, "height": c.height}
@@ -226,13 +240,6 @@ def observations_to_doc(obs: Observations) -> dict:
         if c.fixed:
             entry["fixed"] = sorted(c.fixed)
         cameras.append(entry)
-    tracks: list[dict] = [{"id": t, "observations": {}} for t in np.asarray(obs.track_ids).tolist()]
-    # Lists of Python numbers made by numpy at once: a live pool holds tens of thousands of observations.
-    names = [c.id for c in obs.cameras]
-    uv = np.asarray(obs.uv, dtype=float).tolist()
-    for cam, trk, uv_px in zip(np.asarray(obs.cam_index).tolist(), np.asarray(obs.track_index).tolist(), uv,
-                               strict=True):
-        tracks[trk]["observations"][names[cam]] = uv_px
     doc = {
         "format": OBSERVATIONS_FORMAT,
         "cameras": cameras,
@@ -240,7 +247,6 @@ def observations_to_doc(obs: Observations) -> dict:
     }
     if obs.baselines:
         doc["baselines"] = [_distance_doc({"cameras": [b.a, b.b]}, b) for b in obs.baselines]
-    doc["tracks"] = tracks
     return doc
 
 
