@@ -411,6 +411,7 @@ class MatcherNode:
 
     def _live_iteration(self, publisher) -> None:
         self._update_frames(time.monotonic())
+        self.calibration.ask_until_answered(time.monotonic())
         frame_set = self.next_frame_set(timeout_s=0.05)
         now_s = time.monotonic()
         if frame_set is not None:
@@ -446,7 +447,7 @@ class MatcherNode:
                     self.session.declare_subscriber(keys.all_features(rig),
                                                     guarded(self.on_features, self.failures, "receiving features")),
                     # Not in lockstep, whose matching must not depend on when a calibration arrives.
-                    *([self.calibration.declare(self.session, self.failures)]
+                    *([self.calibration.declare(self.session, self.failures, time.monotonic())]
                       if self.config.view_graph and self._inbox is None else []),
                     self.session.declare_queryable(keys.observations(rig),
                                                    guarded(self._on_query, self.failures, "answering a query"))]

@@ -1,11 +1,14 @@
-"""The rig's latest calibration, as the matcher takes it: subscribed, and asked for once at start.
+"""The rig's latest calibration, as the matcher takes it: subscribed, and asked for until one comes.
 
 The calibrator publishes each good calibration on ``keys.calibration`` and
 answers queries there with the latest one. A matcher that starts after it
 (restarted, or joining a running rig) would otherwise match every pair until
-the next calibration is published; it asks once, without waiting for the
+the next calibration is published; it asks at start, without waiting for the
 answer, so that its view graph applies from its first frame sets. A
-calibration published meanwhile is newer than the answer and wins.
+calibration published meanwhile is newer than the answer and wins. A query
+sent before the session has learnt of the calibrator's queryable (a loaded
+machine, a router still connecting) gets no answer, so it asks again every
+`ASK_PERIOD_S` until a calibration has come.
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ from camnet.io.formats import parse_calibration
 from camnet.io.validate import decode_json
 
 QUERY_TIMEOUT_S = 5.0  # the calibrator answers from memory; a rig with none yet answers nothing
+ASK_PERIOD_S = 3.0  # asked again this often while no calibration has come
 
 
 class CalibrationInbox:
@@ -30,6 +34,10 @@ class CalibrationInbox:
         self.rejected = rejected  # calibrations that do not parse are counted here
         self._payload: bytes | None = None
         self._published = False  # one came by subscription: a query's answer is no newer
+        self._received = False  # one came, by subscription or answer: no more asking
+        self._asked_s = float("-inf")  # monotonic time of the latest query
+        self._ask = None  # sends the query, once declared
+        self.asked = 0  # queries sent
         self._lock = threading.Lock()
 
     @property
@@ -40,7 +48,7 @@ class CalibrationInbox:
     def on_sample(self, sample) -> None:
         """Subscriber callback: the newest published calibration replaces any not yet taken."""
         with self._lock:
-            self._payload, self._published = sample.payload.to_bytes(), True
+            self._payload, self._published, self._received = sample.payload.to_bytes(), True, True
 
     def on_reply(self, reply) -> None:
         """Query callback: the calibrator's latest, unless one was published since the matcher subscribed."""
@@ -49,15 +57,24 @@ class CalibrationInbox:
             return
         with self._lock:
             if not self._published:
-                self._payload = sample.payload.to_bytes()
+                self._payload, self._received = sample.payload.to_bytes(), True
 
-    def declare(self, session, failures: Tally):
+    def declare(self, session, failures: Tally, now_s: float):
         """Subscribe to the rig's calibrations and ask for the latest (the answer arrives on Zenoh's thread)."""
         key = keys.calibration(self.rig_name)
         subscriber = session.declare_subscriber(key, guarded(self.on_sample, failures, "receiving a calibration"))
-        session.get(key, guarded(self.on_reply, failures, "receiving the latest calibration"),
-                    timeout=QUERY_TIMEOUT_S)
+        reply = guarded(self.on_reply, failures, "receiving the latest calibration")
+        self._ask = lambda: session.get(key, reply, timeout=QUERY_TIMEOUT_S)
+        self.ask_until_answered(now_s)
         return subscriber
+
+    def ask_until_answered(self, now_s: float) -> None:
+        """Ask for the latest calibration if none has come and `ASK_PERIOD_S` passed since the last query."""
+        if self._ask is None or self._received or now_s < self._asked_s + ASK_PERIOD_S:
+            return
+        self._asked_s = now_s
+        self.asked += 1
+        self._ask()
 
     def take(self) -> Calibration | None:
         """The calibration that arrived since the last call, or None; one that does not parse is counted."""

@@ -3,14 +3,17 @@
 from __future__ import annotations
 
 import json
+import logging
 import time
 from dataclasses import replace
 
 import numpy as np
 from camnet.services.calibrator import CalibratorConfig, CalibratorNode
 from camnet.services.matcher import MatcherNodeConfig
+from camnet.services.matcher_calibration import ASK_PERIOD_S, CalibrationInbox
 
 from camnet.bus import keys
+from camnet.bus.node import Tally
 from camnet.geometry.model import Calibration
 from camnet.io.formats import calibration_to_doc
 from camnet.io.rig import parse_rig
@@ -84,3 +87,36 @@ def test_a_matcher_started_after_the_calibrator_asks_it_for_the_latest_calibrati
     full, seen = pairs_matched(net)
     assert full and full[0] == 4, seen  # the view graph's pairs from the first frame set on
     assert net.node.view_graph.calibrated == {"left", "right", "mono_a", "mono_b"}
+
+
+
+def test_the_matcher_asks_for_the_latest_calibration_until_an_answer_comes(zenoh_pair):
+    # A query sent before the session knows of the calibrator's queryable gets no answer (a loaded
+    # machine, a router still connecting). The calibrator here is a queryable that answers from
+    # then on, and publishes nothing: the real one published its calibration before this matcher
+    # subscribed.
+    calibrator_side, matcher_side = zenoh_pair
+    rig = parse_rig(rig_document("vgask"))
+    inbox = CalibrationInbox(rig.name, rejected=Tally(logging.getLogger(__name__)))
+    subscriber = inbox.declare(matcher_side, Tally(logging.getLogger(__name__)), time.monotonic())
+    try:
+        assert inbox.asked == 1
+        time.sleep(0.5)
+        assert not inbox.waiting
+        answer = json.dumps(calibration_with_mono_b_elsewhere(rig)).encode()
+        queryable = calibrator_side.declare_queryable(keys.calibration(rig.name),
+                                                      lambda query: query.reply(query.key_expr, answer))
+        try:
+            def asked_and_answered() -> bool:
+                inbox.ask_until_answered(time.monotonic())
+                return inbox.waiting
+            assert wait_for(asked_and_answered, 60.0), f"no answer after {inbox.asked} queries"
+            calibration = inbox.take()
+            assert calibration is not None and len(calibration.cameras) == 4
+            asked = inbox.asked
+            inbox.ask_until_answered(time.monotonic() + 10 * ASK_PERIOD_S)
+            assert inbox.asked == asked, "asked again after an answer"
+        finally:
+            queryable.undeclare()
+    finally:
+        subscriber.undeclare()
