@@ -265,12 +265,7 @@ class Tracker:
 
     def _placing(self, obs: Observations, start: Calibration | None,
                  reset: Collection[str] = ()) -> tuple[Status, str, Calibration | None]:
-        """`_attempt`; where only cameras placed wrong refuse it, again without them (named), up to twice.
-
-        A retry starts warm from the refused solution without those cameras: the rig as a whole passed,
-        so the others' poses and points are as good a start as the first solve's, and a cold start need
-        not be solved again (on config/surround.yaml's first pool of 3645 tracks, two cold retries).
-        """
+        """`_attempt`; where only cameras placed wrong refuse it, again without them (named), up to twice."""
         status, reason, cal = self._attempt(obs, start, reset=reset)
         left_out: dict[str, str] = {}
         for _ in range(REFUSED_RETRIES):
@@ -282,7 +277,6 @@ class Tracker:
             # A camera placed wrong does not hold the others back: solved again without it, it is named.
             left_out.update(refused)
             obs = without_cameras(obs, refused)
-            start, reset = replace(cal, cameras=tuple(c for c in cal.cameras if c.id not in refused)), ()
             status, reason, cal = self._attempt(obs, start, reset=reset, left_out=left_out)
         return status, reason, cal
 
