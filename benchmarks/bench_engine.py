@@ -8,7 +8,7 @@ warm-started re-solve after 5% new tracks, and a re-solve after one camera moved
 adjustment (pycolmap, benchmarks/colmap_anchor.py) of the same tracks from the
 same start with the same free parameters.
 
-    python benchmarks/bench_engine.py [--seeds 20] [--repeats 3] [--only accuracy|timing]
+    python benchmarks/bench_engine.py [--seeds 20] [--repeats 3] [--only accuracy|timing] [--sizes 16x1000,...]
 """
 
 from __future__ import annotations
@@ -87,7 +87,10 @@ ANCHOR = AnchorSolver(camera_model="SIMPLE_PINHOLE", hold_stereo_pair=True)
 SAME_FREE = Options(free=frozenset({"f"}))
 
 
-def timing(repeats: int) -> None:
+SIZES = ((4, 250), (8, 250), (16, 250), (4, 1000), (8, 1000), (16, 1000))  # (M, N)
+
+
+def timing(repeats: int, sizes=SIZES) -> None:
     print("\nrefined solve time (median of repeats), 0.5 px noise, 60% visibility for non-stereo cameras")
     print("warm: after 5% new tracks; reset: after the last camera moved 5 cm and 3 deg, with it reset")
     print("camnet vs COLMAP: the same tracks, start and free parameters (f; the stereo pair held); camnet's")
@@ -95,10 +98,10 @@ def timing(repeats: int) -> None:
     print(f"  (pycolmap, Ceres: function tolerance {ANCHOR.function_tolerance:g}, gradient tolerance "
           f"{ANCHOR.gradient_tolerance:g}, at most {ANCHOR.max_num_iterations} iterations), no covariance;")
     print("  wall and CPU seconds (both solvers run on this one thread; CPU time is steadier on a shared machine)")
-    print(f"{'M':>4} {'N':>6} {'observations':>13} {'cold s':>8} {'warm +5% s':>11} {'reset s':>8} "
+    print(f"{'M':>4} {'N':>6} {'observations':>13} {'cold s':>8} {'warm +5% s':>11} {'warm CPU s':>11} {'reset s':>8} "
           f"{'camnet s':>9} {'COLMAP s':>9} {'ratio':>6} {'camnet CPU':>11} {'COLMAP CPU':>11} {'ratio':>6} "
           f"{'COLMAP its':>11}")
-    for M, N in [(4, 250), (8, 250), (16, 250), (4, 1000), (8, 1000), (16, 1000)]:
+    for M, N in sizes:
         times: dict[str, list[float]] = {}
         for seed in range(repeats):
             rig = make_rig(n_cameras=M, n_points=N, seed=seed)
@@ -108,7 +111,8 @@ def timing(repeats: int) -> None:
                 times.setdefault(name, []).append(seconds)
         med = {k: float(np.median(v)) for k, v in times.items()}
         print(
-            f"{M:>4} {N:>6} {len(obs.uv):>13} {med['cold']:>8.3f} {med['warm']:>11.3f} {med['reset']:>8.3f} "
+            f"{M:>4} {N:>6} {len(obs.uv):>13} {med['cold']:>8.3f} {med['warm']:>11.3f} {med['warm_cpu']:>11.3f} "
+            f"{med['reset']:>8.3f} "
             f"{med['camnet']:>9.3f} {med['colmap']:>9.3f} {med['camnet'] / med['colmap']:>6.2f} "
             f"{med['camnet_cpu']:>11.3f} {med['colmap_cpu']:>11.3f} {med['camnet_cpu'] / med['colmap_cpu']:>6.2f} "
             f"{med['its']:>11.0f}",
@@ -148,15 +152,15 @@ def _network_times(rig, obs, N: int, seed: int) -> dict[str, float]:
     t0 = time.perf_counter()
     previous = calibrate(old).calibration
     cold = time.perf_counter() - t0
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), time.thread_time()
     now = calibrate(obs, initial=previous).calibration
-    warm = time.perf_counter() - t0
+    warm, warm_cpu = time.perf_counter() - t0, time.thread_time() - cpu0
     bumped = rig.cameras[-1].id
     moved = move_camera(rig, bumped, shift_m=0.05, angle_deg=3.0, seed=seed)
     after = observe(moved, noise_px=0.5, seed=seed + 1, visibility=0.6).observations
     t0 = time.perf_counter()
     calibrate(after, initial=now, reset_cameras={bumped})
-    return {"cold": cold, "warm": warm, "reset": time.perf_counter() - t0}
+    return {"cold": cold, "warm": warm, "warm_cpu": warm_cpu, "reset": time.perf_counter() - t0}
 
 
 def main() -> None:
@@ -165,11 +169,13 @@ def main() -> None:
     parser.add_argument("--noise-px", type=float, default=0.5)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--only", choices=("accuracy", "timing"), help="run one of the two tables")
+    parser.add_argument("--sizes", help="the timing table's networks, as MxN,... (default: all six)")
     args = parser.parse_args()
+    sizes = SIZES if not args.sizes else tuple(tuple(int(v) for v in size.split("x")) for size in args.sizes.split(","))
     if args.only != "timing":
         accuracy(args.seeds, args.noise_px)
     if args.only != "accuracy":
-        timing(args.repeats)
+        timing(args.repeats, sizes)
 
 
 if __name__ == "__main__":

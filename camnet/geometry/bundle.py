@@ -49,6 +49,8 @@ N_LOCAL = N_INTRINSICS + 6
 
 log = logging.getLogger(__name__)
 
+_POINT_ITEM = np.dtype((np.void, 24))  # three float64: W's entries of one camera column and one point
+
 
 class CentreMode(enum.IntEnum):
     """How a camera's centre moves in the adjustment (values of `Problem.centre_mode`)."""
@@ -175,6 +177,13 @@ class Problem:
         point_sum = sp.csr_matrix((np.ones(n), by_point, indptr), shape=(self.n_points, n))
         return Layout(order, self.cam[order], pt, self.uv[order], runs, groups, unique, point_sum)
 
+    @cached_property
+    def by_point(self) -> tuple[np.ndarray, np.ndarray]:
+        """(rows, starts): the observations sorted by point (stably), and where each point's run of
+        rows starts (N + 1,): point j's observations are ``rows[starts[j]:starts[j + 1]]``."""
+        rows = np.argsort(self.pt, kind="stable")
+        return rows, np.searchsorted(self.pt[rows], np.arange(self.n_points + 1))
+
     def subset(self, keep: np.ndarray) -> Problem:
         """The same problem with only the observations where `keep` is true."""
         return replace(self, cam=self.cam[keep], pt=self.pt[keep], uv=self.uv[keep])
@@ -263,6 +272,7 @@ def normal_equations(problem: Problem, state: State, *, loss: str = "linear", sc
     U = np.zeros((n_cols, n_cols))
     gc = np.zeros(n_cols)
     W = np.zeros((n_cols, N, 3))
+    W_items = W.view(_POINT_ITEM)[:, :, 0]  # (n_cols, N)
     # An observation touches one camera only: U is block diagonal, one block per camera, and
     # a camera's free columns are consecutive. Cameras with the same free slots go together.
     for si, sr, sc, cams in lay.groups:
@@ -271,7 +281,10 @@ def normal_equations(problem: Problem, state: State, *, loss: str = "linear", sc
         if sw is not None:
             Jg *= sw[a:b]
         k = Jg.shape[2]
-        terms = (Jg.transpose(0, 2, 1) @ J_pt[a:b]).transpose(1, 0, 2)  # (k, n_g, 3): a batched matmul
+        terms = Jg.transpose(0, 2, 1) @ J_pt[a:b]  # (n_g, k, 3): a batched matmul
+        # Each (column, point) entry of W as one 24-byte item: the scatter below copies whole
+        # items, twice as fast as three doubles at a time.
+        items = terms.view(_POINT_ITEM)[:, :, 0].T  # (k, n_g)
         for m in cams:
             s, e = lay.runs[m]
             c0 = cols[m][cols[m] >= 0][0]
@@ -281,9 +294,9 @@ def normal_equations(problem: Problem, state: State, *, loss: str = "linear", sc
             # W[column, point, axis]: one term per observation, so an assignment unless a camera
             # sees a track twice (then the terms add up).
             if lay.pairs_unique:
-                W[c0 : c0 + k, p[s:e]] = terms[:, s - a : e - a]
+                W_items[c0 : c0 + k, p[s:e]] = items[:, s - a : e - a]
             else:
-                np.add.at(W[c0 : c0 + k], (slice(None), p[s:e]), terms[:, s - a : e - a])
+                np.add.at(W[c0 : c0 + k], (slice(None), p[s:e]), terms[s - a : e - a].transpose(1, 0, 2))
 
     # Per row J_pt^T [J_pt | r]: J_pt^T J_pt (3x3) beside J_pt^T r, in one batched matmul.
     point_terms = (J_pt.transpose(0, 2, 1) @ np.concatenate([J_pt, r[:, :, None]], axis=2)).reshape(-1, 12)

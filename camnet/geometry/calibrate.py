@@ -215,7 +215,8 @@ def _calibrate(
 
     t3 = time.perf_counter()
     guessed_pp = np.array([obs.cameras[i].K is None for i in order]) & ~held_K & (options.pp_prior_rel > 0)
-    problem, state, inliers, info, wider = _adjust_inliers(full, problem, state, inliers, guessed_pp, options)
+    problem, state, inliers, info, wider, projected = _adjust_inliers(full, problem, state, inliers, guessed_pp,
+                                                                      options)
     timings["adjustment"] = time.perf_counter() - t3
     _check_camera_inliers(obs, order, problem)
     t4 = time.perf_counter()
@@ -227,7 +228,7 @@ def _calibrate(
     timings["total"] = time.perf_counter() - t0
     return _result(
         obs, order, problem, state, track_rows, inliers, info, cov, decisions, options.method, timings,
-        start=start_kind, left_out=start.left_out,
+        start=start_kind, left_out=start.left_out, projected=projected,
     )
 
 
@@ -291,10 +292,14 @@ def _apply_free_rule(obs, order, full: Problem, problem: Problem, state: State, 
 
 
 def _adjust_inliers(full: Problem, problem: Problem, state: State, inliers, guessed_pp, options: Options):
-    """Least squares on the inliers until the inlier set settles: (problem, state, inliers, info, wider).
+    """Least squares on the inliers until the inlier set settles: (problem, state, inliers, info, wider,
+    projected).
 
     wider: `problem` with the guessed principal points freed, whose normal
-    equations (for the covariance) come with the solve's last step.
+    equations (for the covariance) come with the solve's last step;
+    projected: `problem`'s residuals (n, 2, pixels) and camera-frame points
+    (n, 3, metres) at `state`, from the last outlier test (None if it was
+    not at `state`).
     """
 
     def adjust(problem: Problem, state: State) -> tuple[State, bundle.SolveInfo, Problem | None]:
@@ -302,14 +307,19 @@ def _adjust_inliers(full: Problem, problem: Problem, state: State, inliers, gues
         return *bundle.solve(problem, state, max_iterations=options.max_iterations, report=wider), wider
 
     state, info, wider = adjust(problem, state)
+    projected = None
     for _ in range(3):
-        new_inliers = reject_outliers(full, state, options)
+        c = full.cam
+        uv, xc = project_points(state.intr[c], state.R[c], state.C[c], state.X[full.pt], full.fisheye_rows(c))
+        r = uv - full.uv
+        new_inliers = reject_outliers(full, state, options, residuals=r)
         if np.array_equal(new_inliers, inliers):
+            projected = r[inliers], xc[inliers]  # the report's, at the final state
             break
         inliers = new_inliers
         problem = full.subset(inliers)
         state, info, wider = adjust(problem, state)
-    return problem, state, inliers, info, wider
+    return problem, state, inliers, info, wider, projected
 
 
 def _check_camera_inliers(obs: Observations, order, problem: Problem) -> None:
@@ -365,16 +375,20 @@ def _paper_result(obs, order, intr, rows, start: Start, timings) -> Result:
 def _result(
     obs, order, problem, state, track_rows, inliers, info, cov, decisions, method: Method, timings, *,
     start: StartKind = StartKind.COLD, left_out: dict[str, str] | None = None,
+    projected: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> Result:
+    """projected: the problem's residuals and camera-frame points at `state`, where the caller has them."""
     cameras: list[Camera | None] = [None] * len(order)
     for m, i in enumerate(order):
         info_cam, R, model = obs.cameras[i], state.R[m], obs.cameras[i].model
         K = K_from_intrinsics(state.intr[m])
         dist = state.intr[m, _DIST][: model.dist_size].copy()
         cameras[i] = Camera(info_cam.id, info_cam.width, info_cam.height, K, dist, R.copy(), -R @ state.C[m], model)
-    c = problem.cam
-    uv, xc = project_points(state.intr[c], state.R[c], state.C[c], state.X[problem.pt], problem.fisheye_rows(c))
-    r = uv - problem.uv
+    if projected is None:
+        c = problem.cam
+        uv, xc = project_points(state.intr[c], state.R[c], state.C[c], state.X[problem.pt], problem.fisheye_rows(c))
+        projected = uv - problem.uv, xc
+    r, xc = projected
     kept, dropped = reported_points(problem, state, cov, camera_points=xc)
     rms = float(np.sqrt(np.mean(np.sum(r * r, axis=1)))) if len(r) else float("nan")
     report = solve_report(

@@ -97,17 +97,17 @@ def _parallax_deg(problem, state) -> np.ndarray:
     mean = np.stack([np.bincount(problem.pt, rays[:, k], minlength=problem.n_points) for k in range(3)], axis=1)
     mean /= np.maximum(np.linalg.norm(mean, axis=1, keepdims=True), 1e-12)
     cosang = np.clip(np.sum(rays * mean[problem.pt], axis=1), -1.0, 1.0)
-    return 2.0 * _per_point_max(problem.pt, np.degrees(np.arccos(cosang)), problem.n_points, 0.0)
+    return 2.0 * _per_point_max(problem, np.degrees(np.arccos(cosang)), 0.0)
 
 
-def _per_point_max(pt: np.ndarray, values: np.ndarray, n_points: int, empty: float) -> np.ndarray:
-    """(n_points,) the largest of `values` (n,) per point `pt` (n,); `empty` where a point has none."""
-    order = np.argsort(pt, kind="stable")
-    starts = np.searchsorted(pt[order], np.arange(n_points))
-    seen = np.bincount(pt, minlength=n_points) > 0
-    out = np.full(n_points, empty)
+def _per_point_max(problem: Problem, values: np.ndarray, empty: float) -> np.ndarray:
+    """(N,) the largest of `values` (n,), one per observation of `problem`, per point; `empty` where a
+    point has none."""
+    rows, starts = problem.by_point
+    seen = starts[1:] > starts[:-1]
+    out = np.full(problem.n_points, empty)
     if seen.any():
-        out[seen] = np.maximum.reduceat(values[order], starts[seen])
+        out[seen] = np.maximum.reduceat(values[rows], starts[:-1][seen])
     return out
 
 
@@ -163,7 +163,7 @@ def reported_points(
         _, xc = project_points(state.intr[problem.cam], state.R[problem.cam], state.C[problem.cam], state.X[problem.pt])
     behind = np.zeros(problem.n_points, dtype=bool)
     behind[problem.pt[xc[:, 2] <= 0]] = True
-    nearest = -_per_point_max(problem.pt, -np.linalg.norm(xc, axis=1), problem.n_points, -np.inf)
+    nearest = -_per_point_max(problem, -np.linalg.norm(xc, axis=1), -np.inf)
     undetermined = np.zeros(problem.n_points, dtype=bool)
     if cov is not None:
         undetermined = np.sqrt(3.0) * cov.point_sigmas_m() >= nearest
@@ -299,13 +299,13 @@ def solve_report(
     problem's reprojection residuals at `state`, pixels.
     """
     ids = [obs.cameras[i].id for i in order]
-    r = np.linalg.norm(residuals_px, axis=1)
+    counts = np.bincount(problem.cam, minlength=len(ids))
+    squares = np.bincount(problem.cam, weights=np.sum(residuals_px * residuals_px, axis=1), minlength=len(ids))
     warnings = []
     cameras = {}
     for m, cam_id in enumerate(ids):
-        mine = problem.cam == m
-        n_in = int(mine.sum())
-        cameras[cam_id] = CameraStats(rms_px=float(np.sqrt(np.mean(r[mine] ** 2))) if n_in else None, inliers=n_in)
+        n_in = int(counts[m])
+        cameras[cam_id] = CameraStats(rms_px=float(np.sqrt(squares[m] / n_in)) if n_in else None, inliers=n_in)
         if n_in < MIN_CAMERA_OBSERVATIONS:
             warnings.append(f"camera {cam_id}: only {n_in} inlier observations; its calibration is weak")
     parallax = _parallax_deg(problem, state)[kept]

@@ -232,8 +232,10 @@ def project_points(
         else:
             x = xc[rows, 0] / xc[rows, 2]
             y = xc[rows, 1] / xc[rows, 2]
-            _, radial, dx, dy = lens_terms(x, y, *intr[rows, 4:].T)
-            xd[rows] = np.stack([x * radial + dx, y * radial + dy], axis=1)
+            if intr[rows, 4:].any():
+                _, radial, dx, dy = lens_terms(x, y, *intr[rows, 4:].T)
+                x, y = x * radial + dx, y * radial + dy
+            xd[rows] = np.stack([x, y], axis=1)
     f, a, cx, cy = intr[:, :4].T
     return np.stack([f * xd[:, 0] + cx, a * f * xd[:, 1] + cy], axis=1), xc
 
@@ -241,10 +243,18 @@ def project_points(
 def _pinhole_jacobians(xc: np.ndarray, dist: np.ndarray, distortion: bool = True):
     """Distorted normalised points (n, 2) and their derivatives by dist (n, 2, 5; None unless
     `distortion`) and by xc (n, 2, 3)."""
-    k1, k2, p1, p2, k3 = dist.T
     iz = 1.0 / xc[:, 2]
     x = xc[:, 0] * iz
     y = xc[:, 1] * iz
+    if not distortion and not dist.any():
+        # No distortion (as most live rigs solve): the lens terms are exact ones and zeros, so
+        # this is the general case's result without its arithmetic.
+        J_xc = np.zeros((len(xc), 2, 3))
+        J_xc[:, 0, 0] = J_xc[:, 1, 1] = iz
+        J_xc[:, 0, 2] = -x * iz
+        J_xc[:, 1, 2] = -y * iz
+        return np.stack([x, y], axis=1), None, J_xc
+    k1, k2, p1, p2, k3 = dist.T
     r2, radial, dx, dy = lens_terms(x, y, k1, k2, p1, p2, k3)
     J_dist = None
     if distortion:

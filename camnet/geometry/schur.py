@@ -83,7 +83,8 @@ def solve_damped(ne: NormalEquations, lam: float) -> tuple[np.ndarray, np.ndarra
     if len(rhs):
         # S's upper triangle, all that the Cholesky factorisation reads: a symmetric
         # rank-k update does half the work of the full product.
-        S = scipy.linalg.blas.dsyrk(-1.0, WL, beta=1.0, c=U, overwrite_c=True)
+        # (Passed as WL^T, which is in the column order BLAS reads: no copy of WL.)
+        S = scipy.linalg.blas.dsyrk(-1.0, WL.T, beta=1.0, c=U, overwrite_c=True, trans=1)
         try:
             dc = scipy.linalg.cho_solve(scipy.linalg.cho_factor(S, check_finite=False), rhs)
         except np.linalg.LinAlgError:

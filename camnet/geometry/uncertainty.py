@@ -43,6 +43,7 @@ class Covariance:
     null: np.ndarray | None = None
     unit: np.ndarray | None = None  # (Pc,) the scaling to unit-diagonal coordinates
     S: np.ndarray | None = None  # (Pc, Pc) the Schur complement itself (unscaled)
+    WV: np.ndarray | None = None  # (Pc, 3N) W times the block diagonal of V_inv, where `covariance` formed it
 
     @property
     def cameras(self) -> np.ndarray:
@@ -88,7 +89,7 @@ class Covariance:
     @cached_property  # the points' dense products cost more than the rest of the covariance
     def point_covariances_m2(self) -> np.ndarray:
         """(N, 3, 3) covariance of each point, m^2; infinite for a point not fixed in some direction."""
-        WV = times_block_diag(self.W, self.V_inv)  # (Pc, 3N)
+        WV = times_block_diag(self.W, self.V_inv) if self.WV is None else self.WV  # (Pc, 3N)
         N = len(self.V_inv)
         SWV = (self.S_inv @ WV).reshape(-1, N, 3)
         # extra[n] = WV_n^T S_inv WV_n, one 3x3 per point: a batched matmul (plain einsum takes 6x as long).
@@ -121,11 +122,12 @@ def covariance(
     # gives it no weight in the cameras' equations, and `point_sigmas_m` an
     # infinite error.
     V_inv = point_inverses(ne.V)
-    S = ne.U - times_block_diag(ne.W, V_inv) @ ne.W.T
+    WV = times_block_diag(ne.W, V_inv)  # kept: the points' covariances take it too
+    S = ne.U - WV @ ne.W.T
     S_inv, null, unit = inverse_spd(S)
     if sigma_px is None:
         sigma_px = float(np.sqrt(2.0 * ne.cost / max(residual_dof(problem), 1)))
-    return Covariance(sigma_px, S_inv, ne.W, V_inv, ne.V, problem.columns()[0], null, unit, S)
+    return Covariance(sigma_px, S_inv, ne.W, V_inv, ne.V, problem.columns()[0], null, unit, S, WV)
 
 
 def point_inverses(V: np.ndarray) -> np.ndarray:
