@@ -33,3 +33,6 @@ def test_a_long_pool_is_solved_from_its_newest_tracks_and_places_every_camera(tm
     assert abs(c.scale_rel) < 3 * c.scale_sigma_rel, c
     for e in c.cameras:
         assert abs(e.focal_rel) < 0.02 and e.centre_mm < 60.0, e
+    # Rotation sigmas of 0.3-0.6 degrees on the far side (true errors 0.04-0.18), most of them the
+    # principal points' (estimated): K and R hold together, so not poor (camnet.geometry.verdict).
+    assert doc["verdict"]["level"] in ("good", "usable"), doc["verdict"]

@@ -165,13 +165,13 @@ def _camera_findings(cam_id: str, f_px: float, report: SolveReport, lever_m: flo
                     f"give camera {cam_id}'s K and dist, and check its sync"))
     sigmas = report.uncertainty.cameras.get(cam_id) if report.uncertainty is not None else None
     if sigmas is not None:
-        held = report.free.intrinsics.get(cam_id, ()) if report.free is not None else ()
-        pp_guessed = "cx" not in held and (sigmas.cx_px > 0 or sigmas.cy_px > 0)  # held, with the guess's prior
-        out += _sigma_findings(cam_id, f_px, sigmas, lever_m, pp_guessed, t)
+        # Not known exactly: held at a guess (its sigma the guess's prior) or estimated.
+        pp_loose = sigmas.cx_px > 0 or sigmas.cy_px > 0
+        out += _sigma_findings(cam_id, f_px, sigmas, lever_m, pp_loose, t)
     return out
 
 
-def _sigma_findings(cam_id: str, f_px: float, s: CameraSigmas, lever_m: float, pp_guessed: bool,
+def _sigma_findings(cam_id: str, f_px: float, s: CameraSigmas, lever_m: float, pp_loose: bool,
                     t: Thresholds) -> list[Finding]:
     out = []
     if s.f_px != 0.0:  # 0: held (given)
@@ -182,7 +182,7 @@ def _sigma_findings(cam_id: str, f_px: float, s: CameraSigmas, lever_m: float, p
             out.append(Finding(level, what, "the scene does not fix its focal length: little depth or parallax "
                                "in its view, or a guessed principal point", Action.GIVE_K,
                                f"give camera {cam_id}'s K"))
-    out += _rotation_findings(cam_id, f_px, s, lever_m, pp_guessed, t)
+    out += _rotation_findings(cam_id, f_px, s, lever_m, pp_loose, t)
     centre = float(np.linalg.norm(s.centre_m))
     level = _level(centre / lever_m, *t.centre_rel) if lever_m > 0 else Level.GOOD
     if level != Level.GOOD:
@@ -195,17 +195,18 @@ def _sigma_findings(cam_id: str, f_px: float, s: CameraSigmas, lever_m: float, p
     return out
 
 
-def _rotation_findings(cam_id: str, f_px: float, s: CameraSigmas, lever_m: float, pp_guessed: bool,
+def _rotation_findings(cam_id: str, f_px: float, s: CameraSigmas, lever_m: float, pp_loose: bool,
                        t: Thresholds) -> list[Finding]:
-    """The rotation's sigma as the image shift it makes (px), and whether guessed principal points explain it."""
+    """The rotation's sigma as the image shift it makes (px), and whether the principal points' sigmas explain it."""
     rotation = max(s.rotation_deg)
     pp_deg = 0.0
-    if pp_guessed and lever_m > 0:
+    if pp_loose and lever_m > 0:
         # A principal point and a rotation move the image alike: the sigma of each holds what the
-        # guess may cost, while the camera's rays, their sum, are what the data fix. A rotation is
-        # relative to the left camera's, so both cameras' guesses enter it (and, round a ring, those
-        # of the cameras between: on tape_pair's far side the rotation sigma given the principal
-        # points was 0.1 degrees, 0.35-0.5 after this subtraction, 0.65-0.7 before).
+        # other's may cost (a guess's or an estimate's), while the camera's rays, their sum, are what
+        # the data fix. A rotation is relative to the left camera's, so both cameras' principal points
+        # enter it (and, round a ring, those of the cameras between: on tape_pair's far side the
+        # rotation sigma given the principal points was 0.1 degrees, 0.35-0.5 after this
+        # subtraction, 0.65-0.7 before; true errors 0.1-0.2).
         pp_deg = float(np.degrees(np.sqrt(2.0) * max(s.cx_px, s.cy_px) / f_px))
     data_deg = float(np.sqrt(max(rotation**2 - pp_deg**2, 0.0))) if np.isfinite(rotation) else rotation
     shift_px = f_px * np.radians(data_deg)
@@ -220,9 +221,10 @@ def _rotation_findings(cam_id: str, f_px: float, s: CameraSigmas, lever_m: float
         # Most of the variance is the guess's: K and R together still put the scene where the data
         # put it, but R alone (a mount's angle, an export that takes another K) is known only to
         # this. What the data leave cannot be told apart here, so it is a caveat, as for the scale.
-        return [Finding(Level.USABLE, f"{what}, most of it what the guessed principal points may cost",
-                        f"camera {cam_id}'s and the left camera's principal points are guessed: a rotation and a "
-                        "principal point move the image alike, so its K and R hold together but R alone is loose",
+        return [Finding(Level.USABLE, f"{what}, most of it what the principal points' sigmas may cost",
+                        f"camera {cam_id}'s and the left camera's principal points are not known exactly (guessed or "
+                        "estimated): a rotation and a principal point move the image alike, so its K and R hold "
+                        "together but R alone is loose",
                         Action.GIVE_K, f"give camera {cam_id}'s K and the left camera's to pin its rotation")]
     return [Finding(level, what, "few points tie its orientation to the others", Action.ADD_TEXTURE,
                     f"add texture where camera {cam_id} and its neighbours look")]
