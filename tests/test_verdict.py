@@ -10,6 +10,7 @@ from camnet.geometry.live import LIVE_FREE
 from camnet.geometry.model import Calibration
 from camnet.geometry.verdict import Action, Level, Thresholds, format_verdict, judge
 from camnet.io.formats import calibration_to_doc, parse_calibration
+from camnet.sim.families import family, observe_family
 from camnet.sim.simulate import make_rig, observe
 
 LIVE = Options(free=LIVE_FREE)
@@ -96,3 +97,41 @@ def test_a_factory_head_has_no_verdict():
     head = make_rig().cameras[0]
     cal = Calibration((head,), np.empty(0, np.int64), np.empty((0, 3)), float("nan"), head.id)
     assert judge(cal) is None and "verdict" not in calibration_to_doc(cal)
+
+
+def test_a_rotation_is_graded_by_the_image_shift_it_makes(dense):
+    # 0.2 degrees moves a 400 px lens's image by 1.4 px (good) and a 1500 px lens's by 5.2 px (poor);
+    # graded in degrees both were usable.
+    def rotation_findings(cal, f_px):
+        cam = next(c for c in cal.cameras if c.id not in (cal.world_frame,))
+        K = np.diag([f_px, f_px, 1.0]) + np.array([[0, 0, cam.K[0, 2]], [0, 0, cam.K[1, 2]], [0, 0, 0]])
+        sigmas = replace(cal.uncertainty.cameras[cam.id], rotation_deg=(0.0, 0.2, 0.0), cx_px=0.0, cy_px=0.0)
+        cameras = tuple(replace(c, K=K) if c.id == cam.id else c for c in cal.cameras)
+        uncertainty = replace(cal.uncertainty, cameras={**cal.uncertainty.cameras, cam.id: sigmas})
+        verdict = judge(replace(cal, cameras=cameras, report=replace(cal.report, uncertainty=uncertainty)))
+        return [f for c in verdict.cameras if c.camera == cam.id for f in c.findings if "rotation" in f.what]
+
+    assert rotation_findings(dense, 400.0) == []
+    [poor] = rotation_findings(dense, 1500.0)
+    assert poor.level == Level.POOR and "5.2 px" in poor.what and poor.action == Action.ADD_TEXTURE, poor
+
+
+def test_a_far_ring_cameras_rotation_that_the_guessed_principal_points_explain_is_usable_and_asks_for_k():
+    # tape_pair: 8 cameras on a ring, the pair 45 degrees apart. The far side's rotation sigma is
+    # 0.65-0.7 degrees, 0.1 with the principal points given; its true error 0.1-0.2. It was poor with
+    # "add texture" (the scene has plenty): the principal points are what pins it.
+    drawn = family("tape_pair", seed=0)
+    cal = calibrate(observe_family(drawn, noise_px=0.5, seed=0)).calibration
+    verdict = judge(cal)
+    assert verdict.level == Level.USABLE, format_verdict(verdict)
+    rotation = {c.camera: f for c in verdict.cameras for f in c.findings if "rotation" in f.what}
+    assert {"ring3", "ring4", "ring5"} <= set(rotation), format_verdict(verdict)
+    for cam, finding in rotation.items():
+        assert finding.level == Level.USABLE and finding.action == Action.GIVE_K, finding
+        assert "principal points" in finding.what and cam in finding.todo, finding
+    # Given the principal points (K, not fixed), the same cameras' rotations are good.
+    given = observe_family(drawn, noise_px=0.5, seed=0)
+    truth = {c.id: c.K for c in drawn.rig.cameras}
+    given = replace(given, cameras=tuple(replace(c, K=truth[c.id]) for c in given.cameras))
+    told = judge(calibrate(given).calibration)
+    assert not [f for c in told.cameras for f in c.findings if "rotation" in f.what], format_verdict(told)

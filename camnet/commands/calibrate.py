@@ -90,6 +90,7 @@ class Progress:
 def run(args: argparse.Namespace) -> int:
     from camnet.errors import InputError, SolveError
     from camnet.geometry.calibrate import Options, calibrate
+    from camnet.geometry.live import calibrate_newest_first
     from camnet.geometry.verdict import judge
     from camnet.io.formats import (
         calibration_to_doc,
@@ -123,7 +124,12 @@ def run(args: argparse.Namespace) -> int:
     initial = parse_calibration(load_json(args.initial)) if args.initial else None
     options = Options(method=Method(args.method), loss=Loss(args.loss), loss_scale_px=args.loss_scale_px, free=free,
                       seed=args.seed, pp_prior_rel=args.pp_prior_rel)
-    result = calibrate(obs, options, initial=initial)
+    result = None
+    if initial is None and options.method == Method.REFINED:
+        # A long pool starts on its newest tracks, as the live calibrator's (camnet.geometry.newest_first).
+        result = calibrate_newest_first(obs, options)
+    if result is None:
+        result = calibrate(obs, options, initial=initial)
     progress.say("solved" if result.converged else "not converged")
     if not result.converged:
         raise SolveError(f"the adjustment did not converge: {result.reason}")

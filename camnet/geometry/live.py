@@ -20,10 +20,11 @@ from enum import StrEnum
 import numpy as np
 
 from camnet.errors import CamnetError
-from camnet.geometry.calibrate import Options, calibrate
+from camnet.geometry.calibrate import Options, Result, calibrate
 from camnet.geometry.change import MoveRule, drop_before, moved_cameras, new_track_errors, without_cameras
 from camnet.geometry.cold_start import MIN_CAMERAS, with_cameras_left_out
 from camnet.geometry.model import Calibration, Camera, Observations
+from camnet.geometry.newest_first import START_TRACKS, newest_first
 from camnet.geometry.two_view import FOCAL_RANGE_REL
 
 log = logging.getLogger(__name__)
@@ -70,11 +71,9 @@ class LiveConfig:
     # pose in the left's frame, x_right = R x_left + t. Every solve without a good calibration
     # to start from starts from it, so that a free set without the pair's axes holds it.
     stereo_pose: tuple[np.ndarray, np.ndarray] | None = None
-    # A cold solve of a pool of at least twice as many starts on its newest this many tracks (the
-    # matcher's pool of 5000 is full after two frame sets of nine cameras). On config/surround.yaml's
-    # pools of 5000 tracks (rendered every 7.5 s, as a loaded live matcher sees them) the multi-view
-    # tracks of the older half were 37-42% false against the truth, the newer half's 5-9%.
-    cold_start_tracks: int = 2500
+    # A cold solve of a pool of at least twice as many starts on its newest this many tracks
+    # (camnet.geometry.newest_first: the oldest tracks of a long pool are the falsest).
+    cold_start_tracks: int = START_TRACKS
 
 
 class Status(StrEnum):
@@ -249,16 +248,10 @@ class Tracker:
             status, reason, cal = self._placing(obs, initial, reset=self._reset)
             if status == Status.GOOD:
                 return Outcome(Status.GOOD, "", cal, moved, warm=True)
-        if len(obs.track_ids) >= 2 * self.config.cold_start_tracks:
-            # The oldest tracks of a long pool are the falsest: its cold start is solved on the newest,
-            # and the whole pool warm from there (or, failing that, cold as it is). A smaller pool is of
-            # a frame set or two, whose tracks' ids say nothing of their age.
-            status, reason, seed = self._placing(newest_tracks(obs, self.config.cold_start_tracks), cold)
-            if status == Status.GOOD:
-                status, reason, cal = self._placing(obs, seed)
-                if status == Status.GOOD:
-                    return Outcome(Status.GOOD, "", cal, moved, warm=cold is not None)
-        status, reason, cal = self._placing(obs, cold)
+        # A long pool's cold start is solved on its newest tracks, the whole pool warm from there.
+        newest = newest_first(obs, self._placing, lambda out: out[2] if out[0] == Status.GOOD else None,
+                              start=cold, start_tracks=self.config.cold_start_tracks)
+        status, reason, cal = newest if newest is not None else self._placing(obs, cold)
         if status == Status.GOOD:
             return Outcome(Status.GOOD, "", cal, moved, warm=cold is not None)
         return Outcome(status, reason, None, moved, warm=False)
@@ -298,14 +291,26 @@ class Tracker:
         return (Status.REJECTED, reason, cal) if reason else (Status.GOOD, "", cal)
 
 
-def newest_tracks(obs: Observations, count: int) -> Observations:
-    """`obs` with only its `count` newest tracks (the largest ids: a pool numbers them in time)."""
-    keep = np.zeros(len(obs.track_ids), dtype=bool)
-    keep[np.argsort(obs.track_ids, kind="stable")[-count:]] = True
-    rows = keep[obs.track_index]
-    new_row = np.cumsum(keep) - 1
-    return replace(obs, track_ids=obs.track_ids[keep], cam_index=obs.cam_index[rows],
-                   track_index=new_row[obs.track_index[rows]], uv=obs.uv[rows])
+def calibrate_newest_first(obs: Observations, options: Options, config: LiveConfig = LiveConfig()
+                           ) -> Result | None:
+    """An offline solve of a long pool as the live calibrator starts one: the whole pool solved warm from
+    its newest `config.cold_start_tracks` tracks' solution, where both solves pass `judge` (the live
+    policy's checks); None where the pool is short or they do not (then solve the whole pool cold)."""
+
+    def solve(part: Observations, start: Calibration | None) -> tuple[Observations, Result] | None:
+        try:
+            return part, calibrate(part, options, initial=start)
+        except CamnetError as exc:
+            log.info("newest tracks first: %s", exc)
+            return None
+
+    def good(out: tuple[Observations, Result] | None) -> Calibration | None:
+        if out is None or not out[1].converged or judge(out[1].calibration, out[0], config):
+            return None
+        return out[1].calibration
+
+    whole = newest_first(obs, solve, good, start_tracks=config.cold_start_tracks)
+    return whole[1] if whole is not None else None
 
 
 def stereo_head(obs: Observations, R: np.ndarray, t: np.ndarray) -> Calibration | None:

@@ -1,0 +1,60 @@
+"""A long pool's cold solve: its newest tracks first, then the whole pool warm from their solution.
+
+A track pool (camnet.matching.pool) numbers its tracks in time and keeps
+the newest; its oldest tracks are the falsest. On config/surround.yaml's
+pools of 5000 tracks (benchmarks/bench_cold_pool.py, rendered every 7.5 s)
+the multi-view tracks of the older half were 37-42% false against the
+truth, of the newer half 5-9%, and a cold solve of the whole pool placed
+the cameras facing away from the head wrong, where one started on the
+newest 2500 placed them all. The live calibrator (camnet.geometry.live)
+and `camnet calibrate` both start a long pool so.
+
+Ids are only an order of preference here: the whole pool is what is solved
+in the end, and a caller falls back to the whole pool solved cold. Where a
+file's ids say nothing of age, its "newest" tracks are merely a subset.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import replace
+from typing import TypeVar
+
+import numpy as np
+
+from camnet.geometry.model import Calibration, Observations
+
+# A pool of at least twice as many tracks starts on its newest this many (the matcher's pool of 5000
+# is full after two frame sets of nine cameras). A smaller pool is of a frame set or two, whose ids
+# say nothing of age: on one 9-camera frame set starting on its newest tracks cost 31 s against 8 s.
+START_TRACKS = 2500
+
+T = TypeVar("T")
+
+
+def newest_tracks(obs: Observations, count: int) -> Observations:
+    """`obs` with only its `count` newest tracks (the largest ids: a pool numbers them in time)."""
+    keep = np.zeros(len(obs.track_ids), dtype=bool)
+    keep[np.argsort(obs.track_ids, kind="stable")[-count:]] = True
+    rows = keep[obs.track_index]
+    new_row = np.cumsum(keep) - 1
+    return replace(obs, track_ids=obs.track_ids[keep], cam_index=obs.cam_index[rows],
+                   track_index=new_row[obs.track_index[rows]], uv=obs.uv[rows])
+
+
+def newest_first(obs: Observations, solve: Callable[[Observations, Calibration | None], T],
+                 good: Callable[[T], Calibration | None], *, start: Calibration | None = None,
+                 start_tracks: int = START_TRACKS) -> T | None:
+    """The whole pool solved warm from its newest `start_tracks` tracks' solution, or None.
+
+    solve(observations, start): one solve from `start` (None: cold); good(outcome): its calibration
+    where the caller trusts it, else None. None where the pool has fewer than twice `start_tracks`
+    tracks or either solve is not good: the caller then solves the whole pool from `start` itself.
+    """
+    if len(obs.track_ids) < 2 * start_tracks:
+        return None
+    seed = good(solve(newest_tracks(obs, start_tracks), start))
+    if seed is None:
+        return None
+    whole = solve(obs, seed)
+    return whole if good(whole) is not None else None
