@@ -16,7 +16,10 @@ progress line. At the end, a table:
 - capture->calibration latency: solved_ns - latest_capture_ns of each good
   calibration, median and max (as bench_live.py);
 - CPU of each process, in % of one core over the window;
-- memory of every node, and its growth after the first minute (under 5%).
+- memory of every node: its RSS floor (the least of a minute's samples)
+  minute by minute, and its growth from the window's first minute to the
+  run's last (under 5%). The floor, since one sample caught mid-solve
+  reads up to a quarter above a calibrator whose floor stays flat.
 
 Rates, CPU and growth are taken from the first sample after the first
 minute and after the first good calibration, whichever is later (a loaded
@@ -33,6 +36,7 @@ set matched, 16 cameras against 4 (target: at most 2.5x).
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import shlex
 import statistics
@@ -44,7 +48,7 @@ from pathlib import Path
 
 import yaml
 from bench_faults import Network, rss_mb
-from soak import GROWTH_LIMIT, SETTLE_S, MatcherStats, growth
+from soak import GROWTH_LIMIT, LEVEL_S, SETTLE_S, MatcherStats, curve, growth, rss_floor
 
 from camnet.bus import keys
 
@@ -163,12 +167,18 @@ def progress(samples: list[dict], n_calibrations: int) -> str:
 def table(phase: Phase) -> list[str]:
     """The phase as a Markdown table: one row per process, then the rates."""
     cpu, grown, last = phase.cpu_percent(), phase.growth(), phase.samples[-1]
-    rows = [f"| process | CPU % of a core | RSS MB | RSS growth after {phase.window_s:.0f} s |", "|---|---|---|---|"]
+    window = [s for s in phase.samples if s["t_s"] >= phase.window_s] or phase.samples[-1:]
+    first = rss_floor([s for s in window if s["t_s"] < window[0]["t_s"] + LEVEL_S])
+    floor = rss_floor([s for s in window if s["t_s"] > last["t_s"] - LEVEL_S])
+    peak = rss_floor(window, pick=max)
+    rows = [f"| process | CPU % of a core | RSS floor MB, first minute from {phase.window_s:.0f} s | last minute | "
+            "peak MB | floor growth |", "|---|---|---|---|---|---|"]
     for name in last["rss_mb"]:
         g = grown.get(name)
-        rows.append(f"| {name} | {cpu.get(name, 0.0):.0f} | {last['rss_mb'][name]:.0f} | "
-                    f"{'-' if g is None else f'{100 * g:+.1f}%'} |")
-    rows.append(f"| all | {sum(cpu.values()):.0f} | {sum(last['rss_mb'].values()):.0f} | |")
+        rows.append(f"| {name} | {cpu.get(name, 0.0):.0f} | {first.get(name, 0.0):.0f} | {floor.get(name, 0.0):.0f} | "
+                    f"{peak.get(name, 0.0):.0f} | {'-' if g is None else f'{100 * g:+.1f}%'} |")
+    rows.append(f"| all | {sum(cpu.values()):.0f} | {sum(first.values()):.0f} | {sum(floor.values()):.0f} | | |")
+    rows += ["", "RSS floor (MB) minute by minute:", *curve(phase.samples, phase.window_s)]
     rate, latencies = phase.frame_sets_per_s(), phase.latencies_s()
     rows.append("")
     first = f"the first after {phase.calibrations[0][0]:.0f} s" if phase.calibrations else "none"
@@ -190,7 +200,7 @@ def verdicts(main: Phase, compare: Phase | None) -> list[tuple[str, bool]]:
     worst = max(main.growth().values(), default=0.0)
     found = [(f"calibrated frame sets per second >= {MIN_FRAME_SETS_PER_S:g}: "
               f"{'n/a' if rate is None else f'{rate:.2f}'}", rate is not None and rate >= MIN_FRAME_SETS_PER_S),
-             (f"memory growth after {main.window_s:.0f} s < {100 * GROWTH_LIMIT:.0f}%: largest {100 * worst:+.1f}%",
+             (f"RSS floor growth after {main.window_s:.0f} s < {100 * GROWTH_LIMIT:.0f}%: largest {100 * worst:+.1f}%",
               worst < GROWTH_LIMIT)]
     if compare is not None:
         many, few = main.matcher_cpu_per_set_s(), compare.matcher_cpu_per_set_s()
@@ -214,6 +224,7 @@ def main() -> int:
                         help="the feature stages' grid of capture times (default: 0.5, two frame sets a second)")
     parser.add_argument("--sample-s", type=float, default=10.0)
     parser.add_argument("--matcher-args", default="", help="further flags of the matcher, in one string")
+    parser.add_argument("--samples", type=Path, help="write every sample of the main run here (JSON lines)")
     args = parser.parse_args()
     rig = yaml.safe_load(args.rig.read_text())
     options = dict(sample_s=args.sample_s, features_period_s=args.features_period_s,
@@ -229,6 +240,8 @@ def main() -> int:
               file=sys.stderr, flush=True)
         with tempfile.TemporaryDirectory(prefix="camnet-bench-hosts-") as tmp:
             results.append(run_phase(Path(tmp), phase_rig, minutes=minutes, **options))
+    if args.samples is not None:
+        args.samples.write_text("".join(json.dumps(s) + "\n" for s in results[0].samples))
     for phase in results:
         print("\n" + "\n".join(table(phase)))
     found = verdicts(results[0], results[1] if len(results) > 1 else None)
