@@ -73,8 +73,8 @@ class HostsNetwork(Network):
     """The rig's cameras in processes of `cameras_per_host` drivers each, with their feature stages."""
 
     def __init__(self, work: Path, rig: dict, *, cameras_per_host: int, features_period_s: float,
-                 matcher_flags: tuple[str, ...] = ()) -> None:
-        super().__init__(work, rig, matcher_flags=matcher_flags)
+                 matcher_flags: tuple[str, ...] = (), calibrator_flags: tuple[str, ...] = ()) -> None:
+        super().__init__(work, rig, matcher_flags=matcher_flags, calibrator_flags=calibrator_flags)
         self.camera_ids = [c["id"] for c in rig["cameras"]]
         self.cameras_per_host = cameras_per_host
         self.features_period_s = features_period_s
@@ -133,11 +133,11 @@ class Phase:
 
 
 def run_phase(work: Path, rig: dict, *, minutes: float, sample_s: float, features_period_s: float,
-              matcher_flags: tuple[str, ...]) -> Phase:
+              matcher_flags: tuple[str, ...], calibrator_flags: tuple[str, ...]) -> Phase:
     samples: list[dict] = []
     matcher = MatcherStats()
     with HostsNetwork(work, rig, cameras_per_host=CAMERAS_PER_HOST, features_period_s=features_period_s,
-                      matcher_flags=matcher_flags) as net:
+                      matcher_flags=matcher_flags, calibrator_flags=calibrator_flags) as net:
         net.session.declare_subscriber(keys.node_stats(net.rig_name, "matcher", "matcher"), matcher)
         start_s = time.monotonic()
         while time.monotonic() - start_s < 60 * minutes:
@@ -224,11 +224,15 @@ def main() -> int:
                         help="the feature stages' grid of capture times (default: 0.5, two frame sets a second)")
     parser.add_argument("--sample-s", type=float, default=10.0)
     parser.add_argument("--matcher-args", default="", help="further flags of the matcher, in one string")
+    parser.add_argument("--calibrator-args", default="",
+                        help="further flags of the calibrator, in one string (--rerun serve: as docker/compose.yaml "
+                             "runs it)")
     parser.add_argument("--samples", type=Path, help="write every sample of the main run here (JSON lines)")
     args = parser.parse_args()
     rig = yaml.safe_load(args.rig.read_text())
     options = dict(sample_s=args.sample_s, features_period_s=args.features_period_s,
-                   matcher_flags=tuple(shlex.split(args.matcher_args)))
+                   matcher_flags=tuple(shlex.split(args.matcher_args)),
+                   calibrator_flags=tuple(shlex.split(args.calibrator_args)))
     phases = [(rig, args.minutes)]
     if args.compare_minutes > 0:
         few = {**rig, "rig": f"{rig['rig']}_first{CAMERAS_PER_HOST}", "cameras": rig["cameras"][:CAMERAS_PER_HOST]}

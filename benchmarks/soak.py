@@ -96,8 +96,9 @@ def curve(samples: list[dict], settle_s: float = SETTLE_S) -> list[str]:
     minutes = int((samples[-1]["t_s"] - settle_s) // LEVEL_S) + 1
     levels = [rss_floor([s for s in samples if 0 <= s["t_s"] - settle_s - m * LEVEL_S < LEVEL_S])
               for m in range(minutes)]
-    header = "| node | " + " | ".join(f"{(settle_s + m * LEVEL_S) / 60:g}-{(settle_s + (m + 1) * LEVEL_S) / 60:g} min"
-                                      for m in range(minutes)) + " |"
+    spans = [f"{(settle_s + m * LEVEL_S) / 60:.1f}-{(settle_s + (m + 1) * LEVEL_S) / 60:.1f} min"
+             for m in range(minutes)]
+    header = "| node | " + " | ".join(spans) + " |"
     rows = [header, "|---" * (minutes + 1) + "|"]
     for name in samples[0]["rss_mb"]:
         rows.append(f"| {name} | " + " | ".join(f"{level[name]:.0f}" if name in level else "-" for level in levels)
