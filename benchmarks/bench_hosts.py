@@ -22,8 +22,10 @@ progress line. At the end, a table:
   reads up to a quarter above a calibrator whose floor stays flat.
 
 Rates, CPU and growth are taken from the first sample after the first
-minute and after the first good calibration, whichever is later (a loaded
-machine calibrates 16 cameras for the first time after more than a minute).
+minute and after the first good calibration of a full pool (with at least
+90% of the most points any calibration of the run held), whichever is
+later: a loaded machine calibrates 16 cameras for the first time after
+more than a minute, and the calibrator grows with its pool until then.
 
 Then, unless `--compare-minutes 0`, the same with the rig's first four
 cameras (the paper's rig) on one host: the matcher's CPU seconds per frame
@@ -56,6 +58,7 @@ ROOT = Path(__file__).resolve().parent.parent
 CAMERAS_PER_HOST = 4
 MIN_FRAME_SETS_PER_S = 1.0
 MAX_MATCHER_CPU_RATIO = 2.5
+FULL_POOL_SHARE = 0.9  # a calibration with this share of the run's most points is of a full pool
 CLOCK_TICKS_PER_S = os.sysconf("SC_CLK_TCK")
 
 
@@ -98,9 +101,11 @@ class Phase:
     @property
     def window_s(self) -> float:
         """Rates and growth are measured from here on: after the first minute (half the run if shorter)
-        and after the first good calibration (before it, the calibrator has not started its work)."""
-        first_good_s = self.calibrations[0][0] if self.calibrations else 0.0
-        return max(min(SETTLE_S, 30 * self.minutes), first_good_s)
+        and after the first good calibration of a full pool: one with at least `FULL_POOL_SHARE` of the most
+        points any calibration of the run held (before it, the calibrator has not grown into its pool)."""
+        most = max((len(d.get("points", [])) for _, d in self.calibrations), default=0)
+        full_s = next((t for t, d in self.calibrations if len(d.get("points", [])) >= FULL_POOL_SHARE * most), 0.0)
+        return max(min(SETTLE_S, 30 * self.minutes), full_s)
 
     def growth(self) -> dict[str, float]:
         return growth(self.samples, self.window_s)
