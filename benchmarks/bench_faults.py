@@ -90,7 +90,8 @@ def rss_mb(pid: int) -> float:
 class Network:
     """A rig's nodes behind a router, an observer of its calibrations, and the faults done to them."""
 
-    def __init__(self, work: Path, rig: dict, *, matcher_flags: tuple[str, ...] = ()) -> None:
+    def __init__(self, work: Path, rig: dict, *, matcher_flags: tuple[str, ...] = (),
+                 calibrator_flags: tuple[str, ...] = ()) -> None:
         self.work = work
         self.rig_name = rig["rig"]
         self.rig_path = work / "rig.yaml"
@@ -99,6 +100,7 @@ class Network:
         self.endpoint = f"tcp/127.0.0.1:{free_port()}"
         self.launch = Launch(work, grace_s=5.0)
         self.matcher_flags = matcher_flags
+        self.calibrator_flags = calibrator_flags
         self.calibrations: list[tuple[float, dict]] = []  # (monotonic s, document) as published
         self._lock = threading.Lock()
         self.session = None
@@ -119,7 +121,7 @@ class Network:
         start_network(self.launch, NetworkSpec(
             rig_path=self.rig_path, rig_name=self.rig_name, cameras=cameras if drivers else (), bus=bus,
             matcher=("--publish-period-s", "1.0", *self.matcher_flags),
-            calibrator=("--state", str(self.state))))
+            calibrator=("--state", str(self.state), *self.calibrator_flags)))
 
     def __exit__(self, *exc_info: object) -> None:
         try:

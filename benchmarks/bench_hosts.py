@@ -16,11 +16,16 @@ progress line. At the end, a table:
 - capture->calibration latency: solved_ns - latest_capture_ns of each good
   calibration, median and max (as bench_live.py);
 - CPU of each process, in % of one core over the window;
-- memory of every node, and its growth after the first minute (under 5%).
+- memory of every node: its RSS floor (the least of a minute's samples)
+  minute by minute, and its growth from the window's first minute to the
+  run's last (under 5%). The floor, since one sample caught mid-solve
+  reads up to a quarter above a calibrator whose floor stays flat.
 
 Rates, CPU and growth are taken from the first sample after the first
-minute and after the first good calibration, whichever is later (a loaded
-machine calibrates 16 cameras for the first time after more than a minute).
+minute and after the first good calibration of a full pool (with at least
+90% of the most points any calibration of the run held), whichever is
+later: a loaded machine calibrates 16 cameras for the first time after
+more than a minute, and the calibrator grows with its pool until then.
 
 Then, unless `--compare-minutes 0`, the same with the rig's first four
 cameras (the paper's rig) on one host: the matcher's CPU seconds per frame
@@ -33,6 +38,7 @@ set matched, 16 cameras against 4 (target: at most 2.5x).
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import shlex
 import statistics
@@ -44,7 +50,7 @@ from pathlib import Path
 
 import yaml
 from bench_faults import Network, rss_mb
-from soak import GROWTH_LIMIT, SETTLE_S, MatcherStats, growth
+from soak import GROWTH_LIMIT, LEVEL_S, SETTLE_S, MatcherStats, curve, growth, rss_floor
 
 from camnet.bus import keys
 from camnet.commands.up_console import summarise
@@ -54,6 +60,7 @@ ROOT = Path(__file__).resolve().parent.parent
 CAMERAS_PER_HOST = 4
 MIN_FRAME_SETS_PER_S = 1.0
 MAX_MATCHER_CPU_RATIO = 2.5
+FULL_POOL_SHARE = 0.9  # a calibration with this share of the run's most points is of a full pool
 CLOCK_TICKS_PER_S = os.sysconf("SC_CLK_TCK")
 
 
@@ -100,8 +107,8 @@ class HostsNetwork(Network):
     """The rig's cameras in processes of `cameras_per_host` drivers each, with their feature stages."""
 
     def __init__(self, work: Path, rig: dict, *, cameras_per_host: int, features_period_s: float,
-                 matcher_flags: tuple[str, ...] = ()) -> None:
-        super().__init__(work, rig, matcher_flags=matcher_flags)
+                 matcher_flags: tuple[str, ...] = (), calibrator_flags: tuple[str, ...] = ()) -> None:
+        super().__init__(work, rig, matcher_flags=matcher_flags, calibrator_flags=calibrator_flags)
         self.camera_ids = [c["id"] for c in rig["cameras"]]
         self.cameras_per_host = cameras_per_host
         self.features_period_s = features_period_s
@@ -126,9 +133,11 @@ class Phase:
     @property
     def window_s(self) -> float:
         """Rates and growth are measured from here on: after the first minute (half the run if shorter)
-        and after the first good calibration (before it, the calibrator has not started its work)."""
-        first_good_s = self.calibrations[0][0] if self.calibrations else 0.0
-        return max(min(SETTLE_S, 30 * self.minutes), first_good_s)
+        and after the first good calibration of a full pool: one with at least `FULL_POOL_SHARE` of the most
+        points any calibration of the run held (before it, the calibrator has not grown into its pool)."""
+        most = max((len(d.get("points", [])) for _, d in self.calibrations), default=0)
+        full_s = next((t for t, d in self.calibrations if len(d.get("points", [])) >= FULL_POOL_SHARE * most), 0.0)
+        return max(min(SETTLE_S, 30 * self.minutes), full_s)
 
     def growth(self) -> dict[str, float]:
         return growth(self.samples, self.window_s)
@@ -175,11 +184,11 @@ class Phase:
 
 
 def run_phase(work: Path, rig: dict, *, minutes: float, sample_s: float, features_period_s: float,
-              matcher_flags: tuple[str, ...]) -> Phase:
+              matcher_flags: tuple[str, ...], calibrator_flags: tuple[str, ...]) -> Phase:
     samples: list[dict] = []
     matcher = MatcherStats()
     with HostsNetwork(work, rig, cameras_per_host=CAMERAS_PER_HOST, features_period_s=features_period_s,
-                      matcher_flags=matcher_flags) as net:
+                      matcher_flags=matcher_flags, calibrator_flags=calibrator_flags) as net:
         net.session.declare_subscriber(keys.node_stats(net.rig_name, "matcher", "matcher"), matcher)
         start_s = time.monotonic()
         while time.monotonic() - start_s < 60 * minutes:
@@ -211,12 +220,18 @@ def progress(samples: list[dict], n_calibrations: int) -> str:
 def table(phase: Phase) -> list[str]:
     """The phase as a Markdown table: one row per process, then the rates."""
     cpu, grown, last = phase.cpu_percent(), phase.growth(), phase.samples[-1]
-    rows = [f"| process | CPU % of a core | RSS MB | RSS growth after {phase.window_s:.0f} s |", "|---|---|---|---|"]
+    window = [s for s in phase.samples if s["t_s"] >= phase.window_s] or phase.samples[-1:]
+    first = rss_floor([s for s in window if s["t_s"] < window[0]["t_s"] + LEVEL_S])
+    floor = rss_floor([s for s in window if s["t_s"] > last["t_s"] - LEVEL_S])
+    peak = rss_floor(window, pick=max)
+    rows = [f"| process | CPU % of a core | RSS floor MB, first minute from {phase.window_s:.0f} s | last minute | "
+            "peak MB | floor growth |", "|---|---|---|---|---|---|"]
     for name in last["rss_mb"]:
         g = grown.get(name)
-        rows.append(f"| {name} | {cpu.get(name, 0.0):.0f} | {last['rss_mb'][name]:.0f} | "
-                    f"{'-' if g is None else f'{100 * g:+.1f}%'} |")
-    rows.append(f"| all | {sum(cpu.values()):.0f} | {sum(last['rss_mb'].values()):.0f} | |")
+        rows.append(f"| {name} | {cpu.get(name, 0.0):.0f} | {first.get(name, 0.0):.0f} | {floor.get(name, 0.0):.0f} | "
+                    f"{peak.get(name, 0.0):.0f} | {'-' if g is None else f'{100 * g:+.1f}%'} |")
+    rows.append(f"| all | {sum(cpu.values()):.0f} | {sum(first.values()):.0f} | {sum(floor.values()):.0f} | | |")
+    rows += ["", "RSS floor (MB) minute by minute:", *curve(phase.samples, phase.window_s)]
     rate, latencies = phase.frame_sets_per_s(), phase.latencies_s()
     rows.append("")
     first = f"the first after {phase.calibrations[0][0]:.0f} s" if phase.calibrations else "none"
@@ -263,7 +278,7 @@ def verdicts(main: Phase, compare: Phase | None) -> list[tuple[str, bool]]:
     worst = max(main.growth().values(), default=0.0)
     found = [(f"calibrated frame sets per second >= {MIN_FRAME_SETS_PER_S:g}: "
               f"{'n/a' if rate is None else f'{rate:.2f}'}", rate is not None and rate >= MIN_FRAME_SETS_PER_S),
-             (f"memory growth after {main.window_s:.0f} s < {100 * GROWTH_LIMIT:.0f}%: largest {100 * worst:+.1f}%",
+             (f"RSS floor growth after {main.window_s:.0f} s < {100 * GROWTH_LIMIT:.0f}%: largest {100 * worst:+.1f}%",
               worst < GROWTH_LIMIT)]
     if compare is not None:
         many, few = main.matcher_cpu_per_set_s(), compare.matcher_cpu_per_set_s()
@@ -287,10 +302,15 @@ def main() -> int:
                         help="the feature stages' grid of capture times (default: 0.5, two frame sets a second)")
     parser.add_argument("--sample-s", type=float, default=10.0)
     parser.add_argument("--matcher-args", default="", help="further flags of the matcher, in one string")
+    parser.add_argument("--calibrator-args", default="",
+                        help="further flags of the calibrator, in one string (--rerun serve: as docker/compose.yaml "
+                             "runs it)")
+    parser.add_argument("--samples", type=Path, help="write every sample of the main run here (JSON lines)")
     args = parser.parse_args()
     rig = yaml.safe_load(args.rig.read_text())
     options = dict(sample_s=args.sample_s, features_period_s=args.features_period_s,
-                   matcher_flags=tuple(shlex.split(args.matcher_args)))
+                   matcher_flags=tuple(shlex.split(args.matcher_args)),
+                   calibrator_flags=tuple(shlex.split(args.calibrator_args)))
     phases = [(rig, args.minutes)]
     if args.compare_minutes > 0:
         few = {**rig, "rig": f"{rig['rig']}_first{CAMERAS_PER_HOST}", "cameras": rig["cameras"][:CAMERAS_PER_HOST]}
@@ -302,6 +322,8 @@ def main() -> int:
               file=sys.stderr, flush=True)
         with tempfile.TemporaryDirectory(prefix="camnet-bench-hosts-") as tmp:
             results.append(run_phase(Path(tmp), phase_rig, minutes=minutes, **options))
+    if args.samples is not None:
+        args.samples.write_text("".join(json.dumps(s) + "\n" for s in results[0].samples))
     for phase in results:
         print("\n" + "\n".join(table(phase)))
     found = verdicts(results[0], results[1] if len(results) > 1 else None)

@@ -4,7 +4,9 @@ import argparse
 import logging
 import subprocess
 import sys
+import time
 from collections import defaultdict
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -267,3 +269,52 @@ def test_the_solve_timeline_takes_the_calibrators_numbers(recording, solves):
     texts = [text for cell in data["/log"]["TextLog:text"] for text in cell]
     assert any(t.startswith("solve 3 failed: rejected") for t in texts)
     assert any(t.startswith("solve 4: 4 cameras") for t in texts)
+
+
+SERVE_SCRIPT = """
+import sys
+import numpy as np
+import rerun as rr
+from camnet import viz, viz_sinks
+
+rec = viz.open_recording(rig="sim", sinks=[viz_sinks.parse_sink(sys.argv[1])])
+rng = np.random.default_rng(0)
+for i in range(int(sys.argv[2])):
+    rec.set_time("solve", sequence=i)
+    rec.log("blob", rr.Tensor(rng.integers(0, 256, 2**20, dtype=np.uint8)))  # 1 MiB that compresses to no less
+rec.flush()
+print("logged", flush=True)
+sys.stdin.readline()
+"""
+
+
+def test_a_served_recording_keeps_a_bounded_history_for_late_viewers(tmp_path):
+    """Measured before: Rerun's server kept up to 1 GiB for viewers that connect later, and a served
+    calibrator grew by about 0.5 MB a solve. A late viewer (`rerun URL --save`) of 48 MiB logged
+    gets the newest part of it: at most `SERVE_MEMORY_LIMIT` (16 MiB), and more than half of that."""
+    from tests.conftest import free_port
+
+    logged_mib, grpc_port = 48, free_port()
+    server = viewer = None
+    saved = tmp_path / "late.rrd"
+    try:
+        server = subprocess.Popen([sys.executable, "-c", SERVE_SCRIPT, f"serve={free_port()},{grpc_port}",
+                                   str(logged_mib)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+        assert server.stdout.readline().strip() == "logged", "the serving process did not log its data"
+        rerun = str(Path(sys.executable).with_name("rerun"))
+        viewer = subprocess.Popen([rerun, f"rerun+http://127.0.0.1:{grpc_port}/proxy", "--save", str(saved)],
+                                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        # Done when the file has stopped growing for 5 s, within 120 s.
+        sizes: list[int] = []
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and not (len(sizes) >= 10 and sizes[-1] > 0 and len(set(sizes[-10:])) == 1):
+            time.sleep(0.5)
+            sizes.append(saved.stat().st_size if saved.exists() else 0)
+    finally:
+        for process in (viewer, server):
+            if process is not None and process.poll() is None:
+                process.kill()
+                process.wait(10)
+    mib, limit_mib = sizes[-1] / 2**20, int(viz.SERVE_MEMORY_LIMIT.removesuffix("MiB"))
+    # The file adds its own framing (about 1%) to what the server kept.
+    assert limit_mib / 2 < mib <= 1.05 * limit_mib, f"a late viewer got {mib:.1f} MiB of the {logged_mib} MiB logged"
