@@ -186,6 +186,9 @@ def _calibrate(
     if initial is not None and reset & {0, 1}:
         log.info("a stereo camera is reset: solving from scratch")
         initial = None
+    if initial is not None and initial.report is None:
+        # A start nobody solved here (a factory head's published pose): its pair is held as given, as a fixed K is.
+        options = replace(options, pair_tolerance_deg=0.0)
     intr = initial_intrinsics(obs, order)
     xy = centred(obs, order, intr)
     rows = observation_rows(obs)
@@ -248,8 +251,10 @@ def _calibrate(
         obs, order, problem, state, track_rows, inliers, info, cov, decisions, options.method, timings,
         start=start_kind, left_out=start.left_out,
     )
-    if warning is None:
-        return result
+    return result if warning is None else _with_warning(result, warning)
+
+
+def _with_warning(result: Result, warning: str) -> Result:
     report = replace(result.calibration.report, warnings=(*result.calibration.report.warnings, warning))
     return replace(result, calibration=replace(result.calibration, report=report))
 
