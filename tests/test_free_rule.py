@@ -53,11 +53,12 @@ def test_a_toed_in_head_has_its_yaw_freed(seed):
     assert yaw.startswith("stereo_yaw: free"), yaw
 
 
-# The pair's K given (its distortion not): with the lens held at zero its misfit asks for the yaw (chi2 370-450),
-# and once the lens is free it no longer does, while freed it doubles the scale's sigma (0.13-0.15% against
-# 0.06%): the yaw is tried again and held.
+# The pair's K given (its distortion not): with the lens held at zero its misfit asks for the yaw (chi2 370-450).
+# Once the lens is free, the yaw no longer asks, but the data know it to 0.18-0.19 px (0.014 degrees), several
+# times better than the pair's tolerance (free_rule.PAIR_TOLERANCE_DEG): held, which sigma was 0.06% exactly
+# parallel, the tolerance puts the scale's sigma at 1.2-1.3%; free, 0.13%. It is kept free.
 @pytest.mark.parametrize("seed", [0, 3])
-def test_a_yaw_the_lens_asked_for_is_held_again_once_the_lens_is_free(seed):
+def test_a_yaw_the_data_know_better_than_its_tolerance_is_kept_free_once_the_lens_is_free(seed):
     drawn = family("wide", seed=seed)
     obs = observe(drawn.rig, noise_px=0.5, seed=seed, normals=drawn.normals).observations
     truth = {c.id: c for c in drawn.rig.cameras}
@@ -66,5 +67,5 @@ def test_a_yaw_the_lens_asked_for_is_held_again_once_the_lens_is_free(seed):
     cal = calibrate(replace(obs, cameras=given)).calibration
     c = compare(cal, drawn.rig.cameras, drawn.rig.points)
     yaw = [d for d in cal.report.free_rule if d.startswith("stereo_yaw")]
-    assert c.scale_sigma_rel < 0.001 and abs(c.scale_rel) < 3 * c.scale_sigma_rel, yaw
-    assert yaw[-1].startswith("stereo_yaw: held") and yaw[-1].endswith("tried again"), yaw
+    assert c.scale_sigma_rel < 0.002 and abs(c.scale_rel) < 3 * c.scale_sigma_rel, (yaw, c.scale_sigma_rel)
+    assert yaw[-1].startswith("stereo_yaw: free") and "y" in cal.report.free.stereo_rotation_axes, yaw

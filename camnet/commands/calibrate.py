@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from dataclasses import replace
 
 from camnet.geometry.choices import Loss, Method
 
@@ -53,6 +54,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=0.01,
         help="1 sigma of a principal point nobody gave, about the image centre, as a fraction of the image size, "
         "in the reported uncertainty (0: sigmas conditional on the centre being right)",
+    )
+    parser.add_argument(
+        "--pair-tolerance-deg", type=float, default=None, metavar="DEG",
+        help="1 sigma, degrees, to which a stereo pair held parallel is parallel, in the reported uncertainty "
+        "(default 0.08: a head sold as parallel; a factory-rectified one is 0.01-0.02; 0: sigmas conditional "
+        "on it being exactly parallel)",
     )
 
 
@@ -105,6 +112,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--loss-scale-px: must be positive, got {args.loss_scale_px}")
     if not 0 <= args.pp_prior_rel < 1:
         raise InputError(f"--pp-prior-rel: must be in [0, 1), got {args.pp_prior_rel}")
+    if args.pair_tolerance_deg is not None and not 0 <= args.pair_tolerance_deg < 10:
+        raise InputError(f"--pair-tolerance-deg: must be in [0, 10) degrees, got {args.pair_tolerance_deg}")
     from camnet.io.formats import MAX_TRACKS
 
     max_tracks = MAX_TRACKS if args.max_tracks is None else args.max_tracks
@@ -124,6 +133,8 @@ def run(args: argparse.Namespace) -> int:
     initial = parse_calibration(load_json(args.initial)) if args.initial else None
     options = Options(method=Method(args.method), loss=Loss(args.loss), loss_scale_px=args.loss_scale_px, free=free,
                       seed=args.seed, pp_prior_rel=args.pp_prior_rel)
+    if args.pair_tolerance_deg is not None:
+        options = replace(options, pair_tolerance_deg=args.pair_tolerance_deg)
     result = None
     if initial is None and options.method == Method.REFINED:
         # A long pool starts on its newest tracks, as the live calibrator's (camnet.geometry.newest_first).

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import os
+from dataclasses import replace
 from pathlib import Path
 
 # camnet.geometry.live.LIVE_FREE, spelled out so that building the parser imports no numpy.
@@ -82,7 +83,12 @@ def run(args: argparse.Namespace) -> int:
         stereo_pose = (rig.stereo.R, rig.stereo.t)
         if args.free == DEFAULT_FREE:  # a factory head: its pose is known, only the scene's cameras move
             free = frozenset({"f", "fisheye"})
-    live = LiveConfig(options=Options(free=free, loss=args.loss), stereo_pose=stereo_pose,
+    options = Options(free=free, loss=args.loss)
+    tolerance = None if rig is None or rig.stereo is None else rig.stereo.tolerance_deg
+    if stereo_pose is not None or tolerance is not None:
+        # A given pose is held as given, as a fixed K is, unless the rig file says to what it is known.
+        options = replace(options, pair_tolerance_deg=tolerance or 0.0)
+    live = LiveConfig(options=options, stereo_pose=stereo_pose,
                       max_rms_px=args.max_rms_px, max_scale_rel=args.max_scale_rel)
     config = CalibratorConfig(live=live, state_path=state)
     rec = open_recording(rig=name, sinks=sinks)

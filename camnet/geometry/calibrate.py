@@ -47,7 +47,14 @@ from camnet.geometry import bundle, distances
 from camnet.geometry.bundle import CentreMode, Problem, State
 from camnet.geometry.cold_start import check_solvable, cold_start, pair_advice, with_cameras_left_out, without_cameras
 from camnet.geometry.diagnostics import refuse_undetermined, refuse_wrong_start, reported_points, solve_report
-from camnet.geometry.free_rule import choose_free, free_mask, free_names, restore_free
+from camnet.geometry.free_rule import (
+    PAIR_TOLERANCE_DEG,
+    choose_free,
+    free_mask,
+    free_names,
+    held_yaw_warning,
+    restore_free,
+)
 from camnet.geometry.initialise import (
     Start,
     camera_order,
@@ -59,7 +66,14 @@ from camnet.geometry.initialise import (
 from camnet.geometry.model import Calibration, Camera, Loss, Method, Observations, StartKind
 from camnet.geometry.projection import INTRINSIC_NAMES, N_INTRINSICS, K_from_intrinsics, project_points
 from camnet.geometry.robust_passes import fit_points, inliers_and_sigma, near_solution, reject_outliers, robust_passes
-from camnet.geometry.uncertainty import Covariance, covariance_with_pp_prior, with_guessed_pp
+from camnet.geometry.uncertainty import (
+    Covariance,
+    covariance_with_pp_prior,
+    held_at_tolerance,
+    held_turn_columns,
+    with_guessed_pp,
+    with_held_turns,
+)
 
 log = logging.getLogger(__name__)
 
@@ -81,6 +95,10 @@ class Options:
     # 1 sigma of a guessed principal point about the image centre, as a fraction of the image size,
     # in the reported uncertainty (see uncertainty.covariance_with_pp_prior); 0 reports sigmas conditional on the guess.
     pp_prior_rel: float = 0.01
+    # 1 sigma, degrees, of each rotation axis of the stereo pair that the solve holds, in the reported
+    # uncertainty (uncertainty.held_at_tolerance; free_rule.PAIR_TOLERANCE_DEG says why this default); 0 reports
+    # sigmas conditional on the pair's held rotation (a pose given as known).
+    pair_tolerance_deg: float = PAIR_TOLERANCE_DEG
     seed: int = 0
 
 
@@ -168,6 +186,9 @@ def _calibrate(
     if initial is not None and reset & {0, 1}:
         log.info("a stereo camera is reset: solving from scratch")
         initial = None
+    if initial is not None and initial.report is None:
+        # A start nobody solved here (a factory head's published pose): its pair is held as given, as a fixed K is.
+        options = replace(options, pair_tolerance_deg=0.0)
     intr = initial_intrinsics(obs, order)
     xy = centred(obs, order, intr)
     rows = observation_rows(obs)
@@ -221,15 +242,37 @@ def _calibrate(
     _check_camera_inliers(obs, order, problem)
     t4 = time.perf_counter()
     sizes = np.array([(obs.cameras[i].width, obs.cameras[i].height) for i in order], dtype=float)
-    cov = None
+    cov, warning = None, None
     if options.method != Method.UNCONSTRAINED:
         cov = covariance_with_pp_prior(problem, wider, state, info.normal, options.pp_prior_rel * sizes)
+        cov, warning = _held_pair(obs, problem, wider, state, cov, options.pair_tolerance_deg)
     timings["uncertainty"] = time.perf_counter() - t4
     timings["total"] = time.perf_counter() - t0
-    return _result(
+    result = _result(
         obs, order, problem, state, track_rows, inliers, info, cov, decisions, options.method, timings,
         start=start_kind, left_out=start.left_out, projected=projected,
     )
+    return result if warning is None else _with_warning(result, warning)
+
+
+def _with_warning(result: Result, warning: str) -> Result:
+    report = replace(result.calibration.report, warnings=(*result.calibration.report.warnings, warning))
+    return replace(result, calibration=replace(result.calibration, report=report))
+
+
+def _held_pair(obs, problem: Problem, wider: Problem | None, state: State, cov: Covariance, tolerance_deg: float):
+    """(covariance, warning): `cov` (with the pair's held rotation axes free, where `wider` frees them) with those
+    axes held at their tolerance, and the warning of a scale that rests on the yaw held (or None)."""
+    held = np.zeros(0, dtype=int) if wider is None else held_turn_columns(problem, wider)
+    if not len(held):
+        return cov, None
+    reported = held_at_tolerance(cov, held, np.radians(tolerance_deg))
+    warning = None
+    if not problem.rot_free[1, 1]:  # the yaw
+        yaw = int(wider.columns()[0][1, bundle.ROT.start + 1])
+        warning = held_yaw_warning((obs.stereo.left, obs.stereo.right), cov, yaw, held, reported, state.X,
+                                   tolerance_deg)
+    return reported, warning
 
 
 def _full_problem(obs, order, start: Start, options: Options, initial: Calibration | None, held_K, held_dist):
@@ -277,7 +320,8 @@ def _apply_free_rule(obs, order, full: Problem, problem: Problem, state: State, 
     problem, state, decisions = choose_free(
         problem, state, determined_px=options.determined_px, significance=options.significance, widths=widths,
         heights=heights, held_K=held_K, held_dist=held_dist, max_iterations=options.max_iterations,
-        guessed_pp=np.array([obs.cameras[i].K is None for i in order]) & ~held_K, pp_prior_rel=options.pp_prior_rel)
+        guessed_pp=np.array([obs.cameras[i].K is None for i in order]) & ~held_K, pp_prior_rel=options.pp_prior_rel,
+        pair_tolerance_deg=options.pair_tolerance_deg)
     freed_dist = (problem.intr_free[:, _DIST] & ~full.intr_free[:, _DIST]).any()
     full = replace(full, intr_free=problem.intr_free, rot_free=problem.rot_free, centre_mode=problem.centre_mode)
     if freed_dist:
@@ -303,7 +347,12 @@ def _adjust_inliers(full: Problem, problem: Problem, state: State, inliers, gues
     """
 
     def adjust(problem: Problem, state: State) -> tuple[State, bundle.SolveInfo, Problem | None]:
-        wider = None if options.method == Method.UNCONSTRAINED else with_guessed_pp(problem, guessed_pp)
+        wider = None
+        if options.method != Method.UNCONSTRAINED:
+            wider = with_guessed_pp(problem, guessed_pp)
+            # The pair's held rotation axes, priced at their tolerance (`_held_pair`).
+            turns = with_held_turns(problem if wider is None else wider) if options.pair_tolerance_deg > 0 else None
+            wider = wider if turns is None else turns
         return *bundle.solve(problem, state, max_iterations=options.max_iterations, report=wider), wider
 
     state, info, wider = adjust(problem, state)

@@ -44,6 +44,12 @@ at 4.1 of its sigmas rather than 3.3 (about 0.25 degrees on the ring), and
 below it a toed-in head's scale is off by 1.75% per pixel of yaw under
 either rule: a parallel pair is the paper's assumption, and each stereo line
 of the report's free_rule says what freeing the block would cost the scale.
+The reported sigmas count a held rotation axis as known to the pair's
+tolerance (`PAIR_TOLERANCE_DEG`, uncertainty.held_at_tolerance), which
+covers such a toe-in (2.2% on the ring for 2.8% per 0.1 degree), and the
+report warns where the scale rests on the held yaw. A costly block whose
+tolerance costs the scale more than twice what freeing it does (the data
+know it several times better than the tolerance) is freed.
 
 The stereo pair's blocks are tried before the lens blocks, although a 100
 degree lens held at k1 = k2 = 0 lends some of its misfit to the pair's yaw,
@@ -85,6 +91,7 @@ from camnet.geometry.uncertainty import (
     Covariance,
     covariance,
     covariance_with_pp_prior,
+    held_at_tolerance,
     residual_dof,
     scale_gradient,
     scale_sigma,
@@ -99,6 +106,14 @@ CANDIDATES = ("stereo_pitch_roll", "stereo_direction", "stereo_yaw", "pp", "k1",
 # docstring): the pitch, roll and baseline direction cost x1.0-1.4 on every family, the yaw x3-26 where
 # the principal points are given or free.
 COSTLY_INFLATION = 2.0
+# 1 sigma, degrees, of each rotation axis of a stereo pair held as the ideal parallel pair, in the reported
+# uncertainty (`held_at_tolerance`; calibrate.Options.pair_tolerance_deg). A factory-rectified head (ZED, OAK-D,
+# RealSense) is parallel to 0.01-0.02 degrees, but camnet cannot tell rectified images from raw ones, whose
+# modules are aligned mechanically to a few tenths of a degree; what the rule cannot see decides: it frees a
+# ring head's yaw at 4 of the data's sigmas, about 0.25 degrees (module docstring), and a toe-in below that
+# must lie within 3 of the reported sigmas. 0.08 degrees does (ring_K toed in 0.2 degrees: 2.6 sigmas at most),
+# and puts ring_K's scale sigma from 0.08% to 2.3%; a head known to be better gives its own tolerance.
+PAIR_TOLERANCE_DEG = 0.08
 _SLOT = {name: i for i, name in enumerate(INTRINSIC_NAMES)}  # a camera's intrinsic columns
 _SLOTS = {"pp": (_SLOT["cx"], _SLOT["cy"]), "k1": (_SLOT["k1"],), "k2": (_SLOT["k2"],)}
 _PITCH, _YAW, _ROLL = ROT.start, ROT.start + 1, ROT.start + 2  # rotation about x, y, z
@@ -186,6 +201,7 @@ class ScaleCost:
     held: float  # the scale's standard deviation with the block held
     free: float  # with it free
     shift: float  # the change of the scale the Gauss-Newton step with the block free makes
+    assumed: float = 0.0  # with it held at the pair's tolerance (the sigma a held block is reported with)
 
     @property
     def added_variance(self) -> float:
@@ -219,18 +235,21 @@ def _scale_covariance(everything: Problem, problem: Problem, state: State, cov: 
     return prior, wider.columns()[0][new]
 
 
-def _scale_cost(cov: Covariance, block: np.ndarray, ne_free, ne_held, points: np.ndarray) -> ScaleCost:
+def _scale_cost(cov: Covariance, block: np.ndarray, ne_free, ne_held, points: np.ndarray,
+                tolerance_rad: float = 0.0) -> ScaleCost:
     """The ScaleCost of freeing the camera columns `block` of `cov` (the covariance with them free).
 
-    ne_free, ne_held: the normal equations with the block free and held, at the held least-squares solution.
+    ne_free, ne_held: the normal equations with the block free and held, at the held least-squares solution;
+    tolerance_rad: 1 sigma of a held rotation block (its `assumed` sigma).
     """
     weights = scale_weights(cov, points)
     free, held = scale_sigma(cov, points, weights), scale_sigma(cov, points, weights, given=block)
+    assumed = scale_sigma(held_at_tolerance(cov, block, tolerance_rad), points, weights) if tolerance_rad else held
     steps = [schur.solve_damped(ne, schur.GAUSS_NEWTON_LAMBDA) for ne in (ne_free, ne_held)]
     if steps[0] is None or steps[1] is None:
-        return ScaleCost(held, free, 0.0)
+        return ScaleCost(held, free, 0.0, assumed)
     shift = float(np.sum(scale_gradient(points, weights) * (steps[0][1] - steps[1][1])))
-    return ScaleCost(held, free, shift)
+    return ScaleCost(held, free, shift, assumed)
 
 
 def _stereo_free(effect: float, wanted: bool, cost: ScaleCost, determined_px: float, significance: float) -> bool:
@@ -240,6 +259,8 @@ def _stereo_free(effect: float, wanted: bool, cost: ScaleCost, determined_px: fl
 
     if not cost.costly:
         return bool(effect <= determined_px or wanted)
+    if cost.assumed > COSTLY_INFLATION * cost.free:
+        return True  # the data know it several times better than its tolerance: held, it costs more than freed
     # H0: the held block's bias on the scale is at most the sigma freeing it adds (holding costs the scale's
     # mean square error no more than freeing): the shift in added sigmas is then N(<= 1, 1).
     return bool(wanted and cost.shift_sigmas**2 > ncx2.isf(significance, 1, 1.0))
@@ -262,6 +283,7 @@ def with_block(problem: Problem, name: str, cameras: np.ndarray) -> Problem:
 def choose_free(
     problem: Problem, state: State, *, determined_px: float, significance: float, widths, heights, held_K, held_dist,
     max_iterations: int = 300, guessed_pp: np.ndarray | None = None, pp_prior_rel: float = 0.0,
+    pair_tolerance_deg: float = 0.0,
 ) -> tuple[Problem, State, list[str]]:
     """Apply the rule of the module docstring; returns (problem, state, decisions).
 
@@ -277,11 +299,14 @@ def choose_free(
     image centre because nobody gave one; pp_prior_rel: 1 sigma of such a
     guess, relative to the image's width and height. A stereo block's cost
     to the scale is weighed with them uncertain, as the reported sigma is.
+    pair_tolerance_deg: 1 sigma of a held rotation block (calibrate.Options):
+    a costly one whose tolerance costs the scale more than twice what
+    freeing it does is freed (the data know it better than the tolerance).
     """
     prior_px = None
     if guessed_pp is not None and pp_prior_rel > 0 and guessed_pp.any():
         prior_px = np.where(guessed_pp[:, None], pp_prior_rel * np.column_stack([widths, heights]), 0.0)
-    tests = (determined_px, significance, widths, heights, held_K, held_dist, prior_px)
+    tests = (determined_px, significance, widths, heights, held_K, held_dist, prior_px, np.radians(pair_tolerance_deg))
     decisions, turned = [], []
     after_stereo = problem.intr_free  # what the camera blocks free comes after the stereo blocks
     for name in CANDIDATES:
@@ -315,7 +340,7 @@ def choose_free(
 
 
 def _try_block(name, problem: Problem, state: State, determined_px, significance, widths, heights, held_K, held_dist,
-               prior_px):
+               prior_px, tolerance_rad):
     """(problem with the block `name` freed where the rule says so, the decision's text).
 
     prior_px (M, 2) or None: 1 sigma of the guessed principal points, pixels (0: not guessed).
@@ -356,10 +381,12 @@ def _try_block(name, problem: Problem, state: State, determined_px, significance
         k = int(everything.columns()[1] - problem.columns()[1])
         wanted, statistic = significant(everything, k)
         cost = _scale_cost(*_scale_covariance(everything, problem, state, cov, prior_px), restricted(everything),
-                           restricted(problem), state.X)
+                           restricted(problem), state.X, tolerance_rad if name in _TURNS else 0.0)
         free = _stereo_free(effect, wanted, cost, determined_px, significance)
         # What freeing costs the scale, and where it is costly, the scale's evidence for it.
         shift = f", its shift {cost.shift_sigmas:.2g} of the sigma it adds" if cost.costly else ""
+        if cost.costly and cost.assumed > cost.held:
+            shift += f"; held, at the pair's tolerance x{cost.assumed / cost.held:.2g}"
         text = (f"{name}: {'free' if free else 'held'} (sigma {effect:.2g} px, chi2 {statistic:.3g} on {k} dof; "
                 f"free, the scale's sigma x{cost.inflation:.2g}{shift})")
         return (everything if free else problem), text
@@ -379,3 +406,29 @@ def _try_block(name, problem: Problem, state: State, determined_px, significance
     )
     freed = determined | wanted
     return (with_block(problem, name, freed) if freed.any() else problem), text
+
+
+def held_yaw_warning(pair: tuple[str, str], data: Covariance, yaw: int, held: np.ndarray, reported: Covariance,
+                     points: np.ndarray, tolerance_deg: float) -> str | None:
+    """The warning of a solve whose scale rests on the pair's yaw held parallel, or None.
+
+    data: the covariance with the held rotation axes free (their data alone); yaw: its column of the
+    right camera's yaw; held: its columns of every held axis; reported: the covariance reported, with
+    the axes held at `tolerance_deg`. It warns where freeing them would more than double the scale's sigma
+    of a pair exactly parallel (`COSTLY_INFLATION`): the scale then rests on the assumption.
+    """
+    weights = scale_weights(reported, points)
+    g = scale_gradient(points, weights)
+    free, parallel = data.variance(None, g), data.variance(None, g, given=held)
+    yaw_sd = np.sqrt(data.cameras[yaw, yaw])
+    if not (np.isfinite(free) and parallel > 0 and yaw_sd > 0 and free > COSTLY_INFLATION**2 * parallel):
+        return None
+    # The scale's regression on the yaw: cov(scale, yaw) / var(yaw), from var(scale) - var(scale | yaw).
+    per_tenth = np.sqrt(max(free - data.variance(None, g, given=[yaw]), 0.0)) / yaw_sd * np.radians(0.1)
+    sigma = scale_sigma(reported, points, weights)
+    return (f"the stereo pair ({pair[0]}, {pair[1]}) is held parallel in yaw (stereo_yaw held): each 0.1 degree "
+            f"it is toed in moves the scale by {100 * per_tenth:.2g}%, and the scale's sigma, {100 * sigma:.2g}%, "
+            f"counts it parallel to {tolerance_deg:g} degrees (1 sigma; {100 * np.sqrt(parallel):.2g}% were it "
+            f"exactly parallel): if it may be toed in more, free its rotation (--free stereo_rotation: "
+            f"{100 * np.sqrt(free):.2g}%), else give its tolerance (--pair-tolerance-deg, or stereo."
+            "tolerance_deg in the rig file)")

@@ -111,6 +111,9 @@ class Stereo:
     t: np.ndarray | None = None
     sigma_m: float = 0.0  # 1 sigma of baseline_m, metres (a tape measure); 0: exact
     parallel: bool = False
+    # 1 sigma, degrees, of the pair's rotation where a solve holds it (the rig file's stereo.tolerance_deg):
+    # None, the calibrator's default (calibrate.Options.pair_tolerance_deg; 0 for a given pose R, t).
+    tolerance_deg: float | None = None
 
 
 @dataclass(frozen=True)

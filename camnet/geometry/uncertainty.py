@@ -16,7 +16,7 @@ from functools import cached_property
 import numpy as np
 import scipy.linalg
 
-from camnet.geometry.bundle import Problem, State, distance_rows, normal_equations
+from camnet.geometry.bundle import ROT, Problem, State, distance_rows, normal_equations
 from camnet.geometry.bundle import residuals as reprojection_residuals
 from camnet.geometry.projection import N_INTRINSICS
 from camnet.geometry.schur import NormalEquations, inverse_cholesky_3x3, times_block_diag
@@ -181,7 +181,8 @@ def distance_checks(
     normal: the unweighted normal equations at `state` in cov's column layout
     (the solve's `SolveInfo.normal`), when the caller has them.
     """
-    wider = replace(problem, intr_free=cov.columns[:, :N_INTRINSICS] >= 0)  # cov's column layout
+    # cov's column layout: a held stereo rotation it prices (`with_held_turns`) is one of its columns
+    wider = replace(problem, intr_free=cov.columns[:, :N_INTRINSICS] >= 0, rot_free=cov.columns[:, ROT] >= 0)
     ne = normal if normal is not None and normal.U.shape == cov.S.shape else normal_equations(wider, state)
     r, J = distance_rows(wider, state)
     gradient = ne.gc - times_block_diag(ne.W, cov.V_inv) @ ne.gp.reshape(-1)  # points eliminated
@@ -263,6 +264,59 @@ def covariance_with_pp_prior(
         for slot, prior in ((2, prior_px[m, 0]), (3, prior_px[m, 1])):
             U[cols[m, slot], cols[m, slot]] += (sigma_px / prior) ** 2
     return covariance(wider, state, sigma_px=sigma_px, normal=replace(normal, U=U))
+
+
+def with_held_turns(problem: Problem) -> Problem | None:
+    """`problem` with the rotation axes of the right stereo camera (camera 1) that it holds freed, or None if it
+    holds none: the layout `held_at_tolerance` takes them from."""
+    if problem.n_cameras < 2 or problem.rot_free[1].all():
+        return None
+    rot_free = problem.rot_free.copy()
+    rot_free[1] = True
+    return replace(problem, rot_free=rot_free)
+
+
+def held_turn_columns(problem: Problem, wider: Problem) -> np.ndarray:
+    """The columns of `wider` that hold the right stereo camera's rotation axes `problem` holds."""
+    cols = wider.columns()[0][1, ROT]
+    return cols[(cols >= 0) & ~problem.rot_free[1]]
+
+
+def held_at_tolerance(cov: Covariance, columns: np.ndarray, sigma: float) -> Covariance:
+    """The covariance of an estimate that holds `columns` at assumed values, each known to `sigma` (1 sigma, in
+    the columns' units: radians for a rotation), from `cov`, its covariance with them free.
+
+    Holding a parameter whose true value is off the assumed one by d moves
+    the rest by C d (C = Sigma_xc Sigma_cc^-1, their regression on it), so
+    over d ~ N(0, sigma^2) the held estimate's covariance is the conditional
+    one, Sigma - C Sigma_cc C^T, plus C sigma^2 C^T: a rank-k update of the
+    camera block, which the points' covariances follow through W. This is
+    not the posterior of a prior on the columns (the principal points'
+    `covariance_with_pp_prior`): that is the covariance of an estimate that
+    frees them, and smaller wherever the data know them as well as the
+    assumption does, which a held estimate does not profit from. In
+    information form the update adds sigma^-2 - Sigma_cc^-1 to the held
+    columns (negative where the data know them better than the assumption:
+    holding them then costs more than freeing them would).
+    """
+    c = np.asarray(columns, dtype=int)
+    if not len(c):
+        return cov
+    if cov.undetermined[c].any():
+        # The data do not fix them at all: the held estimate's covariance is then the posterior of the prior.
+        S = cov.S.copy()
+        S[c, c] += (cov.sigma_px / sigma) ** 2
+        S_inv, null, unit = inverse_spd(S)
+        return replace(cov, S_inv=S_inv, S=S, null=null, unit=unit)
+    S_cc = cov.S_inv[np.ix_(c, c)]
+    C = cov.S_inv[:, c] @ np.linalg.inv(S_cc)
+    prior = (sigma / cov.sigma_px) ** 2 * np.eye(len(c))  # the covariance's unscaled units
+    S_inv = cov.S_inv + C @ (prior - S_cc) @ C.T
+    S = None
+    if cov.S is not None:
+        S = cov.S.copy()
+        S[np.ix_(c, c)] += np.linalg.inv(prior) - np.linalg.inv(S_cc)
+    return replace(cov, S_inv=S_inv, S=S)
 
 
 def inverse_spd(S: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

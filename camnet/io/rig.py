@@ -152,7 +152,7 @@ SYNC_KEYS = ("tolerance_ms", "max_wait_s")
 SCENE_KEYS = ("seed", "box_centre_m", "box_size_m", "box_rotation_deg_per_s", "wall_z_m", "wall_x_range_m",
               "wall_y_range_m", "floor_y_m", "floor_z_range_m", "object")
 CAMERA_KEYS = ("id", "driver", "model", "intrinsics")  # and the section named after its driver
-STEREO_KEYS = ("left", "right", "baseline_m", "sigma_m", "parallel", "R", "t")
+STEREO_KEYS = ("left", "right", "baseline_m", "sigma_m", "parallel", "R", "t", "tolerance_deg")
 TOP_KEYS = ("rig", "stereo", "baselines", "scene", "sync", "cameras", v.ANY_DISTANCE_FLAG)
 
 
@@ -378,7 +378,8 @@ def _parse_rig(data: Any, source: str, base_dir: Path | None) -> Rig:
         baseline_m = v.plausible_distance(st.number("baseline_m", positive=True), st.field("baseline_m"),
                                           any_distance=any_distance)
         pair = Stereo(left=left, right=right, baseline_m=baseline_m,
-                      sigma_m=st.number("sigma_m", 0.0, minimum=0.0), parallel=st.boolean("parallel", False))
+                      sigma_m=st.number("sigma_m", 0.0, minimum=0.0), parallel=st.boolean("parallel", False),
+                      tolerance_deg=st.number("tolerance_deg", None, minimum=0.0))
         stereo = _stereo_pose(st, pair, cameras)
     pair_ids = None if stereo is None else (stereo.left, stereo.right)
     baselines = v.baselines(top.raw("baselines", []), "baselines", seen, pair_ids, strict=True,
