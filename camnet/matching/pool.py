@@ -23,6 +23,11 @@ What counts as the same scene point:
   the static background, so it is merged into the pooled track, which is
   marked as seen again (`last_seen`).
 
+After each frame set, every pair of cameras gets an F fitted to all that the
+pool holds of it, and the tracks whose views in some pair lie off it are
+dropped (`camnet.matching.pair_geometry`): false tracks that one frame set's
+matching let through would otherwise accumulate.
+
 When the pool is over `max_tracks`, tracks are evicted from the most
 crowded grid cell first (each camera's image is split into a grid and a
 track counts in the fullest cell it occupies), so the pool spreads over the
@@ -40,6 +45,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from camnet.geometry.model import CameraInfo, Observations, Stereo
+from camnet.matching.pair_geometry import epipolar_outliers
 from camnet.matching.tracks import FrameTracks
 
 log = logging.getLogger(__name__)
@@ -51,8 +57,15 @@ class PoolConfig:
     duplicate_radius_px: float = 1.0
     grid_cols: int = 8  # cells across each image for spreading
     grid_rows: int = 8
+    # A track off a pair's pooled F by more than this (Sampson, px) is dropped; 0: no check. The matcher's
+    # RANSAC threshold: a true track's views lie within it of the pair's F (0.2-0.35 px RMS on the surround rig).
+    epipolar_px: float = 1.0
+    epipolar_min_tracks: int = 20  # a pair's F needs this many tracks on it (the matcher's min_matches)
 
     def __post_init__(self) -> None:
+        if self.epipolar_px < 0 or self.epipolar_min_tracks < 8:
+            raise ValueError(f"expected epipolar_px >= 0 and epipolar_min_tracks >= 8 (for F), got "
+                             f"{self.epipolar_px} and {self.epipolar_min_tracks}")
         if self.max_tracks <= 0:
             raise ValueError(f"max_tracks must be positive, got {self.max_tracks}")
         if self.duplicate_radius_px < 0:
@@ -70,6 +83,7 @@ class PoolUpdate:
     reobserved: int  # matched a pooled track (same 3-D point), merged into it
     added: int
     evicted: int
+    rejected: int = 0  # pooled tracks off their pairs' pooled F (see `camnet.matching.pair_geometry`)
 
 
 def _agree(uv_a: np.ndarray, uv_b: np.ndarray, radius_px: float) -> tuple[int, bool]:
@@ -215,10 +229,19 @@ class TrackPool:
         self._ids = np.concatenate([self._ids, self._next_id + np.arange(added)])
         self._last_seen = np.concatenate([self._last_seen, np.full(added, frame_seq)])
         self._next_id += added
+        rejected = self._reject_off_epipolar()
         evicted = self._evict()
-        update = PoolUpdate(len(tracks), merged_in_frame, reobserved, added, evicted)
+        update = PoolUpdate(len(tracks), merged_in_frame, reobserved, added, evicted, rejected)
         log.debug("frame %d: %s, pool %d", frame_seq, update, len(self))
         return update
+
+    def _reject_off_epipolar(self) -> int:
+        cfg = self.config
+        if cfg.epipolar_px <= 0:
+            return 0
+        keep = ~epipolar_outliers(self._uv, threshold_px=cfg.epipolar_px, min_inliers=cfg.epipolar_min_tracks)
+        self._uv, self._ids, self._last_seen = self._uv[keep], self._ids[keep], self._last_seen[keep]
+        return int((~keep).sum())
 
     def _evict(self) -> int:
         cfg = self.config
