@@ -23,8 +23,8 @@ What counts as the same scene point:
   the static background, so it is merged into the pooled track, which is
   marked as seen again (`last_seen`).
 
-After each frame set, every pair of cameras gets an F fitted to all that the
-pool holds of it, and the tracks whose views in some pair lie off it are
+Every pair of cameras gets an F fitted to all that the pool holds of it
+(refitted in turn), and a track whose views in some pair lie off it is
 dropped (`camnet.matching.pair_geometry`): false tracks that one frame set's
 matching let through would otherwise accumulate.
 
@@ -45,7 +45,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from camnet.geometry.model import CameraInfo, Observations, Stereo
-from camnet.matching.pair_geometry import epipolar_outliers
+from camnet.matching.pair_geometry import PairGeometry
 from camnet.matching.tracks import FrameTracks
 
 log = logging.getLogger(__name__)
@@ -196,6 +196,8 @@ class TrackPool:
         self._ids = np.empty(0, dtype=np.int64)
         self._last_seen = np.empty(0, dtype=np.int64)
         self._next_id = 0
+        self._geometry = PairGeometry(len(ids), threshold_px=config.epipolar_px,
+                                      min_inliers=config.epipolar_min_tracks)
 
     def __len__(self) -> int:
         return len(self._ids)
@@ -213,6 +215,7 @@ class TrackPool:
         radius = self.config.duplicate_radius_px
         new_uv, merged_in_frame = dedupe_frame_tracks(self._to_pool_columns(tracks), radius)
         is_new = np.ones(len(new_uv), dtype=bool)
+        grown = np.zeros(len(self._uv), dtype=bool)
         reobserved = 0
         for i, j in sorted(_close_pairs(new_uv, self._uv, radius)):
             if not is_new[i]:
@@ -221,6 +224,7 @@ class TrackPool:
             if shared >= 2 and agree:
                 fill = ~np.isfinite(self._uv[j, :, 0]) & np.isfinite(new_uv[i, :, 0])
                 self._uv[j, fill] = new_uv[i, fill]
+                grown[j] = fill.any()
                 self._last_seen[j] = frame_seq
                 is_new[i] = False
                 reobserved += 1
@@ -229,17 +233,16 @@ class TrackPool:
         self._ids = np.concatenate([self._ids, self._next_id + np.arange(added)])
         self._last_seen = np.concatenate([self._last_seen, np.full(added, frame_seq)])
         self._next_id += added
-        rejected = self._reject_off_epipolar()
+        rejected = self._reject_off_epipolar(np.concatenate([grown, np.ones(added, dtype=bool)]))
         evicted = self._evict()
         update = PoolUpdate(len(tracks), merged_in_frame, reobserved, added, evicted, rejected)
         log.debug("frame %d: %s, pool %d", frame_seq, update, len(self))
         return update
 
-    def _reject_off_epipolar(self) -> int:
-        cfg = self.config
-        if cfg.epipolar_px <= 0:
+    def _reject_off_epipolar(self, changed: np.ndarray) -> int:
+        if self.config.epipolar_px <= 0:
             return 0
-        keep = ~epipolar_outliers(self._uv, threshold_px=cfg.epipolar_px, min_inliers=cfg.epipolar_min_tracks)
+        keep = ~self._geometry.outliers(self._uv, changed)
         self._uv, self._ids, self._last_seen = self._uv[keep], self._ids[keep], self._last_seen[keep]
         return int((~keep).sum())
 
