@@ -10,7 +10,7 @@ cameras, some view more than 2 px off), in its older and newer half.
 Matching 1280x1024 images is slow; `--cache DIR` keeps each frame set's tracks so that later runs (of another
 pool, say) only pool and solve.
 
-    python benchmarks/bench_cold_pool.py [--step 15] [--at 6,10,16] [--cache DIR] [--epipolar-px 0]
+    python benchmarks/bench_cold_pool.py [--step 15] [--at 6,10,16] [--cache DIR] [--epipolar-px 1]
 """
 
 from __future__ import annotations
@@ -84,7 +84,7 @@ def main() -> None:
     parser.add_argument("--step", type=int, default=15, help="frames between the frame sets pooled")
     parser.add_argument("--at", default="6,10,16", help="solve the pool after these many frame sets")
     parser.add_argument("--epipolar-px", type=float, default=PoolConfig().epipolar_px,
-                        help="the pool's check of tracks against each pair's pooled F (0: none, as before it)")
+                        help="the pool's check of tracks against each pair's pooled F, px (0: none; 1 measured)")
     parser.add_argument("--cache", type=Path, default=None, help="folder keeping each frame set's tracks")
     args = parser.parse_args()
     at = sorted(int(n) for n in args.at.split(","))

@@ -127,7 +127,7 @@ def test_false_tracks_do_not_accumulate_in_the_sparse_cells():
     # image corners, which eviction spares. Pooled, their share must stay near a frame set's.
     rng = np.random.default_rng(3)
     P = [_camera([0, 0, 0], 0), _camera([0.12, 0, 0], 0), _camera([-0.8, 0, 0.2], -35)]
-    pool = TrackPool(CAMS, STEREO, PoolConfig(max_tracks=600))
+    pool = TrackPool(CAMS, STEREO, PoolConfig(max_tracks=600, epipolar_px=1.0))
     false_offered = offered = 0
     for seq in range(20):
         X = rng.uniform([-0.15, -0.15, 1.4], [0.25, 0.15, 1.8], size=(120, 3))
