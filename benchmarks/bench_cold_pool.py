@@ -7,10 +7,13 @@ matcher manages per frame set), pools the frame sets as the matcher does (5000 t
 many of the pool's multi-view tracks are false (triangulated from all their views with the true
 cameras, some view more than 2 px off), in its older and newer half.
 
-    python benchmarks/bench_cold_pool.py [--step 15] [--at 6,10,16] [--save DIR [--no-solve]]
+    python benchmarks/bench_cold_pool.py [--step 15] [--at 6,10,16] [--cache DIR] [--epipolar-px 1]
+                                         [--save DIR [--no-solve]]
 
 --save writes each pool as DIR/surround-pool-<frame sets>.json.gz (camnet.observations/1, pixels to
-1e-3 px): tests/data/surround-pool-16.json.gz was written so, with --step 15 --at 16.
+1e-3 px): tests/data/surround-pool-10.json.gz was written so, with --step 15 --at 10.
+Matching 1280x1024 images is slow; `--cache DIR` keeps each frame set's tracks so that later runs (of another
+pool, say) only pool and solve.
 """
 
 from __future__ import annotations
@@ -32,7 +35,7 @@ from camnet.io.formats import observations_to_doc
 from camnet.io.rig import load_rig
 from camnet.matching.features import MatcherConfig, match_frame_set
 from camnet.matching.pool import PoolConfig, TrackPool
-from camnet.matching.tracks import build_tracks
+from camnet.matching.tracks import FrameTracks, build_tracks
 
 FALSE_PX = 2.0
 
@@ -54,6 +57,20 @@ def false_tracks(obs: Observations, truth: dict) -> tuple[np.ndarray, np.ndarray
         X = X[:3] / X[3]
         false[t] = max(np.linalg.norm(cams[obs.cam_index[r]].project(X[None])[0] - obs.uv[r]) for r in rows) > FALSE_PX
     return views >= 3, false
+
+
+def frame_tracks(cameras: dict, frame: int, stereo: Stereo, cache: Path | None) -> FrameTracks:
+    """The tracks of frame `frame` of every camera, from `cache` when it holds them."""
+    path = None if cache is None else cache / f"frame{frame:04d}.npz"
+    if path is not None and path.exists():
+        data = np.load(path)
+        return FrameTracks(tuple(str(c) for c in data["camera_ids"]), data["uv"])
+    images = {c: cam.render(frame) for c, cam in cameras.items()}
+    tracks = build_tracks(match_frame_set(images, MatcherConfig(), stereo=stereo))
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        np.savez(path, camera_ids=np.array(tracks.camera_ids), uv=tracks.uv)
+    return tracks
 
 
 def solve_row(sets: int, name: str, config: LiveConfig, obs: Observations, truth_cameras) -> str:
@@ -83,6 +100,9 @@ def main() -> None:
     parser.add_argument("--at", default="6,10,16", help="solve the pool after these many frame sets")
     parser.add_argument("--save", type=Path, help="write each pool to this folder")
     parser.add_argument("--no-solve", action="store_true", help="only render, pool and save")
+    parser.add_argument("--epipolar-px", type=float, default=PoolConfig().epipolar_px,
+                        help="the pool's check of tracks against each pair's pooled F, px (0: none; 1 measured)")
+    parser.add_argument("--cache", type=Path, default=None, help="folder keeping each frame set's tracks")
     args = parser.parse_args()
     at = sorted(int(n) for n in args.at.split(","))
     rig = load_rig("config/surround.yaml")
@@ -91,11 +111,10 @@ def main() -> None:
     cameras = {c.id: create_camera(c, rig) for c in rig.cameras}
     infos = [CameraInfo(c.id, c.config.width, c.config.height) for c in rig.cameras]
     stereo = Stereo(rig.stereo.left, rig.stereo.right, rig.stereo.baseline_m, parallel=rig.stereo.parallel)
-    pool = TrackPool(infos, stereo, PoolConfig(max_tracks=5000))
+    pool = TrackPool(infos, stereo, PoolConfig(max_tracks=5000, epipolar_px=args.epipolar_px))
     rows = []
     for k in range(at[-1]):
-        images = {c: cam.render(k * args.step) for c, cam in cameras.items()}
-        pool.add(build_tracks(match_frame_set(images, MatcherConfig(), stereo=stereo)), frame_seq=k)
+        pool.add(frame_tracks(cameras, k * args.step, stereo, args.cache), frame_seq=k)
         if k + 1 not in at:
             continue
         obs = pool.observations()

@@ -33,7 +33,7 @@ Matching 1280x1024 images is slow (20-90 s per frame set of nine on a busy
 2-core machine); `--cache DIR` keeps each slot's tracks so that later runs only solve.
 
     python benchmarks/bench_surround_sigmas.py [--slots 36] [--sets 6] [--cache DIR] [--interleaved]
-        [--variants pooled,no false,...]
+        [--variants pooled,no false,...] [--epipolar-px 1]
 """
 
 from __future__ import annotations
@@ -367,6 +367,8 @@ def main() -> int:
     parser.add_argument("--variants", default="pooled",
                         help=f"comma-separated, of {', '.join(VARIANTS)}, each also with ' strict' "
                         "(outliers by the robust sigma alone)")
+    parser.add_argument("--epipolar-px", type=float, default=PoolConfig().epipolar_px,
+                        help="the pool's check of tracks against each pair's pooled F, px (0: none; 1 measured)")
     parser.add_argument("--interleaved", action="store_true",
                         help="also solve windows of every (slots / sets)-th slot (other frame-set selections)")
     args = parser.parse_args()
@@ -382,7 +384,8 @@ def main() -> int:
         windows = []
         for slots in selections(args.slots, args.sets, interleaved=args.interleaved):
             base = name.removesuffix(" strict")
-            obs = variant(base, pooled(rig, [tracks[s] for s in slots]), truth, seed=slots[0])
+            pool = PoolConfig(epipolar_px=args.epipolar_px)
+            obs = variant(base, pooled(rig, [tracks[s] for s in slots], pool), truth, seed=slots[0])
             w = solve_window(rig, slots, obs, strict=name.endswith(" strict"))
             if isinstance(w, str):
                 print(f"slots {slots}: {w}")

@@ -111,3 +111,37 @@ def test_unknown_camera_is_rejected():
 def test_crowding_counts_the_fullest_cell():
     uv = np.array([[[10, 10]], [[20, 20]], [[600, 400]]], dtype=float)
     assert crowding(uv, np.array([[640, 480]]), 2, 2).tolist() == [2, 2, 1]
+
+
+def _camera(centre, yaw_deg, f=500.0, size=(640, 480)):
+    """3x4 projection of a camera at `centre` (m) turned by `yaw_deg` about the y axis (x_cam = R X + t)."""
+    a = np.radians(yaw_deg)
+    R = np.array([[np.cos(a), 0, -np.sin(a)], [0, 1, 0], [np.sin(a), 0, np.cos(a)]])
+    K = np.array([[f, 0, (size[0] - 1) / 2], [0, f, (size[1] - 1) / 2], [0, 0, 1]])
+    return K @ np.column_stack([R, -R @ np.asarray(centre, float)])
+
+
+def test_false_tracks_do_not_accumulate_in_the_sparse_cells():
+    # A moving object in the middle of every image gives new true tracks each frame set; a few false
+    # ones (each frame set's matching lets some through) fall where true ones are sparse, near the
+    # image corners, which eviction spares. Pooled, their share must stay near a frame set's.
+    rng = np.random.default_rng(3)
+    P = [_camera([0, 0, 0], 0), _camera([0.12, 0, 0], 0), _camera([-0.8, 0, 0.2], -35)]
+    pool = TrackPool(CAMS, STEREO, PoolConfig(max_tracks=600, epipolar_px=1.0))
+    false_offered = offered = 0
+    for seq in range(20):
+        X = rng.uniform([-0.15, -0.15, 1.4], [0.25, 0.15, 1.8], size=(120, 3))
+        x = np.stack([(p @ np.column_stack([X, np.ones(len(X))]).T).T for p in P], axis=1)
+        true_uv = x[:, :, :2] / x[:, :, 2:] + rng.normal(0, 0.2, (len(X), 3, 2))
+        corner = rng.uniform([0, 0], [100, 80], size=(8, 3, 2)) + rng.integers(0, 2, (8, 3, 1)) * [540, 400]
+        corner[: len(corner) // 2, 1] = NAN  # some seen by L and M only
+        uv = np.concatenate([true_uv, corner])
+        offered += len(uv)
+        false_offered += len(corner)
+        pool.add(FrameTracks(("L", "R", "M"), uv), frame_seq=seq)
+    obs = pool.observations()
+    # The object's points project within 100 px of L's centre column; every false track has an L corner.
+    off_object = (obs.cam_index == 0) & (np.abs(obs.uv[:, 0] - 319.5) > 150)
+    false_share = np.unique(obs.track_index[off_object]).size / len(obs.track_ids)
+    assert false_share <= 2 * false_offered / offered, f"{false_share:.1%} of the pool is false"
+    assert len(pool) == 600  # true tracks are not dropped with them
