@@ -190,6 +190,9 @@ def test_each_key_is_granted_to_the_kinds_whose_job_it_is():
     assert who("put egress", keys.features(RIG, "left")) == {"matcher", "recorder"}
     assert who("liveliness_token ingress", keys.node(RIG, "features", "left")) == {"driver"}
     assert who("put egress", keys.calibration(RIG)) == {"matcher", "recorder", "observer"}
+    # A restarted matcher asks for the latest calibration; the cameras' stages follow its pace.
+    assert who("query ingress", keys.calibration(RIG)) == {"matcher", "recorder", "observer"}
+    assert who("put egress", keys.node_stats(RIG, "matcher", "matcher")) == {"driver", "recorder", "observer"}
     assert who("liveliness_token ingress", keys.node(RIG, "matcher", "matcher")) == {"matcher"}
     assert who("liveliness_token ingress", keys.node(RIG, "driver", "left")) == {"driver", "replayer"}
     assert who("put ingress", keys.node_stats(RIG, "calibrator", "calibrator")) == {"calibrator"}
