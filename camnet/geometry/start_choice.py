@@ -6,11 +6,12 @@ from the pair's matches, and no threshold on them decides every rig: a pair
 45 degrees apart can pass for parallel when RANSAC's fundamental matrix
 fits its matches loosely, and a parallel head toed in by two degrees is
 better started as parallel. So where a solve from the chosen start is
-refused, or leaves out a camera that shares enough tracks with the cameras
-placed to have been placed, the solve is run again from the other start,
-and the two are compared by the truncated quadratic (MSAC) cost of every
-observation: a camera left out, or a track dropped, costs each of its
-observations the truncation. The scale never enters the comparison.
+refused, keeps few of its observations, or leaves out a camera that shares
+enough tracks with the cameras placed to have been placed, the solve is run
+again from the other start, and the two are compared by the truncated
+quadratic (MSAC) cost of every observation: a camera left out, or a track
+dropped, costs each of its observations the truncation. The scale never
+enters the comparison.
 
 Pixels as observed; costs in px^2.
 """
@@ -25,6 +26,7 @@ import numpy as np
 
 from camnet.errors import SolveError
 from camnet.geometry.cold_start import PairStart, pair_looks_parallel
+from camnet.geometry.diagnostics import WRONG_START_INLIER_SHARE
 from camnet.geometry.model import Calibration, Observations
 from camnet.geometry.register import MIN_INLIER_SHARE, MIN_RESECTION_POINTS
 
@@ -36,9 +38,11 @@ log = logging.getLogger(__name__)
 # A camera left out that shares this many tracks with the cameras placed should have been placed: at
 # registration's least inlier share, they hold enough agreeing points to resect it.
 RETRY_SHARED_TRACKS = int(np.ceil(MIN_RESECTION_POINTS / MIN_INLIER_SHARE))
-# A solve keeping less of its observations may have started in the wrong basin: the other start is tried,
-# and where the first is refused, a solve from the other is kept only keeping this share.
-SOUND_INLIER_SHARE = 0.9
+# A solve keeping less of its observations than a wrong start's refusal asks of one that left cameras out may
+# have started in the wrong basin: the other start is tried. Real matches hold false ones, which a sound solve
+# rejects: below this the retry costs a second solve, and most live cold solves keep more.
+RETRY_INLIER_SHARE = WRONG_START_INLIER_SHARE
+SOUND_INLIER_SHARE = 0.9  # where the first start is refused, a solve from the other is kept only keeping this share
 
 
 def shared_left_out(obs: Observations, calibration: Calibration) -> list[str]:
@@ -76,9 +80,9 @@ def _inlier_share(result: Result) -> float:
     return report.inliers / report.observations if report is not None and report.observations else 0.0
 
 
-def _sound(obs: Observations, result: Result) -> bool:
-    """Most observations kept, and every camera placed that shares enough tracks to be."""
-    return _inlier_share(result) >= SOUND_INLIER_SHARE and not shared_left_out(obs, result.calibration)
+def _sound(obs: Observations, result: Result, min_inlier_share: float) -> bool:
+    """At least that share of the observations kept, and every camera placed that shares enough tracks to be."""
+    return _inlier_share(result) >= min_inlier_share and not shared_left_out(obs, result.calibration)
 
 
 def solve_from_either_start(
@@ -95,7 +99,7 @@ def solve_from_either_start(
         first, refusal = solve(PairStart.AUTO), None
     except SolveError as exc:
         first, refusal = None, exc
-    if first is not None and _sound(obs, first):
+    if first is not None and _sound(obs, first, RETRY_INLIER_SHARE):
         return first
     other = PairStart.ESSENTIAL if pair_looks_parallel(obs) else PairStart.PAPER
     why = f"is refused ({refusal})" if refusal else f"is unsound ({_inlier_share(first):.0%} of the observations " \
@@ -107,7 +111,7 @@ def solve_from_either_start(
         log.info("the solve from the %s start is refused too (%s)", other.value, exc)
         second = None
     if first is None:
-        if second is not None and _sound(obs, second):
+        if second is not None and _sound(obs, second, SOUND_INLIER_SHARE):
             return second
         raise refusal
     if second is None:
