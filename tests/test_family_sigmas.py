@@ -11,6 +11,8 @@ also keep its scale error below 0.5%. The paper's rig is checked the same way in
 here the rigs it is unlike.
 """
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -51,7 +53,7 @@ def test_scale_and_focal_errors_lie_within_three_reported_sigmas(name):
         scale_z.append(s)
         focal_z += f
         scale_rel.append(abs(rel))
-    assert len(refused) <= round(SEEDS * (1 - WITHIN)), f"{name}: refused seeds {refused}"  # tape_pair's 30
+    assert len(refused) <= round(SEEDS * (1 - WITHIN)), f"{name}: refused seeds {refused}"
     scale_z, focal_z = np.array(scale_z), np.array(focal_z)
     assert np.mean(scale_z <= 3) >= WITHIN, f"{name}: scale errors / sigma {np.round(scale_z, 2).tolist()}"
     assert np.mean(focal_z <= 3) >= WITHIN, f"{name}: focal errors / sigma, worst {np.sort(focal_z)[-3:].tolist()}"
@@ -62,12 +64,25 @@ def test_scale_and_focal_errors_lie_within_three_reported_sigmas(name):
             f"ring_K: scale errors % {np.round(100 * np.array(scale_rel), 3).tolist()}")
 
 
-def test_a_tape_pair_that_started_wrong_is_refused_or_within_its_sigmas():
+def test_a_tape_pair_that_passes_for_parallel_is_calibrated_from_the_other_start():
     # Seed 30 of tape_pair: its two cameras 45 degrees apart pass for the paper's parallel pair (RANSAC's
-    # fundamental matrix fits their matches no better than matching rows), which leaves ring3-5 out and keeps
-    # 60% of the observations at 1.37 px, the scale 87% off: refused now, where it was returned with warnings.
-    try:
-        s, f, _, _ = z_scores("tape_pair", 30)
-    except SolveError:
-        return
-    assert s <= 3 and max(f) <= 3
+    # fundamental matrix fits their matches no better than matching rows); the paper's start leaves ring3-5
+    # out and keeps 60% of the observations, which is refused. The essential matrix's start places them all.
+    s, f, _, _ = z_scores("tape_pair", 30)
+    assert s <= 3 and max(f) <= 3, f"scale error / sigma {s:.2f}, focal {np.round(f, 2).tolist()}"
+
+
+def test_a_start_that_keeps_few_observations_gives_way_to_the_other():
+    # Seed 2 of wide, its pair's K given (its distortion not): the paper's start, in a wrong basin, kept 72%
+    # of the observations at RMS 2.3 px and put the scale 21% off at a reported 1.0%. The essential matrix's
+    # start keeps 99% at 0.52 px, and has the lower truncated cost of every observation.
+    drawn = family("wide", seed=2)
+    truth = {c.id: c for c in drawn.rig.cameras}
+    obs = observe_family(drawn, noise_px=0.5, seed=2)
+    pair = (obs.stereo.left, obs.stereo.right)
+    obs = replace(obs, cameras=tuple(replace(c, K=truth[c.id].K.copy(), fixed=frozenset({"K"})) if c.id in pair
+                                     else c for c in obs.cameras))
+    cal = calibrate(obs).calibration
+    c = compare(cal, drawn.rig.cameras, drawn.rig.points)
+    assert abs(c.scale_rel) <= 3 * c.scale_sigma_rel, (c.scale_rel, c.scale_sigma_rel)
+    assert cal.report.inliers >= 0.9 * cal.report.observations

@@ -10,7 +10,10 @@ Methods:
   out and named in the report), then a bundle adjustment that keeps the
   stereo pair rigid with its baseline ``baseline_m`` (and every further
   known distance), with a robust loss, outlier rejection and the
-  free-intrinsics rule below.
+  free-intrinsics rule below. A solve that is refused, or keeps few of its
+  observations, or leaves out a camera that shares many tracks, is run
+  again from the other start, and the sounder kept
+  (camnet.geometry.start_choice).
 - ``unconstrained``: the same adjustment with the right camera free in 3-D and
   no known distance, as structure from motion: the scale is left to the optimiser.
 
@@ -45,7 +48,14 @@ from camnet import blas
 from camnet.errors import SolveError
 from camnet.geometry import bundle, distances
 from camnet.geometry.bundle import CentreMode, Problem, State
-from camnet.geometry.cold_start import check_solvable, cold_start, pair_advice, with_cameras_left_out, without_cameras
+from camnet.geometry.cold_start import (
+    PairStart,
+    check_solvable,
+    cold_start,
+    pair_advice,
+    with_cameras_left_out,
+    without_cameras,
+)
 from camnet.geometry.diagnostics import refuse_undetermined, refuse_wrong_start, reported_points, solve_report
 from camnet.geometry.free_rule import (
     PAIR_TOLERANCE_DEG,
@@ -66,6 +76,7 @@ from camnet.geometry.initialise import (
 from camnet.geometry.model import Calibration, Camera, Loss, Method, Observations, StartKind
 from camnet.geometry.projection import INTRINSIC_NAMES, N_INTRINSICS, K_from_intrinsics, project_points
 from camnet.geometry.robust_passes import fit_points, inliers_and_sigma, near_solution, reject_outliers, robust_passes
+from camnet.geometry.start_choice import solve_from_either_start
 from camnet.geometry.uncertainty import (
     Covariance,
     covariance_with_pp_prior,
@@ -167,6 +178,10 @@ def calibrate(
         # The dense products here have a few hundred rows: BLAS threads gain little on
         # them, and on a machine shared with drivers and the matcher they stall each other.
         with blas.one_thread():
+            if initial is None and options.method == Method.REFINED:  # where one start goes wrong, the other
+                return solve_from_either_start(
+                    obs, lambda pair: _calibrate(obs, options, None, reset_cameras, pair),
+                    outlier_sigmas=options.outlier_sigmas, min_outlier_px=options.min_outlier_px)
             return _calibrate(obs, options, initial, reset_cameras)
     except np.linalg.LinAlgError:
         raise SolveError(f"the observations do not determine the calibration (singular equations){pair_advice(obs)}"
@@ -174,7 +189,8 @@ def calibrate(
 
 
 def _calibrate(
-    obs: Observations, options: Options, initial: Calibration | None, reset_cameras: Collection[str]
+    obs: Observations, options: Options, initial: Calibration | None, reset_cameras: Collection[str],
+    pair: PairStart = PairStart.AUTO,
 ) -> Result:
     if options.method not in tuple(Method):
         raise SolveError(f"method: unknown {options.method!r}; expected one of {tuple(m.value for m in Method)}")
@@ -197,7 +213,7 @@ def _calibrate(
     else:
         paper_only = options.method == Method.PAPER
         start = cold_start(obs, order, intr, xy, rows, seed=options.seed, max_tracks=None if paper_only else 150,
-                           paper_only=paper_only)
+                           paper_only=paper_only, pair=pair)
     if start.left_out:  # the calibration holds the cameras placed; the report names the others
         obs, intr, start = without_cameras(obs, order, intr, start)
         order, rows = camera_order(obs), observation_rows(obs)

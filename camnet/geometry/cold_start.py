@@ -19,11 +19,12 @@ from __future__ import annotations
 
 import logging
 from dataclasses import replace
+from enum import Enum
 
 import numpy as np
 
 from camnet.errors import SolveError
-from camnet.geometry.initialise import Start, camera_order, paper_start
+from camnet.geometry.initialise import Start, camera_order, centred, initial_intrinsics, observation_rows, paper_start
 from camnet.geometry.model import Observations, SolveReport
 from camnet.geometry.register import (
     MIN_RESECTION_POINTS,
@@ -53,6 +54,14 @@ PARALLEL_ROWS_FLOOR_PX = 0.1
 PARALLEL_IN_FRONT = 0.8
 SEED_TRIALS = 4  # the pair's focal lengths a third view fits best, adjusted with it to choose one
 WEAK_PAIR_RATIO = 3.0  # a failed solve names a pair that shares this many times the stereo pair's tracks
+
+
+class PairStart(Enum):
+    """How the scale pair is placed: as the paper's parallel pair, by its essential matrix, or whichever fits."""
+
+    AUTO = "auto"  # the paper's where the pair's matches lie on matching rows (`is_parallel`), else the essential
+    PAPER = "paper"  # the paper's solver (the essential matrix where it finds no plausible start)
+    ESSENTIAL = "essential"
 
 
 def check_solvable(obs: Observations) -> None:
@@ -97,6 +106,15 @@ def is_parallel(rows_px: float, epipolar_px: float) -> bool:
     object, its rotation and translation trade off.
     """
     return rows_px <= PARALLEL_ROWS_RATIO * epipolar_px + PARALLEL_ROWS_FLOOR_PX
+
+
+def pair_looks_parallel(obs: Observations) -> bool:
+    """Whether `cold_start` takes the stereo pair for the paper's parallel pair (`is_parallel`)."""
+    order = camera_order(obs)
+    intr = initial_intrinsics(obs, order)
+    xy, rows = centred(obs, order, intr), observation_rows(obs)
+    left, right = _pair_rows(order, rows)
+    return is_parallel(*row_and_epipolar_errors(xy[left], xy[right], threshold_px=threshold_px(obs, order)))
 
 
 def _pair_rows(order: list[int], rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -206,19 +224,20 @@ def _paper_pair(obs, order, intr, xy, rows, seed, max_tracks) -> Start | None:
 
 def cold_start(
     obs: Observations, order: list[int], intr: np.ndarray, xy: np.ndarray, rows: np.ndarray, *, seed: int,
-    max_tracks: int | None, paper_only: bool = False,
+    max_tracks: int | None, paper_only: bool = False, pair: PairStart = PairStart.AUTO,
 ) -> Start:
     """The start of a solve with no previous calibration; `Start.left_out` names the cameras it could not place.
 
     intr (M, 9): the given intrinsics (f NaN where unknown). paper_only:
     the paper's method, which needs a parallel pair and every camera
-    sharing six stereo tracks (raises if not).
+    sharing six stereo tracks (raises if not). pair: how the pair is
+    placed (`PairStart`; AUTO decides from its matches).
     """
     left, right = _pair_rows(order, rows)
     rows_px, epipolar_px = row_and_epipolar_errors(xy[left], xy[right], threshold_px=threshold_px(obs, order))
-    parallel = is_parallel(rows_px, epipolar_px)
-    log.info("the stereo pair's matches lie %.2f px off matching rows, %.2f px off epipolar lines: %s", rows_px,
-             epipolar_px, "parallel" if parallel else "not parallel")
+    parallel = is_parallel(rows_px, epipolar_px) if pair == PairStart.AUTO else pair == PairStart.PAPER
+    log.info("the stereo pair's matches lie %.2f px off matching rows, %.2f px off epipolar lines: %s (%s)",
+             rows_px, epipolar_px, "parallel" if parallel else "not parallel", pair.value)
     if paper_only:
         if not parallel:
             raise SolveError(
