@@ -208,12 +208,7 @@ def _calibrate(
     intr = initial_intrinsics(obs, order)
     xy = centred(obs, order, intr)
     rows = observation_rows(obs)
-    if initial is not None:
-        start = warm_start(obs, order, intr, xy, rows, initial, reset=reset)
-    else:
-        paper_only = options.method == Method.PAPER
-        start = cold_start(obs, order, intr, xy, rows, seed=options.seed, max_tracks=None if paper_only else 150,
-                           paper_only=paper_only, pair=pair)
+    start = _start(obs, order, intr, xy, rows, initial, reset, options, pair)
     if start.left_out:  # the calibration holds the cameras placed; the report names the others
         obs, intr, start = without_cameras(obs, order, intr, start)
         order, rows = camera_order(obs), observation_rows(obs)
@@ -269,6 +264,15 @@ def _calibrate(
         start=start_kind, left_out=start.left_out, projected=projected,
     )
     return result if warning is None else _with_warning(result, warning)
+
+
+def _start(obs, order, intr, xy, rows, initial, reset, options: Options, pair: PairStart) -> Start:
+    """From `initial` where there is one, else cold (the paper's solver alone for its method)."""
+    if initial is not None:
+        return warm_start(obs, order, intr, xy, rows, initial, reset=reset)
+    paper_only = options.method == Method.PAPER
+    return cold_start(obs, order, intr, xy, rows, seed=options.seed, max_tracks=None if paper_only else 150,
+                      paper_only=paper_only, pair=pair)
 
 
 def _with_warning(result: Result, warning: str) -> Result:
