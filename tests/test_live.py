@@ -160,9 +160,10 @@ def test_a_known_stereo_head_is_held():
     held = next(c for c in head.good.cameras if c.id == right.id)
     np.testing.assert_allclose(held.R, right.R, atol=1e-12)
     np.testing.assert_allclose(held.t, right.t, atol=1e-12)
-    # Without the head the pair is held parallel: 0.5 degrees off.
-    parallel = next(c for c in ideal.good.cameras if c.id == right.id)
-    assert rotation_angle_deg(parallel.R @ right.R.T) > 0.4
+    # Without the head, the start from the data finds the 0.5 degree toe-in (once, the pair was held
+    # parallel, 0.5 degrees off), but not exactly: the head's pose is what holds it as given.
+    found = next(c for c in ideal.good.cameras if c.id == right.id)
+    assert 1e-6 < rotation_angle_deg(found.R @ right.R.T) < 0.2
 
 
 def test_a_converged_solve_with_an_absurd_focal_length_is_refused():

@@ -19,7 +19,8 @@ def test_distortion_held_on_a_wide_lens_is_named(seed):
     drawn = family("wide", seed=seed)
     obs = observe(drawn.rig, noise_px=0.5, seed=seed, normals=drawn.normals).observations
     held = calibrate(obs, Options(free=frozenset({"f"}))).calibration.warnings
-    assert any("camera left: its residuals grow with the distance" in w for w in held)
+    # Every lens is a 100 degree one; which cameras show it most depends on where the solve settles.
+    assert any("its residuals grow with the distance" in w and "lens distortion the solve held" in w for w in held)
     assert not structure(calibrate(obs).calibration.warnings)  # the default rule frees it: nothing left
 
 
