@@ -18,32 +18,9 @@ from camnet.io.formats import observations_to_doc, parse_observations
 from camnet.io.observations_encoder import ObservationsEncoder
 from camnet.io.rig import parse_rig
 from camnet.matching.pool import PoolConfig, TrackPool, regrow_pool
-from camnet.matching.tracks import FrameTracks
+from camnet.sim.random_tracks import HEIGHT, WIDTH, random_tracks, reseen
 from tests.conftest import matched_publisher, wait_for
 from tests.test_matcher_node import rig_document
-
-WIDTH, HEIGHT = 640, 512
-
-
-def random_tracks(rng, camera_ids: tuple[str, ...], n: int) -> FrameTracks:
-    """`n` tracks each seen by 2 to 4 of the cameras at random pixels."""
-    uv = np.full((n, len(camera_ids), 2), np.nan)
-    for t in range(n):
-        seen = rng.choice(len(camera_ids), rng.integers(2, 5), replace=False)
-        uv[t, seen] = rng.random((len(seen), 2)) * [WIDTH - 1, HEIGHT - 1]
-    return FrameTracks(camera_ids, uv)
-
-
-def reseen(rng, pool: TrackPool, n: int) -> FrameTracks:
-    """`n` pooled tracks seen again, each by one more camera: the pool fills that camera in."""
-    obs = pool.observations()
-    ids = tuple(c.id for c in obs.cameras)
-    uv = np.full((len(obs.track_ids), len(ids), 2), np.nan)
-    uv[obs.track_index, obs.cam_index] = obs.uv
-    chosen = [t for t in rng.permutation(len(uv)) if np.isnan(uv[t, :, 0]).any()][:n]
-    for t in chosen:
-        uv[t, rng.choice(np.flatnonzero(np.isnan(uv[t, :, 0])))] = rng.random(2) * [WIDTH - 1, HEIGHT - 1]
-    return FrameTracks(ids, uv[chosen])
 
 
 def test_the_cached_document_is_the_codecs_byte_for_byte_through_adds_reobservations_evictions():
