@@ -71,16 +71,18 @@ def test_calibrator_restart_resumes_and_a_moved_camera_is_recalibrated(tmp_path)
         assert wait_for(lambda: seen.since(0), 90), "no calibration: " + calibrator.log_tail()
         assert wait_for(state.exists, 30), "no state written after a calibration: " + calibrator.log_tail()
 
-        # Kill -9 mid-run: the restarted calibrator first republishes what it persisted,
-        # then goes on warm from it.
+        # Kill -9 mid-run: the restarted calibrator republishes what it persisted, numbers its
+        # solves on from it, and goes on warm from it. The republished one goes out as the process
+        # starts, possibly before it knows of this session's subscriber (Zenoh sends a sample to
+        # the subscribers it knows of; a node that joins later asks the calibrator's queryable).
         launch.stop(calibrator, kill=True)
         persisted = json.loads(state.read_text())
         n = len(seen.docs)
         calibrator = launch.start("calibrator-2", calibrator_cmd)
         assert wait_for(lambda: seen.since(n), 30), calibrator.log_tail()
-        assert seen.since(n)[0]["solve"] == persisted["solve"]
-        assert wait_for(lambda: any(d["solve"] != persisted["solve"] for d in seen.since(n)), 60)
-        resumed = next(d for d in seen.since(n) if d["solve"] != persisted["solve"])
+        assert seen.since(n)[0]["solve"] >= persisted["solve"]
+        assert wait_for(lambda: any(d["solve"] > persisted["solve"] for d in seen.since(n)), 60)
+        resumed = next(d for d in seen.since(n) if d["solve"] > persisted["solve"])
         assert resumed["warm_start"] is True
 
         # Bump mono_b by 4 cm: the driver comes back with the camera elsewhere.
