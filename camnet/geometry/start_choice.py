@@ -65,8 +65,11 @@ def msac_cost(obs: Observations, calibration: Calibration, truncation_px: float)
     dropped) costs the truncation, as does one behind its camera.
     """
     cost = np.full(len(obs.uv), truncation_px**2)
-    point_of = {int(t): k for k, t in enumerate(calibration.point_ids)}
-    point = np.array([point_of.get(int(t), -1) for t in obs.track_ids])[obs.track_index]
+    ids = np.asarray(calibration.point_ids)
+    order = np.argsort(ids, kind="stable")
+    at = np.minimum(np.searchsorted(ids, obs.track_ids, sorter=order), max(len(ids) - 1, 0))
+    found = (ids[order[at]] == obs.track_ids) if len(ids) else np.zeros(len(obs.track_ids), dtype=bool)
+    point = np.where(found, order[at] if len(ids) else 0, -1)[obs.track_index]
     for camera in calibration.cameras:
         here = np.flatnonzero((obs.cam_index == obs.index_of(camera.id)) & (point >= 0))
         uv = camera.project(calibration.points[point[here]])
