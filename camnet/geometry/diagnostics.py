@@ -23,6 +23,7 @@ from camnet.geometry.model import (
 )
 from camnet.geometry.projection import INTRINSIC_NAMES, project_points
 from camnet.geometry.residual_structure import structure_warnings
+from camnet.geometry.scale_cause import GIVE_PAIR_ROTATION, GIVE_STEREO_K, HELD_YAW_SHARE, ScaleCause, scale_cause
 from camnet.geometry.uncertainty import Covariance, distance_checks, scale_sigma, scale_weights
 
 MIN_CAMERA_OBSERVATIONS = 12
@@ -206,12 +207,7 @@ def _uncertainty(ids: list[str], problem, state, cov: Covariance, kept, warnings
             )
         elif per_cam[cam_id].f_px > POOR_FOCAL_REL * state.intr[m, 0]:
             warnings.append(f"camera {cam_id}: focal length poorly determined (sigma {per_cam[cam_id].f_px:.0f} px)")
-    # The covariance has more columns than the problem where guessed principal points entered
-    # as a prior (calibrate._uncertainty): what the scale would be known to were they exact.
-    scale_if_pp = None
-    prior_columns = cov.columns[:, 2:4][(cov.columns[:, 2:4] >= 0) & ~problem.intr_free[:, 2:4]]
-    if scale is not None and len(prior_columns):
-        scale_if_pp = scale_sigma(cov, state.X, weights, given=prior_columns)
+    scale_if_pp, scale_if_pair, scale_if_both = _scale_if_exact(problem, state, cov, weights, scale)
     unknown_scale = UNDETERMINED_SCALE
     if nonlinear:
         unknown_scale = (f"the stereo cameras' focal lengths are known to {100 * pair_focal_rel:.0f}% only (1 sigma); "
@@ -221,26 +217,83 @@ def _uncertainty(ids: list[str], problem, state, cov: Covariance, kept, warnings
         warnings.append("the scale is not determined by the observations and the known distances")
     elif scale is None:
         warnings.append("no point is determined: the scale is unknown")
-    elif scale > POOR_SCALE_REL:
-        why = ""
-        guess_only = scale_if_pp is not None and scale_if_pp < scale / 2
-        if guess_only:
-            why = (f", {100 * scale_if_pp:.2g}% were the principal points exactly at the image centres: "
-                   "give the stereo cameras' K")
-        # What a guessed principal point costs is a caveat of every solve nobody gave K, not a fault
-        # of this one: a note while the data alone fix the scale, a warning when they do not.
-        caveat = guess_only and scale_if_pp <= POOR_SCALE_REL
-        (notes if caveat else warnings).append(f"the scale is uncertain by {100 * scale:.1f}% (1 sigma){why}")
-    return Uncertainty(
+    uncertainty = Uncertainty(
         sigma_px=cov.sigma_px,
         scale_rel=Sigma(scale) if scale is not None else Sigma.unknown(unknown_scale),
         scale_rel_if_pp_exact=(
             Sigma(scale_if_pp) if scale_if_pp is not None else Sigma.unknown("no principal point was guessed")
         ),
+        scale_rel_if_pair_exact=(
+            Sigma(scale_if_pair) if scale_if_pair is not None
+            else Sigma.unknown("no rotation axis of the stereo pair was held at a tolerance")
+        ),
+        scale_rel_if_pp_and_pair_exact=(
+            Sigma(scale_if_both) if scale_if_both is not None
+            else Sigma.unknown("not both a principal point guessed and a pair's axis held")
+        ),
         cameras=per_cam,
         point_weights=weights[kept],
         point_sigma_m=cov.point_sigmas_m()[kept],
     )
+    if scale is not None and scale > POOR_SCALE_REL:
+        _scale_message(scale_cause(uncertainty), bool(problem.n_cameras >= 2 and not problem.rot_free[1, 1]),
+                       warnings, notes)
+    return uncertainty
+
+
+def _scale_message(cause: ScaleCause, yaw_held: bool, warnings: list[str], notes: list[str]) -> None:
+    """Append the message of a scale uncertain beyond POOR_SCALE_REL, with what it rests on (scale_cause).
+
+    yaw_held: whether the pair's yaw is held, and so whether free_rule.held_yaw_warning says what the scale
+    rests on where the held rotation takes most of its variance (the message is then that warning).
+    """
+    said = f"the scale is uncertain by {100 * cause.sigma:.1f}% (1 sigma)"
+    if cause.scene:
+        warnings.append(said)
+        return
+    if cause.pp and not cause.pair:
+        # What a guessed principal point costs is a caveat of every solve nobody gave K, not a fault
+        # of this one: a note while the data alone fix the scale, a warning when they do not.
+        (notes if cause.if_pp <= POOR_SCALE_REL else warnings).append(
+            f"{said}, {100 * cause.if_pp:.2g}% were the principal points exactly at the image centres: "
+            f"{GIVE_STEREO_K}")
+        return
+    if yaw_held and cause.sigma > HELD_YAW_SHARE * cause.if_pair:  # held_yaw_warning's, which says it
+        if cause.pp:
+            warnings.append(f"the scale's sigma rests on the guessed principal points as well: "
+                            f"{100 * cause.if_pp:.2g}% were they exactly at the image centres: {GIVE_STEREO_K}")
+        return
+    if cause.pp:
+        warnings.append(f"{said}, {100 * cause.if_both:.2g}% were the principal points at the image centres and "
+                        f"the stereo pair's held rotation exact: {GIVE_STEREO_K}, and {GIVE_PAIR_ROTATION}")
+    else:
+        warnings.append(f"{said}, {100 * cause.if_pair:.2g}% were the stereo pair's held rotation exact: "
+                        f"{GIVE_PAIR_ROTATION}")
+
+
+def _scale_if_exact(problem, state, cov: Covariance, weights, scale: float | None):
+    """(sigma were the guessed principal points exact, were the pair's held rotation exact, were both): the
+    scale's sigma with only that cause of its variance removed, each None where that cause is absent.
+
+    The covariance has more columns than the problem where guessed principal points entered as a
+    prior (calibrate._uncertainty), and where the right stereo camera's held rotation axes entered at
+    the pair's tolerance (uncertainty.held_at_tolerance): the Gaussian conditional on them is the
+    sigma were they exactly as held (held_at_tolerance's update leaves that conditional as it was).
+    """
+    if scale is None:
+        return None, None, None
+    cols = cov.columns
+    pp = cols[:, 2:4][(cols[:, 2:4] >= 0) & ~problem.intr_free[:, 2:4]]
+    pair = np.zeros(0, dtype=int)
+    if problem.n_cameras >= 2:
+        turns = cols[1, ROT]
+        pair = turns[(turns >= 0) & ~problem.rot_free[1]]
+
+    def given(c: np.ndarray) -> float | None:
+        return scale_sigma(cov, state.X, weights, given=c) if len(c) else None
+
+    both = given(np.concatenate([pp, pair])) if len(pp) and len(pair) else None
+    return given(pp), given(pair), both
 
 
 def _distance_warnings(ids: list[str], problem, state, cov: Covariance, normal) -> list[str]:

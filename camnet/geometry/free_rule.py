@@ -87,6 +87,7 @@ from camnet.geometry import bundle, schur
 from camnet.geometry.bundle import CEN, ROT, CentreMode, Problem, State
 from camnet.geometry.model import CameraInfo, FreeSet, LensModel
 from camnet.geometry.projection import FISHEYE_DIST_SIZE, FISHEYE_INTRINSIC_NAMES, INTRINSIC_NAMES, N_INTRINSICS
+from camnet.geometry.scale_cause import GIVE_PAIR_ROTATION, HELD_YAW_SHARE
 from camnet.geometry.uncertainty import (
     Covariance,
     covariance,
@@ -414,21 +415,23 @@ def held_yaw_warning(pair: tuple[str, str], data: Covariance, yaw: int, held: np
 
     data: the covariance with the held rotation axes free (their data alone); yaw: its column of the
     right camera's yaw; held: its columns of every held axis; reported: the covariance reported, with
-    the axes held at `tolerance_deg`. It warns where freeing them would more than double the scale's sigma
-    of a pair exactly parallel (`COSTLY_INFLATION`): the scale then rests on the assumption.
+    the axes held at `tolerance_deg`. It warns where the reported sigma is more than HELD_YAW_SHARE times
+    that of a pair exactly parallel: the scale then rests on the assumption, and the verdict names it
+    (camnet.geometry.scale_cause). A tolerance so small that it adds little (a head known to be that
+    parallel, a pose given) leaves nothing to warn of, however much freeing the yaw would cost.
     """
     weights = scale_weights(reported, points)
     g = scale_gradient(points, weights)
     free, parallel = data.variance(None, g), data.variance(None, g, given=held)
     yaw_sd = np.sqrt(data.cameras[yaw, yaw])
-    if not (np.isfinite(free) and parallel > 0 and yaw_sd > 0 and free > COSTLY_INFLATION**2 * parallel):
+    sigma = scale_sigma(reported, points, weights)
+    if not (parallel > 0 and yaw_sd > 0 and sigma > HELD_YAW_SHARE * np.sqrt(parallel)):
         return None
     # The scale's regression on the yaw: cov(scale, yaw) / var(yaw), from var(scale) - var(scale | yaw).
     per_tenth = np.sqrt(max(free - data.variance(None, g, given=[yaw]), 0.0)) / yaw_sd * np.radians(0.1)
-    sigma = scale_sigma(reported, points, weights)
-    return (f"the stereo pair ({pair[0]}, {pair[1]}) is held parallel in yaw (stereo_yaw held): each 0.1 degree "
-            f"it is toed in moves the scale by {100 * per_tenth:.2g}%, and the scale's sigma, {100 * sigma:.2g}%, "
-            f"counts it parallel to {tolerance_deg:g} degrees (1 sigma; {100 * np.sqrt(parallel):.2g}% were it "
-            f"exactly parallel): if it may be toed in more, free its rotation (--free stereo_rotation: "
-            f"{100 * np.sqrt(free):.2g}%), else give its tolerance (--pair-tolerance-deg, or stereo."
-            "tolerance_deg in the rig file)")
+    freed = f"; if it may be toed in more, free its rotation (--free stereo_rotation: {100 * np.sqrt(free):.2g}%)"
+    # Worded as the report's other messages of an uncertain scale, of which it is then the one.
+    return (f"the scale is uncertain by {100 * sigma:.2g}% (1 sigma) and rests on the stereo pair ({pair[0]}, "
+            f"{pair[1]}) held parallel in yaw (stereo_yaw held), counted parallel to {tolerance_deg:g} degrees "
+            f"(1 sigma): {100 * np.sqrt(parallel):.2g}% were it exactly parallel, and each 0.1 degree it is toed in "
+            f"moves the scale by {100 * per_tenth:.2g}%: {GIVE_PAIR_ROTATION}{freed if np.isfinite(free) else ''}")

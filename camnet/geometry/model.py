@@ -195,7 +195,11 @@ class Uncertainty:
 
     scale_rel: relative 1 sigma of the network's scale (weighted by
     `point_weights`); scale_rel_if_pp_exact: the same were the guessed
-    principal points exactly right; point_weights (N,): per reported point,
+    principal points exactly right; scale_rel_if_pair_exact: the same were
+    the stereo pair's held rotation axes exactly as held (each is otherwise
+    counted at the pair's tolerance); scale_rel_if_pp_and_pair_exact: were
+    both exact, what the scene alone leaves (each of the three removes only
+    the cause its name says); point_weights (N,): per reported point,
     its weight in the scale; point_sigma_m (N,): per reported point, its
     1-sigma position error in metres (RMS over the three axes); each None
     when not given.
@@ -207,6 +211,8 @@ class Uncertainty:
     cameras: Mapping[str, CameraSigmas]
     point_weights: np.ndarray | None
     point_sigma_m: np.ndarray | None = None
+    scale_rel_if_pair_exact: Sigma = Sigma(None, "no rotation axis of the stereo pair was held at a tolerance")
+    scale_rel_if_pp_and_pair_exact: Sigma = Sigma(None, "not both a principal point guessed and a pair's axis held")
 
 
 @dataclass(frozen=True)

@@ -21,6 +21,7 @@ from enum import StrEnum
 import numpy as np
 
 from camnet.geometry.model import Calibration, CameraSigmas, SolveReport
+from camnet.geometry.scale_cause import GIVE_PAIR_ROTATION, GIVE_STEREO_K, scale_cause
 
 
 class Level(StrEnum):
@@ -261,19 +262,28 @@ def _scale_findings(report: SolveReport, t: Thresholds) -> list[Finding]:
                         "the stereo pair's disparities do not fix the scale", Action.GIVE_K,
                         "give the stereo cameras' K")]
     level = _level(scale, *t.scale_rel)
-    if_pp = u.scale_rel_if_pp_exact.value
-    guess = if_pp is not None and if_pp < scale / 2  # most of the sigma is what guessed principal points may cost
-    if level == Level.USABLE and guess and if_pp <= t.scale_rel[0]:
+    cause = scale_cause(u)
+    if level == Level.USABLE and cause.pp and not cause.pair and cause.if_pp <= t.scale_rel[0]:
         level = Level.GOOD  # the scene fixes the scale: the guess is a caveat, which the report's notes say
     if level == Level.GOOD:
         return []
-    if guess:
-        return [Finding(level, f"scale sigma {100 * scale:.1f}% ({100 * if_pp:.2g}% with the principal points "
-                        "known)", "the stereo cameras' principal points are guessed", Action.GIVE_K,
-                        "give the stereo cameras' K")]
-    return [Finding(level, f"scale sigma {100 * scale:.1f}%", "the scene is far or shallow for the stereo "
-                    "baseline: small disparities", Action.ADD_FRAME_SET,
-                    "add frame sets with texture nearer the stereo pair")]
+    what = f"scale sigma {100 * scale:.1f}%"
+    if cause.scene:
+        return [Finding(level, what, "the scene is far or shallow for the stereo baseline: small disparities",
+                        Action.ADD_FRAME_SET, "add frame sets with texture nearer the stereo pair")]
+    if not cause.pair:
+        return [Finding(level, f"{what} ({100 * cause.if_pp:.2g}% with the principal points known)",
+                        "the stereo cameras' principal points are guessed", Action.GIVE_K, GIVE_STEREO_K)]
+    # The pair held parallel: its rotation is assumed to its tolerance, not measured (the held-yaw warning
+    # says what a tenth of a degree of toe-in moves the scale by).
+    known = "the pair's held rotation" if not cause.pp else "the principal points and the pair's held rotation"
+    why = "the scale rests on the stereo pair held parallel, known only to its tolerance"
+    todo = GIVE_PAIR_ROTATION
+    if cause.pp:
+        why += ", and on the stereo cameras' guessed principal points"
+        todo = f"{GIVE_STEREO_K}, and {todo}"
+    return [Finding(level, f"{what} ({100 * cause.if_named_exact:.2g}% with {known} exact)", why, Action.GIVE_K,
+                    todo)]
 
 
 def _parallax_findings(report: SolveReport, t: Thresholds) -> list[Finding]:

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from camnet.geometry.model import Calibration, CameraSigmas, Observations
+from camnet.geometry.model import Calibration, CameraSigmas, Observations, Uncertainty
 from camnet.geometry.residuals import Residuals, outlier_limit_px, reprojection_residuals
 from camnet.geometry.verdict import judge
 
@@ -368,6 +368,7 @@ def _summary(cal: Calibration, res: Residuals | None) -> str:
         ["reprojection RMS (px)", _fmt(cal.rms_reprojection_px, 3)],
         ["pixel noise sigma (px)", _fmt(uncertainty.sigma_px if uncertainty is not None else None, 3)],
         ["scale uncertainty (1 sigma, %)", _fmt(100 * scale_rel, 4) if scale_rel is not None else "n/a"],
+        *_scale_if_exact_rows(uncertainty),
         ["converged", converged],
         ["observations / inliers", counts],
         ["median parallax (deg)", _fmt(parallax, 2)],
@@ -375,6 +376,17 @@ def _summary(cal: Calibration, res: Residuals | None) -> str:
     if res is not None:
         rows.append(["observations of dropped tracks", str(res.dropped_observations)])
     return _table(["quantity", "value"], rows)
+
+
+def _scale_if_exact_rows(uncertainty: Uncertainty | None) -> list[list[str]]:
+    """The scale's sigma with each assumption it counts removed, where it counts one (what each costs)."""
+    if uncertainty is None:
+        return []
+    figures = (("the guessed principal points", uncertainty.scale_rel_if_pp_exact),
+               ("the stereo pair's held rotation", uncertainty.scale_rel_if_pair_exact),
+               ("both of these", uncertainty.scale_rel_if_pp_and_pair_exact))
+    return [[f"scale uncertainty were {what} exact (%)", _fmt(100 * s.value, 4)]
+            for what, s in figures if s.value is not None]
 
 
 def _camera_table(cal: Calibration) -> str:

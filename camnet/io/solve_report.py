@@ -93,6 +93,9 @@ def _uncertainty_to_doc(u: Uncertainty) -> dict:
         "sigma_px": u.sigma_px,
         "scale_rel": u.scale_rel.value,
         "scale_rel_if_pp_exact": u.scale_rel_if_pp_exact.value,
+        # Written where known only: documents from before these keys read back as they were written.
+        **{key: getattr(u, key).value for key in ("scale_rel_if_pair_exact", "scale_rel_if_pp_and_pair_exact")
+           if getattr(u, key).value is not None},
         "cameras": {
             cam_id: {
                 "f_px": _finite(s.f_px),
@@ -209,6 +212,8 @@ def _parse_uncertainty(value: Any, path: str) -> Uncertainty:
         },
         point_weights=None if weights is None else v.vector(weights, f"{path}.point_weights"),
         point_sigma_m=None if point_sigma is None else v.vector(point_sigma, f"{path}.point_sigma_m"),
+        **{key: _sigma(u[key], f"{path}.{key}") for key in ("scale_rel_if_pair_exact", "scale_rel_if_pp_and_pair_exact")
+           if key in u},  # absent (older documents, or no such cause): the dataclass's reason
     )
 
 
