@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from camnet.errors import SolveError
+from camnet.geometry import rowwise
 from camnet.geometry.bundle import CEN, ROT, CentreMode, Problem, State, _tangent_basis
 from camnet.geometry.model import (
     CameraSigmas,
@@ -92,11 +93,11 @@ def _undetermined_names(s: CameraSigmas) -> list[str]:
 def _parallax_deg(problem, state) -> np.ndarray:
     """Per point, the widest angle between two of its viewing rays."""
     rays = state.X[problem.pt] - state.C[problem.cam]
-    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    rays /= rowwise.lengths(rays)[:, None]
     # The angle to the mean ray, doubled, is a cheap stand-in for the widest pair.
     mean = np.stack([np.bincount(problem.pt, rays[:, k], minlength=problem.n_points) for k in range(3)], axis=1)
     mean /= np.maximum(np.linalg.norm(mean, axis=1, keepdims=True), 1e-12)
-    cosang = np.clip(np.sum(rays * mean[problem.pt], axis=1), -1.0, 1.0)
+    cosang = np.clip(rowwise.dots(rays, mean[problem.pt]), -1.0, 1.0)
     return 2.0 * _per_point_max(problem, np.degrees(np.arccos(cosang)), 0.0)
 
 
@@ -163,7 +164,7 @@ def reported_points(
         _, xc = project_points(state.intr[problem.cam], state.R[problem.cam], state.C[problem.cam], state.X[problem.pt])
     behind = np.zeros(problem.n_points, dtype=bool)
     behind[problem.pt[xc[:, 2] <= 0]] = True
-    nearest = -_per_point_max(problem, -np.linalg.norm(xc, axis=1), -np.inf)
+    nearest = -_per_point_max(problem, -rowwise.lengths(xc), -np.inf)
     undetermined = np.zeros(problem.n_points, dtype=bool)
     if cov is not None:
         undetermined = np.sqrt(3.0) * cov.point_sigmas_m() >= nearest
@@ -300,7 +301,7 @@ def solve_report(
     """
     ids = [obs.cameras[i].id for i in order]
     counts = np.bincount(problem.cam, minlength=len(ids))
-    squares = np.bincount(problem.cam, weights=np.sum(residuals_px * residuals_px, axis=1), minlength=len(ids))
+    squares = np.bincount(problem.cam, weights=rowwise.squared_lengths(residuals_px), minlength=len(ids))
     warnings = []
     cameras = {}
     for m, cam_id in enumerate(ids):
