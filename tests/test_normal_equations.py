@@ -86,3 +86,16 @@ def test_schur_steps_take_bounded_memory():
     assert _peak_beyond(lambda: schur.solve_damped(ne, 1e-3), 0) < 2.5 * MB
     cov = covariance(problem, state, sigma_px=0.5, normal=ne)
     assert _peak_beyond(lambda: replace(cov).point_covariances_m2, cov.V.nbytes) < 1.8 * MB
+
+
+def test_points_quadratic_forms_by_a_triangular_factor_and_without_one():
+    """WV_n^T A WV_n per point: through A's Cholesky factor, and through A itself where A is singular."""
+    rng = np.random.default_rng(5)
+    B = rng.normal(size=(40, 40))
+    units = np.logspace(-4, 4, 40)  # parameters of mixed units, as a camera block's
+    WV = rng.normal(size=(40, 3 * 700))
+    for A in (B @ B.T + np.eye(40), B[:, :30] @ B[:, :30].T):  # positive definite; of rank 30
+        A = units[:, None] * A * units[None, :]
+        direct = np.einsum("pni,pq,qnj->nij", WV.reshape(40, -1, 3), A, WV.reshape(40, -1, 3))
+        np.testing.assert_allclose(schur.point_quadratic_forms(WV, A), direct, rtol=1e-9,
+                                   atol=1e-12 * np.abs(direct).max())

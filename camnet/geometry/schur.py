@@ -113,6 +113,35 @@ def point_blocks(n_points: int, n_columns: int) -> list[tuple[int, int]]:
     return [(a, min(a + size, n_points)) for a in range(0, n_points, size)] or [(0, 0)]
 
 
+def point_quadratic_forms(WV: np.ndarray, A: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) ``WV_n^T A WV_n`` per point n, for WV (Pc, 3N) and A (Pc, Pc) symmetric positive semi-definite.
+
+    Where A has a Cholesky factor A = L L^T, as ``Y_n^T Y_n`` with Y = L^T WV:
+    a triangular product, half the work of A WV, and each point's six
+    distinct entries as sums over Y's columns (at Pc = 135, N = 1000: 1.6
+    against 3.1 ms). Else (a singular A) through A WV. A block of points at
+    a time (`point_blocks`).
+    """
+    N = WV.shape[1] // 3
+    out = np.empty((N, 3, 3))
+    try:
+        L = np.linalg.cholesky(A) if len(A) else None
+    except np.linalg.LinAlgError:
+        L = None
+    for a, b in point_blocks(N, len(WV)):
+        WV_b = WV[:, 3 * a : 3 * b]
+        if L is None:  # WV_n^T (A WV_n), one 3x3 per point: a batched matmul (plain einsum takes 6x as long)
+            left, right = WV_b.reshape(-1, b - a, 3), (A @ WV_b).reshape(-1, b - a, 3)
+            out[a:b] = left.transpose(1, 2, 0) @ right.transpose(1, 0, 2)
+            continue
+        # WV_b^T L in BLAS's column order (WV_b^T is WV_b read as Fortran), transposed: Y = L^T WV_b.
+        Y = scipy.linalg.blas.dtrmm(1.0, L, WV_b.T, side=1, lower=1).T.reshape(-1, b - a, 3)
+        for i in range(3):
+            for j in range(i, 3):
+                out[a:b, i, j] = out[a:b, j, i] = np.einsum("pn,pn->n", Y[:, :, i], Y[:, :, j])
+    return out
+
+
 def predicted_decrease(ne: NormalEquations, lam: float, dc: np.ndarray, dp: np.ndarray) -> float:
     """Decrease of the Gauss-Newton model cost along the damped step (dc, dp), >= 0."""
     # With (H + lam D) d = -g: -g.d - d.H.d / 2 = (lam d.D.d - g.d) / 2.

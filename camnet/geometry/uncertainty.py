@@ -19,7 +19,7 @@ import scipy.linalg
 from camnet.geometry.bundle import ROT, Problem, State, distance_rows, normal_equations
 from camnet.geometry.bundle import residuals as reprojection_residuals
 from camnet.geometry.projection import N_INTRINSICS
-from camnet.geometry.schur import NormalEquations, inverse_cholesky_3x3, point_blocks, times_block_diag
+from camnet.geometry.schur import NormalEquations, inverse_cholesky_3x3, point_quadratic_forms, times_block_diag
 
 # A point block whose smallest eigenvalue is below this fraction of its largest leaves
 # the point undetermined along that direction (in metres, so the ratio has meaning).
@@ -91,12 +91,7 @@ class Covariance:
         """(N, 3, 3) covariance of each point, m^2; infinite for a point not fixed in some direction."""
         WV = times_block_diag(self.W, self.V_inv) if self.WV is None else self.WV  # (Pc, 3N)
         N = len(self.V_inv)
-        extra = np.empty((N, 3, 3))
-        for a, b in point_blocks(N, len(WV)):  # S_inv WV a block at a time: no fresh (Pc, 3N) product
-            WV_b = WV[:, 3 * a : 3 * b].reshape(-1, b - a, 3)
-            SWV = (self.S_inv @ WV[:, 3 * a : 3 * b]).reshape(-1, b - a, 3)
-            # extra[n] = WV_n^T S_inv WV_n, one 3x3 per point: a batched matmul (plain einsum takes 6x as long).
-            extra[a:b] = WV_b.transpose(1, 2, 0) @ SWV.transpose(1, 0, 2)
+        extra = point_quadratic_forms(WV, self.S_inv)  # WV_n^T S_inv WV_n per point
         determined = points_determined(self.V)
         cov = self.sigma_px**2 * (self.V_inv + extra)
         cov[~determined] = np.inf
