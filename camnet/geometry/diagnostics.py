@@ -44,24 +44,25 @@ DISTANCE_SIGMAS = 3.0  # a known distance this many sigmas from where the scene 
 WRONG_START_INLIER_SHARE = 0.8
 
 
-def _camera_sigmas(m: int, problem, state, cov) -> CameraSigmas:
-    cols = cov.columns[m]
-    Sigma = cov.cameras
+def _camera_sigmas(m: int, problem, state, cols: np.ndarray, camera_cov: np.ndarray, undetermined: np.ndarray
+                   ) -> CameraSigmas:
+    """Camera m's sigmas from its columns `cols` (15,) of the covariance `camera_cov` (Pc, Pc) and its
+    `undetermined` columns (Pc,) (`Covariance.cameras`, `.undetermined`, formed once for every camera)."""
 
     def block(slots: list[int]) -> np.ndarray:
         c = cols[slots]
         out = np.zeros((len(slots), len(slots)))
         ok = c >= 0
-        out[np.ix_(ok, ok)] = Sigma[np.ix_(c[ok], c[ok])]
-        if cov.undetermined[c[ok]].any():  # a direction nothing fixes: the whole block is unknown
+        out[np.ix_(ok, ok)] = camera_cov[np.ix_(c[ok], c[ok])]
+        if undetermined[c[ok]].any():  # a direction nothing fixes: the whole block is unknown
             out[:] = np.inf
         return out
 
-    undetermined = cov.undetermined
     sd = {}
     for slot, name in enumerate(INTRINSIC_NAMES):
         if cols[slot] >= 0:
-            sd[name] = np.inf if undetermined[cols[slot]] else float(np.sqrt(max(Sigma[cols[slot], cols[slot]], 0.0)))
+            variance = camera_cov[cols[slot], cols[slot]]
+            sd[name] = np.inf if undetermined[cols[slot]] else float(np.sqrt(max(variance, 0.0)))
     rot = block(list(range(ROT.start, ROT.stop)))
     mode = problem.centre_mode[m]
     if mode == CentreMode.FREE:
@@ -189,7 +190,9 @@ def _uncertainty(ids: list[str], problem, state, cov: Covariance, kept, warnings
     undetermined_scale = scale is not None and not np.isfinite(scale)
     if undetermined_scale:
         scale = None
-    per_cam = {cam_id: _camera_sigmas(m, problem, state, cov) for m, cam_id in enumerate(ids)}
+    camera_cov, undetermined = cov.cameras, cov.undetermined
+    per_cam = {cam_id: _camera_sigmas(m, problem, state, cov.columns[m], camera_cov, undetermined)
+               for m, cam_id in enumerate(ids)}
     # Depth goes with the stereo cameras' focal lengths: known only to tens of percent, the
     # solution is beyond where a linear sigma means anything (measured on KITTI with nothing
     # known: focal lengths 67% off at 40% sigma, the depths 46% off at a linear 1.5%).

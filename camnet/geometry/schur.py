@@ -81,14 +81,13 @@ def solve_damped(ne: NormalEquations, lam: float) -> tuple[np.ndarray, np.ndarra
     Lg = np.einsum("nij,nj->ni", L_inv, ne.gp).reshape(-1)
     L_inv_T = L_inv.transpose(0, 2, 1)
     rhs = -ne.gc
-    for a, b in point_blocks(len(L_inv), len(S)):
+    for a, b in point_blocks(len(L_inv), len(S)) if len(S) else ():  # no camera moves: the points alone
         WL = times_block_diag(ne.W[:, 3 * a : 3 * b], L_inv_T[a:b])  # W L^-T of these points
         rhs = rhs + WL @ Lg[3 * a : 3 * b]
-        if len(S):
-            # S's upper triangle, all that the Cholesky factorisation reads: a symmetric
-            # rank-k update does half the work of the full product.
-            # (Passed as WL^T, which is in the column order BLAS reads: no copy of WL.)
-            S = scipy.linalg.blas.dsyrk(-1.0, WL.T, beta=1.0, c=S, overwrite_c=True, trans=1)
+        # S's upper triangle, all that the Cholesky factorisation reads: a symmetric
+        # rank-k update does half the work of the full product.
+        # (Passed as WL^T, which is in the column order BLAS reads: no copy of WL.)
+        S = scipy.linalg.blas.dsyrk(-1.0, WL.T, beta=1.0, c=S, overwrite_c=True, trans=1)
     dc = rhs
     if len(rhs):
         try:
