@@ -50,6 +50,10 @@ N_LOCAL = N_INTRINSICS + 6
 log = logging.getLogger(__name__)
 
 _POINT_ITEM = np.dtype((np.void, 24))  # three float64: W's entries of one camera column and one point
+# Rows of observations whose Jacobians the normal equations form at a time: their temporaries (a few
+# hundred kB) are reused from the heap, where those of 10,000 rows at once (megabytes) were fresh memory
+# on every call, which the kernel maps and zeroes page by page (at M = 16, N = 1000, as long as the arithmetic).
+BLOCK_ROWS = 2048
 
 
 class CentreMode(enum.IntEnum):
@@ -81,7 +85,10 @@ class Layout:
     come group by group and, within a group, camera by camera (those of
     cameras with nothing free last), so that each camera's and each group's
     rows are one slice. Per group ``(intrinsic slots, rotation slots, centre
-    slots, cameras)``; ``runs[m]``: camera m's rows [start, stop).
+    slots, cameras)``; ``runs[m]``: camera m's rows [start, stop). ``blocks``:
+    ``(group, cameras, start, stop)``, the rows in runs of whole cameras of one
+    group (group -1: cameras with nothing free) of at most BLOCK_ROWS rows (or
+    one camera's), which the normal equations take one at a time.
     """
 
     order: np.ndarray  # (n,) observation index of each row
@@ -92,6 +99,7 @@ class Layout:
     groups: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]
     pairs_unique: bool  # no camera observes a point twice
     point_sum: sp.csr_matrix  # (N, n) summing per-row terms into their points
+    blocks: list[tuple[int, np.ndarray, int, int]]
 
 
 @dataclass(frozen=True)
@@ -175,7 +183,9 @@ class Problem:
         by_point = np.argsort(pt, kind="stable")  # CSR by hand: scipy's COO conversion costs milliseconds
         indptr = np.searchsorted(pt[by_point], np.arange(self.n_points + 1))
         point_sum = sp.csr_matrix((np.ones(n), by_point, indptr), shape=(self.n_points, n))
-        return Layout(order, self.cam[order], pt, self.uv[order], runs, groups, unique, point_sum)
+        rest = [m for m in cameras[len(grouped) :] if counts[m]]
+        blocks = _blocks([g[3] for g in groups] + [np.array(rest, dtype=int)], runs)
+        return Layout(order, self.cam[order], pt, self.uv[order], runs, groups, unique, point_sum, blocks)
 
     @cached_property
     def by_point(self) -> tuple[np.ndarray, np.ndarray]:
@@ -187,6 +197,19 @@ class Problem:
     def subset(self, keep: np.ndarray) -> Problem:
         """The same problem with only the observations where `keep` is true."""
         return replace(self, cam=self.cam[keep], pt=self.pt[keep], uv=self.uv[keep])
+
+
+def _blocks(groups: list[np.ndarray], runs: np.ndarray) -> list[tuple[int, np.ndarray, int, int]]:
+    """`Layout.blocks` from each group's cameras (the last entry: the cameras with nothing free) and their runs."""
+    blocks = []
+    for g, cams in enumerate(groups):
+        group = g if g < len(groups) - 1 else -1
+        start = 0
+        for i in range(1, len(cams) + 1):
+            if i == len(cams) or runs[cams[i], 1] - runs[cams[start], 0] > BLOCK_ROWS:
+                blocks.append((group, cams[start:i], int(runs[cams[start], 0]), int(runs[cams[i - 1], 1])))
+                start = i
+    return blocks
 
 
 @dataclass(frozen=True)
@@ -251,55 +274,30 @@ def _tangent_basis(u: np.ndarray) -> np.ndarray:
 def normal_equations(problem: Problem, state: State, *, loss: str = "linear", scale_px: float = 1.0) -> NormalEquations:
     """Gauss-Newton normal equations at `state`, rows weighted by the robust loss."""
     lay = problem.layout
-    c, p, N = lay.cam, lay.pt, problem.n_points
-    uv, J_intr, J_rot, J_cen, J_pt = project_with_jacobians(
-        state.intr[c], state.R[c], state.C[c], state.X[p], problem.fisheye_rows(c),
-        distortion=any(np.any(si >= INTRINSIC_NAMES.index("k1")) for si, *_ in lay.groups),
-    )
-    r = uv - lay.uv
-    z = (r[:, 0] * r[:, 0] + r[:, 1] * r[:, 1]) / scale_px**2
-    rho, drho = robust_loss(z, loss)
-    sw = None if loss == Loss.LINEAR else np.sqrt(drho)[:, None, None]  # rho' = 1: the rows as they are
-    if sw is not None:
-        r, J_pt = r * sw[:, :, 0], J_pt * sw
-    for m in np.flatnonzero(problem.centre_mode == CentreMode.ON_BASELINE):
-        a, b = lay.runs[m]
-        B = problem.baseline_m * _tangent_basis(state.C[m] / np.linalg.norm(state.C[m]))
-        J_cen[a:b, :, :2] = J_cen[a:b] @ B
-        J_cen[a:b, :, 2] = 0.0
-
+    N, n = problem.n_points, len(lay.cam)
+    distortion = any(np.any(si >= INTRINSIC_NAMES.index("k1")) for si, *_ in lay.groups)
     cols, n_cols = problem.columns()
     U = np.zeros((n_cols, n_cols))
     gc = np.zeros(n_cols)
     W = np.zeros((n_cols, N, 3))
     W_items = W.view(_POINT_ITEM)[:, :, 0]  # (n_cols, N)
-    # An observation touches one camera only: U is block diagonal, one block per camera, and
-    # a camera's free columns are consecutive. Cameras with the same free slots go together.
-    for si, sr, sc, cams in lay.groups:
-        a, b = lay.runs[cams[0], 0], lay.runs[cams[-1], 1]
-        Jg = np.concatenate([J_intr[a:b][:, :, si], J_rot[a:b][:, :, sr], J_cen[a:b][:, :, sc]], axis=2)
+    rho = np.empty(n)
+    point_terms = np.empty((n, 12))
+    for g, cams, a, b in lay.blocks:
+        c, p = lay.cam[a:b], lay.pt[a:b]
+        uv, J_intr, J_rot, J_cen, J_pt = project_with_jacobians(
+            state.intr[c], state.R[c], state.C[c], state.X[p], problem.fisheye_rows(c), distortion=distortion)
+        r = uv - lay.uv[a:b]
+        z = (r[:, 0] * r[:, 0] + r[:, 1] * r[:, 1]) / scale_px**2
+        rho[a:b], drho = robust_loss(z, loss)
+        sw = None if loss == Loss.LINEAR else np.sqrt(drho)[:, None, None]  # rho' = 1: the rows as they are
         if sw is not None:
-            Jg *= sw[a:b]
-        k = Jg.shape[2]
-        terms = Jg.transpose(0, 2, 1) @ J_pt[a:b]  # (n_g, k, 3): a batched matmul
-        # Each (column, point) entry of W as one 24-byte item: the scatter below copies whole
-        # items, twice as fast as three doubles at a time.
-        items = terms.view(_POINT_ITEM)[:, :, 0].T  # (k, n_g)
-        for m in cams:
-            s, e = lay.runs[m]
-            c0 = cols[m][cols[m] >= 0][0]
-            flat = Jg[s - a : e - a].reshape(-1, k)
-            U[c0 : c0 + k, c0 : c0 + k] = flat.T @ flat
-            gc[c0 : c0 + k] = flat.T @ r[s:e].reshape(-1)
-            # W[column, point, axis]: one term per observation, so an assignment unless a camera
-            # sees a track twice (then the terms add up).
-            if lay.pairs_unique:
-                W_items[c0 : c0 + k, p[s:e]] = items[:, s - a : e - a]
-            else:
-                np.add.at(W[c0 : c0 + k], (slice(None), p[s:e]), terms[s - a : e - a].transpose(1, 0, 2))
-
-    # Per row J_pt^T [J_pt | r]: J_pt^T J_pt (3x3) beside J_pt^T r, in one batched matmul.
-    point_terms = (J_pt.transpose(0, 2, 1) @ np.concatenate([J_pt, r[:, :, None]], axis=2)).reshape(-1, 12)
+            r, J_pt = r * sw[:, :, 0], J_pt * sw
+        # Per row J_pt^T [J_pt | r]: J_pt^T J_pt (3x3) beside J_pt^T r, in one batched matmul.
+        point_terms[a:b] = (J_pt.transpose(0, 2, 1) @ np.concatenate([J_pt, r[:, :, None]], axis=2)).reshape(-1, 12)
+        if g >= 0:
+            _camera_terms(problem, state, lay.groups[g][:3], cams, (a, r, J_intr, J_rot, J_cen, J_pt, sw),
+                          U, gc, W, W_items)
     summed = lay.point_sum @ point_terms
     r_dist, J_dist = distance_rows(problem, state)  # rows on camera columns only: U and gc
     return NormalEquations(
@@ -310,6 +308,48 @@ def normal_equations(problem: Problem, state: State, *, loss: str = "linear", sc
         gp=np.ascontiguousarray(summed.reshape(N, 3, 4)[:, :, 3]),
         cost=0.5 * scale_px**2 * float(np.sum(rho)) + 0.5 * float(r_dist @ r_dist),
     )
+
+
+def _camera_terms(problem: Problem, state: State, slots, cams: np.ndarray, rows, U, gc, W, W_items) -> None:
+    """Add the camera terms of a block of rows (`Layout.blocks`) to U, gc and W, in place.
+
+    slots: the group's free (intrinsic, rotation, centre) slots; rows: (its
+    first row, then its residuals and Jacobians, weighted but for Jg, and the
+    rows' weights or None).
+    """
+    lay = problem.layout
+    cols = problem.columns()[0]
+    a, r, J_intr, J_rot, J_cen, J_pt, sw = rows
+    si, sr, sc = slots
+    for m in cams:
+        if problem.centre_mode[m] == CentreMode.ON_BASELINE:
+            s, e = lay.runs[m] - a
+            B = problem.baseline_m * _tangent_basis(state.C[m] / np.linalg.norm(state.C[m]))
+            J_cen[s:e, :, :2] = J_cen[s:e] @ B
+            J_cen[s:e, :, 2] = 0.0
+    # An observation touches one camera only: U is block diagonal, one block per camera, and
+    # a camera's free columns are consecutive. Cameras with the same free slots go together.
+    Jg = np.concatenate([J_intr[:, :, si], J_rot[:, :, sr], J_cen[:, :, sc]], axis=2)
+    if sw is not None:
+        Jg *= sw
+    k = Jg.shape[2]
+    terms = Jg.transpose(0, 2, 1) @ J_pt  # (n_b, k, 3): a batched matmul
+    # Each (column, point) entry of W as one 24-byte item: the scatter below copies whole
+    # items, twice as fast as three doubles at a time.
+    items = terms.view(_POINT_ITEM)[:, :, 0].T  # (k, n_b)
+    p = lay.pt
+    for m in cams:
+        s, e = lay.runs[m]
+        c0 = cols[m][cols[m] >= 0][0]
+        flat = Jg[s - a : e - a].reshape(-1, k)
+        U[c0 : c0 + k, c0 : c0 + k] = flat.T @ flat
+        gc[c0 : c0 + k] = flat.T @ r[s - a : e - a].reshape(-1)
+        # W[column, point, axis]: one term per observation, so an assignment unless a camera
+        # sees a track twice (then the terms add up).
+        if lay.pairs_unique:
+            W_items[c0 : c0 + k, p[s:e]] = items[:, s - a : e - a]
+        else:
+            np.add.at(W[c0 : c0 + k], (slice(None), p[s:e]), terms[s - a : e - a].transpose(1, 0, 2))
 
 
 def columns_within(problem: Problem, wider: Problem) -> np.ndarray:

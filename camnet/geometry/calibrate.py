@@ -46,7 +46,7 @@ import numpy as np
 
 from camnet import blas
 from camnet.errors import SolveError
-from camnet.geometry import bundle, distances
+from camnet.geometry import bundle, distances, rowwise
 from camnet.geometry.bundle import CentreMode, Problem, State
 from camnet.geometry.cold_start import (
     PairStart,
@@ -459,7 +459,7 @@ def _result(
         projected = uv - problem.uv, xc
     r, xc = projected
     kept, dropped = reported_points(problem, state, cov, camera_points=xc)
-    rms = float(np.sqrt(np.mean(np.sum(r * r, axis=1)))) if len(r) else float("nan")
+    rms = float(np.sqrt(np.mean(rowwise.squared_lengths(r)))) if len(r) else float("nan")
     report = solve_report(
         obs, order, problem, state, cov, inliers, info, method=method, decisions=decisions, timings_s=timings,
         kept=kept, dropped=dropped, residuals_px=r, start=start,

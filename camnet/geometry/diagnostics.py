@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from camnet.errors import SolveError
+from camnet.geometry import rowwise
 from camnet.geometry.bundle import CEN, ROT, CentreMode, Problem, State, _tangent_basis
 from camnet.geometry.model import (
     CameraSigmas,
@@ -44,24 +45,25 @@ DISTANCE_SIGMAS = 3.0  # a known distance this many sigmas from where the scene 
 WRONG_START_INLIER_SHARE = 0.8
 
 
-def _camera_sigmas(m: int, problem, state, cov) -> CameraSigmas:
-    cols = cov.columns[m]
-    Sigma = cov.cameras
+def _camera_sigmas(m: int, problem, state, cols: np.ndarray, camera_cov: np.ndarray, undetermined: np.ndarray
+                   ) -> CameraSigmas:
+    """Camera m's sigmas from its columns `cols` (15,) of the covariance `camera_cov` (Pc, Pc) and its
+    `undetermined` columns (Pc,) (`Covariance.cameras`, `.undetermined`, formed once for every camera)."""
 
     def block(slots: list[int]) -> np.ndarray:
         c = cols[slots]
         out = np.zeros((len(slots), len(slots)))
         ok = c >= 0
-        out[np.ix_(ok, ok)] = Sigma[np.ix_(c[ok], c[ok])]
-        if cov.undetermined[c[ok]].any():  # a direction nothing fixes: the whole block is unknown
+        out[np.ix_(ok, ok)] = camera_cov[np.ix_(c[ok], c[ok])]
+        if undetermined[c[ok]].any():  # a direction nothing fixes: the whole block is unknown
             out[:] = np.inf
         return out
 
-    undetermined = cov.undetermined
     sd = {}
     for slot, name in enumerate(INTRINSIC_NAMES):
         if cols[slot] >= 0:
-            sd[name] = np.inf if undetermined[cols[slot]] else float(np.sqrt(max(Sigma[cols[slot], cols[slot]], 0.0)))
+            variance = camera_cov[cols[slot], cols[slot]]
+            sd[name] = np.inf if undetermined[cols[slot]] else float(np.sqrt(max(variance, 0.0)))
     rot = block(list(range(ROT.start, ROT.stop)))
     mode = problem.centre_mode[m]
     if mode == CentreMode.FREE:
@@ -93,11 +95,11 @@ def _undetermined_names(s: CameraSigmas) -> list[str]:
 def _parallax_deg(problem, state) -> np.ndarray:
     """Per point, the widest angle between two of its viewing rays."""
     rays = state.X[problem.pt] - state.C[problem.cam]
-    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    rays /= rowwise.lengths(rays)[:, None]
     # The angle to the mean ray, doubled, is a cheap stand-in for the widest pair.
     mean = np.stack([np.bincount(problem.pt, rays[:, k], minlength=problem.n_points) for k in range(3)], axis=1)
     mean /= np.maximum(np.linalg.norm(mean, axis=1, keepdims=True), 1e-12)
-    cosang = np.clip(np.sum(rays * mean[problem.pt], axis=1), -1.0, 1.0)
+    cosang = np.clip(rowwise.dots(rays, mean[problem.pt]), -1.0, 1.0)
     return 2.0 * _per_point_max(problem, np.degrees(np.arccos(cosang)), 0.0)
 
 
@@ -164,7 +166,7 @@ def reported_points(
         _, xc = project_points(state.intr[problem.cam], state.R[problem.cam], state.C[problem.cam], state.X[problem.pt])
     behind = np.zeros(problem.n_points, dtype=bool)
     behind[problem.pt[xc[:, 2] <= 0]] = True
-    nearest = -_per_point_max(problem, -np.linalg.norm(xc, axis=1), -np.inf)
+    nearest = -_per_point_max(problem, -rowwise.lengths(xc), -np.inf)
     undetermined = np.zeros(problem.n_points, dtype=bool)
     if cov is not None:
         undetermined = np.sqrt(3.0) * cov.point_sigmas_m() >= nearest
@@ -189,7 +191,9 @@ def _uncertainty(ids: list[str], problem, state, cov: Covariance, kept, warnings
     undetermined_scale = scale is not None and not np.isfinite(scale)
     if undetermined_scale:
         scale = None
-    per_cam = {cam_id: _camera_sigmas(m, problem, state, cov) for m, cam_id in enumerate(ids)}
+    camera_cov, undetermined = cov.cameras, cov.undetermined
+    per_cam = {cam_id: _camera_sigmas(m, problem, state, cov.columns[m], camera_cov, undetermined)
+               for m, cam_id in enumerate(ids)}
     # Depth goes with the stereo cameras' focal lengths: known only to tens of percent, the
     # solution is beyond where a linear sigma means anything (measured on KITTI with nothing
     # known: focal lengths 67% off at 40% sigma, the depths 46% off at a linear 1.5%).
@@ -353,7 +357,7 @@ def solve_report(
     """
     ids = [obs.cameras[i].id for i in order]
     counts = np.bincount(problem.cam, minlength=len(ids))
-    squares = np.bincount(problem.cam, weights=np.sum(residuals_px * residuals_px, axis=1), minlength=len(ids))
+    squares = np.bincount(problem.cam, weights=rowwise.squared_lengths(residuals_px), minlength=len(ids))
     warnings = []
     cameras = {}
     for m, cam_id in enumerate(ids):

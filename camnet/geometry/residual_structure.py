@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from camnet.geometry import rowwise
+
 RADIAL_SIGNIFICANCE = 1e-4  # false-alarm rate of the radial pattern's chi-square test, per camera
 RADIAL_MIN_PX = 1.0  # a radial pattern smaller than this at the edge of the observations is left alone
 OUTLIER_CAMERA_RATIO = 2.0  # a camera's RMS this many times the others' median ...
@@ -37,7 +39,7 @@ def radial_patterns_px(cam: np.ndarray, uv: np.ndarray, residuals: np.ndarray, i
 
     M = len(intr)
     p = uv - intr[cam, 2:4]
-    radius = np.linalg.norm(p, axis=1)
+    radius = rowwise.lengths(p)
     ok = radius > 1.0
     c = cam[ok]
     enough = (np.bincount(c, minlength=M) >= MIN_OBSERVATIONS) & (sigma_px > 0)
@@ -82,7 +84,7 @@ def structure_warnings(camera_ids: list[str], cam: np.ndarray, uv: np.ndarray, r
     M = len(camera_ids)
     counts = np.bincount(cam, minlength=M)
     with np.errstate(invalid="ignore", divide="ignore"):  # NaN: a camera without inliers
-        rms = np.sqrt(np.bincount(cam, weights=np.sum(residuals**2, axis=1), minlength=M) / counts)
+        rms = np.sqrt(np.bincount(cam, weights=rowwise.squared_lengths(residuals), minlength=M) / counts)
     rms[counts == 0] = np.nan
     radial = radial_patterns_px(cam, uv, residuals, intr, sigma)
     # Outlier rejection clips a bad camera's residuals: what it rejected shows it as well.

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from camnet.geometry import bundle
+from camnet.geometry import bundle, rowwise
 from camnet.geometry.bundle import CentreMode, Problem, State
 from camnet.geometry.free_rule import free_mask
 from camnet.geometry.uncertainty import pixel_sigma
@@ -31,7 +31,7 @@ def reject_outliers(problem: Problem, state: State, options: Options, *, residua
 
     residuals (n, 2): `bundle.residuals` at `state`, pixels, where the caller has them.
     """
-    r = np.linalg.norm(bundle.residuals(problem, state) if residuals is None else residuals, axis=1)
+    r = rowwise.lengths(bundle.residuals(problem, state) if residuals is None else residuals)
     sigma = np.median(r) / MEDIAN_RESIDUAL_PER_SIGMA
     keep = r <= max(options.outlier_sigmas * sigma, options.min_outlier_px)
     views = np.bincount(problem.pt[keep], minlength=problem.n_points)
@@ -121,7 +121,7 @@ def near_solution(problem: Problem, residuals: np.ndarray, options: Options) -> 
 
     residuals (n, 2): `bundle.residuals` of `problem`, pixels.
     """
-    r = np.linalg.norm(residuals, axis=1)
+    r = rowwise.lengths(residuals)
     threshold = max(options.outlier_sigmas * np.median(r) / MEDIAN_RESIDUAL_PER_SIGMA, options.min_outlier_px)
     for m in range(problem.n_cameras):
         mine = r[problem.cam == m]
