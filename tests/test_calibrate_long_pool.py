@@ -6,6 +6,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
+
 from camnet.geometry.evaluate import compare_cameras
 from camnet.io.formats import parse_calibration
 from camnet.io.rig import load_rig
@@ -36,3 +38,32 @@ def test_a_long_pool_is_solved_from_its_newest_tracks_and_places_every_camera(tm
     # Rotation sigmas of 0.3-0.6 degrees on the far side (true errors 0.04-0.18), most of them the
     # principal points' (estimated): K and R hold together, so not poor (camnet.geometry.verdict).
     assert doc["verdict"]["level"] in ("good", "usable"), doc["verdict"]
+
+
+def test_a_long_pool_with_a_camera_placed_wrong_is_calibrated_without_it_and_names_it(tmp_path):
+    # 60% of ring6's observations 30 px off (false tracks beside true ones). Solved from the newest tracks,
+    # ring6 kept 40% of its observations as inliers: refused. Before, the file was then solved cold as a
+    # whole, unjudged (on this pool that solve is wrong: above); now the newest tracks are solved again
+    # without ring6, the whole pool warm from there, and the cameras the live policy refuses are named.
+    doc = json.loads(gzip.decompress(POOL.read_bytes()))
+    rng = np.random.default_rng(0)
+    mine = [track for track in doc["tracks"] if "ring6" in track["observations"]]
+    for i in rng.permutation(len(mine))[: int(0.6 * len(mine))]:
+        u, v = mine[i]["observations"]["ring6"]
+        angle = rng.uniform(0, 2 * np.pi)
+        mine[i]["observations"]["ring6"] = [u + 30 * np.cos(angle), v + 30 * np.sin(angle)]
+    src, out = tmp_path / "pool.json", tmp_path / "cal.json"
+    src.write_text(json.dumps(doc))
+    proc = subprocess.run([sys.executable, "-m", "camnet", "calibrate", str(src), "-o", str(out), "--json"],
+                          capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads(proc.stdout)
+    left_out = summary["cameras_left_out"]
+    assert "ring6" in left_out and all(left_out.values()), summary
+    assert summary["cameras"] + len(left_out) == 9 and summary["cameras"] >= 6, summary
+    assert all(any(c in w and "left out" in w for w in summary["warnings"]) for c in left_out), summary
+    c = compare_cameras(parse_calibration(json.loads(out.read_text())),
+                        load_rig(ROOT / "config" / "surround.yaml").simulated_truth())
+    assert abs(c.scale_rel) < 3 * c.scale_sigma_rel, c
+    for e in c.cameras:
+        assert abs(e.focal_rel) < 0.02 and e.centre_mm < 60.0, e

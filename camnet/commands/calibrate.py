@@ -6,6 +6,7 @@ import argparse
 import json
 import sys
 from dataclasses import replace
+from functools import partial
 
 from camnet.geometry.choices import Loss, Method
 
@@ -97,7 +98,9 @@ class Progress:
 def run(args: argparse.Namespace) -> int:
     from camnet.errors import InputError, SolveError
     from camnet.geometry.calibrate import Options, calibrate
-    from camnet.geometry.live import calibrate_newest_first
+    from camnet.geometry.judged_solve import Status
+    from camnet.geometry.live import LiveConfig, policy_check
+    from camnet.geometry.newest_first import solve_newest_first
     from camnet.geometry.verdict import judge
     from camnet.io.formats import (
         calibration_to_doc,
@@ -135,17 +138,24 @@ def run(args: argparse.Namespace) -> int:
                       seed=args.seed, pp_prior_rel=args.pp_prior_rel)
     if args.pair_tolerance_deg is not None:
         options = replace(options, pair_tolerance_deg=args.pair_tolerance_deg)
-    result = None
+    cal = None
     if initial is None and options.method == Method.REFINED:
-        # A long pool starts on its newest tracks, as the live calibrator's (camnet.geometry.newest_first).
-        result = calibrate_newest_first(obs, options)
-    if result is None:
+        # Solved as the live calibrator solves without a calibration (camnet.geometry.newest_first): a long
+        # pool on its newest tracks first, cameras the live policy finds placed wrong left out and named.
+        judged = solve_newest_first(obs, options, partial(policy_check, config=LiveConfig()))
+        cal = judged.calibration
+        if judged.status == Status.REJECTED:
+            print(f"camnet calibrate: warning: the live calibrator would not publish this: {judged.reason}",
+                  file=sys.stderr)
+        progress.say(f"solved ({judged.status})")
+    if cal is None:
+        # A warm start, another method, or a solve that failed: solved here once more, to raise its error.
         result = calibrate(obs, options, initial=initial)
-    progress.say("solved" if result.converged else "not converged")
-    if not result.converged:
-        raise SolveError(f"the adjustment did not converge: {result.reason}")
-    write_json_atomic(args.output, calibration_to_doc(result.calibration))
-    cal = result.calibration
+        progress.say("solved" if result.converged else "not converged")
+        if not result.converged:
+            raise SolveError(f"the adjustment did not converge: {result.reason}")
+        cal = result.calibration
+    write_json_atomic(args.output, calibration_to_doc(cal))
     print("\n".join([f"camnet calibrate: wrote {args.output}", *summary_lines(cal)]), file=sys.stderr)
     if not args.json:
         return 0

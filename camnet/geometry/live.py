@@ -13,18 +13,16 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Collection
 from dataclasses import dataclass, field, replace
-from enum import StrEnum
+from functools import partial
 
 import numpy as np
 
-from camnet.errors import CamnetError
-from camnet.geometry.calibrate import Options, Result, calibrate
-from camnet.geometry.change import MoveRule, drop_before, moved_cameras, new_track_errors, without_cameras
-from camnet.geometry.cold_start import MIN_CAMERAS, with_cameras_left_out
+from camnet.geometry.calibrate import Options
+from camnet.geometry.change import MoveRule, drop_before, moved_cameras, new_track_errors
+from camnet.geometry.judged_solve import Refusal, Status, solve_judged
 from camnet.geometry.model import Calibration, Camera, Observations
-from camnet.geometry.newest_first import START_TRACKS, newest_first
+from camnet.geometry.newest_first import START_TRACKS, solve_newest_first
 from camnet.geometry.two_view import FOCAL_RANGE_REL
 
 log = logging.getLogger(__name__)
@@ -41,9 +39,6 @@ log = logging.getLogger(__name__)
 # `--free f,k1,k2,stereo_rotation,stereo_direction`. A fisheye camera's four
 # coefficients move unless given (`fisheye`, camnet.geometry.free_rule): they are its lens.
 LIVE_FREE = frozenset({"f", "fisheye", "stereo_rotation", "stereo_direction"})
-
-
-REFUSED_RETRIES = 2  # a solve refused for cameras placed wrong is solved again without them at most this often
 
 
 @dataclass(frozen=True)
@@ -74,14 +69,6 @@ class LiveConfig:
     # A cold solve of a pool of at least twice as many starts on its newest this many tracks
     # (camnet.geometry.newest_first: the oldest tracks of a long pool are the falsest).
     cold_start_tracks: int = START_TRACKS
-
-
-class Status(StrEnum):
-    """What became of one solve."""
-
-    GOOD = "good"  # it replaced the last good calibration
-    REJECTED = "rejected"  # it solved, but `judge` refused it
-    FAILED = "failed"  # it did not solve
 
 
 @dataclass(frozen=True)
@@ -136,6 +123,13 @@ def absurd_focals(cal: Calibration, obs: Observations) -> dict[str, float]:
     held = {c.id for c in obs.cameras if c.K is not None and "K" in c.fixed}
     return {c.id: float(c.K[0, 0]) for c in cal.cameras if c.id not in held
             and not FOCAL_RANGE_REL[0] * c.width <= c.K[0, 0] <= FOCAL_RANGE_REL[1] * c.width}
+
+
+def policy_check(cal: Calibration, obs: Observations, config: LiveConfig) -> Refusal:
+    """`judge`'s answer as `judged_solve` takes it: where the rig as a whole passes (`judge_rig`), the
+    cameras placed wrong (`refused_cameras`), which a solve without them may leave out."""
+    reason = judge(cal, obs, config)
+    return Refusal(reason, refused_cameras(cal, obs, config) if reason and not judge_rig(cal, config) else {})
 
 
 def refused_cameras(cal: Calibration, obs: Observations, config: LiveConfig) -> dict[str, str]:
@@ -243,74 +237,18 @@ class Tracker:
     def _solve(self, obs: Observations, moved: tuple[str, ...]) -> Outcome:
         initial = self._initial()
         cold = None if self.config.stereo_pose is None else stereo_head(obs, *self.config.stereo_pose)
-        status, reason = Status.FAILED, ""
+        check = partial(policy_check, config=self.config)
         if initial is not None:
-            status, reason, cal = self._placing(obs, initial, reset=self._reset)
-            if status == Status.GOOD:
-                return Outcome(Status.GOOD, "", cal, moved, warm=True)
-        # A long pool's cold start is solved on its newest tracks, the whole pool warm from there.
-        newest = newest_first(obs, self._placing, lambda out: out[2] if out[0] == Status.GOOD else None,
-                              start=cold, start_tracks=self.config.cold_start_tracks)
-        status, reason, cal = newest if newest is not None else self._placing(obs, cold)
-        if status == Status.GOOD:
-            return Outcome(Status.GOOD, "", cal, moved, warm=cold is not None)
-        return Outcome(status, reason, None, moved, warm=False)
-
-    def _placing(self, obs: Observations, start: Calibration | None,
-                 reset: Collection[str] = ()) -> tuple[Status, str, Calibration | None]:
-        """`_attempt`; where only cameras placed wrong refuse it, again without them (named), up to twice."""
-        status, reason, cal = self._attempt(obs, start, reset=reset)
-        left_out: dict[str, str] = {}
-        for _ in range(REFUSED_RETRIES):
-            # Only where the rig as a whole passes: then the cameras placed wrong are what refuses it.
-            whole_ok = status == Status.REJECTED and not judge_rig(cal, self.config)
-            refused = refused_cameras(cal, obs, self.config) if whole_ok else {}
-            if not refused or len(obs.cameras) - len(refused) < MIN_CAMERAS:
-                break
-            # A camera placed wrong does not hold the others back: solved again without it, it is named.
-            left_out.update(refused)
-            obs = without_cameras(obs, refused)
-            status, reason, cal = self._attempt(obs, start, reset=reset, left_out=left_out)
-        return status, reason, cal
-
-    def _attempt(self, obs: Observations, start: Calibration | None, *, reset: Collection[str] = (),
-                 left_out: dict[str, str] | None = None) -> tuple[Status, str, Calibration | None]:
-        """One solve of `obs` from `start` (None: cold), judged; `left_out`: cameras not in `obs`, and why."""
-        try:
-            reset = set(reset) & set(obs.camera_ids) if start is not None else ()
-            result = calibrate(obs, self.config.options, initial=start, reset_cameras=reset)
-        except CamnetError as exc:
-            return Status.FAILED, f"solve failed: {exc}", None
-        if not result.converged:
-            return Status.FAILED, f"solve failed: the adjustment did not converge: {result.reason}", None
-        cal = result.calibration
-        if left_out:
-            report = with_cameras_left_out(cal.report, left_out)
-            cal = replace(cal, report=replace(report, cameras_left_out={**cal.report.cameras_left_out, **left_out}))
-        reason = judge(cal, obs, self.config)
-        return (Status.REJECTED, reason, cal) if reason else (Status.GOOD, "", cal)
-
-
-def calibrate_newest_first(obs: Observations, options: Options, config: LiveConfig = LiveConfig()
-                           ) -> Result | None:
-    """An offline solve of a long pool as the live calibrator starts one: the whole pool solved warm from
-    its newest `config.cold_start_tracks` tracks' solution, where both solves pass `judge` (the live
-    policy's checks); None where the pool is short or they do not (then solve the whole pool cold)."""
-
-    def solve(part: Observations, start: Calibration | None) -> tuple[Observations, Result] | None:
-        try:
-            return part, calibrate(part, options, initial=start)
-        except CamnetError as exc:
-            log.info("newest tracks first: %s", exc)
-            return None
-
-    def good(out: tuple[Observations, Result] | None) -> Calibration | None:
-        if out is None or not out[1].converged or judge(out[1].calibration, out[0], config):
-            return None
-        return out[1].calibration
-
-    whole = newest_first(obs, solve, good, start_tracks=config.cold_start_tracks)
-    return whole[1] if whole is not None else None
+            warm = solve_judged(obs, initial, options=self.config.options, check=check, reset=self._reset)
+            if warm.status == Status.GOOD:
+                return Outcome(Status.GOOD, "", warm.calibration, moved, warm=True)
+        # Not good warm (a camera taken for moved that fails, say): the pool is solved cold, a long one
+        # on its newest tracks first.
+        judged = solve_newest_first(obs, self.config.options, check, start=cold,
+                                    start_tracks=self.config.cold_start_tracks)
+        if judged.status == Status.GOOD:
+            return Outcome(Status.GOOD, "", judged.calibration, moved, warm=cold is not None)
+        return Outcome(judged.status, judged.reason, None, moved, warm=False)
 
 
 def stereo_head(obs: Observations, R: np.ndarray, t: np.ndarray) -> Calibration | None:

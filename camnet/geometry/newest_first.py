@@ -7,7 +7,9 @@ the multi-view tracks of the older half were 37-42% false against the
 truth, of the newer half 5-9%, and a cold solve of the whole pool placed
 the cameras facing away from the head wrong, where one started on the
 newest 2500 placed them all. The live calibrator (camnet.geometry.live)
-and `camnet calibrate` both start a long pool so.
+and `camnet calibrate` both start a long pool so (`solve_newest_first`),
+each solve judged by the live policy's check and solved again without the
+cameras it finds placed wrong (camnet.geometry.judged_solve).
 
 Ids are only an order of preference here: the whole pool is what is solved
 in the end, and a caller falls back to the whole pool solved cold. Where a
@@ -18,10 +20,13 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import replace
+from functools import partial
 from typing import TypeVar
 
 import numpy as np
 
+from camnet.geometry.calibrate import Options
+from camnet.geometry.judged_solve import Check, Judged, Status, solve_judged
 from camnet.geometry.model import Calibration, Observations
 
 # A pool of at least twice as many tracks starts on its newest this many (the matcher's pool of 5000
@@ -58,3 +63,17 @@ def newest_first(obs: Observations, solve: Callable[[Observations, Calibration |
         return None
     whole = solve(obs, seed)
     return whole if good(whole) is not None else None
+
+
+def solve_newest_first(obs: Observations, options: Options, check: Check, *, start: Calibration | None = None,
+                       start_tracks: int = START_TRACKS) -> Judged:
+    """A pool solved from `start` (None: cold) as the live calibrator solves one without a good calibration.
+
+    A pool of at least twice `start_tracks` tracks is solved on its newest `start_tracks` first, the whole
+    pool warm from there; where that is short or not good, the whole pool from `start`. Every solve is
+    judged by `check` (`judged_solve.solve_judged`: without the cameras it finds placed wrong, named).
+    """
+    solve = partial(solve_judged, options=options, check=check)
+    newest = newest_first(obs, solve, lambda judged: judged.calibration if judged.status == Status.GOOD else None,
+                          start=start, start_tracks=start_tracks)
+    return newest if newest is not None else solve(obs, start)
