@@ -76,7 +76,7 @@ from camnet.geometry.initialise import (
 from camnet.geometry.model import Calibration, Camera, Loss, Method, Observations, StartKind
 from camnet.geometry.projection import INTRINSIC_NAMES, N_INTRINSICS, K_from_intrinsics, project_points
 from camnet.geometry.robust_passes import fit_points, inliers_and_sigma, near_solution, reject_outliers, robust_passes
-from camnet.geometry.start_choice import solve_from_either_start
+from camnet.geometry.start_choice import solve_from_any_start
 from camnet.geometry.uncertainty import (
     Covariance,
     covariance_with_pp_prior,
@@ -126,6 +126,7 @@ class Result:
     converged: bool
     reason: str
     timings_s: dict[str, float]
+    pair_start: PairStart | None = None  # how the cold start placed the scale pair; None for a warm start
 
 
 # ---------------------------------------------------------------- the adjustment
@@ -179,7 +180,7 @@ def calibrate(
         # them, and on a machine shared with drivers and the matcher they stall each other.
         with blas.one_thread():
             if initial is None and options.method == Method.REFINED:  # where one start goes wrong, the other
-                return solve_from_either_start(
+                return solve_from_any_start(
                     obs, lambda pair: _calibrate(obs, options, None, reset_cameras, pair),
                     outlier_sigmas=options.outlier_sigmas, min_outlier_px=options.min_outlier_px)
             return _calibrate(obs, options, initial, reset_cameras)
@@ -261,7 +262,7 @@ def _calibrate(
     timings["total"] = time.perf_counter() - t0
     result = _result(
         obs, order, problem, state, track_rows, inliers, info, cov, decisions, options.method, timings,
-        start=start_kind, left_out=start.left_out, projected=projected,
+        start=start_kind, left_out=start.left_out, projected=projected, pair_start=start.pair,
     )
     return result if warning is None else _with_warning(result, warning)
 
@@ -444,7 +445,7 @@ def _paper_result(obs, order, intr, rows, start: Start, timings) -> Result:
 def _result(
     obs, order, problem, state, track_rows, inliers, info, cov, decisions, method: Method, timings, *,
     start: StartKind = StartKind.COLD, left_out: dict[str, str] | None = None,
-    projected: tuple[np.ndarray, np.ndarray] | None = None,
+    projected: tuple[np.ndarray, np.ndarray] | None = None, pair_start: PairStart | None = None,
 ) -> Result:
     """projected: the problem's residuals and camera-frame points at `state`, where the caller has them."""
     cameras: list[Camera | None] = [None] * len(order)
@@ -478,7 +479,8 @@ def _result(
         world_frame=obs.stereo.left,
         report=report,
     )
-    return Result(calibration, state, problem, tuple(order), track_rows, cov, info.converged, info.reason, timings)
+    return Result(calibration, state, problem, tuple(order), track_rows, cov, info.converged, info.reason, timings,
+                  pair_start)
 
 
 __all__ = ["Options", "Result", "calibrate", "check_solvable"]

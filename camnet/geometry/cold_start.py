@@ -19,13 +19,20 @@ from __future__ import annotations
 
 import logging
 from dataclasses import replace
-from enum import Enum
 
 import numpy as np
 
 from camnet.errors import SolveError
-from camnet.geometry.initialise import Start, camera_order, centred, initial_intrinsics, observation_rows, paper_start
-from camnet.geometry.model import Observations, SolveReport
+from camnet.geometry.initialise import (
+    PairStart,
+    Start,
+    camera_order,
+    centred,
+    initial_intrinsics,
+    observation_rows,
+    paper_start,
+)
+from camnet.geometry.model import Observations, SolveReport, Stereo
 from camnet.geometry.register import (
     MIN_RESECTION_POINTS,
     register_over_graph,
@@ -56,12 +63,8 @@ SEED_TRIALS = 4  # the pair's focal lengths a third view fits best, adjusted wit
 WEAK_PAIR_RATIO = 3.0  # a failed solve names a pair that shares this many times the stereo pair's tracks
 
 
-class PairStart(Enum):
-    """How the scale pair is placed: as the paper's parallel pair, by its essential matrix, or whichever fits."""
-
-    AUTO = "auto"  # the paper's where the pair's matches lie on matching rows (`is_parallel`), else the essential
-    PAPER = "paper"  # the paper's solver (the essential matrix where it finds no plausible start)
-    ESSENTIAL = "essential"
+class NoStart(SolveError):
+    """The start asked for cannot be made from these observations (nothing was solved from it)."""
 
 
 def check_solvable(obs: Observations) -> None:
@@ -86,6 +89,18 @@ def pair_advice(obs: Observations) -> str:
     ring) gives the start few points and a weak relative pose; the pair that
     shares the most tracks starts better (its distance is then what to know).
     """
+    found = stronger_pair(obs)
+    if found is None:
+        return ""
+    a, b, shared_ab, shared_pair = found
+    return (f"; the stereo pair ({obs.stereo.left}, {obs.stereo.right}) shares only {shared_pair} tracks, "
+            f"{obs.cameras[a].id} and {obs.cameras[b].id} share {shared_ab}: name as the stereo pair two "
+            "cameras that see more of the scene together, with their distance")
+
+
+def stronger_pair(obs: Observations) -> tuple[int, int, int, int] | None:
+    """(a, b, tracks a and b share, tracks the stereo pair shares) where the two observations cameras a, b
+    that share the most tracks share WEAK_PAIR_RATIO times the stereo pair's; else None."""
     seen = np.zeros((len(obs.track_ids), len(obs.cameras)), dtype=bool)
     seen[obs.track_index, obs.cam_index] = True
     shared = seen.T.astype(int) @ seen  # (cameras, cameras) tracks each two share
@@ -93,10 +108,8 @@ def pair_advice(obs: Observations) -> str:
     left, right = obs.index_of(obs.stereo.left), obs.index_of(obs.stereo.right)
     a, b = np.unravel_index(np.argmax(shared), shared.shape)
     if shared[a, b] < WEAK_PAIR_RATIO * shared[left, right]:
-        return ""
-    return (f"; the stereo pair ({obs.stereo.left}, {obs.stereo.right}) shares only {shared[left, right]} tracks, "
-            f"{obs.cameras[a].id} and {obs.cameras[b].id} share {shared[a, b]}: name as the stereo pair two "
-            "cameras that see more of the scene together, with their distance")
+        return None
+    return int(a), int(b), int(shared[a, b]), int(shared[left, right])
 
 
 def is_parallel(rows_px: float, epipolar_px: float) -> bool:
@@ -135,7 +148,8 @@ def _essential_start(obs, order, xy, rows, f_pair, pose: RelativePose) -> Start:
     X = np.full((T, 3), np.nan)
     registered = np.arange(M) < 2
     triangulate_missing(order, xy, rows, f, R, C, X, registered)
-    return Start(f, R, C, X, registered, np.full((T, 3), np.nan), f[1] / f[0], parallel=False)
+    return Start(f, R, C, X, registered, np.full((T, 3), np.nan), f[1] / f[0], parallel=False,
+                 pair=PairStart.ESSENTIAL)
 
 
 def _focal_candidates(obs, order, intr, xy, rows) -> list[tuple[float, float]]:
@@ -201,38 +215,60 @@ def _essential_by_third_view(obs, order, intr, xy, rows) -> Start:
     return best[1]
 
 
-def _paper_pair(obs, order, intr, xy, rows, seed, max_tracks) -> Start | None:
-    """The paper's start (pair, and every camera it places when it places all); None when it finds none."""
+def _paper_pair(obs, order, intr, xy, rows, seed, max_tracks) -> Start | str:
+    """The paper's start (pair, and every camera it places when it places all); why not where it finds none."""
     try:
         start = paper_start(obs, order, intr, xy, rows, seed, max_tracks=max_tracks, register_rest=False)
     except SolveError as exc:
-        log.info("the paper's solver gives no start (%s): starting from the essential matrix", exc)
-        return None
+        return f"the paper's solver gives no start ({exc})"
     grid = focal_grid(obs.cameras[order[0]].width)
     in_front = np.mean(np.isfinite(start.P0[(rows[:, order[0]] >= 0) & (rows[:, order[1]] >= 0), 0]))
     if not (grid[0] <= start.f[0] <= grid[-1] and in_front >= PARALLEL_IN_FRONT):
-        log.info("the paper's solver puts the left focal length at %.0f px and %.0f%% of the pair's tracks in "
-                 "front: starting from the essential matrix", start.f[0], 100 * in_front)
-        return None
+        return (f"the paper's solver puts the left focal length at {start.f[0]:.0f} px and {100 * in_front:.0f}% "
+                "of the pair's tracks in front")
     if not start.registered.all():
         # Cameras that share few stereo tracks see them from the side, where the stereo cloud's
         # depth error shows most: they are placed again through the graph, on better points.
         start.registered[2:] = False
         start.f[2:] = np.nan
+    start.pair = PairStart.PAPER
     return start
 
 
-def cold_start(
-    obs: Observations, order: list[int], intr: np.ndarray, xy: np.ndarray, rows: np.ndarray, *, seed: int,
-    max_tracks: int | None, paper_only: bool = False, pair: PairStart = PairStart.AUTO,
-) -> Start:
-    """The start of a solve with no previous calibration; `Start.left_out` names the cameras it could not place.
+def _from_stronger_pair(obs, order, intr, xy, rows) -> Start:
+    """The start from the two cameras that share the most tracks (`stronger_pair`), every camera placed through
+    the graph from them, then put in the scale pair's frame and scaled to its distance.
 
-    intr (M, 9): the given intrinsics (f NaN where unknown). paper_only:
-    the paper's method, which needs a parallel pair and every camera
-    sharing six stereo tracks (raises if not). pair: how the pair is
-    placed (`PairStart`; AUTO decides from its matches).
+    A scale pair far apart sees few tracks together: their essential matrix,
+    and the third view that fixes their focal lengths, rest on those few,
+    where a pair that sees much together fixes its own well.
     """
+    found = stronger_pair(obs)
+    if found is None:
+        raise NoStart(f"no pair of cameras shares {WEAK_PAIR_RATIO:g} times the stereo pair's tracks")
+    a, b = obs.cameras[found[0]].id, obs.cameras[found[1]].id
+    log.info("starting from %s and %s, which share %d tracks (the stereo pair %d)", a, b, found[2], found[3])
+    seed_obs = replace(obs, stereo=Stereo(a, b, 1.0))  # a unit distance until the scale pair's is known
+    seed_order = camera_order(seed_obs)
+    m_of = [order.index(i) for i in seed_order]  # seed camera k is problem camera m_of[k]
+    seed_intr = intr[m_of]
+    start = _essential_by_third_view(seed_obs, seed_order, seed_intr, xy, rows)
+    register_over_graph(seed_obs, seed_order, xy, rows, seed_intr, start.f, start.R, start.C, start.X,
+                        start.registered, hold_pair=False)
+    k_of = np.argsort(m_of)  # problem camera m is seed camera k_of[m]
+    f, R, C, placed = start.f[k_of], start.R[k_of], start.C[k_of], start.registered[k_of]
+    if not placed[:2].all():
+        raise NoStart(f"the view graph from {a} and {b} does not reach the stereo pair ({obs.stereo.left}, "
+                      f"{obs.stereo.right})")
+    # x_cam = R (X - C) is kept under X' = s R0 (X - C0): R' = R R0^T, C' = s R0 (C - C0).
+    R0, C0 = R[0].copy(), C[0].copy()
+    s = obs.stereo.baseline_m / np.linalg.norm(C[1] - C0)
+    R, C, X = R @ R0.T, s * (C - C0) @ R0.T, s * (start.X - C0) @ R0.T
+    return Start(f, R, C, X, placed, np.full_like(X, np.nan), f[1] / f[0], parallel=False, pair=PairStart.STRONGEST)
+
+
+def _scale_pair_start(obs, order, intr, xy, rows, *, seed, max_tracks, paper_only, pair: PairStart) -> Start:
+    """The scale pair placed as the paper's parallel pair or by its essential matrix (see `cold_start`)."""
     left, right = _pair_rows(order, rows)
     rows_px, epipolar_px = row_and_epipolar_errors(xy[left], xy[right], threshold_px=threshold_px(obs, order))
     parallel = is_parallel(rows_px, epipolar_px) if pair == PairStart.AUTO else pair == PairStart.PAPER
@@ -244,10 +280,39 @@ def cold_start(
                 f"method paper: the stereo pair's matches lie {rows_px:.1f} px off matching rows, so it is not "
                 "parallel as the paper's method needs; use the refined method"
             )
-        return paper_start(obs, order, intr, xy, rows, seed, max_tracks=max_tracks)
+        start = paper_start(obs, order, intr, xy, rows, seed, max_tracks=max_tracks)
+        start.pair = PairStart.PAPER
+        return start
     start = _paper_pair(obs, order, intr, xy, rows, seed, max_tracks) if parallel else None
-    if start is None:
-        start = _essential_by_third_view(obs, order, intr, xy, rows)
+    if isinstance(start, str):
+        if pair == PairStart.PAPER:  # asked for, so not made another way: the caller tries the others itself
+            raise NoStart(start)
+        log.info("%s: starting from the essential matrix", start)
+        start = None
+    return _essential_by_third_view(obs, order, intr, xy, rows) if start is None else start
+
+
+def cold_start(
+    obs: Observations, order: list[int], intr: np.ndarray, xy: np.ndarray, rows: np.ndarray, *, seed: int,
+    max_tracks: int | None, paper_only: bool = False, pair: PairStart = PairStart.AUTO,
+) -> Start:
+    """The start of a solve with no previous calibration; `Start.left_out` names the cameras it could not place,
+    `Start.pair` how the scale pair was placed.
+
+    intr (M, 9): the given intrinsics (f NaN where unknown). paper_only:
+    the paper's method, which needs a parallel pair and every camera
+    sharing six stereo tracks (raises if not). pair: how the pair is
+    placed (`PairStart`): AUTO decides from its matches, and starts from the
+    essential matrix where the paper's solver finds no plausible start; any
+    other raises `NoStart` where it cannot be made.
+    """
+    if pair == PairStart.STRONGEST and not paper_only:
+        start = _from_stronger_pair(obs, order, intr, xy, rows)
+    else:
+        start = _scale_pair_start(obs, order, intr, xy, rows, seed=seed, max_tracks=max_tracks, paper_only=paper_only,
+                                  pair=pair)
+        if paper_only:
+            return start
     reasons = register_over_graph(obs, order, xy, rows, intr, start.f, start.R, start.C, start.X, start.registered,
                                   hold_pair=start.parallel)
     start.left_out = {obs.cameras[order[m]].id: reasons[m] for m in np.flatnonzero(~start.registered)}
@@ -272,7 +337,7 @@ def without_cameras(obs: Observations, order: list[int], intr: np.ndarray, start
         cam_index=new_index[obs.cam_index[rows]], track_index=obs.track_index[rows], uv=obs.uv[rows],
     )
     start = Start(start.f[keep], start.R[keep], start.C[keep], start.X, start.registered[keep], start.P0, start.k,
-                  start.parallel, start.left_out)
+                  start.parallel, start.left_out, start.pair)
     return obs, intr[keep], start
 
 

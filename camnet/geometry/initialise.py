@@ -12,6 +12,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Collection
 from dataclasses import dataclass, field
+from enum import Enum
 
 import numpy as np
 
@@ -27,6 +28,17 @@ MIN_REGISTRATION_POINTS = 6  # a DLT has 11 degrees of freedom
 EQ13_START_FTOL = 1e-4  # eq. 13 as a start for the adjustment: its last digits do not matter
 
 
+class PairStart(Enum):
+    """How a cold start places the scale pair (camnet.geometry.cold_start)."""
+
+    AUTO = "auto"  # the paper's where the pair's matches lie on matching rows, else the essential matrix
+    PAPER = "paper"  # the paper's solver
+    ESSENTIAL = "essential"  # the pair's essential matrix, its focal lengths from a third view
+    # The two cameras that share the most tracks, placed by their essential matrix; every camera through the
+    # view graph from them; then the scale pair's frame and distance (a scale pair that sees little together).
+    STRONGEST = "strongest pair"
+
+
 @dataclass
 class Start:
     f: np.ndarray  # (M,) focal lengths, px
@@ -38,6 +50,7 @@ class Start:
     k: float  # f_right / f_left
     parallel: bool = True  # the pair is the paper's ideal parallel pair, to start with
     left_out: dict[str, str] = field(default_factory=dict)  # camera id -> why it could not be placed
+    pair: PairStart | None = None  # how a cold start placed the scale pair (never AUTO); None: a warm start
 
 
 def camera_order(obs: Observations) -> list[int]:

@@ -1,14 +1,16 @@
-"""A cold solve from the other start where the first went wrong, and which of the two to keep.
+"""A cold solve from another start where the first went wrong, and which to keep.
 
-The scale pair is placed either as the paper's parallel pair or by its
-essential matrix (camnet.geometry.cold_start). Which one fits is decided
+The scale pair is placed as the paper's parallel pair, by its essential
+matrix, or, where it sees few tracks together, from the two cameras that
+share the most (camnet.geometry.cold_start). Which one fits is decided
 from the pair's matches, and no threshold on them decides every rig: a pair
 45 degrees apart can pass for parallel when RANSAC's fundamental matrix
 fits its matches loosely, and a parallel head toed in by two degrees is
 better started as parallel. So where a solve from the chosen start is
 refused, keeps few of its observations, or leaves out a camera that shares
 enough tracks with the cameras placed to have been placed, the solve is run
-again from the other start, and the two are compared by the truncated
+again from each start not yet used (a start the data cannot make is passed
+over, unsolved) until one is sound, and they are compared by the truncated
 quadratic (MSAC) cost of every observation: a camera left out, or a track
 dropped, costs each of its observations the truncation. The scale never
 enters the comparison.
@@ -25,7 +27,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from camnet.errors import SolveError
-from camnet.geometry.cold_start import PairStart, pair_looks_parallel
+from camnet.geometry.cold_start import NoStart, PairStart, pair_looks_parallel, stronger_pair
 from camnet.geometry.diagnostics import WRONG_START_INLIER_SHARE
 from camnet.geometry.model import Calibration, Observations
 from camnet.geometry.register import MIN_INLIER_SHARE, MIN_RESECTION_POINTS
@@ -88,40 +90,78 @@ def _sound(obs: Observations, result: Result, min_inlier_share: float) -> bool:
     return _inlier_share(result) >= min_inlier_share and not shared_left_out(obs, result.calibration)
 
 
-def solve_from_either_start(
+def start_order(obs: Observations) -> list[PairStart]:
+    """The starts a cold solve tries, in order: the stronger pair's first where the stereo pair sees few tracks
+    together (`cold_start.stronger_pair`), then the paper's first where the pair looks parallel."""
+    starts = [PairStart.PAPER, PairStart.ESSENTIAL]
+    if not pair_looks_parallel(obs):
+        starts.reverse()
+    return ([PairStart.STRONGEST] if stronger_pair(obs) is not None else []) + starts
+
+
+def solve_from_any_start(
     obs: Observations, solve: Callable[[PairStart], Result], *, outlier_sigmas: float, min_outlier_px: float
 ) -> Result:
-    """The solve from the start the pair's matches choose, or from the other where that one went wrong.
+    """The solve from the first start of `start_order` that gives one, or from the others where that went wrong.
 
     solve(pair): a cold solve from that start (raises SolveError when
-    refused). outlier_sigmas, min_outlier_px: the truncation of the MSAC
-    cost, outlier_sigmas times the smaller reprojection RMS of the two
-    solves, at least min_outlier_px (as the outlier rejection's).
+    refused, NoStart when the start cannot be made). outlier_sigmas,
+    min_outlier_px: the truncation of the MSAC cost, outlier_sigmas times
+    the smallest reprojection RMS of the solves, at least min_outlier_px
+    (as the outlier rejection's). A solve after a refused first one is kept
+    only keeping SOUND_INLIER_SHARE of the observations.
     """
-    try:
-        first, refusal = solve(PairStart.AUTO), None
-    except SolveError as exc:
-        first, refusal = None, exc
-    if first is not None and _sound(obs, first, RETRY_INLIER_SHARE):
-        return first
-    other = PairStart.ESSENTIAL if pair_looks_parallel(obs) else PairStart.PAPER
-    why = f"is refused ({refusal})" if refusal else f"is unsound ({_inlier_share(first):.0%} of the observations " \
-        f"kept; cameras sharing tracks left out: {shared_left_out(obs, first.calibration)})"
-    log.info("the solve from the pair's first start %s: solving from the %s start", why, other.value)
-    try:
-        second = solve(other)
-    except SolveError as exc:
-        log.info("the solve from the %s start is refused too (%s)", other.value, exc)
-        second = None
+    first: Result | None = None
+    refusal: SolveError | None = None  # the first solve's
+    kept: list[tuple[PairStart, Result]] = []
+    tried, passed = [], []
+    for pair in start_order(obs):
+        if tried:
+            log.info("the solve from the %s start %s: solving from the %s start", tried[0].value,
+                     _why(obs, first, refusal), pair.value)
+        try:
+            result = solve(pair)
+        except NoStart as exc:
+            log.info("no %s start: %s", pair.value, exc)
+            passed.append(f"{pair.value}: {exc}")
+            continue
+        except SolveError as exc:
+            log.info("the solve from the %s start is refused (%s)", pair.value, exc)
+            result = None
+            refusal = exc if not tried else refusal
+        tried.append(pair)
+        if len(tried) == 1:
+            first = result
+            if result is not None and _sound(obs, result, RETRY_INLIER_SHARE):
+                return result
+        if result is not None and (len(tried) == 1 or first is not None or _sound(obs, result, SOUND_INLIER_SHARE)):
+            kept.append((pair, result))
+        if len(tried) > 1 and result is not None and _sound(obs, result, SOUND_INLIER_SHARE):
+            break
+    if not kept:
+        if refusal is None:  # no start could be made at all
+            raise SolveError("start: no start could be made (" + "; ".join(passed) + ")")
+        others = ", ".join(p.value for p in tried[1:])
+        also = f" (from the {others} start too: refused, or keeping under {SOUND_INLIER_SHARE:.0%})" if others else ""
+        raise SolveError(f"{refusal}{also}") from None
+    return _least_cost(obs, kept, outlier_sigmas, min_outlier_px)
+
+
+def _why(obs: Observations, first: Result | None, refusal: SolveError | None) -> str:
     if first is None:
-        if second is not None and _sound(obs, second, SOUND_INLIER_SHARE):
-            return second
-        raise refusal
-    if second is None:
-        return first
-    rms = min(first.calibration.rms_reprojection_px, second.calibration.rms_reprojection_px)
+        return f"is refused ({refusal})"
+    return (f"is unsound ({_inlier_share(first):.0%} of the observations kept; cameras sharing tracks left out: "
+            f"{shared_left_out(obs, first.calibration)})")
+
+
+def _least_cost(obs: Observations, kept: list[tuple[PairStart, Result]], outlier_sigmas: float,
+                min_outlier_px: float) -> Result:
+    """The result of least MSAC cost, truncated at outlier_sigmas times the least RMS (at least min_outlier_px)."""
+    if len(kept) == 1:
+        return kept[0][1]
+    rms = min(r.calibration.rms_reprojection_px for _, r in kept)
     truncation_px = max(min_outlier_px, outlier_sigmas * rms)
-    costs = [msac_cost(obs, r.calibration, truncation_px) for r in (first, second)]
-    log.info("MSAC cost (truncated at %.2f px) from the first start %.0f px^2, from the %s start %.0f px^2",
-             truncation_px, costs[0], other.value, costs[1])
-    return second if costs[1] < costs[0] else first
+    costs = [msac_cost(obs, r.calibration, truncation_px) for _, r in kept]
+    log.info("MSAC cost (truncated at %.2f px): %s", truncation_px,
+             ", ".join(f"from the {p.value} start {c:.0f} px^2" for (p, _), c in zip(kept, costs, strict=True)))
+    return kept[int(np.argmin(costs))][1]
