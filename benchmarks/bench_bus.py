@@ -18,6 +18,7 @@ recv->ready is the subscriber's copy out of Zenoh plus, for camnet, decoding.
 
     python benchmarks/bench_bus.py --seconds 60          # the table
     python benchmarks/bench_bus.py --sweep               # highest rate x cameras without loss
+    python benchmarks/bench_bus.py --alternate 12        # publisher CPU, camnet and bare taking turns
 """
 
 from __future__ import annotations
@@ -65,7 +66,7 @@ class PhaseResult:
     capture_to_put_ms: np.ndarray  # one value per sent frame
     in_put_ms: np.ndarray  # time inside Zenoh's put, one value per sent frame
     recv_to_ready_ms: np.ndarray  # one value per received frame
-    publisher_cpu: float  # mean over cameras, 1.0 = one core
+    publisher_cpu: float  # mean over cameras, 1.0 = one core; scored frames only (PutLog.steady_cpu)
     subscriber_cpu: float  # the whole subscriber process
     behind: bool  # a publisher could not keep the rate
 
@@ -123,7 +124,8 @@ def run_phase(mode: str, *, cameras: int, fps: float, seconds: float, size=(1280
         wall0 = time.monotonic()
         results, sub_cpu = run_publishers(session, endpoint, mode=mode, cameras=cameras, fps=fps,
                                           seconds=seconds + WARMUP_S, size=size,
-                                          progress=report if progress else None)
+                                          progress=report if progress else None,
+                                          steady_from=round(WARMUP_S * fps))
         wall_s = time.monotonic() - wall0
         sub.undeclare()
     latencies, encode, in_put, handling, sent, got = [], [], [], [], 0, 0
@@ -147,7 +149,7 @@ def run_phase(mode: str, *, cameras: int, fps: float, seconds: float, size=(1280
                        np.array(latencies or [np.nan]), np.concatenate(encode),
                        np.concatenate(in_put),
                        np.array(handling or [np.nan]),
-                       float(np.mean([r.cpu_s / r.wall_s for r in results.values()])), sub_cpu,
+                       float(np.nanmean([r.steady_cpu for r in results.values()])), sub_cpu,
                        behind)
 
 
@@ -207,6 +209,33 @@ def frame_costs(size=(1280, 1024), repeats: int = 200) -> dict[str, float]:
             "decode_frame": median_ms(lambda: decode_frame(data))}
 
 
+def alternate(pairs: int, *, cameras: int, fps: float, seconds: float) -> list[float]:
+    """Publisher CPU of camnet over bare Zenoh, `pairs` times, the two taking turns in short phases.
+
+    The order alternates (camnet first, then bare first, ...), so that a load
+    rising or falling through the run favours neither; each pair's ratio is
+    printed, then their median and spread. A shared machine's load moves a
+    single long phase by tens of percent; the median of many short pairs does not.
+    Returns the ratios (camnet / bare - 1).
+    """
+    print(f"\nAlternating ({pairs} pairs of {seconds:g}-s phases, {cameras} x {fps:g} fps, 1280x1024 mono8)")
+    print(f"{'pair':>4}  {'first':<7}{'camnet CPU/cam':>15}{'bare CPU/cam':>14}{'ratio':>8}{'lost c/b':>10}",
+          flush=True)
+    ratios = []
+    for pair in range(pairs):
+        order = ("camnet", "bare") if pair % 2 == 0 else ("bare", "camnet")
+        runs = {mode: run_phase(mode, cameras=cameras, fps=fps, seconds=seconds, progress=False) for mode in order}
+        camnet, bare = runs["camnet"], runs["bare"]
+        ratios.append(camnet.publisher_cpu / bare.publisher_cpu - 1)
+        print(f"{pair + 1:>4}  {order[0]:<7}{camnet.publisher_cpu:>14.2%}{bare.publisher_cpu:>13.2%}"
+              f"{ratios[-1]:>+8.1%}{f'{camnet.lost}/{bare.lost}':>10}", flush=True)
+    q1, median, q3 = np.percentile(ratios, [25, 50, 75])
+    within = sum(r <= 0.10 for r in ratios)
+    print(f"publisher CPU, camnet over bare: median {median:+.1%}, quartiles {q1:+.1%} to {q3:+.1%}, "
+          f"range {min(ratios):+.1%} to {max(ratios):+.1%}; {within} of {pairs} pairs at most +10%")
+    return ratios
+
+
 SWEEP = ((4, (30, 60, 90, 120, 150, 180, 240, 300, 360, 480)), (8, (30, 60)), (12, (30,)))
 
 
@@ -250,7 +279,13 @@ def main() -> int:
     parser.add_argument("--sweep", action="store_true", help="also run the sweep")
     parser.add_argument("--sweep-only", action="store_true", help="only run the sweep")
     parser.add_argument("--sweep-seconds", type=float, default=5.0)
+    parser.add_argument("--alternate", type=int, default=0, metavar="PAIRS",
+                        help="only compare publisher CPU: camnet and bare taking turns, PAIRS times")
+    parser.add_argument("--alternate-seconds", type=float, default=5.0, help="duration per phase when alternating")
     args = parser.parse_args()
+    if args.alternate:
+        alternate(args.alternate, cameras=args.cameras, fps=args.fps, seconds=args.alternate_seconds)
+        return 0
     if not args.sweep_only:
         print(f"{args.cameras} cameras, 1280x1024 mono8, {args.fps:g} fps, {args.seconds:g} s "
               "per phase; latency from just before put to receipt", flush=True)

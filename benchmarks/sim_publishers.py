@@ -115,17 +115,33 @@ def sleep_until(t0_ns: int, seq: int, fps: float) -> None:
 
 
 class PutLog:
-    """Per frame: seq, capture timestamp_ns, put timestamp_ns, ns spent in put; preallocated."""
+    """Per frame: seq, capture timestamp_ns, put timestamp_ns, ns spent in put; preallocated.
 
-    def __init__(self, n_frames: int) -> None:
+    Also the process's CPU and wall time just after the put of frame `steady_from` and of the
+    last frame: the publisher's CPU between them is the steady state, the same frames' work in
+    every mode, without what each mode does to start (sessions, publishers, liveliness) and stop.
+    """
+
+    def __init__(self, n_frames: int, steady_from: int = 0) -> None:
         self.rows = np.zeros((n_frames, 4), dtype=np.int64)
         self.n = 0
+        self.steady_from = min(steady_from, n_frames - 2)
+        self.marks: list[tuple[float, float]] = []  # (process CPU s, monotonic s)
 
     def add(self, payload, put_ns: int, put_duration_ns: int) -> None:
         if self.n < len(self.rows):
             seq, capture_ns = SEQ_AND_TIMESTAMP.unpack_from(payload, SEQ_OFFSET)
             self.rows[self.n] = (seq, capture_ns, put_ns, put_duration_ns)
             self.n += 1
+            if self.n - 1 == self.steady_from or self.n == len(self.rows):
+                self.marks.append((time.process_time(), time.monotonic()))
+
+    def steady_cpu(self) -> float:
+        """CPU time over wall time between the marks (1.0 = one core); NaN without both."""
+        if len(self.marks) < 2:
+            return float("nan")
+        (cpu0, wall0), (cpu1, wall1) = self.marks[0], self.marks[-1]
+        return (cpu1 - cpu0) / (wall1 - wall0) if wall1 > wall0 else float("nan")
 
 
 class TimedPublisher:
@@ -172,11 +188,15 @@ class PublisherResult:
     cpu_s: float
     wall_s: float
     puts: np.ndarray  # (sent, 4): seq, capture timestamp_ns, put timestamp_ns, put duration ns
+    steady_cpu: float  # CPU over wall time from the first scored frame's put to the last's (PutLog)
 
 
 def publisher(mode: str, index: int, endpoint: str, fps: float, n_frames: int, size, start,
-              results) -> None:
-    """Process body: publish `n_frames` at `fps` once `start` is set; report a PublisherResult."""
+              results, steady_from: int = 0) -> None:
+    """Process body: publish `n_frames` at `fps` once `start` is set; report a PublisherResult.
+
+    Its steady CPU counts from the put of frame `steady_from` on.
+    """
     import zenoh
 
     from camnet.bus import keys
@@ -186,7 +206,7 @@ def publisher(mode: str, index: int, endpoint: str, fps: float, n_frames: int, s
 
     pool = render_pool(index, *size)
     cam_id = camera_id(index)
-    log = PutLog(n_frames)
+    log = PutLog(n_frames, steady_from)
     with open_session(BusOptions(connect=(endpoint,))) as session:
         if mode in ("camnet", "camnet-shm"):
             from camnet.drivers.node import DriverNode
@@ -220,7 +240,7 @@ def publisher(mode: str, index: int, endpoint: str, fps: float, n_frames: int, s
             sent = n_frames
         cpu_s, wall_s = time.process_time() - cpu0, time.monotonic() - wall0
         time.sleep(0.5)  # let the last frames drain before the session closes
-    results.put(PublisherResult(index, sent, cpu_s, wall_s, log.rows[:log.n].copy()))
+    results.put(PublisherResult(index, sent, cpu_s, wall_s, log.rows[:log.n].copy(), log.steady_cpu()))
 
 
 def rig_name(mode: str) -> str:
@@ -230,18 +250,20 @@ def rig_name(mode: str) -> str:
 
 def run_publishers(session, endpoint: str, *, mode: str, cameras: int, fps: float,
                    seconds: float, size=(1280, 1024), progress=None,
-                   progress_period_s: float = 5.0) -> tuple[dict[int, PublisherResult], float]:
+                   progress_period_s: float = 5.0,
+                   steady_from: int = 0) -> tuple[dict[int, PublisherResult], float]:
     """Run `cameras` publisher processes connecting to `session` at `endpoint` until done.
 
     Returns their results by camera index and this process's CPU fraction
     (CPU time over wall time, 1.0 = one core) while they published.
-    `progress(elapsed_s)` is called every `progress_period_s`.
+    `progress(elapsed_s)` is called every `progress_period_s`; each publisher's steady CPU counts
+    from frame `steady_from` on.
     """
     n_frames = int(round(fps * seconds))
     ctx = mp.get_context("spawn")
     start, results = ctx.Event(), ctx.Queue()
     procs = [ctx.Process(target=publisher, args=(mode, i, endpoint, fps, n_frames, size, start,
-                                                 results)) for i in range(cameras)]
+                                                 results, steady_from)) for i in range(cameras)]
     for p in procs:
         p.start()
     try:

@@ -52,8 +52,12 @@ class FramePublisher:
 
     def put(self, message: bytes | bytearray) -> None:
         """Publish `message`; it may be overwritten as soon as this returns."""
+        if not self._enabled:  # the default: a camera's every frame comes this way
+            self._publisher.put(message)
+            self.copied += 1
+            return
         size = len(message)
-        if self._enabled and size >= MIN_SHARED_BYTES and (size <= self._pool_for or self._make_pool(size)):
+        if size >= MIN_SHARED_BYTES and (size <= self._pool_for or self._make_pool(size)):
             try:
                 chunk = self._provider.alloc(size, self._policy)
             except self._shm_errors:

@@ -22,7 +22,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from camnet.bus import keys, latency, lockstep
+from camnet.bus import heap, keys, latency, lockstep
 from camnet.bus.node import Presence, Tally, guarded, stop_on_signals
 from camnet.bus.session import declare_liveliness
 from camnet.bus.stats import Activity, RateMeter
@@ -276,7 +276,8 @@ class CalibratorNode:
             ack_token = declare_liveliness(self.session, keys.lockstep_ack(rig, NODE_KIND))
         presence = Presence(self.session, rig=rig, kind=NODE_KIND, node_id=NODE_KIND, report=self._activity,
                             tallies=(self.malformed, self.failures), period_s=self.config.stats_period_s,
-                            counted="solves", dropped="observations superseded while solving")
+                            counted="solves", dropped="observations superseded while solving",
+                            trim_heap_period_s=heap.TRIM_PERIOD_S)
         try:
             with stop_on_signals(self.stop), presence:
                 while not self.stop.is_set():

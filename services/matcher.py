@@ -57,7 +57,7 @@ from camnet.services.matcher_calibration import CalibrationInbox
 from camnet.services.matcher_config import MatcherNodeConfig, rig_options, rig_stereo
 from camnet.services.matcher_frames import FrameSubscriptions
 
-from camnet.bus import keys, latency, lockstep
+from camnet.bus import heap, keys, latency, lockstep
 from camnet.bus.features_wire import FeaturesError, FeaturesMessage, decode_features
 from camnet.bus.frame import Frame
 from camnet.bus.node import Presence, Tally, guarded, stop_on_signals
@@ -461,7 +461,7 @@ class MatcherNode:
         presence = Presence(self.session, rig=rig, kind=NODE_KIND, node_id=NODE_ID, report=self.activity,
                             tallies=(self.receiver.malformed, self.rejected, self.failures, self.few_features),
                             period_s=self.config.stats_period_s, counted="frame sets matched",
-                            dropped="frames dropped")
+                            dropped="frames dropped", trim_heap_period_s=heap.TRIM_PERIOD_S)
         log.info("matching %s (stereo %s-%s, %s), publishing %s%s", ", ".join(self.camera_ids), self.stereo.left,
                  self.stereo.right, "a parallel head: matched along rows" if self.stereo.parallel else
                  "matched like any pair", keys.observations(rig), " in lockstep" if self._inbox is not None else "")

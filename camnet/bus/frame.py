@@ -16,6 +16,7 @@ whose `kind` says what was wrong, so receivers can count and go on.
 from __future__ import annotations
 
 import enum
+import functools
 import struct
 from dataclasses import dataclass
 
@@ -82,7 +83,26 @@ ENCODINGS: dict[str, EncodingSpec] = {
 _BY_CODE = {spec.code: name for name, spec in ENCODINGS.items()}
 
 
-@dataclass(frozen=True, eq=False)
+@functools.lru_cache(maxsize=64)
+def _check_image(encoding: str, shape: tuple[int, ...], dtype: np.dtype) -> None:
+    """Raise ValueError unless an image of `shape` and `dtype` can be `encoding`.
+
+    Remembered (a failure is not): a camera makes every frame alike, and its
+    driver node builds one Frame per frame on its hot path.
+    """
+    spec = ENCODINGS.get(encoding)
+    if spec is None:
+        known = ", ".join(ENCODINGS)
+        raise ValueError(f"unknown encoding {encoding!r} (expected {known})")
+    expected_ndim = 2 if spec.channels == 1 else 3
+    if len(shape) != expected_ndim or (spec.channels > 1 and shape[2] != spec.channels):
+        wanted = "(h, w)" if spec.channels == 1 else f"(h, w, {spec.channels})"
+        raise ValueError(f"{encoding} needs shape {wanted}, got {shape}")
+    if dtype.itemsize != spec.dtype.itemsize or dtype.kind != "u":
+        raise ValueError(f"{encoding} needs dtype {spec.dtype.name}, got {dtype}")
+
+
+@dataclass(frozen=True, eq=False, slots=True)
 class Frame:
     """One image of one camera.
 
@@ -100,17 +120,7 @@ class Frame:
     image: np.ndarray
 
     def __post_init__(self) -> None:
-        spec = ENCODINGS.get(self.encoding)
-        if spec is None:
-            known = ", ".join(ENCODINGS)
-            raise ValueError(f"unknown encoding {self.encoding!r} (expected {known})")
-        expected_ndim = 2 if spec.channels == 1 else 3
-        img = self.image
-        if img.ndim != expected_ndim or (spec.channels > 1 and img.shape[2] != spec.channels):
-            wanted = "(h, w)" if spec.channels == 1 else f"(h, w, {spec.channels})"
-            raise ValueError(f"{self.encoding} needs shape {wanted}, got {img.shape}")
-        if img.dtype.itemsize != spec.dtype.itemsize or img.dtype.kind != "u":
-            raise ValueError(f"{self.encoding} needs dtype {spec.dtype.name}, got {img.dtype}")
+        _check_image(self.encoding, self.image.shape, self.image.dtype)
         if not 0 <= self.seq < 2**64 or not 0 <= self.timestamp_ns < 2**64:
             raise ValueError("seq and timestamp_ns must fit in unsigned 64 bits")
 

@@ -13,7 +13,9 @@
   (`camnet.bus.keys.node`) and its statistics (`camnet.bus.stats.NodeStats`),
   published every period and once more on leaving; and the same statistics
   as one line for the operator every few seconds and on leaving, on the
-  `camnet.status` logger, which `camnet` shows at its default level.
+  `camnet.status` logger, which `camnet` shows at its default level; and,
+  when asked (`trim_heap_period_s`), the heap's freed memory handed back to
+  the operating system every few seconds (`camnet.bus.heap`).
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 from typing import ParamSpec, TypeVar
 
-from camnet.bus import keys
+from camnet.bus import heap, keys
 from camnet.bus.session import declare_liveliness
 from camnet.bus.stats import Activity, NodeStats
 
@@ -127,12 +129,15 @@ class Presence:
     before the token goes, so that the final counts are seen. Every
     `status_period_s` (None: never), and on leaving, they are also logged as
     one line (`status_line`), the node's `frames` and `dropped` named by `counted`
-    and `dropped` (what they count differs by node).
+    and `dropped` (what they count differs by node). With `trim_heap_period_s`
+    (None: never), `publish_if_due` also trims the process's heap that often
+    (`camnet.bus.heap`): for nodes that free large buffers as they go.
     """
 
     def __init__(self, session, *, rig: str, kind: str, node_id: str, report: Callable[[], Activity],
                  tallies: Sequence[Tally] = (), period_s: float = 1.0, counted: str = "frames",
-                 dropped: str = "dropped", status_period_s: float | None = STATUS_PERIOD_S) -> None:
+                 dropped: str = "dropped", status_period_s: float | None = STATUS_PERIOD_S,
+                 trim_heap_period_s: float | None = None) -> None:
         self.session = session
         self.rig, self.kind, self.node_id = rig, kind, node_id
         self.report = report
@@ -142,6 +147,7 @@ class Presence:
         self.status_period_s = status_period_s
         self._next_s = float("-inf")
         self._next_status_s = float("inf")
+        self.heap_trim = heap.process_trim(trim_heap_period_s) if trim_heap_period_s is not None else None
         self._publisher = None
         self._token = None
 
@@ -157,6 +163,9 @@ class Presence:
             stats = self.publish()
             if self.status_period_s is not None:
                 status_log.info("%s (leaving)", self.status_line(stats))
+            if self.heap_trim is not None and self.heap_trim.trims:
+                log.info("heap trimmed %d times, %.1f ms each on average", self.heap_trim.trims,
+                         1e3 * self.heap_trim.seconds / self.heap_trim.trims)
         finally:
             self._token.undeclare()
 
@@ -196,3 +205,5 @@ class Presence:
             if now_s >= self._next_status_s:
                 status_log.info("%s", self.status_line(stats))
                 self._next_status_s = now_s + self.status_period_s
+        if self.heap_trim is not None:
+            self.heap_trim.if_due(now_s)

@@ -6,7 +6,7 @@ import json
 import math
 import time
 from collections import deque
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 
 from camnet.errors import InputError
 
@@ -35,7 +35,7 @@ class CameraSeen:
     missing: bool
 
     def to_doc(self) -> dict:
-        return asdict(self)
+        return {"age_s": self.age_s, "fps": self.fps, "missing": self.missing}
 
     @staticmethod
     def from_doc(doc: object) -> CameraSeen:
@@ -73,7 +73,12 @@ class NodeStats:
     cameras: dict[str, CameraSeen] = field(default_factory=dict)
 
     def to_json(self) -> bytes:
-        return json.dumps({"format": STATS_FORMAT, **asdict(self)}, allow_nan=False).encode()
+        # Written out field by field: dataclasses.asdict took 80 us, in a driver's frame loop every second.
+        doc = {"format": STATS_FORMAT, "rig": self.rig, "kind": self.kind, "node_id": self.node_id,
+               "fps": self.fps, "frames": self.frames, "dropped": self.dropped,
+               "timestamp_ns": self.timestamp_ns, "detail": self.detail, "faults": dict(self.faults),
+               "cameras": {camera_id: seen.to_doc() for camera_id, seen in self.cameras.items()}}
+        return json.dumps(doc, allow_nan=False).encode()
 
     @staticmethod
     def from_json(payload: bytes) -> NodeStats:
