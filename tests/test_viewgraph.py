@@ -94,7 +94,7 @@ def test_an_arc_round_one_object_matches_a_linear_number_of_pairs():
             reached |= {k for pair in pairs if reached & set(pair) for k in pair}
         assert reached == set(range(m))
     # Counted as the node chooses them once calibrated, where every pair matched well at the cold start:
-    # the geometry's pairs, topped up to 3 partners from those, and one explored.
+    # the geometry's pairs (4 partners each at most), topped up from those, and one explored.
     counts = {}
     for m in (8, 16, 32):
         cameras, points = arc(m)
@@ -102,7 +102,7 @@ def test_an_arc_round_one_object_matches_a_linear_number_of_pairs():
         graph.update(Calibration(tuple(cameras), np.arange(len(points)), points, 0.5, "c00"))
         ids = [c.id for c in cameras]
         counts[m] = len(graph.pairs(ids, matched_well={frozenset(p) for p in combinations(ids, 2)}))
-    assert all(counts[m] <= 3 * m // 2 + 2 for m in counts), counts
+    assert all(counts[m] <= 4 * m // 2 + 2 for m in counts), counts
     assert counts[32] <= 2 * counts[16] + 1, counts
 
 

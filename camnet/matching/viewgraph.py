@@ -42,10 +42,10 @@ class ViewGraphConfig:
 
     min_overlap: float = 0.05  # of either camera's frustum the other sees
     max_axis_angle_deg: float = 75.0  # optical axes further apart: features do not match across
-    # Partners per camera by the geometry: as many as each camera of a 4-camera rig has, so that a rig of M
-    # matches about 1.5 M pairs. On 16 cameras of an arc round one object 4 made 29 pairs, 3 made 23 (a
-    # recorded live feature stream, offline: 0.27 against 0.22 CPU s a frame set).
-    neighbours: int = 3
+    # Partners per camera by the geometry (at most neighbours * M / 2 pairs). On the 16 cameras of
+    # config/hosts16.yaml 4 make 29 pairs, 3 make 23 (a recorded live feature stream, offline: 0.22 against
+    # 0.17 CPU s a frame set), but a third fewer tracks seen by 3+ cameras.
+    neighbours: int = 4
     # Other pairs per frame set, in rotation. An explored pair is matched whole (its last whole match is
     # older than its cameras' keyframes): one costs as much as a dozen pairs matched on what changed.
     explore_per_set: int = 1
