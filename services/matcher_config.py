@@ -39,7 +39,7 @@ class MatcherNodeConfig:
     lockstep: bool = False  # frames come from `camnet replay --lockstep`, one step at a time
     keyframe_period: int = 30  # frames detected here: whole at least every this many (1: always)
     view_graph: bool = True  # once calibrated, match only the pairs that overlap (and a few others)
-    explore_pairs: int = 2  # with the view graph: other pairs matched per frame set, in rotation
+    explore_pairs: int = 1  # with the view graph: other pairs matched per frame set, in rotation
 
     def __post_init__(self) -> None:
         if not isinstance(self.detector, Detector):

@@ -9,7 +9,7 @@ from dataclasses import replace
 
 import numpy as np
 from camnet.services.calibrator import CalibratorConfig, CalibratorNode
-from camnet.services.matcher import MatcherNodeConfig
+from camnet.services.matcher import VIEW_GRAPH_PERIOD_S, MatcherNode, MatcherNodeConfig
 from camnet.services.matcher_calibration import ASK_PERIOD_S, CalibrationInbox
 
 from camnet.bus import keys
@@ -120,3 +120,35 @@ def test_the_matcher_asks_for_the_latest_calibration_until_an_answer_comes(zenoh
             queryable.undeclare()
     finally:
         subscriber.undeclare()
+
+
+class _Sample:
+    """A calibration as Zenoh hands it to the subscriber's callback."""
+
+    def __init__(self, payload: bytes) -> None:
+        self.payload = self
+        self._payload = payload
+
+    def to_bytes(self) -> bytes:
+        return self._payload
+
+
+def test_the_view_graph_is_renewed_from_the_newest_calibration_at_most_once_a_period():
+    # A calibrator publishes about one calibration per frame set; parsing each (16 cameras, 5000 points) and
+    # renewing the view graph cost the matcher 50 ms a set. The first is taken at once, then one per period.
+    rig = parse_rig(rig_document("vgperiod"))
+    node = MatcherNode(None, rig)  # no session: nothing here touches the bus
+    try:
+        payload = json.dumps(calibration_with_mono_b_elsewhere(rig)).encode()
+        node.calibration.on_sample(_Sample(payload))
+        node._take_calibration()
+        assert node.view_graph.calibrated == {"left", "right", "mono_a", "mono_b"}
+        assert not node.calibration.waiting
+        node.calibration.on_sample(_Sample(payload))
+        node._take_calibration()
+        assert node.calibration.waiting  # kept for the next period, or replaced by a newer one
+        node._view_graph_s -= VIEW_GRAPH_PERIOD_S  # the period has passed
+        node._take_calibration()
+        assert not node.calibration.waiting
+    finally:
+        node._workers.shutdown()

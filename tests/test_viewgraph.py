@@ -71,6 +71,41 @@ def test_ring_pairs_are_neighbours_and_grow_linearly():
     assert counts[32] <= 4 * 32 // 2 * 1.01 and counts[32] <= 2.2 * counts[16]
 
 
+def arc(m: int) -> tuple[list[Camera], np.ndarray]:
+    """`m` cameras on an arc of 150 degrees 0.6 m round one small object (config/hosts16.yaml's kind): every
+    camera sees every other's view of it."""
+    angles = np.radians(np.linspace(-75.0, 75.0, m))
+    cameras = [camera(f"c{k:02d}", (0.6 * np.sin(a), 0.1 * (-1) ** k, -0.6 * np.cos(a)), (0, 0, 0))
+               for k, a in enumerate(angles)]
+    points = np.random.default_rng(2).uniform(-0.06, 0.06, (500, 3))
+    return cameras, points
+
+
+def test_an_arc_round_one_object_matches_a_linear_number_of_pairs():
+    # Each camera's best partners, united, gave 33 pairs of 16 such cameras (41 with 4 partners each).
+    for m in (8, 16, 32):
+        cameras, points = arc(m)
+        pairs = overlapping_pairs(cameras, points, neighbours=3)
+        degree = Counter(k for pair in pairs for k in pair)
+        assert len(pairs) <= 3 * m // 2, (m, len(pairs))
+        assert min(degree[k] for k in range(m)) >= 2
+        reached = {0}  # and connected: tracks still run along the whole arc
+        for _ in range(m):
+            reached |= {k for pair in pairs if reached & set(pair) for k in pair}
+        assert reached == set(range(m))
+    # Counted as the node chooses them once calibrated, where every pair matched well at the cold start:
+    # the geometry's pairs (4 partners each at most), topped up from those, and one explored.
+    counts = {}
+    for m in (8, 16, 32):
+        cameras, points = arc(m)
+        graph = ViewGraph(always={frozenset(("c00", "c01"))})
+        graph.update(Calibration(tuple(cameras), np.arange(len(points)), points, 0.5, "c00"))
+        ids = [c.id for c in cameras]
+        counts[m] = len(graph.pairs(ids, matched_well={frozenset(p) for p in combinations(ids, 2)}))
+    assert all(counts[m] <= 4 * m // 2 + 2 for m in counts), counts
+    assert counts[32] <= 2 * counts[16] + 1, counts
+
+
 def test_a_camera_that_sees_no_point_has_no_pair():
     cameras, points = ring(8)
     away = camera("away", (0, 0, -2), (0, 0, -5))

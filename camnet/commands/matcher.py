@@ -43,7 +43,7 @@ def _node_flags() -> tuple[tuple[str, dict], ...]:
                                    "(default: True)")),
         ("--explore-pairs", dict(type=int, metavar="N",
                                  help="with the view graph: also match N other pairs per frame set, in rotation, "
-                                      "to find a moved camera again (default: 2)")),
+                                      "to find a moved camera again (default: 1)")),
         ("--stats-period-s", dict(type=float, metavar="S",
                                   help="seconds between statistics messages (default: 1.0)")),
         ("--lockstep", dict(action="store_true",

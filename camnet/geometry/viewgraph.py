@@ -22,6 +22,7 @@ import numpy as np
 from camnet.geometry.model import Camera
 
 BORDER_SAMPLES = 16  # pixels along each image side whose undistorted rays bound the image
+MIN_PARTNERS = 2  # a camera keeps at least this many partners (where it has as many qualified)
 
 
 def image_bounds(camera: Camera) -> np.ndarray:
@@ -107,11 +108,15 @@ def overlapping_pairs(cameras: Sequence[Camera], points_world: np.ndarray, *, mi
 
     A pair qualifies when either camera sees at least `min_overlap` of the
     other's frustum in the scene's depth range (`frustum_overlap`) and their
-    axes are at most `max_axis_angle_deg` apart. Each camera keeps its
-    `neighbours` best-qualified partners (ranked by overlap times the cosine of
-    the axis angle) and the pairs are the union of these, so that their number
-    grows linearly with the number of cameras. A camera that sees no point
-    has no pair here (the caller matches it with every camera).
+    axes are at most `max_axis_angle_deg` apart. Qualified pairs are taken best
+    first (overlap times the cosine of the axis angle) while both cameras have
+    fewer than `neighbours` partners, so that there are at most
+    neighbours * M / 2 pairs: linear in M. (Each camera's own best
+    `neighbours`, united, made 41 pairs of the 16 cameras of an arc round
+    one object, where every camera is some camera's best.) A camera whose
+    qualified partners filled first keeps its best `MIN_PARTNERS` anyway.
+    A camera that sees no point has no pair here (the caller matches it
+    with every camera).
     """
     if not 0.0 <= min_overlap <= 1.0 or neighbours < 1:
         raise ValueError(f"expected min_overlap in [0, 1] and neighbours >= 1, got {min_overlap}, {neighbours}")
@@ -122,9 +127,21 @@ def overlapping_pairs(cameras: Sequence[Camera], points_world: np.ndarray, *, mi
     qualified &= angles <= max_axis_angle_deg
     np.fill_diagonal(qualified, False)
     score = np.where(qualified, np.nan_to_num(shared) * np.cos(np.radians(angles)), -np.inf)
+    first, second = np.nonzero(np.triu(qualified, 1))
+    order = np.lexsort((second, first, -score[first, second]))  # best first; ties by index, for repeatability
+    degree = np.zeros(len(cameras), dtype=int)
     pairs: set[tuple[int, int]] = set()
-    for a in range(len(cameras)):
-        partners = np.flatnonzero(qualified[a])
-        best = partners[np.argsort(-score[a, partners], kind="stable")[:neighbours]]
-        pairs.update((min(a, b), max(a, b)) for b in best.tolist())
+    for a, b in zip(first[order].tolist(), second[order].tolist(), strict=True):
+        if degree[a] < neighbours and degree[b] < neighbours:
+            pairs.add((a, b))
+            degree[[a, b]] += 1
+    # A camera left with one partner or none (its others filled first) ends a chain: give it a second.
+    least = min(MIN_PARTNERS, neighbours)
+    for a in np.flatnonzero(degree < least).tolist():
+        for b in np.argsort(-score[a], kind="stable")[:np.count_nonzero(qualified[a])].tolist():
+            if degree[a] >= least:
+                break
+            if (min(a, b), max(a, b)) not in pairs:
+                pairs.add((min(a, b), max(a, b)))
+                degree[[a, b]] += 1
     return sorted(pairs)

@@ -42,8 +42,13 @@ class ViewGraphConfig:
 
     min_overlap: float = 0.05  # of either camera's frustum the other sees
     max_axis_angle_deg: float = 75.0  # optical axes further apart: features do not match across
-    neighbours: int = 4  # best partners kept per camera by the geometry
-    explore_per_set: int = 2  # other pairs matched per frame set, in rotation
+    # Partners per camera by the geometry (at most neighbours * M / 2 pairs). On the 16 cameras of
+    # config/hosts16.yaml 4 make 29 pairs, 3 make 23 (a recorded live feature stream, offline: 0.22 against
+    # 0.17 CPU s a frame set), but a third fewer tracks seen by 3+ cameras.
+    neighbours: int = 4
+    # Other pairs per frame set, in rotation. An explored pair is matched whole (its last whole match is
+    # older than its cameras' keyframes): one costs as much as a dozen pairs matched on what changed.
+    explore_per_set: int = 1
     good_matches: int = 40  # inliers of a pair's last whole match that keep it matched
 
     def __post_init__(self) -> None:
