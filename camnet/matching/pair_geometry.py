@@ -108,7 +108,7 @@ class PairGeometry:
     sixteen cameras. A pair's F does not change while the rig is static, so
     each call refits `1 / refit_every` of the pairs in turn, a pair without
     an F when its tracks have grown by half since it was last tried, and a
-    pair whose F most new tracks disagree with; tracks that changed are
+    pair whose F over `SUSPECT_SHARE` of its new tracks disagree with; tracks that changed are
     checked against every F, and all of a refitted pair's tracks against
     its new F.
     """
@@ -175,7 +175,6 @@ class PairGeometry:
                 d = sampson_px(np.broadcast_to(self._F[i, j], (len(both), 3, 3)), uv[both, i], uv[both, j])
                 bad = both[d > self._limit_px[i, j]]
                 found.append((bad, np.full(len(bad), i), np.full(len(bad), j)))
-        track, a, b = (np.concatenate(parts) for parts in zip(*found, strict=True))
-        # A track found off in one pair twice (changed, then refitted) counts once per pair.
-        track, a, b = np.unique(np.column_stack([track, a, b]).astype(np.int64), axis=0).T.reshape(3, -1)
+        # A refitted pair's verdicts replace what its old F said of the changed tracks: each pair counts once.
+        track, a, b = (np.concatenate(parts).astype(np.int64) for parts in zip(*found, strict=True))
         return views_to_blame(track, a, b, seen.shape)

@@ -86,7 +86,7 @@ class PoolUpdate:
     reobserved: int  # matched a pooled track (same 3-D point), merged into it
     added: int
     evicted: int
-    rejected: int = 0  # pooled tracks off their pairs' pooled F (see `camnet.matching.pair_geometry`)
+    rejected: int = 0  # tracks the pooled F check left with under two views (`camnet.matching.pair_geometry`)
 
 
 def _agree(uv_a: np.ndarray, uv_b: np.ndarray, radius_px: float) -> tuple[int, bool]:
