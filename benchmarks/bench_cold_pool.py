@@ -7,7 +7,7 @@ matcher manages per frame set), pools the frame sets as the matcher does (5000 t
 many of the pool's multi-view tracks are false (triangulated from all their views with the true
 cameras, some view more than 2 px off), in its older and newer half.
 
-    python benchmarks/bench_cold_pool.py [--step 15] [--at 6,10,16] [--cache DIR] [--epipolar-px 1]
+    python benchmarks/bench_cold_pool.py [--step 15] [--at 6,10,16] [--cache DIR] [--epipolar-px 0]
                                          [--save DIR [--no-solve]]
 
 --save writes each pool as DIR/surround-pool-<frame sets>.json.gz (camnet.observations/1, pixels to
@@ -101,7 +101,7 @@ def main() -> None:
     parser.add_argument("--save", type=Path, help="write each pool to this folder")
     parser.add_argument("--no-solve", action="store_true", help="only render, pool and save")
     parser.add_argument("--epipolar-px", type=float, default=PoolConfig().epipolar_px,
-                        help="the pool's check of tracks against each pair's pooled F, px (0: none; 1 measured)")
+                        help="the pool's check of views against each pair's pooled F, px (0: none)")
     parser.add_argument("--cache", type=Path, default=None, help="folder keeping each frame set's tracks")
     args = parser.parse_args()
     at = sorted(int(n) for n in args.at.split(","))

@@ -33,7 +33,7 @@ Matching 1280x1024 images is slow (20-90 s per frame set of nine on a busy
 2-core machine); `--cache DIR` keeps each slot's tracks so that later runs only solve.
 
     python benchmarks/bench_surround_sigmas.py [--slots 36] [--sets 6] [--cache DIR] [--interleaved]
-        [--variants pooled,no false,...] [--epipolar-px 1]
+        [--variants pooled,no false,...] [--epipolar-px 0]
 """
 
 from __future__ import annotations
@@ -368,7 +368,7 @@ def main() -> int:
                         help=f"comma-separated, of {', '.join(VARIANTS)}, each also with ' strict' "
                         "(outliers by the robust sigma alone)")
     parser.add_argument("--epipolar-px", type=float, default=PoolConfig().epipolar_px,
-                        help="the pool's check of tracks against each pair's pooled F, px (0: none; 1 measured)")
+                        help="the pool's check of views against each pair's pooled F, px (0: none)")
     parser.add_argument("--interleaved", action="store_true",
                         help="also solve windows of every (slots / sets)-th slot (other frame-set selections)")
     args = parser.parse_args()

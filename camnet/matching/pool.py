@@ -23,9 +23,10 @@ What counts as the same scene point:
   the static background, so it is merged into the pooled track, which is
   marked as seen again (`last_seen`).
 
-With `PoolConfig.epipolar_px` set, every pair of cameras gets an F fitted
-to all that the pool holds of it (refitted in turn), and a track whose
-views in some pair lie off it is dropped (`camnet.matching.pair_geometry`): false tracks that one frame set's
+With `PoolConfig.epipolar_px` set (the default), every pair of cameras
+gets an F fitted to all that the pool holds of it (refitted in turn), and
+a view off it is dropped, or the whole track where no one view is to blame
+(`camnet.matching.pair_geometry`): false tracks that one frame set's
 matching let through would otherwise accumulate.
 
 When the pool is over `max_tracks`, tracks are evicted from the most
@@ -57,11 +58,11 @@ class PoolConfig:
     duplicate_radius_px: float = 1.0
     grid_cols: int = 8  # cells across each image for spreading
     grid_rows: int = 8
-    # A track off a pair's pooled F by more than this (Sampson, px) is dropped; 0: no check. Off by default:
-    # at 1 px (the matcher's RANSAC threshold) the surround rig's pool holds 1.5% false tracks instead of
-    # 7-20%, but tests/test_surround.py's cold start then failed to place ring5, and config/sim.yaml's pool
-    # kept 12% fewer tracks seen by three cameras (README, "The surround rig, live").
-    epipolar_px: float = 0.0
+    # A view off its pair's pooled F by more than this (Sampson, px; a pair with a wider residual spread gets a
+    # wider limit) is dropped (`camnet.matching.pair_geometry`); 0: no check. 2 px, not the matcher's 1 px
+    # RANSAC threshold: an F pooled over a few frame sets is still a pixel off in places (README, "The
+    # surround rig, live").
+    epipolar_px: float = 2.0
     epipolar_min_tracks: int = 20  # a pair's F needs this many tracks on it (the matcher's min_matches)
 
     def __post_init__(self) -> None:
@@ -85,7 +86,7 @@ class PoolUpdate:
     reobserved: int  # matched a pooled track (same 3-D point), merged into it
     added: int
     evicted: int
-    rejected: int = 0  # pooled tracks off their pairs' pooled F (see `camnet.matching.pair_geometry`)
+    rejected: int = 0  # tracks the pooled F check left with under two views (`camnet.matching.pair_geometry`)
 
 
 def _agree(uv_a: np.ndarray, uv_b: np.ndarray, radius_px: float) -> tuple[int, bool]:
@@ -244,7 +245,9 @@ class TrackPool:
     def _reject_off_epipolar(self, changed: np.ndarray) -> int:
         if self.config.epipolar_px <= 0:
             return 0
-        keep = ~self._geometry.outliers(self._uv, changed)
+        off = self._geometry.off_views(self._uv, changed)
+        self._uv[off] = np.nan
+        keep = ~off.any(axis=1) | (np.isfinite(self._uv[:, :, 0]).sum(axis=1) >= 2)
         self._uv, self._ids, self._last_seen = self._uv[keep], self._ids[keep], self._last_seen[keep]
         return int((~keep).sum())
 
