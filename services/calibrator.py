@@ -28,7 +28,8 @@ from camnet.bus.session import declare_liveliness
 from camnet.bus.stats import Activity, RateMeter
 from camnet.errors import InputError
 from camnet.geometry.evaluate import scale_sigma_rel
-from camnet.geometry.live import LiveConfig, Outcome, Tracker
+from camnet.geometry.live import Outcome, Tracker
+from camnet.geometry.live_policy import LiveConfig
 from camnet.geometry.model import Calibration, Observations
 from camnet.io.formats import (
     MAX_TRACKS,

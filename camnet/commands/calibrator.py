@@ -7,7 +7,7 @@ import os
 from dataclasses import replace
 from pathlib import Path
 
-# camnet.geometry.live.LIVE_FREE, spelled out so that building the parser imports no numpy.
+# camnet.geometry.live_policy.LIVE_FREE, spelled out so that building the parser imports no numpy.
 DEFAULT_FREE = "f,fisheye,stereo_rotation,stereo_direction"
 
 
@@ -26,8 +26,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="intrinsics to estimate: a comma list of f, aspect, pp, k1, k2, fisheye, "
                              "stereo_rotation, stereo_direction, or 'auto' for the engine's rule (default: "
                              "%(default)s; principal points and pinhole distortion are held as given, see "
-                             "camnet/geometry/live.py; a rig file with the pair's pose, stereo.R and stereo.t, "
-                             "holds the pair: default f,fisheye)")
+                             "camnet/geometry/live_policy.py; a rig file with the pair's pose, stereo.R and "
+                             "stereo.t, holds the pair: default f,fisheye)")
     parser.add_argument("--loss", choices=tuple(loss.value for loss in Loss), default=Loss.CAUCHY.value,
                         help="robust loss of the adjustment (default cauchy)")
     parser.add_argument("--max-rms-px", type=float, default=3.0,
@@ -64,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
     from camnet.commands.calibrate import parse_free
     from camnet.errors import InputError
     from camnet.geometry.calibrate import Options
-    from camnet.geometry.live import LiveConfig
+    from camnet.geometry.live_policy import LiveConfig
     from camnet.services.calibrator import CalibratorConfig, CalibratorNode, RerunView
     from camnet.viz import close_recording, open_recording
     from camnet.viz_sinks import sinks_from_args
