@@ -29,7 +29,8 @@ import numpy as np
 from camnet.drivers.base import create_camera
 
 from camnet.geometry.evaluate import compare_cameras
-from camnet.geometry.live import LiveConfig, Tracker
+from camnet.geometry.live import Tracker
+from camnet.geometry.live_policy import LiveConfig
 from camnet.geometry.model import CameraInfo, Observations, Stereo
 from camnet.io.formats import observations_to_doc
 from camnet.io.rig import load_rig

@@ -55,7 +55,7 @@ from camnet.errors import CamnetError
 from camnet.geometry.bundle import apply_step, residuals
 from camnet.geometry.calibrate import Result, calibrate
 from camnet.geometry.evaluate import compare_cameras
-from camnet.geometry.live import LiveConfig, judge
+from camnet.geometry.live_policy import LiveConfig, judge
 from camnet.geometry.model import Camera, CameraInfo, Observations, Stereo
 from camnet.geometry.uncertainty import with_guessed_pp
 from camnet.io.rig import Rig, load_rig

@@ -3,7 +3,8 @@
 The calibrator opens a recording with `open_recording` (sinks from the
 repeatable ``--rerun`` flag: `camnet.viz_sinks`), calls
 `log_calibration` after every solve (`log_solve_failure` when a solve fails),
-`log_frame` for the images it uses, and `close_recording` when it stops. With
+`log_frame` for the images it shows (at most every `FRAME_PERIOD_S` per
+camera, `FrameSchedule`), and `close_recording` when it stops. With
 no sink the recording is None, every function does nothing and Rerun is not
 even imported. Visualization is a sidecar: a failure to log is warned about
 once per kind and never raised into the caller.
@@ -12,7 +13,7 @@ Entity layout (application id ``camnet``, recording name = the rig)::
 
     world                                   view coordinates RDF (the left stereo camera's frame)
     world/cameras/<id>                      Transform3D world_from_cam + Pinhole (K, resolution, RDF)
-    world/cameras/<id>/image                the latest image (JPEG)
+    world/cameras/<id>/image                the latest image (JPEG), not logged at every solve
     world/cameras/<id>/image/observations   Points2D: the camera's track observations, coloured
                                             by reprojection error; grey: tracks the solve rejected
     world/points                            Points3D: the cloud, coloured by reprojection error
@@ -46,7 +47,7 @@ import os
 import socket
 import weakref
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -79,6 +80,11 @@ SERVE_MEMORY_LIMIT = "16MiB"
 # connect, serve) keeps that default: it sees each solve as it comes. `close_recording` writes what is held.
 SAVE_FLUSH_S = 30.0
 SAVE_FLUSH_BYTES = 16 * 2**20
+# A camera's latest frame is logged with a solve at most this often (capture time). Logged at every solve, the
+# frames' JPEGs were most of a saved recording (config/sim.yaml, 4 cameras at 1280x1024: 530 of 656 kB a
+# solve; 152-161 kB a solve with this period, README), though a static camera's frame barely changes. The
+# viewer draws a solve's observations over the camera's latest image at the time cursor, an older one included.
+FRAME_PERIOD_S = 10.0
 
 # Solves counted per recording; weak keys so a dropped recording leaves nothing behind.
 _solve_counts: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
@@ -406,6 +412,25 @@ def _infer_encoding(image: np.ndarray) -> str:
     return "bgr8"
 
 
+@dataclass
+class FrameSchedule:
+    """Which cameras' latest frames a solve logs: each at most every `period_s` seconds of capture time (0:
+    at every solve), and always a camera's first frame and that of a camera taken for moved (its view changed).
+    """
+
+    period_s: float = FRAME_PERIOD_S
+    _logged_ns: dict[str, int] = field(default_factory=dict)
+
+    def take(self, camera_id: str, time_ns: int, *, moved: bool = False) -> bool:
+        """Whether to log `camera_id`'s frame with the solve of capture time `time_ns` (ns); if so, it
+        counts as logged then. Time going back (a replay started over) makes it due."""
+        last = self._logged_ns.get(camera_id)
+        if not moved and last is not None and 0 <= time_ns - last < self.period_s * 1e9:
+            return False
+        self._logged_ns[camera_id] = time_ns
+        return True
+
+
 @_sidecar
 def log_frame(
     rec: rr.RecordingStream | None,
@@ -440,6 +465,8 @@ def log_frame(
 
 __all__ = [
     "ERROR_RANGE_PX",
+    "FRAME_PERIOD_S",
+    "FrameSchedule",
     "ReprojectionErrors",
     "close_recording",
     "error_colors",

@@ -28,7 +28,8 @@ from camnet.bus.session import declare_liveliness
 from camnet.bus.stats import Activity, RateMeter
 from camnet.errors import InputError
 from camnet.geometry.evaluate import scale_sigma_rel
-from camnet.geometry.live import LiveConfig, Outcome, Tracker
+from camnet.geometry.live import Outcome, Tracker
+from camnet.geometry.live_policy import LiveConfig
 from camnet.geometry.model import Calibration, Observations
 from camnet.io.formats import (
     MAX_TRACKS,
@@ -299,12 +300,14 @@ class CalibratorNode:
 
 
 class RerunView:
-    """What the calibrator shows in Rerun: every solve, and the latest frame of each camera with it.
+    """What the calibrator shows in Rerun: every solve, and with it the latest frame of each camera when
+    `viz.FrameSchedule` says it is worth logging (every `frame_period_s` of capture time, 0: every solve).
 
-    Frames are received only to be shown; they are logged at the solve rate.
+    Frames are received only to be shown; they are logged at most at the solve rate.
     """
 
-    def __init__(self, rec, *, truth=None) -> None:
+    def __init__(self, rec, *, truth=None, frame_period_s: float | None = None) -> None:
+        from camnet import viz
         from camnet.bus.receiver import FrameReceiver
 
         self.rec = rec
@@ -312,6 +315,7 @@ class RerunView:
         self._receiver = FrameReceiver()
         self._frames: dict = {}
         self._lock = threading.Lock()
+        self._schedule = viz.FrameSchedule(viz.FRAME_PERIOD_S if frame_period_s is None else frame_period_s)
 
     def on_frame(self, sample) -> None:
         frame = self._receiver.accept(sample.payload.to_bytes())
@@ -327,7 +331,8 @@ class RerunView:
         with self._lock:
             frames = list(self._frames.values())
         for frame in frames:
-            viz.log_frame(self.rec, frame.camera_id, frame.image, time_ns=time_ns, encoding=frame.encoding)
+            if self._schedule.take(frame.camera_id, time_ns, moved=frame.camera_id in outcome.moved):
+                viz.log_frame(self.rec, frame.camera_id, frame.image, time_ns=time_ns, encoding=frame.encoding)
         if outcome.status == "good":
             viz.log_calibration(self.rec, outcome.calibration, time_ns=time_ns, observations=obs, truth=self.truth,
                                 solve_index=solve)

@@ -117,7 +117,7 @@ def test_solves_that_are_not_kept_warn_once_a_period_not_each_time(caplog):
     """A rig whose every solve is refused: measured before, one warning per solve."""
     import logging
 
-    from camnet.geometry.live import LiveConfig
+    from camnet.geometry.live_policy import LiveConfig
 
     node = CalibratorNode(None, RIG, CalibratorConfig(live=LiveConfig(max_rms_px=1e-9)))
     caplog.set_level(logging.INFO, logger="camnet.services.calibrator")

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from camnet.geometry.change import drop_before, new_track_errors, without_cameras
-from camnet.geometry.live import LiveConfig, Tracker, judge
+from camnet.geometry.live import Tracker
+from camnet.geometry.live_policy import LiveConfig, judge
 from camnet.geometry.model import Baseline, Camera, Observations, StartKind
 from camnet.geometry.projection import rotation_exp
 from camnet.sim.simulate import make_rig, observe
@@ -120,7 +121,7 @@ def test_a_bad_solve_never_replaces_a_good_calibration(broken):
 def test_the_command_default_is_the_live_default():
     from camnet.commands.calibrate import parse_free
     from camnet.commands.calibrator import DEFAULT_FREE
-    from camnet.geometry.live import LIVE_FREE
+    from camnet.geometry.live_policy import LIVE_FREE
 
     assert parse_free(DEFAULT_FREE) == LIVE_FREE == LiveConfig().options.free
 

@@ -12,7 +12,7 @@ from camnet.geometry.cold_start import cold_start, is_parallel
 from camnet.geometry.diagnostics import refuse_wrong_start
 from camnet.geometry.evaluate import compare
 from camnet.geometry.initialise import camera_order, centred, initial_intrinsics, observation_rows
-from camnet.geometry.live import LiveConfig, judge
+from camnet.geometry.live_policy import LiveConfig, judge
 from camnet.geometry.model import Stereo
 from camnet.geometry.projection import look_at, rotation_exp, skew
 from camnet.geometry.register import resect

@@ -8,7 +8,7 @@ from camnet.drivers.base import create_camera
 
 from camnet.geometry.calibrate import calibrate
 from camnet.geometry.evaluate import compare_cameras
-from camnet.geometry.live import LiveConfig, judge
+from camnet.geometry.live_policy import LiveConfig, judge
 from camnet.geometry.model import CameraInfo, Stereo
 from camnet.io.rig import load_rig
 from camnet.matching.features import MatcherConfig, match_frame_set

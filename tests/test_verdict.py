@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from camnet.geometry.calibrate import Options, calibrate
-from camnet.geometry.live import LIVE_FREE
+from camnet.geometry.live_policy import LIVE_FREE
 from camnet.geometry.model import Calibration
 from camnet.geometry.verdict import Action, Level, Thresholds, format_verdict, judge
 from camnet.io.formats import calibration_to_doc, parse_calibration

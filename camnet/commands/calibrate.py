@@ -99,7 +99,7 @@ def run(args: argparse.Namespace) -> int:
     from camnet.errors import InputError, SolveError
     from camnet.geometry.calibrate import Options, calibrate
     from camnet.geometry.judged_solve import Status
-    from camnet.geometry.live import LiveConfig, policy_check
+    from camnet.geometry.live_policy import LiveConfig, policy_check
     from camnet.geometry.newest_first import solve_newest_first
     from camnet.geometry.verdict import judge
     from camnet.io.formats import (

@@ -7,8 +7,9 @@ import os
 from dataclasses import replace
 from pathlib import Path
 
-# camnet.geometry.live.LIVE_FREE, spelled out so that building the parser imports no numpy.
+# camnet.geometry.live_policy.LIVE_FREE, spelled out so that building the parser imports no numpy.
 DEFAULT_FREE = "f,fisheye,stereo_rotation,stereo_direction"
+FRAME_PERIOD_S = 10.0  # camnet.viz.FRAME_PERIOD_S, for the same reason
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -26,8 +27,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="intrinsics to estimate: a comma list of f, aspect, pp, k1, k2, fisheye, "
                              "stereo_rotation, stereo_direction, or 'auto' for the engine's rule (default: "
                              "%(default)s; principal points and pinhole distortion are held as given, see "
-                             "camnet/geometry/live.py; a rig file with the pair's pose, stereo.R and stereo.t, "
-                             "holds the pair: default f,fisheye)")
+                             "camnet/geometry/live_policy.py; a rig file with the pair's pose, stereo.R and "
+                             "stereo.t, holds the pair: default f,fisheye)")
     parser.add_argument("--loss", choices=tuple(loss.value for loss in Loss), default=Loss.CAUCHY.value,
                         help="robust loss of the adjustment (default cauchy)")
     parser.add_argument("--max-rms-px", type=float, default=3.0,
@@ -38,6 +39,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--lockstep", action="store_true",
                         help="acknowledge every observations message once solved, for `camnet replay --lockstep`")
     add_rerun_arguments(parser)
+    parser.add_argument("--rerun-frame-period-s", type=float, default=FRAME_PERIOD_S, metavar="S",
+                        help="log a camera's latest frame to Rerun with a solve at most every S seconds of "
+                             "capture time, and always its first and when it is taken for moved; 0: at every "
+                             "solve (default %(default)s; the frames' JPEGs are most of what a solve adds)")
     add_bus_arguments(parser)
 
 
@@ -64,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
     from camnet.commands.calibrate import parse_free
     from camnet.errors import InputError
     from camnet.geometry.calibrate import Options
-    from camnet.geometry.live import LiveConfig
+    from camnet.geometry.live_policy import LiveConfig
     from camnet.services.calibrator import CalibratorConfig, CalibratorNode, RerunView
     from camnet.viz import close_recording, open_recording
     from camnet.viz_sinks import sinks_from_args
@@ -74,6 +79,8 @@ def run(args: argparse.Namespace) -> int:
     for flag, value in (("--max-rms-px", args.max_rms_px), ("--max-scale-rel", args.max_scale_rel)):
         if not value > 0:
             raise InputError(f"{flag}: must be positive, got {value}")
+    if not 0 <= args.rerun_frame_period_s < float("inf"):
+        raise InputError(f"--rerun-frame-period-s: must be 0 or more seconds, got {args.rerun_frame_period_s}")
     state = None
     if not args.no_state:
         state = Path(args.state) if args.state else default_state_path(name)
@@ -96,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
         for sink in sinks:
             print(f"rerun: {sink.describe(host=socket.gethostname())}", flush=True)
         truth = (rig.simulated_truth() if rig is not None else []) or None
-        viewer = RerunView(rec, truth=truth) if rec is not None else None
+        viewer = RerunView(rec, truth=truth, frame_period_s=args.rerun_frame_period_s) if rec is not None else None
         with joined(options_from_args(args)) as session:
             CalibratorNode(session, name, config, viewer=viewer, lockstep=args.lockstep, rig=rig).run()
     finally:

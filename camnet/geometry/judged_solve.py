@@ -5,7 +5,7 @@ hold the others back: where the check passes the rig as a whole and refuses
 the solve only for such cameras, the rest is solved again without them and
 they are named in the report, each with the check's reason. The live
 calibrator (camnet.geometry.live) and `camnet calibrate` solve so, with the
-live policy's check.
+live policy's check (camnet.geometry.live_policy).
 """
 
 from __future__ import annotations
