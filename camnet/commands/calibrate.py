@@ -4,11 +4,17 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from dataclasses import replace
 from functools import partial
+from typing import TYPE_CHECKING
 
 from camnet.geometry.choices import Loss, Method
+
+if TYPE_CHECKING:
+    from camnet.geometry.calibrate import Options
+    from camnet.geometry.model import Calibration, Observations
 
 FREE_HELP = (
     "intrinsics to estimate: 'auto' (default: focal lengths, then whatever the data "
@@ -96,11 +102,8 @@ class Progress:
 
 
 def run(args: argparse.Namespace) -> int:
-    from camnet.errors import InputError, SolveError
-    from camnet.geometry.calibrate import Options, calibrate
-    from camnet.geometry.judged_solve import Status
-    from camnet.geometry.live_policy import LiveConfig, policy_check
-    from camnet.geometry.newest_first import solve_newest_first
+    from camnet.errors import InputError
+    from camnet.geometry.calibrate import Options
     from camnet.geometry.verdict import judge
     from camnet.io.formats import (
         calibration_to_doc,
@@ -138,23 +141,7 @@ def run(args: argparse.Namespace) -> int:
                       seed=args.seed, pp_prior_rel=args.pp_prior_rel)
     if args.pair_tolerance_deg is not None:
         options = replace(options, pair_tolerance_deg=args.pair_tolerance_deg)
-    cal = None
-    if initial is None and options.method == Method.REFINED:
-        # Solved as the live calibrator solves without a calibration (camnet.geometry.newest_first): a long
-        # pool on its newest tracks first, cameras the live policy finds placed wrong left out and named.
-        judged = solve_newest_first(obs, options, partial(policy_check, config=LiveConfig()))
-        cal = judged.calibration
-        if judged.status == Status.REJECTED:
-            print(f"camnet calibrate: warning: the live calibrator would not publish this: {judged.reason}",
-                  file=sys.stderr)
-        progress.say(f"solved ({judged.status})")
-    if cal is None:
-        # A warm start, another method, or a solve that failed: solved here once more, to raise its error.
-        result = calibrate(obs, options, initial=initial)
-        progress.say("solved" if result.converged else "not converged")
-        if not result.converged:
-            raise SolveError(f"the adjustment did not converge: {result.reason}")
-        cal = result.calibration
+    cal = _solve(obs, options, initial, progress)
     write_json_atomic(args.output, calibration_to_doc(cal))
     print("\n".join([f"camnet calibrate: wrote {args.output}", *summary_lines(cal)]), file=sys.stderr)
     if not args.json:
@@ -173,3 +160,35 @@ def run(args: argparse.Namespace) -> int:
     }
     print(json.dumps(summary), file=sys.stdout)
     return 0
+
+
+def _solve(obs: Observations, options: Options, initial: Calibration | None, progress: Progress) -> Calibration:
+    """The calibration of `obs`, or SolveError saying why there is none (nothing is written then)."""
+    from camnet.errors import SolveError
+    from camnet.geometry.calibrate import calibrate
+    from camnet.geometry.judged_solve import Status
+    from camnet.geometry.live_policy import LiveConfig, policy_check
+    from camnet.geometry.newest_first import solve_newest_first
+
+    cal = None
+    if initial is None and options.method == Method.REFINED:
+        # Solved as the live calibrator solves without a calibration (camnet.geometry.newest_first): a long
+        # pool on its newest tracks first, cameras the live policy finds placed wrong left out and named.
+        # What the policy still refuses is wrong (absurd focal lengths, cameras that keep too few of their
+        # observations, a large RMS): refused here too, nothing written. A large scale sigma is not wrong,
+        # only uncertain, and is reported as it is.
+        config = LiveConfig(max_scale_rel=math.inf)
+        judged = solve_newest_first(obs, options, partial(policy_check, config=config))
+        progress.say(f"solved ({judged.status})")
+        if judged.status == Status.REJECTED:
+            raise SolveError(f"the calibration is refused: {judged.reason}; check the cameras named (their "
+                             "matches, their sync, whether they moved), or leave them out of the observations")
+        cal = judged.calibration
+    if cal is None:
+        # A warm start, another method, or a solve that failed: solved here once more, to raise its error.
+        result = calibrate(obs, options, initial=initial)
+        progress.say("solved" if result.converged else "not converged")
+        if not result.converged:
+            raise SolveError(f"the adjustment did not converge: {result.reason}")
+        cal = result.calibration
+    return cal
