@@ -170,7 +170,6 @@ def _solve(obs: Observations, options: Options, initial: Calibration | None, pro
     from camnet.geometry.live_policy import LiveConfig, policy_check
     from camnet.geometry.newest_first import solve_newest_first
 
-    cal = None
     if initial is None and options.method == Method.REFINED:
         # Solved as the live calibrator solves without a calibration (camnet.geometry.newest_first): a long
         # pool on its newest tracks first, cameras the live policy finds placed wrong left out and named.
@@ -183,12 +182,11 @@ def _solve(obs: Observations, options: Options, initial: Calibration | None, pro
         if judged.status == Status.REJECTED:
             raise SolveError(f"the calibration is refused: {judged.reason}; check the cameras named (their "
                              "matches, their sync, whether they moved), or leave them out of the observations")
-        cal = judged.calibration
-    if cal is None:
-        # A warm start, another method, or a solve that failed: solved here once more, to raise its error.
-        result = calibrate(obs, options, initial=initial)
-        progress.say("solved" if result.converged else "not converged")
-        if not result.converged:
-            raise SolveError(f"the adjustment did not converge: {result.reason}")
-        cal = result.calibration
-    return cal
+        if judged.status == Status.FAILED:
+            raise SolveError(judged.reason)  # the last solve's own error (not solved again to raise it)
+        return judged.calibration
+    result = calibrate(obs, options, initial=initial)  # a warm start, or another method
+    progress.say("solved" if result.converged else "not converged")
+    if not result.converged:
+        raise SolveError(f"the adjustment did not converge: {result.reason}")
+    return result.calibration

@@ -18,10 +18,8 @@ file's ids say nothing of age, its "newest" tracks are merely a subset.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import replace
 from functools import partial
-from typing import TypeVar
 
 import numpy as np
 
@@ -34,8 +32,6 @@ from camnet.geometry.model import Calibration, Observations
 # say nothing of age: on one 9-camera frame set starting on its newest tracks cost 31 s against 8 s.
 START_TRACKS = 2500
 
-T = TypeVar("T")
-
 
 def newest_tracks(obs: Observations, count: int) -> Observations:
     """`obs` with only its `count` newest tracks (the largest ids: a pool numbers them in time)."""
@@ -47,24 +43,6 @@ def newest_tracks(obs: Observations, count: int) -> Observations:
                    track_index=new_row[obs.track_index[rows]], uv=obs.uv[rows])
 
 
-def newest_first(obs: Observations, solve: Callable[[Observations, Calibration | None], T],
-                 good: Callable[[T], Calibration | None], *, start: Calibration | None = None,
-                 start_tracks: int = START_TRACKS) -> T | None:
-    """The whole pool solved warm from its newest `start_tracks` tracks' solution, or None.
-
-    solve(observations, start): one solve from `start` (None: cold); good(outcome): its calibration
-    where the caller trusts it, else None. None where the pool has fewer than twice `start_tracks`
-    tracks or either solve is not good: the caller then solves the whole pool from `start` itself.
-    """
-    if len(obs.track_ids) < 2 * start_tracks:
-        return None
-    seed = good(solve(newest_tracks(obs, start_tracks), start))
-    if seed is None:
-        return None
-    whole = solve(obs, seed)
-    return whole if good(whole) is not None else None
-
-
 def solve_newest_first(obs: Observations, options: Options, check: Check, *, start: Calibration | None = None,
                        start_tracks: int = START_TRACKS) -> Judged:
     """A pool solved from `start` (None: cold) as the live calibrator solves one without a good calibration.
@@ -74,6 +52,10 @@ def solve_newest_first(obs: Observations, options: Options, check: Check, *, sta
     judged by `check` (`judged_solve.solve_judged`: without the cameras it finds placed wrong, named).
     """
     solve = partial(solve_judged, options=options, check=check)
-    newest = newest_first(obs, solve, lambda judged: judged.calibration if judged.status == Status.GOOD else None,
-                          start=start, start_tracks=start_tracks)
-    return newest if newest is not None else solve(obs, start)
+    if len(obs.track_ids) >= 2 * start_tracks:
+        seed = solve(newest_tracks(obs, start_tracks), start)
+        if seed.status == Status.GOOD:
+            whole = solve(obs, seed.calibration)
+            if whole.status == Status.GOOD:
+                return whole
+    return solve(obs, start)
