@@ -132,15 +132,17 @@ class PairGeometry:
         grown = ~self._has[a, b] & (counts[a, b] >= 1.5 * self._tried_at[a, b])
         return {(int(i), int(j)) for i, j in zip(a[in_turn | grown], b[in_turn | grown], strict=True)}
 
-    def _fit(self, a: int, b: int, uv_a: np.ndarray, uv_b: np.ndarray) -> bool:
+    def _fit(self, a: int, b: int, uv_a: np.ndarray, uv_b: np.ndarray) -> np.ndarray | None:
+        """Fit the pair's F to these views; their Sampson distances to it (px), or None where none fits."""
         F = pooled_fundamental(uv_a, uv_b, threshold_px=self.threshold_px, min_inliers=self.min_inliers)
         self._tried_at[a, b] = len(uv_a)
         self._has[a, b] = F is not None
-        if F is not None:
-            self._F[a, b] = F
-            sigma_px = np.median(sampson_px(np.broadcast_to(F, (len(uv_a), 3, 3)), uv_a, uv_b)) / 0.6745
-            self._limit_px[a, b] = max(self.threshold_px, SPREAD * sigma_px)
-        return F is not None
+        if F is None:
+            return None
+        self._F[a, b] = F
+        d = sampson_px(np.broadcast_to(F, (len(uv_a), 3, 3)), uv_a, uv_b)
+        self._limit_px[a, b] = max(self.threshold_px, SPREAD * np.median(d) / 0.6745)
+        return d
 
     def _off(self, uv: np.ndarray, seen: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, ...]:
         """(track, a, b, off) for every pair with an F that tracks `rows` are seen in."""
@@ -171,8 +173,8 @@ class PairGeometry:
         found = [(track[keep], a[keep], b[keep])]
         for i, j in sorted(due):
             both = np.flatnonzero(seen[:, i] & seen[:, j])
-            if self._fit(i, j, uv[both, i], uv[both, j]):
-                d = sampson_px(np.broadcast_to(self._F[i, j], (len(both), 3, 3)), uv[both, i], uv[both, j])
+            d = self._fit(i, j, uv[both, i], uv[both, j])
+            if d is not None:
                 bad = both[d > self._limit_px[i, j]]
                 found.append((bad, np.full(len(bad), i), np.full(len(bad), j)))
         # A refitted pair's verdicts replace what its old F said of the changed tracks: each pair counts once.
