@@ -12,8 +12,8 @@ Methods:
   known distance), with a robust loss, outlier rejection and the
   free-intrinsics rule below. A solve that is refused, or keeps few of its
   observations, or leaves out a camera that shares many tracks, is run
-  again from the other start, and the sounder kept
-  (camnet.geometry.start_choice).
+  again from each start not yet tried, and the one of least truncated
+  cost kept (camnet.geometry.start_choice).
 - ``unconstrained``: the same adjustment with the right camera free in 3-D and
   no known distance, as structure from motion: the scale is left to the optimiser.
 
