@@ -153,7 +153,7 @@ def main() -> int:
     print("| family | solved | refused | wrong in silence (> 3 sigma) | median scale err % | median scale sigma % "
           "| scale CRB % | scale err / CRB | median shape mm | shape CRB mm | shape / CRB "
           "| median max focal err % | median RMS px | scale err %, equal weights: camnet | pycolmap BA + distance "
-          "| pycolmap / camnet | main refusals | time s |")
+          "| pycolmap / camnet | most common refusals | time s |")
     print("|" + "---|" * 18)
     for r in rows:
         cells = [r["name"], r["solved"], r["refused"], r["silent"], f"{r['scale_rel']:.2f}",
