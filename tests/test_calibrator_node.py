@@ -117,9 +117,9 @@ def test_solves_that_are_not_kept_warn_once_a_period_not_each_time(caplog):
     """A rig whose every solve is refused: measured before, one warning per solve."""
     import logging
 
-    from camnet.geometry.live_policy import LiveConfig
+    from camnet.geometry.live_policy import LiveConfig, SoundnessLimits
 
-    node = CalibratorNode(None, RIG, CalibratorConfig(live=LiveConfig(max_rms_px=1e-9)))
+    node = CalibratorNode(None, RIG, CalibratorConfig(live=LiveConfig(limits=SoundnessLimits(max_rms_px=1e-9))))
     caplog.set_level(logging.INFO, logger="camnet.services.calibrator")
     payload = observations_payload(seed=3, n_points=80)
     outcomes = [node.handle(payload, publisher=None) for _ in range(3)]

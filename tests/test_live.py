@@ -9,7 +9,7 @@ import pytest
 
 from camnet.geometry.change import drop_before, new_track_errors, without_cameras
 from camnet.geometry.live import Tracker
-from camnet.geometry.live_policy import LiveConfig, judge
+from camnet.geometry.live_policy import LiveConfig, SoundnessLimits, judge
 from camnet.geometry.model import Baseline, Camera, Observations, StartKind
 from camnet.geometry.projection import rotation_exp
 from camnet.sim.simulate import make_rig, observe
@@ -106,7 +106,7 @@ def test_drop_before_removes_old_observations_of_one_camera():
 @pytest.mark.parametrize("broken", ["too_few_tracks", "noise"])
 def test_a_bad_solve_never_replaces_a_good_calibration(broken):
     rig = make_rig(n_points=200, seed=11)
-    tracker = Tracker(LiveConfig(max_rms_px=3.0))
+    tracker = Tracker(LiveConfig(limits=SoundnessLimits(max_rms_px=3.0)))
     good = tracker.update(observe(rig, seed=11).observations).calibration
     if broken == "too_few_tracks":
         bad = observe(replace(rig, points=rig.points[:3]), seed=12).observations
@@ -202,7 +202,7 @@ def test_a_camera_that_keeps_few_of_its_observations_is_not_trusted():
     assert re.match(r"keeps only [1-4]\d% of its observations", why) and "placed wrong" in why, why
     assert any(mine in w and "keeps only" in w for w in out.calibration.warnings)
     assert judge(out.calibration, obs, LiveConfig()) == ""
-    kept = Tracker(LiveConfig(min_inlier_share=0.2)).update(replace(obs, uv=uv))
+    kept = Tracker(LiveConfig(limits=SoundnessLimits(min_inlier_share=0.2))).update(replace(obs, uv=uv))
     assert kept.status == "good" and mine in {c.id for c in kept.calibration.cameras}
     # Where too few cameras would be left, the solve is refused as before.
     three = without_cameras(replace(obs, uv=uv), [obs.cameras[2].id])

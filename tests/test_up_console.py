@@ -9,9 +9,12 @@ import sys
 from pathlib import Path
 
 from camnet.bus import keys
-from camnet.commands.up import LatestCalibration, SolveNumbering
+from camnet.cli import build_parser
+from camnet.commands.calibrator import FRAME_PERIOD_S
+from camnet.commands.up import LatestCalibration, SolveNumbering, _network_spec
 from camnet.geometry.calibrate import calibrate
 from camnet.io.formats import calibration_to_doc
+from camnet.io.rig import load_rig
 from camnet.sim.simulate import make_rig, observe
 from tests.conftest import free_port, matched_publisher, wait_for
 from tests.test_network import rig_file
@@ -72,3 +75,24 @@ def test_up_and_a_standalone_calibrator_print_the_web_viewers_address(tmp_path):
         assert f":{web_port}/?url=" in line
     finally:
         stop(calibrator, grace_s=30)
+
+
+def test_up_passes_the_rerun_frame_period_to_the_calibrator(tmp_path):
+    """Measured before: `camnet up` had no --rerun-frame-period-s, so its calibrator always logged frames at the
+    10 s default. The calibrator's own parser reads what up builds for it."""
+    rig_path = rig_file(tmp_path, 4)
+    rig = load_rig(rig_path)
+    for flags, period_s in (([], FRAME_PERIOD_S), (["--rerun-frame-period-s", "0"], 0.0),
+                            (["--rerun-frame-period-s", "2.5"], 2.5)):
+        args = build_parser(only="up").parse_args(["up", rig_path, "--rerun", "save=x.rrd", *flags])
+        spec = _network_spec(args, Path(rig_path), rig, tmp_path / "run")
+        calibrator = build_parser(only="calibrator").parse_args(["calibrator", "--rig", rig_path, *spec.calibrator])
+        assert calibrator.rerun_frame_period_s == period_s and calibrator.rerun == ["save=x.rrd"], spec.calibrator
+
+
+def test_up_refuses_a_negative_rerun_frame_period_in_one_line_before_starting_nodes(tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "camnet.cli", "up", "--rerun-frame-period-s", "-1", "--run-dir",
+                           str(tmp_path / "run")], capture_output=True, text=True, timeout=60, cwd=tmp_path)
+    lines = proc.stderr.strip().splitlines()
+    assert proc.returncode == 2 and len(lines) == 1 and "--rerun-frame-period-s" in lines[0], proc.stderr
+    assert not (tmp_path / "run").exists()

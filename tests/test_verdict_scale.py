@@ -9,11 +9,17 @@ guessed principal points were no longer named.
 """
 
 
+import numpy as np
 import pytest
 
 from camnet.geometry.calibrate import Options, calibrate
+from camnet.geometry.evaluate import compare
+from camnet.geometry.free_rule import PAIR_TOLERANCE_DEG
+from camnet.geometry.judged_solve import Status
+from camnet.geometry.live import Tracker
+from camnet.geometry.live_policy import LiveConfig
 from camnet.geometry.model import Sigma, Uncertainty
-from camnet.geometry.scale_cause import GIVE_PAIR_ROTATION, scale_cause
+from camnet.geometry.scale_cause import GIVE_PAIR_ROTATION, TIGHTEN_PAIR_TOLERANCE, pair_rotation_todo, scale_cause
 from camnet.geometry.verdict import Action, Level, format_verdict, judge
 from camnet.io.formats import calibration_to_doc, parse_calibration
 from camnet.io.report import render_report
@@ -124,3 +130,31 @@ def test_with_one_assumption_the_rule_is_the_principal_points_old_one():
     assert named(0.02, 0.019, 0.019, 0.001) == (True, True)
     assert named(0.02, 0.005, 0.019, 0.001) == (True, False)
     assert named(0.02, 0.015, 0.015, 0.012) == (False, False)  # the scene leaves over half the sigma
+
+
+def test_a_head_held_at_its_given_rotation_is_said_to_be_and_asks_for_a_tolerance_not_the_rotation():
+    """A rig file gives the head's pose (toed in 0.3 degrees) and a tolerance: the live calibrator holds the pair
+    at that pose and, warm, prices it at the tolerance. Measured before: the held yaw's warning and the verdict
+    said the pair was held parallel ("counted parallel to 0.08 degrees") and asked for the rotation it was given."""
+    drawn = family("ring_K", seed=0, head_yaw_deg=0.3)
+    obs = observe_family(drawn, noise_px=0.5, seed=0)
+    right = drawn.rig.cameras[1]
+    # As `camnet calibrator` configures a rig file with stereo.R, stereo.t and stereo.tolerance_deg.
+    options = Options(free=frozenset({"f", "fisheye"}), pair_tolerance_deg=PAIR_TOLERANCE_DEG)
+    tracker = Tracker(LiveConfig(options=options, stereo_pose=(right.R, right.t)))
+    for _ in range(2):  # from the pose, then warm from the first solve
+        assert tracker.update(obs).status == Status.GOOD
+    cal = tracker.good
+    np.testing.assert_allclose(next(c for c in cal.cameras if c.id == right.id).R, right.R, atol=1e-12)
+    c = compare(cal, drawn.rig.cameras, drawn.rig.points)
+    assert c.scale_sigma_rel > 0.01 and abs(c.scale_rel) < 3 * c.scale_sigma_rel, c  # priced at the tolerance
+    # Read back as a calibrator resuming from its state file reads it, it says the same.
+    for solved in (cal, parse_calibration(calibration_to_doc(cal))):
+        assert solved.report.pair_pose_given
+        [message] = scale_messages(solved)
+        assert "held at its given rotation in yaw" in message and HELD_YAW in message, message
+        assert "parallel" not in message and GIVE_PAIR_ROTATION not in message, message
+        assert TIGHTEN_PAIR_TOLERANCE in message and "--free stereo_rotation" in message, message
+        [finding] = scale_findings(solved)
+        assert "held at its given rotation" in finding.cause and "parallel" not in finding.cause, finding
+        assert finding.todo == pair_rotation_todo(True) and "stereo.R" not in finding.todo, finding

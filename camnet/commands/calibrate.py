@@ -4,10 +4,8 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from dataclasses import replace
-from functools import partial
 from typing import TYPE_CHECKING
 
 from camnet.geometry.choices import Loss, Method
@@ -167,17 +165,16 @@ def _solve(obs: Observations, options: Options, initial: Calibration | None, pro
     from camnet.errors import SolveError
     from camnet.geometry.calibrate import calibrate
     from camnet.geometry.judged_solve import Status
-    from camnet.geometry.live_policy import LiveConfig, policy_check
+    from camnet.geometry.live_policy import soundness_check
     from camnet.geometry.newest_first import solve_newest_first
 
     if initial is None and options.method == Method.REFINED:
         # Solved as the live calibrator solves without a calibration (camnet.geometry.newest_first): a long
-        # pool on its newest tracks first, cameras the live policy finds placed wrong left out and named.
-        # What the policy still refuses is wrong (absurd focal lengths, cameras that keep too few of their
+        # pool on its newest tracks first, cameras placed wrong left out and named. What the live policy's
+        # limits of soundness still refuse is wrong (absurd focal lengths, cameras that keep too few of their
         # observations, a large RMS): refused here too, nothing written. A large scale sigma is not wrong,
-        # only uncertain, and is reported as it is.
-        config = LiveConfig(max_scale_rel=math.inf)
-        judged = solve_newest_first(obs, options, partial(policy_check, config=config))
+        # only uncertain, and is reported as it is: the live limit on it is no part of the check.
+        judged = solve_newest_first(obs, options, soundness_check)
         progress.say(f"solved ({judged.status})")
         if judged.status == Status.REJECTED:
             raise SolveError(f"the calibration is refused: {judged.reason}; check the cameras named (their "

@@ -69,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
     from camnet.commands.calibrate import parse_free
     from camnet.errors import InputError
     from camnet.geometry.calibrate import Options
-    from camnet.geometry.live_policy import LiveConfig
+    from camnet.geometry.live_policy import LiveConfig, SoundnessLimits
     from camnet.services.calibrator import CalibratorConfig, CalibratorNode, RerunView
     from camnet.viz import close_recording, open_recording
     from camnet.viz_sinks import sinks_from_args
@@ -96,7 +96,7 @@ def run(args: argparse.Namespace) -> int:
         # A given pose is held as given, as a fixed K is, unless the rig file says to what it is known.
         options = replace(options, pair_tolerance_deg=tolerance or 0.0)
     live = LiveConfig(options=options, stereo_pose=stereo_pose,
-                      max_rms_px=args.max_rms_px, max_scale_rel=args.max_scale_rel)
+                      limits=SoundnessLimits(max_rms_px=args.max_rms_px), max_scale_rel=args.max_scale_rel)
     config = CalibratorConfig(live=live, state_path=state)
     rec = open_recording(rig=name, sinks=sinks)
     try:

@@ -20,6 +20,7 @@ SOURCE_RIG = Path(__file__).resolve().parents[2] / "config" / "sim.yaml"
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from camnet.bus.session import add_bus_arguments
+    from camnet.commands.calibrator import FRAME_PERIOD_S
     from camnet.matching.features import Detector
     from camnet.viz_sinks import add_rerun_arguments
 
@@ -45,6 +46,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--progress-jsonl", metavar="FILE",
                         help="also write one JSON line per calibration (what the progress lines show)")
     add_rerun_arguments(parser)
+    parser.add_argument("--rerun-frame-period-s", type=float, default=FRAME_PERIOD_S, metavar="S",
+                        help="the calibrator's: log a camera's latest frame to Rerun with a solve at most every S "
+                             "seconds of capture time, and always its first and when it is taken for moved; 0: at "
+                             "every solve (default %(default)s)")
     add_bus_arguments(parser)
 
 
@@ -80,6 +85,8 @@ def _checked_rig(args: argparse.Namespace):
     if args.replay and args.record:
         raise InputError("--record: a replay is recorded already; give --replay or --record, not both")
     sinks_from_args(args)  # refuse a bad --rerun here, before anything is written or started
+    if not 0 <= args.rerun_frame_period_s < float("inf"):  # the calibrator's check, before it is started
+        raise InputError(f"--rerun-frame-period-s: must be 0 or more seconds, got {args.rerun_frame_period_s}")
     return rig_path, rig
 
 
@@ -260,7 +267,8 @@ def _network_spec(args: argparse.Namespace, rig_path: Path, rig, run_dir: Path):
         bus=tuple(bus_flags(options_from_args(args))),
         driver=("--features", "--detector", str(args.detector)) if args.features else (),
         matcher=("--detector", str(args.detector)),
-        calibrator=("--state", str(run_dir / "calibration.json"), *(f for v in args.rerun for f in ("--rerun", v))),
+        calibrator=("--state", str(run_dir / "calibration.json"), *(f for v in args.rerun for f in ("--rerun", v)),
+                    "--rerun-frame-period-s", repr(args.rerun_frame_period_s)),
         record_path=Path(args.record) if args.record else None)
 
 

@@ -76,6 +76,7 @@ from camnet.geometry.initialise import (
 from camnet.geometry.model import Calibration, Camera, Loss, Method, Observations, StartKind
 from camnet.geometry.projection import INTRINSIC_NAMES, N_INTRINSICS, K_from_intrinsics, project_points
 from camnet.geometry.robust_passes import fit_points, inliers_and_sigma, near_solution, reject_outliers, robust_passes
+from camnet.geometry.scale_cause import held_at_given_pose
 from camnet.geometry.start_choice import solve_from_any_start
 from camnet.geometry.uncertainty import (
     Covariance,
@@ -203,6 +204,7 @@ def _calibrate(
     if initial is not None and reset & {0, 1}:
         log.info("a stereo camera is reset: solving from scratch")
         initial = None
+    given = held_at_given_pose(initial)  # the pair's held rotation: the start's, parallel where cold
     if initial is not None and initial.report is None:
         # A start nobody solved here (a factory head's published pose): its pair is held as given, as a fixed K is.
         options = replace(options, pair_tolerance_deg=0.0)
@@ -257,12 +259,12 @@ def _calibrate(
     cov, warning = None, None
     if options.method != Method.UNCONSTRAINED:
         cov = covariance_with_pp_prior(problem, wider, state, info.normal, options.pp_prior_rel * sizes)
-        cov, warning = _held_pair(obs, problem, wider, state, cov, options.pair_tolerance_deg)
+        cov, warning = _held_pair(obs, problem, wider, state, cov, options.pair_tolerance_deg, given)
     timings["uncertainty"] = time.perf_counter() - t4
     timings["total"] = time.perf_counter() - t0
     result = _result(
         obs, order, problem, state, track_rows, inliers, info, cov, decisions, options.method, timings,
-        start=start_kind, left_out=start.left_out, projected=projected, pair_start=start.pair,
+        start=start_kind, left_out=start.left_out, projected=projected, pair_start=start.pair, pair_pose_given=given,
     )
     return result if warning is None else _with_warning(result, warning)
 
@@ -281,9 +283,11 @@ def _with_warning(result: Result, warning: str) -> Result:
     return replace(result, calibration=replace(result.calibration, report=report))
 
 
-def _held_pair(obs, problem: Problem, wider: Problem | None, state: State, cov: Covariance, tolerance_deg: float):
+def _held_pair(obs, problem: Problem, wider: Problem | None, state: State, cov: Covariance, tolerance_deg: float,
+               given: bool):
     """(covariance, warning): `cov` (with the pair's held rotation axes free, where `wider` frees them) with those
-    axes held at their tolerance, and the warning of a scale that rests on the yaw held (or None)."""
+    axes held at their tolerance, and the warning of a scale that rests on the yaw held (or None); given: held at
+    a given rotation, not the parallel pair's."""
     held = np.zeros(0, dtype=int) if wider is None else held_turn_columns(problem, wider)
     if not len(held):
         return cov, None
@@ -292,7 +296,7 @@ def _held_pair(obs, problem: Problem, wider: Problem | None, state: State, cov: 
     if not problem.rot_free[1, 1]:  # the yaw
         yaw = int(wider.columns()[0][1, bundle.ROT.start + 1])
         warning = held_yaw_warning((obs.stereo.left, obs.stereo.right), cov, yaw, held, reported, state.X,
-                                   tolerance_deg)
+                                   tolerance_deg, given=given)
     return reported, warning
 
 
@@ -446,6 +450,7 @@ def _result(
     obs, order, problem, state, track_rows, inliers, info, cov, decisions, method: Method, timings, *,
     start: StartKind = StartKind.COLD, left_out: dict[str, str] | None = None,
     projected: tuple[np.ndarray, np.ndarray] | None = None, pair_start: PairStart | None = None,
+    pair_pose_given: bool = False,
 ) -> Result:
     """projected: the problem's residuals and camera-frame points at `state`, where the caller has them."""
     cameras: list[Camera | None] = [None] * len(order)
@@ -463,7 +468,7 @@ def _result(
     rms = float(np.sqrt(np.mean(rowwise.squared_lengths(r)))) if len(r) else float("nan")
     report = solve_report(
         obs, order, problem, state, cov, inliers, info, method=method, decisions=decisions, timings_s=timings,
-        kept=kept, dropped=dropped, residuals_px=r, start=start,
+        kept=kept, dropped=dropped, residuals_px=r, start=start, pair_pose_given=pair_pose_given,
     )
     report = with_cameras_left_out(report, left_out or {})
     try:

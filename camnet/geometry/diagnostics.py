@@ -24,7 +24,7 @@ from camnet.geometry.model import (
 )
 from camnet.geometry.projection import INTRINSIC_NAMES, project_points
 from camnet.geometry.residual_structure import structure_warnings
-from camnet.geometry.scale_cause import GIVE_PAIR_ROTATION, GIVE_STEREO_K, HELD_YAW_SHARE, ScaleCause, scale_cause
+from camnet.geometry.scale_cause import GIVE_STEREO_K, HELD_YAW_SHARE, ScaleCause, pair_rotation_todo, scale_cause
 from camnet.geometry.uncertainty import Covariance, distance_checks, scale_sigma, scale_weights
 
 MIN_CAMERA_OBSERVATIONS = 12
@@ -181,10 +181,11 @@ def reported_points(
 
 
 def _uncertainty(ids: list[str], problem, state, cov: Covariance, kept, warnings: list[str],
-                 notes: list[str], normal) -> Uncertainty:
+                 notes: list[str], normal, pair_pose_given: bool) -> Uncertainty:
     """The solution's uncertainty; appends the warnings and notes it gives rise to.
 
-    normal: the solve's unweighted normal equations at `state` in cov's layout (or None).
+    normal: the solve's unweighted normal equations at `state` in cov's layout (or None);
+    pair_pose_given: the pair's held rotation axes are held at a given pose, not the parallel pair's.
     """
     weights = scale_weights(cov, state.X, kept)
     scale = scale_sigma(cov, state.X, weights) if kept.any() else None
@@ -241,15 +242,17 @@ def _uncertainty(ids: list[str], problem, state, cov: Covariance, kept, warnings
     )
     if scale is not None and scale > POOR_SCALE_REL:
         _scale_message(scale_cause(uncertainty), bool(problem.n_cameras >= 2 and not problem.rot_free[1, 1]),
-                       warnings, notes)
+                       warnings, notes, given=pair_pose_given)
     return uncertainty
 
 
-def _scale_message(cause: ScaleCause, yaw_held: bool, warnings: list[str], notes: list[str]) -> None:
+def _scale_message(cause: ScaleCause, yaw_held: bool, warnings: list[str], notes: list[str], *,
+                   given: bool = False) -> None:
     """Append the message of a scale uncertain beyond POOR_SCALE_REL, with what it rests on (scale_cause).
 
     yaw_held: whether the pair's yaw is held, and so whether free_rule.held_yaw_warning says what the scale
-    rests on where the held rotation takes most of its variance (the message is then that warning).
+    rests on where the held rotation takes most of its variance (the message is then that warning);
+    given: the pair's rotation is held at a given pose, not the parallel pair's.
     """
     said = f"the scale is uncertain by {100 * cause.sigma:.1f}% (1 sigma)"
     if cause.scene:
@@ -267,12 +270,12 @@ def _scale_message(cause: ScaleCause, yaw_held: bool, warnings: list[str], notes
             warnings.append(f"the scale's sigma rests on the guessed principal points as well: "
                             f"{100 * cause.if_pp:.2g}% were they exactly at the image centres: {GIVE_STEREO_K}")
         return
+    todo = pair_rotation_todo(given)
     if cause.pp:
         warnings.append(f"{said}, {100 * cause.if_both:.2g}% were the principal points at the image centres and "
-                        f"the stereo pair's held rotation exact: {GIVE_STEREO_K}, and {GIVE_PAIR_ROTATION}")
+                        f"the stereo pair's held rotation exact: {GIVE_STEREO_K}, and {todo}")
     else:
-        warnings.append(f"{said}, {100 * cause.if_pair:.2g}% were the stereo pair's held rotation exact: "
-                        f"{GIVE_PAIR_ROTATION}")
+        warnings.append(f"{said}, {100 * cause.if_pair:.2g}% were the stereo pair's held rotation exact: {todo}")
 
 
 def _scale_if_exact(problem, state, cov: Covariance, weights, scale: float | None):
@@ -346,14 +349,15 @@ def far_scene_warning(median_depth_m: float, baseline_m: float) -> list[str]:
 def solve_report(
     obs, order, problem, state, cov, inliers, info, *, method: Method, decisions: list[str],
     timings_s: dict[str, float], kept: np.ndarray, dropped: PointsLeftOut, residuals_px: np.ndarray,
-    start: StartKind,
+    start: StartKind, pair_pose_given: bool = False,
 ) -> SolveReport:
     """The report of a solve.
 
     order: problem camera m is observations camera order[m]; inliers (n,):
     the observations kept; info: the final adjustment's bundle.SolveInfo;
     kept (N,): the points the calibration reports; residuals_px (n, 2): the
-    problem's reprojection residuals at `state`, pixels.
+    problem's reprojection residuals at `state`, pixels; pair_pose_given:
+    the pair's held rotation axes, if any, are held at a given pose.
     """
     ids = [obs.cameras[i].id for i in order]
     counts = np.bincount(problem.cam, minlength=len(ids))
@@ -372,7 +376,8 @@ def solve_report(
         warnings += structure_warnings(ids, problem.cam, problem.uv, residuals_px, state.intr,
                                        problem.intr_free[:, 4], observed)
     notes: list[str] = []
-    uncertainty = None if cov is None else _uncertainty(ids, problem, state, cov, kept, warnings, notes, info.normal)
+    uncertainty = None if cov is None else _uncertainty(ids, problem, state, cov, kept, warnings, notes, info.normal,
+                                                        pair_pose_given)
     # The held column offset is priced into the scale's sigma when the principal points entered as
     # a guess with its prior: then a caveat (a note), else the sigma cannot show it (a warning).
     priced = uncertainty is not None and uncertainty.scale_rel_if_pp_exact.value is not None
@@ -394,6 +399,8 @@ def solve_report(
         timings_s=dict(timings_s),
         uncertainty=uncertainty,
         notes=tuple(notes),
+        # Said where an axis is held only: where every one moved, nothing rests on a pose given.
+        pair_pose_given=bool(pair_pose_given and problem.n_cameras >= 2 and not problem.rot_free[1].all()),
     )
 
 

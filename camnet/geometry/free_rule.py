@@ -87,7 +87,7 @@ from camnet.geometry import bundle, schur
 from camnet.geometry.bundle import CEN, ROT, CentreMode, Problem, State
 from camnet.geometry.model import CameraInfo, FreeSet, LensModel
 from camnet.geometry.projection import FISHEYE_DIST_SIZE, FISHEYE_INTRINSIC_NAMES, INTRINSIC_NAMES, N_INTRINSICS
-from camnet.geometry.scale_cause import GIVE_PAIR_ROTATION, HELD_YAW_SHARE
+from camnet.geometry.scale_cause import GIVE_PAIR_ROTATION, HELD_YAW_SHARE, TIGHTEN_PAIR_TOLERANCE
 from camnet.geometry.uncertainty import (
     Covariance,
     covariance,
@@ -410,28 +410,37 @@ def _try_block(name, problem: Problem, state: State, determined_px, significance
 
 
 def held_yaw_warning(pair: tuple[str, str], data: Covariance, yaw: int, held: np.ndarray, reported: Covariance,
-                     points: np.ndarray, tolerance_deg: float) -> str | None:
-    """The warning of a solve whose scale rests on the pair's yaw held parallel, or None.
+                     points: np.ndarray, tolerance_deg: float, *, given: bool = False) -> str | None:
+    """The warning of a solve whose scale rests on the pair's yaw held (parallel, or at a given rotation), or None.
 
     data: the covariance with the held rotation axes free (their data alone); yaw: its column of the
     right camera's yaw; held: its columns of every held axis; reported: the covariance reported, with
-    the axes held at `tolerance_deg`. It warns where the reported sigma is more than HELD_YAW_SHARE times
-    that of a pair exactly parallel: the scale then rests on the assumption, and the verdict names it
-    (camnet.geometry.scale_cause). A tolerance so small that it adds little (a head known to be that
-    parallel, a pose given) leaves nothing to warn of, however much freeing the yaw would cost.
+    the axes held at `tolerance_deg`; given: the axes are held at a rotation given (a factory head's,
+    scale_cause.held_at_given_pose), not at the parallel pair. It warns where the reported sigma is more
+    than HELD_YAW_SHARE times that of a pair exactly as held: the scale then rests on the assumption,
+    and the verdict names it (camnet.geometry.scale_cause). A tolerance so small that it adds little (a
+    head known to be that parallel, a pose given as exact) leaves nothing to warn of, however much freeing
+    the yaw would cost.
     """
     weights = scale_weights(reported, points)
     g = scale_gradient(points, weights)
-    free, parallel = data.variance(None, g), data.variance(None, g, given=held)
+    free, exact = data.variance(None, g), data.variance(None, g, given=held)
     yaw_sd = np.sqrt(data.cameras[yaw, yaw])
     sigma = scale_sigma(reported, points, weights)
-    if not (parallel > 0 and yaw_sd > 0 and sigma > HELD_YAW_SHARE * np.sqrt(parallel)):
+    if not (exact > 0 and yaw_sd > 0 and sigma > HELD_YAW_SHARE * np.sqrt(exact)):
         return None
     # The scale's regression on the yaw: cov(scale, yaw) / var(yaw), from var(scale) - var(scale | yaw).
     per_tenth = np.sqrt(max(free - data.variance(None, g, given=[yaw]), 0.0)) / yaw_sd * np.radians(0.1)
-    freed = f"; if it may be toed in more, free its rotation (--free stereo_rotation: {100 * np.sqrt(free):.2g}%)"
+    # What freeing it costs the scale, where the data determine it.
+    freed = f"free its rotation (--free stereo_rotation: {100 * np.sqrt(free):.2g}%)" if np.isfinite(free) else ""
+    said = f"the scale is uncertain by {100 * sigma:.2g}% (1 sigma) and rests on the stereo pair ({pair[0]}, {pair[1]})"
+    if given:  # its rotation is there already: what is unknown is how well it holds
+        return (f"{said} held at its given rotation in yaw (stereo_yaw held), counted to {tolerance_deg:g} degrees "
+                f"(1 sigma): {100 * np.sqrt(exact):.2g}% were it exactly as given, and each 0.1 degree its yaw is "
+                f"off moves the scale by {100 * per_tenth:.2g}%: {TIGHTEN_PAIR_TOLERANCE}"
+                + (f"; if it may be off more, {freed}" if freed else ""))
     # Worded as the report's other messages of an uncertain scale, of which it is then the one.
-    return (f"the scale is uncertain by {100 * sigma:.2g}% (1 sigma) and rests on the stereo pair ({pair[0]}, "
-            f"{pair[1]}) held parallel in yaw (stereo_yaw held), counted parallel to {tolerance_deg:g} degrees "
-            f"(1 sigma): {100 * np.sqrt(parallel):.2g}% were it exactly parallel, and each 0.1 degree it is toed in "
-            f"moves the scale by {100 * per_tenth:.2g}%: {GIVE_PAIR_ROTATION}{freed if np.isfinite(free) else ''}")
+    return (f"{said} held parallel in yaw (stereo_yaw held), counted parallel to {tolerance_deg:g} degrees "
+            f"(1 sigma): {100 * np.sqrt(exact):.2g}% were it exactly parallel, and each 0.1 degree it is toed in "
+            f"moves the scale by {100 * per_tenth:.2g}%: {GIVE_PAIR_ROTATION}"
+            + (f"; if it may be toed in more, {freed}" if freed else ""))

@@ -278,6 +278,9 @@ class SolveReport:
     uncertainty: Uncertainty | None = None
     cameras_left_out: Mapping[str, str] = field(default_factory=dict)
     notes: tuple[str, ...] = ()
+    # Whether some rotation axis of the stereo pair was held, and at a pose given (a factory head's R, t, or that of
+    # the calibration a warm start began from: camnet.geometry.scale_cause.held_at_given_pose), not the parallel pair.
+    pair_pose_given: bool = False
 
 
 @dataclass(frozen=True)

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from camnet.geometry.model import Uncertainty
+from camnet.geometry.model import Calibration, Uncertainty
 
 # What to do where the scale rests on the pair held parallel (the verdict's, the warnings'): its rotation
 # where a factory calibration gives it (the rig file; the observations' contract has no pair pose), or a
@@ -32,6 +32,11 @@ from camnet.geometry.model import Uncertainty
 GIVE_PAIR_ROTATION = ("give the pair's rotation if it is known (its factory calibration's R and t as the rig "
                       "file's stereo.R and stereo.t), or its tolerance if it is known to be that parallel "
                       "(stereo.tolerance_deg in the rig file, --pair-tolerance-deg)")
+# What to do where it rests on the pair held at a rotation it was given (`held_at_given_pose`): the rotation is
+# there already; what the report cannot know is how well it holds.
+TIGHTEN_PAIR_TOLERANCE = ("give a tighter tolerance if the given rotation is known better (stereo.tolerance_deg in "
+                          "the rig file, --pair-tolerance-deg)")
+FREE_PAIR_ROTATION = "free its rotation (--free stereo_rotation)"
 GIVE_STEREO_K = "give the stereo cameras' K"
 # The warning of a scale that rests on the pair's yaw held parallel (free_rule.held_yaw_warning) is given where
 # the reported sigma is more than this many times the sigma were the held rotation exact: the tolerance takes
@@ -86,3 +91,25 @@ def scale_cause(u: Uncertainty) -> ScaleCause | None:
     if not (pp or pair):  # neither alone: their overlap
         pp, pair = True, True
     return ScaleCause(pp, pair, sigma, if_pp, if_pair, if_both)
+
+
+def held_at_given_pose(initial: Calibration | None) -> bool:
+    """Whether a solve from `initial` holds the stereo pair's rotation at a given pose, not the ideal parallel pair.
+
+    A solve holds the pair's held rotation axes where its start put them: a
+    cold start at the parallel pair, a warm one at `initial`'s rotation. That
+    rotation was given where no solve made `initial` (a factory head's R, t,
+    which the live calibrator starts from), where the solve that made it held
+    such a pose (its report's `pair_pose_given`), or where that solve
+    estimated the yaw, which a solve that holds it keeps.
+    """
+    if initial is None:
+        return False
+    report = initial.report
+    return report is None or report.pair_pose_given or (
+        report.free is not None and "y" in report.free.stereo_rotation_axes)
+
+
+def pair_rotation_todo(given: bool) -> str:
+    """What to do where the scale rests on the pair's held rotation: give it, or, given, say how well it holds."""
+    return f"{TIGHTEN_PAIR_TOLERANCE}, or {FREE_PAIR_ROTATION}" if given else GIVE_PAIR_ROTATION

@@ -21,7 +21,7 @@ from enum import StrEnum
 import numpy as np
 
 from camnet.geometry.model import Calibration, CameraSigmas, SolveReport
-from camnet.geometry.scale_cause import GIVE_PAIR_ROTATION, GIVE_STEREO_K, scale_cause
+from camnet.geometry.scale_cause import GIVE_STEREO_K, pair_rotation_todo, scale_cause
 
 
 class Level(StrEnum):
@@ -274,11 +274,12 @@ def _scale_findings(report: SolveReport, t: Thresholds) -> list[Finding]:
     if not cause.pair:
         return [Finding(level, f"{what} ({100 * cause.if_pp:.2g}% with the principal points known)",
                         "the stereo cameras' principal points are guessed", Action.GIVE_K, GIVE_STEREO_K)]
-    # The pair held parallel: its rotation is assumed to its tolerance, not measured (the held-yaw warning
-    # says what a tenth of a degree of toe-in moves the scale by).
+    # The pair held parallel, or at a rotation given: assumed to its tolerance, not measured (the held-yaw
+    # warning says what a tenth of a degree of it moves the scale by).
     known = "the pair's held rotation" if not cause.pp else "the principal points and the pair's held rotation"
-    why = "the scale rests on the stereo pair held parallel, known only to its tolerance"
-    todo = GIVE_PAIR_ROTATION
+    held = "at its given rotation" if report.pair_pose_given else "parallel"
+    why = f"the scale rests on the stereo pair held {held}, known only to its tolerance"
+    todo = pair_rotation_todo(report.pair_pose_given)
     if cause.pp:
         why += ", and on the stereo cameras' guessed principal points"
         todo = f"{GIVE_STEREO_K}, and {todo}"

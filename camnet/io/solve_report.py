@@ -64,6 +64,8 @@ def report_to_doc(report: SolveReport) -> dict:
         }
     if report.start is not None:
         diagnostics["start"] = report.start.value
+    if report.pair_pose_given:  # written where true only: documents from before it read back as they were
+        diagnostics["pair_pose_given"] = True
     doc: dict[str, Any] = {
         "method": report.method.value,
         "diagnostics": diagnostics,
@@ -155,6 +157,7 @@ def parse_report(doc: dict) -> SolveReport | None:
         timings_s={k: v.number(t, f"timings_s.{k}") for k, t in timings.items()},
         uncertainty=_parse_uncertainty(doc["uncertainty"], "uncertainty") if "uncertainty" in doc else None,
         cameras_left_out=get("cameras_left_out", _parse_left_out, {}),
+        pair_pose_given=get("pair_pose_given", v.boolean, False),
     )
 
 
