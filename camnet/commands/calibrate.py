@@ -62,9 +62,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--pair-tolerance-deg", type=float, default=None, metavar="DEG",
-        help="1 sigma, degrees, to which a stereo pair held parallel is parallel, in the reported uncertainty "
-        "(default 0.08: a head sold as parallel; a factory-rectified one is 0.01-0.02; 0: sigmas conditional "
-        "on it being exactly parallel)",
+        help="1 sigma, degrees, to which a stereo pair held parallel (or at the rotation --initial gives) is known, "
+        "in the reported uncertainty (default 0.08: a head sold as parallel, and 0 for a pose --initial gives; "
+        "a factory-rectified head is 0.01-0.02; 0: sigmas conditional on the held rotation)",
     )
 
 

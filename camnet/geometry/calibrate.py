@@ -108,9 +108,9 @@ class Options:
     # in the reported uncertainty (see uncertainty.covariance_with_pp_prior); 0 reports sigmas conditional on the guess.
     pp_prior_rel: float = 0.01
     # 1 sigma, degrees, of each rotation axis of the stereo pair that the solve holds, in the reported
-    # uncertainty (uncertainty.held_at_tolerance; free_rule.PAIR_TOLERANCE_DEG says why this default); 0 reports
-    # sigmas conditional on the pair's held rotation (a pose given as known).
-    pair_tolerance_deg: float = PAIR_TOLERANCE_DEG
+    # uncertainty (uncertainty.held_at_tolerance); 0 reports sigmas conditional on the pair's held rotation.
+    # None: free_rule.PAIR_TOLERANCE_DEG (it says why), or 0 from a start no solve made (a pose given as known).
+    pair_tolerance_deg: float | None = None
     seed: int = 0
 
 
@@ -205,9 +205,11 @@ def _calibrate(
         log.info("a stereo camera is reset: solving from scratch")
         initial = None
     given = held_at_given_pose(initial)  # the pair's held rotation: the start's, parallel where cold
-    if initial is not None and initial.report is None:
-        # A start nobody solved here (a factory head's published pose): its pair is held as given, as a fixed K is.
-        options = replace(options, pair_tolerance_deg=0.0)
+    if options.pair_tolerance_deg is None:
+        # A start nobody solved here (a factory head's published pose) is held as given, as a fixed K is,
+        # unless the caller says to what it is known.
+        factory = initial is not None and initial.report is None
+        options = replace(options, pair_tolerance_deg=0.0 if factory else PAIR_TOLERANCE_DEG)
     intr = initial_intrinsics(obs, order)
     xy = centred(obs, order, intr)
     rows = observation_rows(obs)
