@@ -47,7 +47,6 @@ class Covariance:
     null: np.ndarray | None = None
     unit: np.ndarray | None = None  # (Pc,) the scaling to unit-diagonal coordinates
     S: np.ndarray | None = None  # (Pc, Pc) the Schur complement itself (unscaled)
-    WV: np.ndarray | None = None  # (Pc, 3N) W times the block diagonal of V_inv, where `covariance` formed it
 
     @property
     def cameras(self) -> np.ndarray:
@@ -93,13 +92,13 @@ class Covariance:
     @cached_property  # the points' dense products cost more than the rest of the covariance
     def point_covariances_m2(self) -> np.ndarray:
         """(N, 3, 3) covariance of each point, m^2; infinite for a point not fixed in some direction."""
-        WV = times_block_diag(self.W, self.V_inv) if self.WV is None else self.WV  # (Pc, 3N)
         N = len(self.V_inv)
-        extra = point_quadratic_forms(WV, self.S_inv)  # WV_n^T S_inv WV_n per point
+        extra = point_quadratic_forms(self.W, self.S_inv, self.V_inv)  # (W V^-1)_n^T S_inv (W V^-1)_n per point
         determined = points_determined(self.V)
         cov = self.sigma_px**2 * (self.V_inv + extra)
         cov[~determined] = np.inf
         if self.null is not None and self.null.shape[1]:  # points a free camera direction moves
+            WV = times_block_diag(self.W, self.V_inv)
             along_null = np.einsum("pk,pnj->nkj", self.null, (WV / self.unit[:, None]).reshape(-1, N, 3))
             size = np.linalg.norm((WV / self.unit[:, None]).reshape(-1, N, 3), axis=0)  # (N, 3)
             moved = np.linalg.norm(along_null, axis=1) > np.sqrt(NULL_COMPONENT) * np.maximum(size, 1e-300)
@@ -126,13 +125,13 @@ def covariance(
     # A point left without observations (all rejected), or seen along one ray only
     # (no parallax), carries no information in some directions: the pseudo-inverse
     # gives it no weight in the cameras' equations, and `point_sigmas_m` an
-    # infinite error. W V^-1 is kept: the points' covariances take it too.
+    # infinite error.
     points = eliminate_points(ne) if eliminated is None else eliminated
     S = ne.U - points.WVW
     S_inv, null, unit = inverse_spd(S)
     if sigma_px is None:
         sigma_px = float(np.sqrt(2.0 * ne.cost / max(residual_dof(problem), 1)))
-    return Covariance(sigma_px, S_inv, ne.W, points.V_inv, ne.V, problem.columns()[0], null, unit, S, points.WV)
+    return Covariance(sigma_px, S_inv, ne.W, points.V_inv, ne.V, problem.columns()[0], null, unit, S)
 
 
 def distance_checks(
