@@ -75,8 +75,9 @@ def _peak_beyond(f, keep_bytes: int) -> int:
 
 
 def test_schur_steps_take_bounded_memory():
-    """At M = 16, N = 1000 (10,000 observations, W 2.4 MB) the normal equations, a damped step and the points'
-    covariances hold 2.9, 1.3 and 1.0 MB beyond what they return; formed whole, 6.8, 5.1 and 2.6 MB."""
+    """At M = 16, N = 1000 (10,000 observations, W 2.4 MB) the normal equations, a damped step, the points'
+    elimination and the points' covariances hold 2.9, 1.3, 0.7 and 1.0 MB beyond what they return; formed whole,
+    6.8, 5.1, 3 and 2.6 MB."""
     problem, state = _network(16, 1000)
     problem.layout  # noqa: B018 (cached: not the equations' own)
     ne = bundle.normal_equations(problem, state)
@@ -84,6 +85,7 @@ def test_schur_steps_take_bounded_memory():
     assert ne.W.nbytes > 2 * MB
     assert _peak_beyond(lambda: bundle.normal_equations(problem, state), out) < 4 * MB
     assert _peak_beyond(lambda: schur.solve_damped(ne, 1e-3), 0) < 2.5 * MB
+    assert _peak_beyond(lambda: schur.eliminate_points(ne), ne.V.nbytes) < 1.2 * MB  # whole, W V^-1 alone: 2.4 MB
     cov = covariance(problem, state, sigma_px=0.5, normal=ne)
     assert _peak_beyond(lambda: replace(cov).point_covariances_m2, cov.V.nbytes) < 1.8 * MB
 
@@ -99,3 +101,11 @@ def test_points_quadratic_forms_by_a_triangular_factor_and_without_one():
         direct = np.einsum("pni,pq,qnj->nij", WV.reshape(40, -1, 3), A, WV.reshape(40, -1, 3))
         np.testing.assert_allclose(schur.point_quadratic_forms(WV, A), direct, rtol=1e-9,
                                    atol=1e-12 * np.abs(direct).max())
+    # With V^-1 given: the forms of W V^-1 without forming it.
+    C = rng.normal(size=(700, 3, 3))
+    V_inv = C @ C.transpose(0, 2, 1)
+    W = WV
+    WV = schur.times_block_diag(W, V_inv)
+    direct = np.einsum("pni,pq,qnj->nij", WV.reshape(40, -1, 3), A, WV.reshape(40, -1, 3))
+    np.testing.assert_allclose(schur.point_quadratic_forms(W, A, V_inv), direct, rtol=1e-9,
+                               atol=1e-12 * np.abs(direct).max())

@@ -11,12 +11,10 @@ from camnet.geometry.calibrate import Options, calibrate
 from camnet.geometry.diagnostics import reported_points
 from camnet.geometry.evaluate import compare
 from camnet.geometry.model import PointsLeftOut
+from camnet.geometry.schur import POINT_RCOND, point_inverses, points_determined
 from camnet.geometry.uncertainty import (
-    POINT_RCOND,
     covariance,
     inverse_spd,
-    point_inverses,
-    points_determined,
     residual_dof,
     scale_sigma,
     scale_weights,

@@ -37,6 +37,9 @@ from camnet.geometry.robust import robust_loss
 from camnet.geometry.schur import (
     GAUSS_NEWTON_LAMBDA,
     NormalEquations,
+    PointsEliminated,
+    eliminate_points,
+    gauss_newton_test,
     predicted_decrease,
     restrict,
     solve_damped,
@@ -220,6 +223,7 @@ class SolveInfo:
     initial_cost: float
     final_cost: float
     normal: NormalEquations | None = None  # at the final state, weighted by the loss (solve's `report`)
+    eliminated: PointsEliminated | None = None  # normal's points eliminated, where the convergence test did
 
 
 # ---------------------------------------------------------------- model evaluation
@@ -402,7 +406,9 @@ def solve(
     `problem` (a superset); SolveInfo.normal is then its normal equations at
     the solution, for a covariance over parameters the solve held. They are
     built in place of the solve's own after each step, which they contain,
-    so a solve of one or two steps gets them almost free.
+    so a solve of one or two steps gets them almost free; the convergence
+    test after each step takes its step from their points eliminated
+    (SolveInfo.eliminated, which the covariance takes).
     """
     lam, nu = GAUSS_NEWTON_LAMBDA, 2.0
     within = None if report is None else columns_within(problem, report)
@@ -415,7 +421,7 @@ def solve(
         return restrict(wide, within), wide
 
     ne = normal_equations(problem, state, loss=loss, scale_px=scale_px)
-    wide = None  # report's normal equations at `state`, once a step has built them
+    wide = eliminated = None  # report's normal equations at `state` once a step has built them; their points eliminated
     initial = ne.cost
     if not np.isfinite(initial):
         return state, SolveInfo(False, "the initial state projects points behind a camera", 0, initial, initial)
@@ -427,10 +433,7 @@ def solve(
         if ne.cost <= exact_cost:
             reason, converged = "the observations are fitted exactly", True
             break
-        if gauss_newton_step is not None and lam <= GAUSS_NEWTON_LAMBDA:
-            step, step_lam = gauss_newton_step, GAUSS_NEWTON_LAMBDA
-        else:
-            step, step_lam = solve_damped(ne, lam), lam
+        step, step_lam = _next_step(ne, lam, gauss_newton_step, own=eliminated is None)
         gauss_newton_step = None
         if step is None:
             lam, nu = lam * nu, 2.0 * nu
@@ -447,7 +450,9 @@ def solve(
             gain = decrease / max(predicted_decrease(ne, step_lam, *step), 1e-300)
             state, ne, wide = trial, trial_ne, trial_wide
             lam, nu = max(lam * max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3), 1e-12), 2.0
-            gauss_newton_step, small = _gauss_newton_test(ne, ftol, decrease=decrease, lam=lam)
+            eliminated = None if wide is None else eliminate_points(wide)
+            gauss_newton_step, remaining, small = gauss_newton_test(ne, ftol, eliminated=eliminated, within=within)
+            log.debug("LM: cost %.9g (-%.3g), lambda %.2g, Gauss-Newton gain %.3g", ne.cost, decrease, lam, remaining)
             if small:
                 reason, converged = "a Gauss-Newton step would lower the cost by less than ftol (relative)", True
                 break
@@ -458,21 +463,13 @@ def solve(
                 break
     if report is not None and wide is None:  # no step was taken
         wide = normal_equations(report, state, loss=loss, scale_px=scale_px)
-    return state, SolveInfo(converged, reason, iterations, initial, ne.cost, ne if report is None else wide)
+    return state, SolveInfo(converged, reason, iterations, initial, ne.cost, ne if report is None else wide, eliminated)
 
 
-def _gauss_newton_test(
-    ne: NormalEquations, ftol: float, *, decrease: float, lam: float
-) -> tuple[tuple[np.ndarray, np.ndarray] | None, bool]:
-    """solve's convergence test after a step: the undamped step at the new state, and whether it
-    promises to lower the cost by at most ``ftol`` relative (then the solve has converged).
-
-    The step is returned so that the next iteration, if it is as undamped, need not solve again;
-    `decrease` (the step's actual decrease) and `lam` are only logged.
-    """
-    step = solve_damped(ne, GAUSS_NEWTON_LAMBDA)
-    remaining = np.inf if step is None else predicted_decrease(ne, GAUSS_NEWTON_LAMBDA, *step)
-    log.debug(
-        "LM: cost %.9g (-%.3g), lambda %.2g, a Gauss-Newton step would gain %.3g", ne.cost, decrease, lam, remaining
-    )
-    return step, remaining <= ftol * ne.cost
+def _next_step(ne: NormalEquations, lam: float, tested, *, own: bool) -> tuple[tuple | None, float]:
+    """solve's next step at `ne` and its damping: `tested`, the convergence test's step at the same state (or
+    None), where lam is as small and it is the solve's own (`own`: its points damped as the solve damps them;
+    along a nearly flat valley a step with them undamped parts from it by far more than the damping)."""
+    if tested is not None and lam <= GAUSS_NEWTON_LAMBDA:
+        return (tested if own else solve_damped(ne, GAUSS_NEWTON_LAMBDA)), GAUSS_NEWTON_LAMBDA
+    return solve_damped(ne, lam), lam

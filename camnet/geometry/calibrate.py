@@ -260,7 +260,8 @@ def _calibrate(
     sizes = np.array([(obs.cameras[i].width, obs.cameras[i].height) for i in order], dtype=float)
     cov, warning = None, None
     if options.method != Method.UNCONSTRAINED:
-        cov = covariance_with_pp_prior(problem, wider, state, info.normal, options.pp_prior_rel * sizes)
+        cov = covariance_with_pp_prior(problem, wider, state, info.normal, options.pp_prior_rel * sizes,
+                                       info.eliminated)
         cov, warning = _held_pair(obs, problem, wider, state, cov, options.pair_tolerance_deg, given)
     timings["uncertainty"] = time.perf_counter() - t4
     timings["total"] = time.perf_counter() - t0
@@ -380,7 +381,8 @@ def _adjust_inliers(full: Problem, problem: Problem, state: State, inliers, gues
             # The pair's held rotation axes, priced at their tolerance (`_held_pair`).
             turns = with_held_turns(problem if wider is None else wider) if options.pair_tolerance_deg > 0 else None
             wider = wider if turns is None else turns
-        return *bundle.solve(problem, state, max_iterations=options.max_iterations, report=wider), wider
+        report = problem if wider is None and options.method != Method.UNCONSTRAINED else wider  # for the covariance
+        return *bundle.solve(problem, state, max_iterations=options.max_iterations, report=report), wider
 
     state, info, wider = adjust(problem, state)
     projected = None

@@ -19,11 +19,15 @@ import scipy.linalg
 from camnet.geometry.bundle import ROT, Problem, State, distance_rows, normal_equations
 from camnet.geometry.bundle import residuals as reprojection_residuals
 from camnet.geometry.projection import N_INTRINSICS
-from camnet.geometry.schur import NormalEquations, inverse_cholesky_3x3, point_quadratic_forms, times_block_diag
+from camnet.geometry.schur import (
+    NormalEquations,
+    PointsEliminated,
+    eliminate_points,
+    point_quadratic_forms,
+    points_determined,
+    times_block_diag,
+)
 
-# A point block whose smallest eigenvalue is below this fraction of its largest leaves
-# the point undetermined along that direction (in metres, so the ratio has meaning).
-POINT_RCOND = 1e-12
 # An eigenvalue of the unit-diagonal camera matrix below this (per parameter) is a direction
 # no observation fixes: well-posed but weak directions sit many orders of magnitude above it.
 NULL_EIGENVALUE = 1e-13
@@ -43,7 +47,6 @@ class Covariance:
     null: np.ndarray | None = None
     unit: np.ndarray | None = None  # (Pc,) the scaling to unit-diagonal coordinates
     S: np.ndarray | None = None  # (Pc, Pc) the Schur complement itself (unscaled)
-    WV: np.ndarray | None = None  # (Pc, 3N) W times the block diagonal of V_inv, where `covariance` formed it
 
     @property
     def cameras(self) -> np.ndarray:
@@ -73,14 +76,14 @@ class Covariance:
         Pc, N = self.S_inv.shape[0], len(self.V_inv)
         gc = np.zeros(Pc) if g_cam is None else g_cam
         gp = np.zeros((N, 3)) if g_pts is None else g_pts
-        # Solve H x = g by the Schur complement, then g^T x.
+        # g^T H^-1 g by the Schur complement: with y = V^-1 g_p, r = g_c - W y and x_c = S^-1 r, it is
+        # g_p.y + r.x_c (the points' part of H^-1 g, y - V^-1 W^T x_c, need not be formed: one product with W).
         y = np.einsum("nij,nj->ni", self.V_inv, gp)
         reduced = gc - self.W @ y.reshape(-1)
         if not self._determines(reduced):
             return np.inf
         xc = self.S_inv @ reduced
-        xp = y - np.einsum("nij,nj->ni", self.V_inv, (self.W.T @ xc).reshape(-1, 3))
-        var = gc @ xc + np.sum(gp * xp)
+        var = np.sum(gp * y) + reduced @ xc
         if len(given):  # var(g | c) = var(g) - cov(g, c) var(c)^-1 cov(c, g); cov(c, g) = x_c
             c = np.asarray(given)
             var -= xc[c] @ np.linalg.solve(self.S_inv[np.ix_(c, c)], xc[c])
@@ -89,13 +92,13 @@ class Covariance:
     @cached_property  # the points' dense products cost more than the rest of the covariance
     def point_covariances_m2(self) -> np.ndarray:
         """(N, 3, 3) covariance of each point, m^2; infinite for a point not fixed in some direction."""
-        WV = times_block_diag(self.W, self.V_inv) if self.WV is None else self.WV  # (Pc, 3N)
         N = len(self.V_inv)
-        extra = point_quadratic_forms(WV, self.S_inv)  # WV_n^T S_inv WV_n per point
+        extra = point_quadratic_forms(self.W, self.S_inv, self.V_inv)  # (W V^-1)_n^T S_inv (W V^-1)_n per point
         determined = points_determined(self.V)
         cov = self.sigma_px**2 * (self.V_inv + extra)
         cov[~determined] = np.inf
         if self.null is not None and self.null.shape[1]:  # points a free camera direction moves
+            WV = times_block_diag(self.W, self.V_inv)
             along_null = np.einsum("pk,pnj->nkj", self.null, (WV / self.unit[:, None]).reshape(-1, N, 3))
             size = np.linalg.norm((WV / self.unit[:, None]).reshape(-1, N, 3), axis=0)  # (N, 3)
             moved = np.linalg.norm(along_null, axis=1) > np.sqrt(NULL_COMPONENT) * np.maximum(size, 1e-300)
@@ -108,61 +111,27 @@ class Covariance:
 
 
 def covariance(
-    problem: Problem, state: State, *, sigma_px: float | None = None, normal: NormalEquations | None = None
+    problem: Problem, state: State, *, sigma_px: float | None = None, normal: NormalEquations | None = None,
+    eliminated: PointsEliminated | None = None,
 ) -> Covariance:
     """Covariance at `state`; sigma_px None estimates it from the residuals (a posteriori).
 
-    normal: the unweighted normal equations at `state` when the caller has them.
+    normal: the unweighted normal equations at `state` when the caller has them;
+    eliminated: their points eliminated (`schur.eliminate_points`; it does not
+    depend on U, so holds for `normal` with a prior added to U), when the
+    caller has them (a solve's `SolveInfo.eliminated`).
     """
     ne = normal_equations(problem, state) if normal is None else normal
     # A point left without observations (all rejected), or seen along one ray only
     # (no parallax), carries no information in some directions: the pseudo-inverse
     # gives it no weight in the cameras' equations, and `point_sigmas_m` an
     # infinite error.
-    V_inv = point_inverses(ne.V)
-    WV = times_block_diag(ne.W, V_inv)  # kept: the points' covariances take it too
-    S = ne.U - WV @ ne.W.T
+    points = eliminate_points(ne) if eliminated is None else eliminated
+    S = ne.U - points.WVW
     S_inv, null, unit = inverse_spd(S)
     if sigma_px is None:
         sigma_px = float(np.sqrt(2.0 * ne.cost / max(residual_dof(problem), 1)))
-    return Covariance(sigma_px, S_inv, ne.W, V_inv, ne.V, problem.columns()[0], null, unit, S, WV)
-
-
-def point_inverses(V: np.ndarray) -> np.ndarray:
-    """(N, 3, 3) pseudo-inverses of the point blocks V (N, 3, 3), cut off at POINT_RCOND.
-
-    In closed form (``L^-T L^-1`` of the Cholesky factors) where a block is
-    well conditioned: a LAPACK call per 3x3 block costs more than the
-    arithmetic. The others (a point seen along one ray) take the pseudo-inverse.
-    """
-    V_inv, well = _closed_form_inverses(V)
-    if not well.all():
-        V_inv[~well] = np.linalg.pinv(V[~well], rcond=POINT_RCOND, hermitian=True)
-    return V_inv
-
-
-def points_determined(V: np.ndarray) -> np.ndarray:
-    """(N,) whether each point block V (N, 3, 3) fixes its point in every direction (no eigenvalue
-    under POINT_RCOND of the largest)."""
-    _, determined = _closed_form_inverses(V)
-    if not determined.all():
-        eig = np.linalg.eigvalsh(V[~determined])
-        determined[~determined] = eig[:, 0] > POINT_RCOND * np.maximum(eig[:, -1], 1e-300)
-    return determined
-
-
-def _closed_form_inverses(V: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(inverses (N, 3, 3), well (N,)): V^-1 from its Cholesky factors, and where it is well conditioned.
-
-    ``|V|_F |V^-1|_F`` bounds the condition number from above: a block under
-    a tenth of 1 / POINT_RCOND has no eigenvalue under the cut-off, so its
-    pseudo-inverse is its inverse. NaN (no Cholesky factor) is not well.
-    """
-    L_inv = inverse_cholesky_3x3(V)
-    with np.errstate(invalid="ignore", over="ignore"):
-        V_inv = L_inv.transpose(0, 2, 1) @ L_inv
-        bound = np.linalg.norm(V, axis=(1, 2)) * np.linalg.norm(V_inv, axis=(1, 2))
-    return V_inv, bound < 0.1 / POINT_RCOND
+    return Covariance(sigma_px, S_inv, ne.W, points.V_inv, ne.V, problem.columns()[0], null, unit, S)
 
 
 def distance_checks(
@@ -237,7 +206,8 @@ def with_guessed_pp(problem: Problem, guessed_pp: np.ndarray) -> Problem | None:
 
 
 def covariance_with_pp_prior(
-    problem: Problem, wider: Problem | None, state: State, normal, prior_px: np.ndarray
+    problem: Problem, wider: Problem | None, state: State, normal, prior_px: np.ndarray,
+    eliminated: PointsEliminated | None = None,
 ) -> Covariance:
     """Covariance at the solution, not conditional on principal points that are only guessed.
 
@@ -251,17 +221,18 @@ def covariance_with_pp_prior(
     the reported sigmas include what the guess may cost.
     wider: `problem` with those principal points freed (`with_guessed_pp`),
     or None; normal: the normal equations of `wider` (else of `problem`) at
-    `state`; prior_px (M, 2): 1 sigma of the guess in x and y, pixels.
+    `state`; prior_px (M, 2): 1 sigma of the guess in x and y, pixels;
+    eliminated: the points eliminated from `normal`, where the caller has them.
     """
     sigma_px = float(np.sqrt(2.0 * normal.cost / max(residual_dof(problem), 1)))
     if wider is None:
-        return covariance(problem, state, sigma_px=sigma_px, normal=normal)
+        return covariance(problem, state, sigma_px=sigma_px, normal=normal, eliminated=eliminated)
     cols = wider.columns()[0]
     U = normal.U.copy()
     for m in np.flatnonzero(wider.intr_free[:, 2] & ~problem.intr_free[:, 2]):
         for slot, prior in ((2, prior_px[m, 0]), (3, prior_px[m, 1])):
             U[cols[m, slot], cols[m, slot]] += (sigma_px / prior) ** 2
-    return covariance(wider, state, sigma_px=sigma_px, normal=replace(normal, U=U))
+    return covariance(wider, state, sigma_px=sigma_px, normal=replace(normal, U=U), eliminated=eliminated)
 
 
 def with_held_turns(problem: Problem) -> Problem | None:
