@@ -285,7 +285,7 @@ class MatcherNode:
                 extractor.config = self.config.full_pool_matcher_config()
             log.info("pool full (%d tracks): detecting on images of at most %s px a side from now on", len(pool),
                      self.config.full_pool_matcher_config().max_image_side_px)
-        cameras = list(self._workers.map(self._features, frame_set.frames.values()))
+        cameras = self._matcher.prepare(list(self._workers.map(self._features, frame_set.frames.values())))
         stamps["detected"] = latency.now_ns()
         self._take_calibration()
         ids = [c.camera_id for c in cameras]

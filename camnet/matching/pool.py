@@ -155,26 +155,32 @@ def dedupe_frame_tracks(uv: np.ndarray, radius_px: float) -> tuple[np.ndarray, i
     return uv[alive], int((~alive).sum())
 
 
+def _view_cells(uv: np.ndarray, sizes_px: np.ndarray, grid_cols: int,
+                grid_rows: int) -> tuple[np.ndarray, np.ndarray]:
+    """(track, cell) of every view of `uv` (T, C, 2), in track order: cell numbers run over (camera, row, col)."""
+    track, cam = np.nonzero(np.isfinite(uv[:, :, 0]))
+    w, h = sizes_px[cam, 0], sizes_px[cam, 1]
+    # +0.5: pixel centres run from 0 to w - 1, the image area from -0.5 to w - 0.5.
+    col = np.clip(((uv[track, cam, 0] + 0.5) / w * grid_cols).astype(int), 0, grid_cols - 1)
+    row = np.clip(((uv[track, cam, 1] + 0.5) / h * grid_rows).astype(int), 0, grid_rows - 1)
+    return track, cam * (grid_cols * grid_rows) + row * grid_cols + col
+
+
+def _fullest(track: np.ndarray, cell: np.ndarray, n_tracks: int, n_cells: int) -> np.ndarray:
+    """(n_tracks,) the count of views in the fullest cell each track occupies (0: none)."""
+    count = np.bincount(cell, minlength=n_cells)
+    out = np.zeros(n_tracks, dtype=np.int64)
+    np.maximum.at(out, track, count[cell])
+    return out
+
+
 def crowding(uv: np.ndarray, sizes_px: np.ndarray, grid_cols: int, grid_rows: int) -> np.ndarray:
     """(T,) for each track, the count of tracks in the fullest grid cell it occupies.
 
     `uv`: (T, C, 2) pixels, NaN = unseen; `sizes_px`: (C, 2) image width, height.
     """
-    n_cells = grid_cols * grid_rows
-    seen = np.isfinite(uv[:, :, 0])
-    track, cam = np.nonzero(seen)
-    if track.size == 0:
-        return np.zeros(uv.shape[0], dtype=np.int64)
-    # Every camera at once: one count over (camera, cell), not one pass per camera.
-    w, h = sizes_px[cam, 0], sizes_px[cam, 1]
-    # +0.5: pixel centres run from 0 to w - 1, the image area from -0.5 to w - 0.5.
-    col = np.clip(((uv[track, cam, 0] + 0.5) / w * grid_cols).astype(int), 0, grid_cols - 1)
-    row = np.clip(((uv[track, cam, 1] + 0.5) / h * grid_rows).astype(int), 0, grid_rows - 1)
-    cell = cam * n_cells + row * grid_cols + col
-    count = np.bincount(cell, minlength=uv.shape[1] * n_cells)
-    per_camera = np.zeros(seen.shape, dtype=np.int64)
-    per_camera[track, cam] = count[cell]
-    return per_camera.max(axis=1)
+    track, cell = _view_cells(uv, sizes_px, grid_cols, grid_rows)
+    return _fullest(track, cell, uv.shape[0], uv.shape[1] * grid_cols * grid_rows)
 
 
 class TrackPool:
@@ -253,24 +259,23 @@ class TrackPool:
 
     def _evict(self) -> int:
         cfg = self.config
-        evicted = 0
-        while len(self._ids) > cfg.max_tracks:
-            excess = len(self._ids) - cfg.max_tracks
-            crowd = crowding(self._uv, self._sizes_px, cfg.grid_cols, cfg.grid_rows)
-            views = np.isfinite(self._uv[:, :, 0]).sum(axis=1)
+        if len(self._ids) <= cfg.max_tracks:
+            return 0
+        # The views' cells once; each round recounts only the views of the tracks still kept.
+        track, cell = _view_cells(self._uv, self._sizes_px, cfg.grid_cols, cfg.grid_rows)
+        n_cells = self._uv.shape[1] * cfg.grid_cols * cfg.grid_rows
+        views = np.isfinite(self._uv[:, :, 0]).sum(axis=1)
+        keep = np.ones(len(self._ids), dtype=bool)
+        while (kept := int(keep.sum())) > cfg.max_tracks:
+            live = keep[track]
+            crowd = _fullest(track[live], cell[live], len(keep), n_cells)
+            index = np.flatnonzero(keep)
             # lexsort: last key is primary. Most crowded, then fewest views, then oldest.
-            order = np.lexsort((self._ids, self._last_seen, views, -crowd))
+            order = np.lexsort((self._ids[index], self._last_seen[index], views[index], -crowd[index]))
             # Evict in halves so that crowding is recounted as cells empty.
-            drop = order[: max(1, (excess + 1) // 2)]
-            keep = np.ones(len(self._ids), dtype=bool)
-            keep[drop] = False
-            self._uv, self._ids, self._last_seen = (
-                self._uv[keep],
-                self._ids[keep],
-                self._last_seen[keep],
-            )
-            evicted += drop.size
-        return evicted
+            keep[index[order[: max(1, (kept - cfg.max_tracks + 1) // 2)]]] = False
+        self._uv, self._ids, self._last_seen = self._uv[keep], self._ids[keep], self._last_seen[keep]
+        return int((~keep).sum())
 
     def observations(self) -> Observations:
         """The pool as `Observations`; track ids are stable while a track stays pooled."""

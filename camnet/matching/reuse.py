@@ -19,13 +19,21 @@ RANSAC to find F alone. The rig is static, so the pair's F from its last
 whole match still holds: candidates within `ransac_threshold_px` of its
 epipolar lines are kept when at least half of them are, otherwise the pair
 gives nothing this time (a moved camera then gets a new keyframe and a new F).
+
+A keyframe detects the whole image again, the same background included.
+`IncrementalMatcher.prepare` marks what the matcher saw of a camera before
+(`camnet.matching.seen`): a keyframe that shows the same scene from the same
+place continues its camera's epoch, and its pairs are matched on what
+changed, not whole. A pair without an F (never matched, or matched without
+one: most explored pairs) is probed on a quarter of one camera's keypoints
+before it is matched whole.
 """
 
 from __future__ import annotations
 
 import logging
 from collections.abc import Collection, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -41,10 +49,16 @@ from camnet.matching.features import (
     candidate_matches,
     ransac_fundamental,
 )
+from camnet.matching.seen import SeenBefore
 
 log = logging.getLogger(__name__)
 
 MIN_AGREEING = 0.5  # of the new candidates within the old F's threshold, to trust the old F
+# A pair with no F (never matched, or its last whole match found none: most of the pairs a view graph explores)
+# is first matched on every PROBE_EVERYth keypoint of one camera, and whole only if that finds an F with
+# PROBE_INLIERS inliers: a pair that matches well (40 inliers or more) has about a quarter of them in the probe.
+PROBE_EVERY = 4
+PROBE_INLIERS = 10
 
 
 @dataclass(frozen=True)
@@ -87,16 +101,29 @@ class IncrementalMatcher:
     Not thread-safe: the matcher node owns one. Memory: one `PairState` per pair.
     """
 
-    def __init__(self, config: MatcherConfig | None = None, *, stereo: Stereo | None = None) -> None:
+    def __init__(self, config: MatcherConfig | None = None, *, stereo: Stereo | None = None,
+                 probe_every: int = PROBE_EVERY) -> None:
         self.config = MatcherConfig() if config is None else config
         self.stereo = stereo
         self._pairs: dict[tuple[str, str], PairState] = {}
         self.whole = 0  # pairs matched whole
         self.incremental = 0  # pairs matched on their new keypoints only
+        self.probed = 0  # pairs with no F probed on a share of their keypoints (`_probe`)
+        self.compared = 0  # keypoint comparisons: rows times columns of the pairs' descriptor products
+        self.probe_every = probe_every
+        self._probe_config = replace(self.config, min_matches=PROBE_INLIERS)
+        self.seen = SeenBefore()
 
     def forget(self, camera_id: str) -> None:
         """Match every pair of `camera_id` whole next time."""
         self._pairs = {k: v for k, v in self._pairs.items() if camera_id not in k}
+        self.seen.forget(camera_id)
+
+    def prepare(self, cameras: Sequence[CameraFeatures]) -> list[CameraFeatures]:
+        """The cameras of a frame set with what this matcher has seen of them before marked as reused, and
+        a keyframe that continues its camera's epoch in it (`camnet.matching.seen`). Once per frame set, in
+        order, before `match`; matching the cameras as they come instead matches every keyframe's pairs whole."""
+        return [self.seen.mark(camera) for camera in cameras]
 
     def matched_well(self, min_inliers: int) -> set[frozenset[str]]:
         """Pairs whose last whole match found an F with at least `min_inliers` inliers."""
@@ -131,8 +158,11 @@ class IncrementalMatcher:
         state = self._pairs.get(key)
         keyframes = (fa.keyframe_seq, fb.keyframe_seq)
         empty = np.empty(0, dtype=np.int64)
+        if state is None and not self._probe(fa.features, fb.features, prior=prior):
+            return PairMatches(a, b, empty, empty, None, 0)
         if state is None or state.keyframes != keyframes:
             ia, ib = candidate_matches(fa.features, fb.features, config, stereo_prior=prior)
+            self.compared += len(fa.features) * len(fb.features)
             F, inliers = ransac_fundamental(fa.features.uv[ia], fb.features.uv[ib], config)
             self.whole += 1
             if F is None or inliers.sum() < config.min_matches:
@@ -142,8 +172,23 @@ class IncrementalMatcher:
             return PairMatches(a, b, ia[inliers], ib[inliers], F, len(ia))
         self.incremental += 1
         ia, ib = _new_candidates(fa, fb, config, prior=prior)
+        self.compared += (len(fa.features) - fa.reused) * (len(fb.features) - fb.reused)
         inliers = epipolar_inliers(state.F, fa.features.uv[ia], fb.features.uv[ib], config.ransac_threshold_px)
         if len(ia) == 0 or inliers.mean() < MIN_AGREEING:
             log.debug("pair %s-%s: %d of %d new candidates on the old F", *key, int(inliers.sum()), len(ia))
             return PairMatches(a, b, empty, empty, None, len(ia))
         return PairMatches(a, b, ia[inliers], ib[inliers], state.F, len(ia))
+
+    def _probe(self, fa: Features, fb: Features, *, prior: bool) -> bool:
+        """Whether a pair with no F yet is worth matching whole: every `probe_every`th keypoint of `fa`
+        against all of `fb` finds an F with at least `PROBE_INLIERS` inliers."""
+        if self.probe_every <= 1:
+            return True
+        rows = np.arange(0, len(fa), self.probe_every)
+        ia, ib = candidate_matches(_subset(fa, rows), fb, self.config, stereo_prior=prior)
+        self.compared += len(rows) * len(fb)
+        self.probed += 1
+        if len(ia) < PROBE_INLIERS:
+            return False
+        F, inliers = ransac_fundamental(fa.uv[rows[ia]], fb.uv[ib], self._probe_config)
+        return F is not None and int(inliers.sum()) >= PROBE_INLIERS

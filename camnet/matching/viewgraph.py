@@ -43,11 +43,13 @@ class ViewGraphConfig:
     min_overlap: float = 0.05  # of either camera's frustum the other sees
     max_axis_angle_deg: float = 75.0  # optical axes further apart: features do not match across
     # Partners per camera by the geometry (at most neighbours * M / 2 pairs). On the 16 cameras of
-    # config/hosts16.yaml 4 make 29 pairs, 3 make 23 (a recorded live feature stream, offline: 0.22 against
-    # 0.17 CPU s a frame set), but a third fewer tracks seen by 3+ cameras.
-    neighbours: int = 4
-    # Other pairs per frame set, in rotation. An explored pair is matched whole (its last whole match is
-    # older than its cameras' keyframes): one costs as much as a dozen pairs matched on what changed.
+    # config/hosts16.yaml 4 make 29 pairs, 3 make 23. When every keyframe matched its camera's pairs whole, 3
+    # pooled a third fewer tracks seen by 3+ cameras; since keyframes match what changed (camnet.matching.seen),
+    # 3 pool as many as 4 did (a recorded live feature stream, offline: 1802 and 1775, 1538 before) for 0.121
+    # CPU s a frame set against 0.153 (benchmarks/bench_matcher_stream.py).
+    neighbours: int = 3
+    # Other pairs per frame set, in rotation. An explored pair without an F is probed on a quarter of one
+    # camera's keypoints first (camnet.matching.reuse), and matched whole only where that finds one.
     explore_per_set: int = 1
     good_matches: int = 40  # inliers of a pair's last whole match that keep it matched
 
