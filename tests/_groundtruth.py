@@ -63,17 +63,3 @@ def pairwise_epipolar_fractions(uv: np.ndarray, cameras: list[Camera], tol_px: f
             frac = float(np.mean(d <= tol_px)) if d.size else float("nan")
             out[(cameras[i].id, cameras[j].id)] = (int(both.sum()), frac)
     return out
-
-
-def read_temple_cameras(root: Path) -> dict[str, Camera]:
-    """Middlebury ``*_par.txt``: name, K (9), R (9), t (3) per line; P = K [R t]."""
-    lines = (root / "templeSR_par.txt").read_text().split("\n")
-    cameras = {}
-    for line in lines[1:]:
-        if not line.strip():
-            continue
-        name, *values = line.split()
-        v = np.array(values, dtype=float)
-        cam_id = name.removesuffix(".png")
-        cameras[cam_id] = Camera(cam_id, 640, 480, K=v[:9].reshape(3, 3), R=v[9:18].reshape(3, 3), t=v[18:21])
-    return cameras

@@ -62,6 +62,17 @@ def compare_cameras(cal: Calibration, published: dict[str, Camera]) -> list[Came
     return out
 
 
+def in_frame_of(cameras: dict[str, Camera], left_id: str) -> dict[str, Camera]:
+    """The cameras re-expressed in camera `left_id`'s frame (a calibration's world frame)."""
+    left = cameras[left_id]
+    out = {}
+    for cam_id, cam in cameras.items():
+        # X = R_l^T (x_left - t_l), so x_cam = R R_l^T x_left + (t - R R_l^T t_l).
+        R = cam.R @ left.R.T
+        out[cam_id] = Camera(cam.id, cam.width, cam.height, K=cam.K, dist=cam.dist, R=R, t=cam.t - R @ left.t)
+    return out
+
+
 def triangulate_stereo(obs: Observations, left: Camera, right: Camera) -> tuple[np.ndarray, np.ndarray]:
     """Tracks seen by both stereo cameras, triangulated with `left` and `right`.
 
@@ -126,10 +137,12 @@ class VsPublished:
         return next(c for c in self.cameras if c.id == cam_id)
 
 
-def compare(cal: Calibration, obs: Observations, published: dict[str, Camera]) -> VsPublished:
-    """`cal` (solved from `obs`) against `published`; points triangulated with its stereo pair."""
+def compare(cal: Calibration, obs: Observations, published: dict[str, Camera], *,
+            depth_range_m: tuple[float, float] = (2.0, 15.0)) -> VsPublished:
+    """`cal` (solved from `obs`) against `published`; points triangulated with its stereo pair, those at depths
+    in `depth_range_m` compared (`distance_scale`)."""
     ids, points = triangulate_stereo(obs, published[obs.stereo.left], published[obs.stereo.right])
-    distance_rel, n_points = distance_scale(cal, ids, points)
+    distance_rel, n_points = distance_scale(cal, ids, points, depth_range_m=depth_range_m)
     return VsPublished(
         cameras=compare_cameras(cal, published),
         distance_rel=distance_rel,

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from camnet.datasets.published import in_frame_of
 from camnet.errors import InputError
 from camnet.geometry.model import Camera
 
@@ -45,12 +46,4 @@ def image_path(root: str | Path, camera_id: str) -> Path:
     return Path(root) / "images" / f"{camera_id}.jpg"
 
 
-def in_frame_of(cameras: dict[str, Camera], left_id: str) -> dict[str, Camera]:
-    """The cameras re-expressed in camera `left_id`'s frame (a calibration's world frame)."""
-    left = cameras[left_id]
-    out = {}
-    for cam_id, cam in cameras.items():
-        # X = R_l^T (x_left - t_l), so x_cam = R R_l^T x_left + (t - R R_l^T t_l).
-        R = cam.R @ left.R.T
-        out[cam_id] = Camera(cam.id, cam.width, cam.height, K=cam.K, dist=cam.dist, R=R, t=cam.t - R @ left.t)
-    return out
+__all__ = ["image_path", "in_frame_of", "read_camera", "read_cameras"]

@@ -45,6 +45,7 @@ from camnet.geometry.two_view import (
     MIN_PAIR_POINTS,
     RelativePose,
     focal_grid,
+    homography_explains,
     pair_focals,
     relative_pose,
     row_and_epipolar_errors,
@@ -100,16 +101,32 @@ def pair_advice(obs: Observations) -> str:
 
 def stronger_pair(obs: Observations) -> tuple[int, int, int, int] | None:
     """(a, b, tracks a and b share, tracks the stereo pair shares) where the two observations cameras a, b
-    that share the most tracks share WEAK_PAIR_RATIO times the stereo pair's; else None."""
+    that share the most tracks share WEAK_PAIR_RATIO times the stereo pair's; else None.
+
+    Two cameras at one viewpoint (a homography explains their matches,
+    `two_view.homography_explains`) share the most tracks of all, and fix
+    no relative pose: they are passed over, for the next pair.
+    """
     seen = np.zeros((len(obs.track_ids), len(obs.cameras)), dtype=bool)
     seen[obs.track_index, obs.cam_index] = True
     shared = seen.T.astype(int) @ seen  # (cameras, cameras) tracks each two share
-    np.fill_diagonal(shared, -1)
     left, right = obs.index_of(obs.stereo.left), obs.index_of(obs.stereo.right)
-    a, b = np.unravel_index(np.argmax(shared), shared.shape)
-    if shared[a, b] < WEAK_PAIR_RATIO * shared[left, right]:
-        return None
-    return int(a), int(b), int(shared[a, b]), int(shared[left, right])
+    enough = WEAK_PAIR_RATIO * shared[left, right]
+    rows = np.full(seen.shape, -1)
+    rows[obs.track_index, obs.cam_index] = np.arange(len(obs.uv))
+    a_of, b_of = np.triu_indices(len(obs.cameras), k=1)
+    for k in np.argsort(-shared[a_of, b_of], kind="stable"):
+        a, b = int(a_of[k]), int(b_of[k])
+        if shared[a, b] < enough:
+            return None
+        both = seen[:, a] & seen[:, b]
+        uv_a, uv_b = obs.uv[rows[both, a]], obs.uv[rows[both, b]]
+        if homography_explains(uv_a, uv_b, threshold_px=threshold_px(obs, camera_order(obs))):
+            log.info("%s and %s share %d tracks, but one homography maps them: no baseline, no start",
+                     obs.cameras[a].id, obs.cameras[b].id, shared[a, b])
+            continue
+        return a, b, int(shared[a, b]), int(shared[left, right])
+    return None
 
 
 def is_parallel(rows_px: float, epipolar_px: float) -> bool:

@@ -21,6 +21,11 @@ MIN_PAIR_POINTS = 8  # the eight-point fundamental matrix, and a margin over E's
 # Focal lengths a sweep tries, as multiples of the image width: 170 to 10 degrees across.
 FOCAL_RANGE_REL = (0.15, 6.0)
 FOCAL_STEPS = 16  # 27% apart: a refinement finishes from the nearest
+# Two views from one viewpoint: a homography explains their matches within this many times their distance from
+# the epipolar lines (both refitted on their RANSAC inliers; pixel noise alone gives about 2, views of a scene with
+# depth 25-30 where the depth spans a tenth of the distance), plus a floor for exact data.
+ROTATION_RATIO = 5.0
+ROTATION_FLOOR_PX = 0.1
 
 
 @dataclass(frozen=True)
@@ -139,3 +144,32 @@ def row_and_epipolar_errors(xy1: np.ndarray, xy2: np.ndarray, *, threshold_px: f
     lines = cv2.computeCorrespondEpilines(xy1[inliers].reshape(-1, 1, 2), 1, F).reshape(-1, 3)
     epipolar = np.abs(np.sum(lines[:, :2] * xy2[inliers], axis=1) + lines[:, 2])
     return float(np.median(off)), float(np.median(epipolar))
+
+
+def homography_explains(xy1: np.ndarray, xy2: np.ndarray, *, threshold_px: float) -> bool:
+    """Whether one homography maps the first view's matches onto the second's as closely as any epipolar geometry.
+
+    So it is between two views from one viewpoint (a pure rotation: no
+    baseline, so no relative pose and no depth) or of one plane. Both
+    models are fitted by RANSAC, then by least squares on their inliers;
+    the medians over the fundamental matrix's inliers are compared
+    (`ROTATION_RATIO`). Pixels in either convention, both views alike.
+    """
+    import cv2
+
+    found = fundamental(xy1, xy2, threshold_px=threshold_px)
+    if found is None:
+        return False
+    inliers = found[1]
+    H, mask = cv2.findHomography(xy1, xy2, cv2.RANSAC, threshold_px)
+    if H is None or inliers.sum() < MIN_PAIR_POINTS or mask.sum() < MIN_PAIR_POINTS:
+        return False
+    H = cv2.findHomography(xy1[mask.ravel() > 0], xy2[mask.ravel() > 0], 0)[0]
+    F = cv2.findFundamentalMat(xy1[inliers], xy2[inliers], cv2.FM_8POINT)[0]
+    if H is None or F is None or F.shape != (3, 3):
+        return False
+    lines = cv2.computeCorrespondEpilines(xy1[inliers].reshape(-1, 1, 2), 1, F).reshape(-1, 3)
+    epipolar_px = np.median(np.abs(np.sum(lines[:, :2] * xy2[inliers], axis=1) + lines[:, 2]))
+    mapped = cv2.perspectiveTransform(xy1[inliers].reshape(-1, 1, 2).astype(np.float64), H).reshape(-1, 2)
+    transfer_px = np.median(np.linalg.norm(mapped - xy2[inliers], axis=1))
+    return bool(transfer_px <= ROTATION_RATIO * epipolar_px + ROTATION_FLOOR_PX)

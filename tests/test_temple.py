@@ -1,0 +1,60 @@
+"""The Middlebury temple ring end to end: real images, matched and calibrated with one known distance.
+
+Sixteen views of a 10 cm object from a ring 0.6 m away, 23 degrees between
+neighbours, a 24 degree field of view, and two views (templeSR0001 and
+templeSR0011) taken from one viewpoint: 645 tracks are seen by those two
+alone. Their points have no depth (no parallax), and before they were left
+out the adjustment stopped at its iteration limit. All sixteen views: the
+failure needs the whole ring (on eight views round 0001 and 0011 the
+adjustment converged even before).
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from camnet.datasets.published import compare, in_frame_of
+from camnet.datasets.temple import image_path, read_cameras
+from camnet.geometry.calibrate import calibrate
+from camnet.geometry.model import CameraInfo, Stereo
+from camnet.matching.pipeline import observations_from_frame_sets
+from tests._groundtruth import TEMPLE_ROOT, require
+
+VIEWS = [f"templeSR{k:04d}" for k in range(1, 17)]
+LEFT, RIGHT = "templeSR0007", "templeSR0008"
+# Measured (benchmarks/bench_temple.py, README "Real images: the temple ring"): with nothing known, every focal
+# length within 11% of the published one, 4.6 of its reported sigmas at most (the principal points, freed, trade
+# with the poses at this narrow field of view): beyond 3 sigmas, a known shortfall the README states; the bound
+# leaves a margin for other platforms' SIFT.
+FOCAL_BOUND_REL = 0.20
+FOCAL_BOUND_SIGMAS = 7.0
+
+
+def test_the_ring_with_two_views_from_one_viewpoint_calibrates_near_the_published_cameras(record_property):
+    root = require(TEMPLE_ROOT)
+    published = in_frame_of(read_cameras(root), LEFT)
+    baseline_m = float(np.linalg.norm(published[RIGHT].centre - published[LEFT].centre))
+    images = {v: cv2.imread(str(image_path(root, v)), cv2.IMREAD_UNCHANGED) for v in VIEWS}
+    obs = observations_from_frame_sets([images], cameras=[CameraInfo(v, 640, 480) for v in VIEWS],
+                                       stereo=Stereo(LEFT, RIGHT, baseline_m))
+
+    result = calibrate(obs)
+
+    assert result.converged, result.reason
+    report = result.calibration.report
+    placed = {c.id for c in result.calibration.cameras}
+    # A view left out is named, with its reason, among the warnings.
+    assert placed | set(report.cameras_left_out) == set(VIEWS)
+    for cam_id in report.cameras_left_out:
+        assert any(w.startswith(f"camera {cam_id} left out:") for w in report.warnings)
+    vs = compare(result.calibration, obs, published, depth_range_m=(0.3, 1.0))
+    record_property("scale", {"error_rel": vs.distance_rel, "sigma_rel": vs.scale_sigma_rel,
+                              "points": vs.distance_points})
+    record_property("focal", {c.id: (round(c.focal_rel, 4), round(c.focal_sigma_rel, 4)) for c in vs.cameras})
+    assert vs.distance_points >= 100
+    assert abs(vs.distance_rel) <= 3 * vs.scale_sigma_rel, (vs.distance_rel, vs.scale_sigma_rel)
+    for c in vs.cameras:
+        assert c.focal_sigma_rel > 0, c.id
+        assert abs(c.focal_rel) <= min(FOCAL_BOUND_REL, FOCAL_BOUND_SIGMAS * c.focal_sigma_rel), (c.id, c.focal_rel,
+                                                                                                 c.focal_sigma_rel)
