@@ -36,9 +36,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from camnet.drivers.base import written_into  # noqa: E402
-
-from camnet.bus.frame import Frame  # noqa: E402
+from camnet.bus.frame import Frame, FrameBuffer  # noqa: E402
 
 RIG_FILE = ROOT / "config" / "sim.yaml"
 POOL_FRAMES = 4
@@ -98,13 +96,19 @@ class PooledCamera:
     def __exit__(self, *exc):
         return None
 
-    def read(self, *, timeout_s: float = 1.0, out=None):
-        sleep_until(self.t0_ns, self.seq, self.fps)
+    def read(self, *, timeout_s: float = 1.0) -> Frame:
+        seq, timestamp_ns, encoding, image = self._next()
+        return Frame(self.camera_id, seq, timestamp_ns, encoding, image.copy())
+
+    def read_into(self, buffer: FrameBuffer, *, timeout_s: float = 1.0):
         # Into the node's reused message, as a camera would write it: the capture's one copy.
-        frame = Frame(self.camera_id, self.seq, time.time_ns(), "mono8",
-                      written_into(out, self.pool[self.seq % len(self.pool)]))
-        self.seq += 1
-        return frame
+        return buffer.fill(*self._next())
+
+    def _next(self) -> tuple[int, int, str, np.ndarray]:
+        seq = self.seq
+        sleep_until(self.t0_ns, seq, self.fps)
+        self.seq = seq + 1
+        return seq, time.time_ns(), "mono8", self.pool[seq % len(self.pool)]
 
 
 def sleep_until(t0_ns: int, seq: int, fps: float) -> None:

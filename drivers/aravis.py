@@ -34,10 +34,10 @@ import gi
 import numpy as np
 
 gi.require_version("Aravis", "0.8")
-from camnet.drivers.base import DeviceError, DeviceInfo, FoundCamera, ReadTimeout, written_into  # noqa: E402
+from camnet.drivers.base import DeviceError, DeviceInfo, FoundCamera, ReadTimeout  # noqa: E402
 from gi.repository import Aravis, GLib  # noqa: E402  (require_version must come first)
 
-from camnet.bus.frame import Frame  # noqa: E402
+from camnet.bus.frame import Frame, FrameBuffer  # noqa: E402
 from camnet.io.rig import AravisConfig, CameraEntry, Rig  # noqa: E402
 
 log = logging.getLogger(__name__)
@@ -280,7 +280,15 @@ class AravisCamera:
         self._reconnects += 1
         log.warning("camera %s: reconnected", self.camera_id)
 
-    def read(self, *, timeout_s: float = 1.0, out: np.ndarray | None = None) -> Frame:
+    def read(self, *, timeout_s: float = 1.0) -> Frame:
+        seq, timestamp_ns, encoding, image = self._next(timeout_s)
+        return Frame(self.camera_id, seq, timestamp_ns, encoding, image)
+
+    def read_into(self, buffer: FrameBuffer, *, timeout_s: float = 1.0) -> tuple[int, int] | Frame:
+        return buffer.fill(*self._next(timeout_s))
+
+    def _next(self, timeout_s: float) -> tuple[int, int, str, np.ndarray]:
+        """(seq, timestamp_ns, encoding, image) of the next complete frame, reconnecting as needed."""
         deadline = time.monotonic() + timeout_s
         while True:
             if self._camera is None:
@@ -298,14 +306,15 @@ class AravisCamera:
                 raise ReadTimeout(f"camera {self.camera_id!r}: no frame in {timeout_s} s")
             self._last_buffer_mono = time.monotonic()
             try:
-                frame = self._frame_from(buffer, out)
+                captured = self._captured(buffer)
             finally:
                 self._stream.push_buffer(buffer)
-            if frame is not None:
-                return frame
+            if captured is not None:
+                return captured
 
-    def _frame_from(self, buffer, out: np.ndarray | None) -> Frame | None:
-        """The Frame in `buffer` (its pixels in `out`, as `read`), or None (counted as dropped) if incomplete."""
+    def _captured(self, buffer) -> tuple[int, int, str, np.ndarray] | None:
+        """(seq, timestamp_ns, encoding, image) of the frame in `buffer`, or None (counted as dropped) if
+        incomplete."""
         frame_id = buffer.get_frame_id()
         if self._last_frame_id is not None:
             gap = (frame_id - self._last_frame_id - 1) % _FRAME_ID_MODULO
@@ -336,7 +345,5 @@ class AravisCamera:
         # into bytes), so the buffer can go back to the pool and the image is a view of them.
         image = np.frombuffer(data, dtype=dtype, count=needed // dtype.itemsize).reshape(shape)
         timestamp_ns = buffer.get_timestamp() or buffer.get_system_timestamp() or time.time_ns()
-        frame = Frame(camera_id=self.camera_id, seq=self._seq, timestamp_ns=int(timestamp_ns),
-                      encoding=encoding, image=written_into(out, image))
-        self._seq += 1
-        return frame
+        seq, self._seq = self._seq, self._seq + 1
+        return seq, int(timestamp_ns), encoding, image

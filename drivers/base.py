@@ -2,14 +2,17 @@
 
 A camera is a context manager: entering opens it, leaving closes it. Inside,
 `read()` returns the next `camnet.bus.frame.Frame` (blocking at most `timeout_s`)
-and `dropped` counts frames the camera produced but the driver lost. Given
-`out` (an array of the frame's shape and dtype: the driver node's reused
-message, `camnet.bus.frame.FrameBuffer`), `read` writes the pixels into it
-and returns it as the frame's image; a frame of another shape comes in an
-array of its own, so callers check which they got. A
-simulated camera also knows the rig's ground truth (`groundtruth`), which its
-node publishes; real cameras have None. Driver modules are imported only when
-chosen, so a missing SDK (Aravis, say) breaks only that driver.
+and `dropped` counts frames the camera produced but the driver lost.
+`read_into(buffer)` is the driver node's way, frame after frame: it writes
+the next frame's pixels into the node's reused message
+(`camnet.bus.frame.FrameBuffer.fill`) and returns only its
+``(seq, timestamp_ns)``; no `Frame` is built. A frame the buffer cannot
+carry (another size or encoding: the first after a reconnection, say)
+comes back as a `Frame` of its own instead, so callers check which they
+got. A simulated camera also knows the rig's ground truth (`groundtruth`),
+which its node publishes; real cameras have None. Driver modules are
+imported only when chosen, so a missing SDK (Aravis, say) breaks only that
+driver.
 """
 
 from __future__ import annotations
@@ -18,9 +21,7 @@ import importlib
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
-import numpy as np
-
-from camnet.bus.frame import Frame
+from camnet.bus.frame import Frame, FrameBuffer
 from camnet.errors import CamnetError
 from camnet.io.rig import DRIVERS, CameraEntry, Rig
 
@@ -100,15 +101,9 @@ class Camera(Protocol):
 
     def __exit__(self, *exc_info: object) -> None: ...
 
-    def read(self, *, timeout_s: float = 1.0, out: np.ndarray | None = None) -> Frame: ...
+    def read(self, *, timeout_s: float = 1.0) -> Frame: ...
 
-
-def written_into(out: np.ndarray | None, image: np.ndarray) -> np.ndarray:
-    """`image` copied into `out` where `out` (Camera.read's) has its shape and dtype, else `image` itself."""
-    if out is None or out.shape != image.shape or out.dtype != image.dtype:
-        return image
-    np.copyto(out, image)
-    return out
+    def read_into(self, buffer: FrameBuffer, *, timeout_s: float = 1.0) -> tuple[int, int] | Frame: ...
 
 
 def create_camera(entry: CameraEntry, rig: Rig) -> Camera:

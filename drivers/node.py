@@ -3,8 +3,10 @@
 Frames go out with congestion control DROP: a slow subscriber or link loses
 frames (seen as sequence gaps) instead of stalling the camera. Raw frames
 are written by the camera straight into a message buffer that is reused
-frame after frame (`camnet.bus.frame.FrameBuffer`), so the pixels are not
-copied into a new message before `put`. They can go out through Zenoh
+frame after frame (`Camera.read_into`, `camnet.bus.frame.FrameBuffer`), so
+the pixels are not copied into a new message before `put`, and the camera
+hands back only seq and timestamp: a `Frame` is built only for `on_frame`.
+They can go out through Zenoh
 shared memory instead of as bytes (`shared_memory`,
 `camnet.drivers.frame_publisher`): less CPU, but off by default, since it
 lost frames under load where bytes did not. A camera that
@@ -37,6 +39,7 @@ log = logging.getLogger(__name__)
 
 NODE_KIND = "driver"
 RATE_WINDOW_S = 2.0  # the reported fps: frames sent over about the last two seconds
+READ_TIMEOUT_S = 0.5  # the longest a read blocks: how soon the node sees a stop or reports statistics
 
 
 class DriverNode:
@@ -56,29 +59,9 @@ class DriverNode:
         # (monotonic s, frames sent) at each report: the rate comes from counts, not from a clock
         # read per frame.
         self._counts: deque[tuple[float, int]] = deque()
-        self._buffer: FrameBuffer | None = None  # raw frames only; made from the first frame
         # Kept as long as the node, not just the run: its shared memory must outlive the last frames
         # put, which subscribers map only when they arrive.
         self.frames_out: FramePublisher | None = None
-
-    def _read(self) -> Frame:
-        """The camera's next frame, into the reused message buffer when there is one."""
-        return self.camera.read(timeout_s=0.5, out=None if self._buffer is None else self._buffer.pixels)
-
-    def _message(self, frame: Frame) -> bytes | bytearray:
-        """The wire bytes of `frame`: sealed in place when the camera wrote it into the buffer."""
-        if self.compression is not Compression.NONE:
-            return encode_frame(frame, compression=self.compression)
-        if self._buffer is not None and self._buffer.holds(frame):
-            return self._buffer.seal(frame)
-        self._buffer = FrameBuffer.like(frame)  # the first frame, or one of another size: the next goes in place
-        return encode_frame(frame)
-
-    def _offer(self, frame: Frame) -> None:
-        """Hand `frame` to `on_frame`, its pixels copied if they are in the buffer (the next frame overwrites it)."""
-        if self._buffer is not None and self._buffer.holds(frame):
-            frame = Frame(frame.camera_id, frame.seq, frame.timestamp_ns, frame.encoding, frame.image.copy())
-        self.on_frame(frame)
 
     def _publish_groundtruth(self):
         if self.camera.groundtruth is None:
@@ -117,26 +100,49 @@ class DriverNode:
             log.info("camera %s: publishing %s", self.camera_id, keys.frame(self.rig.name, self.camera_id))
             self._counts.append((time.monotonic(), self.frames_sent))
             try:
-                while not self.stop.is_set():
-                    try:
-                        frame = self._read()
-                    except ReadTimeout:
-                        frame = None
-                    except EndOfStream as exc:
-                        log.info("camera %s: %s", self.camera_id, exc)
-                        break
-                    if frame is not None:
-                        publisher.put(self._message(frame))
-                        if self.on_frame is not None:
-                            self._offer(frame)
-                        self.frames_sent += 1
-                    presence.publish_if_due()
-                    if max_frames and self.frames_sent >= max_frames:
-                        break
+                self._publish_frames(publisher.put, presence.publish_if_due, max_frames)
             finally:
                 if queryable is not None:
                     queryable.undeclare()
         return 0
+
+    def _publish_frames(self, put: Callable[[bytes | bytearray], None], publish_stats_if_due: Callable[[], None],
+                        max_frames: int) -> None:
+        """Read and put frames until stopped, the source ends, or `max_frames` (0: no limit).
+
+        A raw frame's pixels go into the reused buffer and the camera returns
+        only (seq, timestamp_ns): per frame, the loop stamps and puts the
+        buffer, nothing more (at 30 fps on a loaded host each line of it runs
+        with cold caches, so it is kept short). The first frame, or one the
+        buffer cannot carry, comes as a Frame and makes the buffer for the next.
+        """
+        camera, stop, on_frame = self.camera, self.stop, self.on_frame
+        raw = self.compression is Compression.NONE
+        buffer: FrameBuffer | None = None
+        while not stop.is_set():
+            try:
+                got = camera.read_into(buffer, timeout_s=READ_TIMEOUT_S) if buffer is not None \
+                    else camera.read(timeout_s=READ_TIMEOUT_S)
+            except ReadTimeout:
+                got = None
+            except EndOfStream as exc:
+                log.info("camera %s: %s", self.camera_id, exc)
+                break
+            if isinstance(got, tuple):
+                put(buffer.stamp(*got))
+                if on_frame is not None:
+                    on_frame(buffer.frame(*got))
+                self.frames_sent += 1
+            elif got is not None:
+                if raw:
+                    buffer = FrameBuffer.like(got)  # the first frame, or one of another size: the next goes in place
+                put(encode_frame(got, compression=self.compression))
+                if on_frame is not None:
+                    on_frame(got)
+                self.frames_sent += 1
+            publish_stats_if_due()
+            if max_frames and self.frames_sent >= max_frames:
+                break
 
 
 def run_together(nodes: Sequence[DriverNode], *, max_frames: int = 0) -> int:

@@ -23,9 +23,9 @@ import zlib
 from fractions import Fraction
 
 import numpy as np
-from camnet.drivers.base import DeviceInfo, ReadTimeout, written_into
+from camnet.drivers.base import DeviceInfo, ReadTimeout
 
-from camnet.bus.frame import Frame
+from camnet.bus.frame import Frame, FrameBuffer
 from camnet.io.rig import CameraEntry, Rig
 from camnet.sim.config import SimConfig
 from camnet.sim.render import Renderer
@@ -96,7 +96,16 @@ class SimCamera:
         image = self._renderer.render(quads, noise_sigma_dn=self.config.noise_sigma_dn, rng=rng)
         return _convert(image, self.config.encoding)
 
-    def read(self, *, timeout_s: float = 1.0, out: np.ndarray | None = None) -> Frame:
+    def read(self, *, timeout_s: float = 1.0) -> Frame:
+        slot, timestamp_ns = self._wait_for_slot(timeout_s)
+        return Frame(self.camera_id, slot, timestamp_ns, self.config.encoding, self.render(slot))
+
+    def read_into(self, buffer: FrameBuffer, *, timeout_s: float = 1.0) -> tuple[int, int] | Frame:
+        slot, timestamp_ns = self._wait_for_slot(timeout_s)
+        return buffer.fill(slot, timestamp_ns, self.config.encoding, self.render(slot))
+
+    def _wait_for_slot(self, timeout_s: float) -> tuple[int, int]:
+        """(slot, timestamp_ns) of the next frame, once it is due; ReadTimeout if not within `timeout_s`."""
         now_ns = time.time_ns()
         slot = self._next_slot
         late_slots = self.slot_at(now_ns) - slot
@@ -117,8 +126,7 @@ class SimCamera:
         if wait_s > 0:
             time.sleep(wait_s)
         self._next_slot = slot + 1
-        return Frame(camera_id=self._info.camera_id, seq=slot, timestamp_ns=timestamp_ns,
-                     encoding=self.config.encoding, image=written_into(out, self.render(slot)))
+        return slot, timestamp_ns
 
 
 def groundtruth_document(rig: Rig) -> dict:

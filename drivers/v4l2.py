@@ -33,9 +33,9 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from camnet.drivers.base import DeviceError, DeviceInfo, EndOfStream, ReadTimeout, written_into
+from camnet.drivers.base import DeviceError, DeviceInfo, EndOfStream, ReadTimeout
 
-from camnet.bus.frame import Frame
+from camnet.bus.frame import Frame, FrameBuffer
 from camnet.io.rig import CameraEntry, Rig, V4l2Config, is_image_pattern
 
 log = logging.getLogger(__name__)
@@ -281,7 +281,16 @@ class V4l2Camera:
             raise EndOfStream(f"video {self.config.source} cannot be rewound")
         return image
 
-    def read(self, *, timeout_s: float = 1.0, out: np.ndarray | None = None) -> Frame:
+    def read(self, *, timeout_s: float = 1.0) -> Frame:
+        seq, timestamp_ns, image = self._next(timeout_s)
+        return Frame(self.camera_id, seq, timestamp_ns, self.config.encoding, image)
+
+    def read_into(self, buffer: FrameBuffer, *, timeout_s: float = 1.0) -> tuple[int, int] | Frame:
+        seq, timestamp_ns, image = self._next(timeout_s)
+        return buffer.fill(seq, timestamp_ns, self.config.encoding, image)
+
+    def _next(self, timeout_s: float) -> tuple[int, int, np.ndarray]:
+        """(seq, timestamp_ns, image in the camera's encoding) of the next frame, once it is due."""
         if self._info is None:
             raise DeviceError(f"camera {self.camera_id!r}: read() before open")
         if self._is_device:
@@ -296,11 +305,9 @@ class V4l2Camera:
             if wait_s > 0:
                 time.sleep(wait_s)
             image = self._next_image()
-        frame = Frame(camera_id=self.camera_id, seq=self._seq, timestamp_ns=timestamp_ns,
-                      encoding=self.config.encoding,
-                      image=written_into(out, np.ascontiguousarray(_to_encoding(image, self.config.encoding))))
-        self._seq += 1
-        return frame
+        image = np.ascontiguousarray(_to_encoding(image, self.config.encoding))
+        seq, self._seq = self._seq, self._seq + 1
+        return seq, timestamp_ns, image
 
     def _schedule(self, seq: int) -> tuple[int, int]:
         """(when frame `seq` is due, ns after the start; its capture timestamp, ns) for a file or sequence."""

@@ -275,6 +275,31 @@ def test_in_process_fake_interface():
     assert not np.array_equal(frames[0].image, frames[1].image)  # the fake pattern moves
 
 
+def test_in_process_fake_camera_reads_into_the_node_buffer():
+    """read_into: the pixels in the node's buffer and only (seq, timestamp) back; a buffer of another size
+    gets the frame as a Frame of its own."""
+    from camnet.drivers.aravis import AravisCamera
+
+    from camnet.bus.frame import Frame, FrameBuffer, decode_frame
+
+    cfg = config(device_id="Fake_1", enable_fake_interface=True, packet_size=None, fps=None)
+    with AravisCamera("fake", cfg) as cam:
+        first = cam.read(timeout_s=2.0)
+        buffer = FrameBuffer.like(first)
+        messages = []
+        for _ in range(2 * cfg.n_buffers):  # every buffer of Aravis's pool goes round
+            got = cam.read_into(buffer, timeout_s=2.0)
+            assert isinstance(got, tuple), got
+            messages.append(bytes(buffer.stamp(*got)))
+        other = cam.read_into(FrameBuffer("fake", "mono8", (8, 8)), timeout_s=2.0)
+    frames = [decode_frame(message) for message in messages]
+    assert all(f.encoding == "mono8" and f.image.shape == first.image.shape for f in frames)
+    seqs = [f.seq for f in frames]
+    assert seqs[0] > first.seq and seqs == sorted(set(seqs))
+    assert not np.array_equal(frames[0].image, frames[1].image)  # the fake pattern moves
+    assert isinstance(other, Frame) and other.seq > seqs[-1] and other.image.shape == first.image.shape
+
+
 def test_refused_configuration_names_camera_and_setting():
     from camnet.drivers.aravis import AravisCamera
     from camnet.drivers.base import DeviceError

@@ -25,36 +25,54 @@ def pattern(seq: int, shape: tuple[int, ...], dtype) -> np.ndarray:
 
 
 @pytest.mark.parametrize("encoding", ["mono8", "mono16", "bgr8"])
-def test_a_sealed_buffer_is_the_encoded_frame_and_decodes_back(encoding):
+def test_a_filled_and_stamped_buffer_is_the_encoded_frame_and_decodes_back(encoding):
     spec = ENCODINGS[encoding]
     shape = (5, 7) if spec.channels == 1 else (5, 7, 3)
     buffer = FrameBuffer("cam_é", encoding, shape)
     for seq in (3, 4):  # the second frame overwrites the first in the same buffer
-        np.copyto(buffer.pixels, pattern(seq, shape, spec.dtype))
-        frame = Frame("cam_é", seq, 1_700_000_000_000_000_000 + seq, encoding, buffer.pixels)
-        message = buffer.seal(frame)
-        assert bytes(message) == encode_frame(Frame("cam_é", seq, frame.timestamp_ns, encoding,
+        timestamp_ns = 1_700_000_000_000_000_000 + seq
+        assert buffer.fill(seq, timestamp_ns, encoding, pattern(seq, shape, spec.dtype)) == (seq, timestamp_ns)
+        message = buffer.stamp(seq, timestamp_ns)
+        assert bytes(message) == encode_frame(Frame("cam_é", seq, timestamp_ns, encoding,
                                                     pattern(seq, shape, spec.dtype)))
         back = decode_frame(bytes(message))
         assert back.seq == seq and np.array_equal(back.image, pattern(seq, shape, spec.dtype))
+        kept = buffer.frame(seq, timestamp_ns)  # its own pixels: the buffer moves on
+        assert kept.image is not buffer.pixels and encode_frame(kept) == bytes(message)
 
 
-def test_seal_refuses_pixels_that_are_not_in_the_buffer():
+@pytest.mark.parametrize(("encoding", "image"), [
+    ("mono8", np.zeros((4, 5), np.uint8)),  # another size
+    ("bgr8", np.zeros((4, 4, 3), np.uint8)),  # another encoding
+    ("rgb8", np.zeros((4, 4, 3), np.uint8)),  # another encoding of the same shape and dtype
+    ("mono16", np.zeros((4, 4), np.uint16)),  # another dtype
+])
+def test_a_frame_the_buffer_cannot_carry_comes_back_as_a_frame_of_its_own(encoding, image):
+    buffer = FrameBuffer("c", "bgr8", (4, 4, 3)) if encoding == "rgb8" else FrameBuffer("c", "mono8", (4, 4))
+    before = bytes(buffer.message)
+    frame = buffer.fill(7, 8, encoding, image)
+    assert isinstance(frame, Frame) and frame.image is image
+    assert (frame.camera_id, frame.seq, frame.timestamp_ns, frame.encoding) == ("c", 7, 8, encoding)
+    assert bytes(buffer.message) == before
+
+
+def test_stamp_refuses_what_the_header_cannot_hold():
     buffer = FrameBuffer("c", "mono8", (4, 4))
-    elsewhere = Frame("c", 0, 0, "mono8", np.zeros((4, 4), np.uint8))
-    assert not buffer.holds(elsewhere)
-    with pytest.raises(ValueError, match="not in this buffer"):
-        buffer.seal(elsewhere)
-    assert not buffer.holds(Frame("other", 0, 0, "mono8", buffer.pixels))
+    with pytest.raises(ValueError, match="camera c: seq -1 .*unsigned 64 bits"):
+        buffer.stamp(-1, 0)
+    with pytest.raises(ValueError, match="unsigned 64 bits"):
+        buffer.stamp(0, 2**64)
 
 
 class PatternCamera:
-    """A Camera whose frame `seq` is `pattern(seq)`, written into `out` when given; logs what it got."""
+    """A Camera whose frame `seq` is `pattern(seq)`; logs which way each frame was read."""
 
-    def __init__(self, n_frames: int, shape=(240, 320)) -> None:
+    def __init__(self, n_frames: int, shape=(240, 320), *, resized_at: int | None = None) -> None:
         self.camera_id, self.groundtruth, self.dropped = "left", None, 0
         self.shape, self.n_frames, self.seq = shape, n_frames, 0
-        self.outs: list[np.ndarray | None] = []
+        self.resized_at = resized_at  # from this frame on, half the size (a camera reconfigured)
+        self.calls: list[str] = []  # "read", or "read_into" (then `buffers` has its buffer)
+        self.buffers: list[FrameBuffer] = []
         self.info = DeviceInfo("left", "test", shape[1], shape[0], "mono8", 0.0)
 
     def __enter__(self):
@@ -63,16 +81,23 @@ class PatternCamera:
     def __exit__(self, *exc_info):
         return None
 
-    def read(self, *, timeout_s: float = 1.0, out: np.ndarray | None = None) -> Frame:
+    def shape_of(self, seq: int) -> tuple[int, int]:
+        resized = self.resized_at is not None and seq >= self.resized_at
+        return (self.shape[0] // 2, self.shape[1] // 2) if resized else self.shape
+
+    def _next(self) -> tuple[int, int, str, np.ndarray]:
         time.sleep(0.01)  # a camera's pace: the subscriber keeps up
-        self.outs.append(out)
-        image = pattern(self.seq, self.shape, np.uint8)
-        if out is not None:
-            np.copyto(out, image)
-            image = out
-        frame = Frame(self.camera_id, self.seq, time.time_ns(), "mono8", image)
         self.seq += 1
-        return frame
+        return self.seq - 1, time.time_ns(), "mono8", pattern(self.seq - 1, self.shape_of(self.seq - 1), np.uint8)
+
+    def read(self, *, timeout_s: float = 1.0) -> Frame:
+        self.calls.append("read")
+        return Frame(self.camera_id, *self._next())
+
+    def read_into(self, buffer: FrameBuffer, *, timeout_s: float = 1.0) -> tuple[int, int] | Frame:
+        self.calls.append("read_into")
+        self.buffers.append(buffer)
+        return buffer.fill(*self._next())
 
 
 def test_the_driver_node_publishes_each_frame_with_its_own_pixels_through_one_buffer(zenoh_pair):
@@ -99,14 +124,47 @@ def test_the_driver_node_publishes_each_frame_with_its_own_pixels_through_one_bu
     node.run(max_frames=12)
     assert wait_for(lambda: len(received) >= 10, 10.0), f"{len(received)} frames arrived"
     sub.undeclare()
-    # One buffer, reused: the camera got the node's pixels array from the second frame on.
-    outs = camera.outs
-    assert outs[0] is None and all(o is outs[1] for o in outs[1:])
+    # One buffer, reused: the first frame read as a Frame, every later one into the node's buffer,
+    # the camera handing back only its seq and timestamp.
+    assert camera.calls == ["read"] + ["read_into"] * 11
+    assert all(b is camera.buffers[0] for b in camera.buffers)
     # Every frame that arrived carries its own pixels, none another's (Zenoh copied each before
     # put returned); the frames handed to on_frame kept theirs after the buffer moved on.
     for frame in received + offered:
-        assert np.array_equal(frame.image, pattern(frame.seq, camera.shape, np.uint8)), frame.seq
+        assert np.array_equal(frame.image, pattern(frame.seq, camera.shape_of(frame.seq), np.uint8)), frame.seq
     assert [f.seq for f in offered] == list(range(12))
     # Large enough for Zenoh shared memory, which the node leaves off by default: all went as bytes.
     assert (node.frames_out.shared, node.frames_out.copied) == (0, 12)
     assert len({f.seq for f in received}) == len(received)
+
+
+def test_a_camera_that_changes_size_gets_a_new_buffer_and_every_frame_arrives_whole(zenoh_pair):
+    from camnet.drivers.node import DriverNode
+
+    from camnet.io.rig import load_rig
+
+    listener, connector = zenoh_pair
+    rig = load_rig(CONFIG / "sim.yaml")
+    camera = PatternCamera(n_frames=10, resized_at=5)
+    received: list[Frame] = []
+    offered: list[Frame] = []
+    lock = threading.Lock()
+
+    def on_sample(sample):
+        frame = decode_frame(sample.payload.to_bytes())
+        with lock:
+            received.append(frame)
+
+    sub = listener.declare_subscriber(keys.frame(rig.name, "left"), on_sample)
+    time.sleep(0.5)  # the subscription reaches the publishing peer
+    DriverNode(connector, rig, camera, on_frame=offered.append).run(max_frames=10)
+    assert wait_for(lambda: len(received) >= 8, 10.0), f"{len(received)} frames arrived"
+    sub.undeclare()
+    # Frame 5 did not fit the buffer: it came back as a Frame, and a buffer of its size took the rest.
+    assert camera.calls == ["read"] + ["read_into"] * 9
+    assert camera.buffers[3] is camera.buffers[0] and camera.buffers[4] is camera.buffers[3]
+    assert camera.buffers[5] is not camera.buffers[4] and all(b is camera.buffers[5] for b in camera.buffers[5:])
+    assert camera.buffers[5].pixels.shape == camera.shape_of(5)
+    for frame in received + offered:
+        assert np.array_equal(frame.image, pattern(frame.seq, camera.shape_of(frame.seq), np.uint8)), frame.seq
+    assert [f.seq for f in offered] == list(range(10))

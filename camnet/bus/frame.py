@@ -87,8 +87,8 @@ _BY_CODE = {spec.code: name for name, spec in ENCODINGS.items()}
 def _check_image(encoding: str, shape: tuple[int, ...], dtype: np.dtype) -> None:
     """Raise ValueError unless an image of `shape` and `dtype` can be `encoding`.
 
-    Remembered (a failure is not): a camera makes every frame alike, and its
-    driver node builds one Frame per frame on its hot path.
+    Remembered (a failure is not): a camera makes every frame alike, and a
+    receiver decodes one Frame per frame.
     """
     spec = ENCODINGS.get(encoding)
     if spec is None:
@@ -168,12 +168,15 @@ class FrameBuffer:
     """One camera's wire message, reused frame after frame: the header's room, then the pixels.
 
     A camera writes a frame's pixels straight into `pixels` (a view of the
-    message; `Camera.read(out=...)`), and `seal` writes the header in front:
-    a raw frame goes out without being copied into a new message. The
-    message is copied before `put` returns (by Zenoh, or into shared memory
-    by the driver node), so the next frame may overwrite the buffer;
-    anything that keeps a frame must copy its image.
+    message; `fill`, from `Camera.read_into`), and `stamp` writes the
+    frame's seq and timestamp into the header in front: a raw frame goes out
+    without a `Frame` or a new message. The message is copied before `put`
+    returns (by Zenoh, or into shared memory by the driver node), so the
+    next frame may overwrite the buffer; anything that keeps a frame must
+    copy its image.
     """
+
+    __slots__ = ("camera_id", "encoding", "message", "pixels")
 
     def __init__(self, camera_id: str, encoding: str, shape: tuple[int, ...]) -> None:
         spec = ENCODINGS[encoding]
@@ -191,17 +194,37 @@ class FrameBuffer:
         """A buffer for frames of `frame`'s camera, encoding and size."""
         return cls(frame.camera_id, frame.encoding, frame.image.shape)
 
-    def holds(self, frame: Frame) -> bool:
-        """Whether `frame`'s pixels are this buffer's (the camera wrote them in place)."""
-        return frame.image is self.pixels and frame.camera_id == self.camera_id and frame.encoding == self.encoding
+    def fill(self, seq: int, timestamp_ns: int, encoding: str, image: np.ndarray) -> tuple[int, int] | Frame:
+        """What `Camera.read_into` returns for a frame: ``(seq, timestamp_ns)`` with `image` copied into
+        `pixels` when this buffer carries such frames (its encoding, shape and dtype), else the Frame, its
+        image its own.
 
-    def seal(self, frame: Frame) -> bytearray:
-        """The message of `frame`, whose pixels this buffer holds: its header written, ready to put."""
-        if not self.holds(frame):
-            raise ValueError(f"camera {frame.camera_id}: the frame's pixels are not in this buffer")
-        # Frame checked seq and timestamp; the rest of the header was written with the buffer.
-        _SEQ_AND_TIMESTAMP.pack_into(self.message, _SEQ_OFFSET, frame.seq, frame.timestamp_ns)
+        On a camera's every frame: the checks are ordered cheapest first, and
+        dtypes compared by identity before equality (numpy's are mostly singletons).
+        """
+        pixels = self.pixels
+        if image.shape == pixels.shape and encoding == self.encoding and (
+                image.dtype is pixels.dtype or image.dtype == pixels.dtype):
+            pixels[...] = image
+            return seq, timestamp_ns
+        return Frame(self.camera_id, seq, timestamp_ns, encoding, image)
+
+    def stamp(self, seq: int, timestamp_ns: int) -> bytearray:
+        """The message of the frame in `pixels`, numbered `seq` and taken at `timestamp_ns`: ready to put.
+
+        Only seq and timestamp change from frame to frame; the rest of the
+        header was written with the buffer.
+        """
+        try:
+            _SEQ_AND_TIMESTAMP.pack_into(self.message, _SEQ_OFFSET, seq, timestamp_ns)
+        except struct.error:
+            raise ValueError(f"camera {self.camera_id}: seq {seq} and timestamp_ns {timestamp_ns} "
+                             "must fit in unsigned 64 bits") from None
         return self.message
+
+    def frame(self, seq: int, timestamp_ns: int) -> Frame:
+        """The frame in `pixels` as a `Frame` of its own (its pixels copied: the buffer moves on)."""
+        return Frame(self.camera_id, seq, timestamp_ns, self.encoding, self.pixels.copy())
 
 
 def _compress(image: np.ndarray, compression: Compression, encoding: str, quality: int) -> bytes:
