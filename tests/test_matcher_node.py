@@ -157,7 +157,7 @@ def test_live_network_tracks_match_the_ground_truth(network):
     stranger = Frame("stranger", 0, 0, "mono8", np.zeros((8, 8), np.uint8))
     net.drivers_session.put(keys.frame(rig.name, "stranger"), encode_frame(stranger))
     # Both refused by the receiver, the stranger from its header before its pixels are decoded.
-    assert wait_for(lambda: len(net.node.receiver.malformed.counts) == 2, 10.0)
+    assert wait_for(lambda: len(net.node.receiver.malformed.counts) == 2)
     assert net.node.receiver.malformed.counts.get("unknown-camera") == 1
     seen = net.count()
     assert wait_for(lambda: net.count() >= seen + 2, 60.0), "observations stopped after a bad frame"
@@ -190,7 +190,7 @@ def test_live_network_tracks_match_the_ground_truth(network):
         assert n >= 50 and ok > min_ok and not_gross > min_not_gross, (ids[a], ids[b], n, ok, not_gross)
 
     # Statistics for `camnet status`, the liveliness token, and the latest document on query.
-    assert wait_for(lambda: net.stats and net.stats[-1].frames >= 3, 10.0)
+    assert wait_for(lambda: net.stats and net.stats[-1].frames >= 3)
     stats = net.stats[-1]
     assert (stats.kind, stats.node_id) == ("matcher", "matcher") and "tracks pooled" in stats.detail
     tokens = list(net.observer.liveliness().get(keys.node(rig.name, "matcher", "matcher"), timeout=5.0))
