@@ -75,6 +75,18 @@ def wait_for(predicate, timeout_s: float = 60.0, period_s: float = 0.02, *, prog
     return predicate()
 
 
+def logs_written(directory: Path) -> int:
+    """Bytes of the *.log files under `directory`: the progress of nodes that log as they work
+    (`camnet up` starts its nodes with -v, logging to its run directory)."""
+    total = 0
+    for path in Path(directory).rglob("*.log"):
+        try:
+            total += path.stat().st_size
+        except OSError:  # rotated or removed meanwhile
+            continue
+    return total
+
+
 def stop_process(process: subprocess.Popen, *, first_signal: int = signal.SIGTERM, grace_s: float = 60.0) -> None:
     """Stop `process` (and, with SIGTERM or SIGINT, the nodes it started) and reap it, even on failure.
 
