@@ -49,6 +49,10 @@ def free_port() -> int:
     raise RuntimeError(f"no free TCP port of 127.0.0.1 in {first}-{last}")
 
 
+# wait_for's clock, replaced by a fake one in tests/test_waiting.py.
+_monotonic, _sleep = time.monotonic, time.sleep
+
+
 def wait_for(predicate, timeout_s: float = 60.0, period_s: float = 0.02, *, progress=None,
              limit_s: float | None = None) -> bool:
     """Whether `predicate()` came true, polled every `period_s`.
@@ -59,19 +63,19 @@ def wait_for(predicate, timeout_s: float = 60.0, period_s: float = 0.02, *, prog
     that a loaded machine that is slow but moving is waited for while a stalled one fails in
     `timeout_s`. `limit_s` (default: ten times `timeout_s`) bounds the whole wait.
     """
-    start_s = time.monotonic()
+    start_s = _monotonic()
     deadline_s = start_s + timeout_s
     limit_deadline_s = start_s + (10 * timeout_s if limit_s is None else limit_s)
     last = progress() if progress is not None else None
-    while time.monotonic() < deadline_s:
+    while _monotonic() < deadline_s:
         if predicate():
             return True
-        time.sleep(period_s)
+        _sleep(period_s)
         if progress is not None:
             now = progress()
             if now != last:
                 last = now
-                deadline_s = min(max(deadline_s, time.monotonic() + timeout_s), limit_deadline_s)
+                deadline_s = min(max(deadline_s, _monotonic() + timeout_s), limit_deadline_s)
     return predicate()
 
 
