@@ -91,6 +91,23 @@ def logs_written(directory: Path) -> int:
     return total
 
 
+def run_to_end(argv: list[str], *, timeout_s: float, **popen_kwargs) -> subprocess.CompletedProcess:
+    """`subprocess.run(argv, capture_output=True, text=True, timeout=timeout_s)`, except that past the
+    timeout the process is stopped with `stop_process` (so that `camnet up` stops its nodes; run's
+    SIGKILL would leave them running), and TimeoutExpired raised with what it printed."""
+    process = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **popen_kwargs)
+    try:
+        stdout, stderr = process.communicate(timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        stop_process(process)
+        stdout, stderr = process.communicate()
+        raise subprocess.TimeoutExpired(argv, timeout_s, stdout, stderr) from None
+    finally:
+        if process.poll() is None:  # anything else raised while waiting
+            stop_process(process)
+    return subprocess.CompletedProcess(argv, process.returncode, stdout, stderr)
+
+
 def stop_process(process: subprocess.Popen, *, first_signal: int = signal.SIGTERM, grace_s: float = 60.0) -> None:
     """Stop `process` (and, with SIGTERM or SIGINT, the nodes it started) and reap it, even on failure.
 
