@@ -193,9 +193,9 @@ def test_live_network_tracks_match_the_ground_truth(network):
     assert wait_for(lambda: net.stats and net.stats[-1].frames >= 3)
     stats = net.stats[-1]
     assert (stats.kind, stats.node_id) == ("matcher", "matcher") and "tracks pooled" in stats.detail
-    tokens = list(net.observer.liveliness().get(keys.node(rig.name, "matcher", "matcher"), timeout=5.0))
+    tokens = list(net.observer.liveliness().get(keys.node(rig.name, "matcher", "matcher"), timeout=30.0))
     assert any(r.ok is not None for r in tokens)
-    replies = [r.ok for r in net.observer.get(keys.observations(rig.name), timeout=5.0) if r.ok is not None]
+    replies = [r.ok for r in net.observer.get(keys.observations(rig.name), timeout=30.0) if r.ok is not None]
     assert replies and json.loads(replies[0].payload.to_bytes())["format"] == "camnet.observations/1"
 
 
