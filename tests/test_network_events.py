@@ -103,17 +103,26 @@ def test_calibrator_restart_resumes_and_a_moved_camera_is_recalibrated(tmp_path)
                         limit_s=300), calibrator.log_tail()
         truth = {c.id: c for c in load_rig(moved_rig(rig_path, "mono_b", shift)).simulated_truth()}
 
-        def mono_b_error_mm() -> float:
-            """mono_b's centre error in the latest calibration; infinite while that one leaves it out (a
-            solve right after the move may not place it yet from its few new tracks, and says so)."""
-            cameras = {c.id: c for c in parse_calibration(seen.docs[-1]).cameras}
+        def mono_b_error_mm(doc: dict) -> float:
+            """mono_b's centre error in `doc`; infinite where it is left out (a solve right after the
+            move may not place it yet from its few new tracks, and says so)."""
+            cameras = {c.id: c for c in parse_calibration(doc).cameras}
             if "mono_b" not in cameras:
                 return float("inf")
             return 1e3 * float(np.linalg.norm(cameras["mono_b"].centre - truth["mono_b"].centre))
 
+        # The solves after the move scatter by their uncertainty (a scale sigma of 1.5% is 6 mm at mono_b):
+        # one of them within 5 mm is asked for, judged on that calibration itself, not on whichever came
+        # last (before, the check and the assert read the latest one each, and a solve could come between).
+        errors_mm: list[float] = []
+
+        def placed() -> bool:
+            errors_mm.extend(mono_b_error_mm(doc) for doc in seen.since(n + len(errors_mm)))
+            return min(errors_mm, default=float("inf")) < 5.0
+
         # Each calibration is progress: the wait goes on while they come.
-        wait_for(lambda: mono_b_error_mm() < 5.0, 60, 1.0, progress=lambda: len(seen.docs), limit_s=300)
-        assert mono_b_error_mm() < 5.0, calibrator.log_tail()
+        assert wait_for(placed, 60, 1.0, progress=lambda: len(seen.docs), limit_s=300), \
+            ([round(e, 1) for e in errors_mm], calibrator.log_tail())
         observed.undeclare()
         sub.undeclare()
 
