@@ -112,7 +112,7 @@ def test_a_stage_beside_two_drivers_feeds_the_matcher(network):  # noqa: F811 (t
 
         # Sets without a stage's late features, or a late camera's frames, come first on a
         # busy machine: wait for every pair checked below.
-        assert wait_for(every_pair_pooled, 180.0, progress=net.count, limit_s=600.0), \
+        assert wait_for(every_pair_pooled, 180.0, progress=net.progress, limit_s=600.0), \
             "the pooled tracks never joined every pair checked"
         # A stage paused for seconds on a loaded host is taken for stopped until its features come again.
         assert wait_for(lambda: net.node.frames.feature_cameras == {"left", "mono_a"}, 60.0), \

@@ -93,6 +93,11 @@ class Network:
         with self.lock:
             return len(self.documents)
 
+    def progress(self) -> tuple[int, int]:
+        """What moves while the matcher works, however slowly (for `wait_for`): frame sets matched,
+        observations published."""
+        return self.node.frame_sets_matched, self.count()
+
     def latest(self) -> dict:
         with self.lock:
             return self.documents[-1]
@@ -146,11 +151,12 @@ def test_live_network_tracks_match_the_ground_truth(network):
     # mono_b starts late: frame sets go without it, never stall.
     for camera_id in ("left", "right", "mono_a"):
         net.start_driver(camera_id)
-    assert wait_for(lambda: net.count() >= 1, 60.0), "no observations from three cameras"
+    assert wait_for(lambda: net.count() >= 1, 60.0, progress=net.progress), "no observations from three cameras"
     first = net.latest()
     assert all("mono_b" not in t["observations"] for t in first["tracks"])
     net.start_driver("mono_b")
-    assert wait_for(lambda: any("mono_b" in t["observations"] for t in net.latest()["tracks"]), 60.0), \
+    assert wait_for(lambda: any("mono_b" in t["observations"] for t in net.latest()["tracks"]), 60.0,
+                    progress=net.progress), \
         "mono_b never joined the tracks"
     # A malformed frame and a frame of an unknown camera: counted, and matching goes on.
     net.drivers_session.put(keys.frame(rig.name, "left"), b"CNFR\x01 not a frame")
@@ -160,7 +166,8 @@ def test_live_network_tracks_match_the_ground_truth(network):
     assert wait_for(lambda: len(net.node.receiver.malformed.counts) == 2)
     assert net.node.receiver.malformed.counts.get("unknown-camera") == 1
     seen = net.count()
-    assert wait_for(lambda: net.count() >= seen + 2, 60.0), "observations stopped after a bad frame"
+    assert wait_for(lambda: net.count() >= seen + 2, 60.0, progress=net.progress), \
+        "observations stopped after a bad frame"
 
     doc = net.latest()
     obs = parse_observations(doc)  # the camnet.observations/1 contract
