@@ -21,7 +21,7 @@ from camnet.bus import keys
 from camnet.bus.security import IDENTITIES, ROUTER, access_control, common_name, load_secure_dir, zenoh_settings
 from camnet.bus.session import BusOptions, make_config, open_session
 from camnet.errors import InputError
-from tests.conftest import free_port, matched_publisher, running_node, wait_for
+from tests.conftest import free_port, logs_written, matched_publisher, running_node, wait_for
 
 RIG = "securig"
 ROOT = Path(__file__).resolve().parents[1]
@@ -376,9 +376,13 @@ def test_a_secured_network_calibrates_records_and_lists_its_nodes(secrets, tmp_p
                               cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         try:
             # The calibrator's state file appears with the first good calibration.
-            assert wait_for(lambda: (tmp_path / "run" / "calibration.json").exists() or up.poll() is not None, 150)
+            # As long as its nodes log their work (a loaded machine is slow to start six of them, and to finish).
+            running = {"progress": lambda: logs_written(tmp_path / "run"), "limit_s": 900}
+            assert wait_for(lambda: (tmp_path / "run" / "calibration.json").exists() or up.poll() is not None, 150,
+                            **running)
             status = camnet("status", "--rig", rig, "--secure", str(directory), "--connect", endpoint)
-            output, _ = up.communicate(timeout=150)
+            assert wait_for(lambda: up.poll() is not None, 150, 0.5, **running), "camnet up did not end"
+            output, _ = up.communicate(timeout=60)
         finally:
             if up.poll() is None:
                 up.terminate()
