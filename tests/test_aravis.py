@@ -65,9 +65,9 @@ def start_emulator() -> subprocess.Popen:
     """The emulator on 127.0.0.1, once it holds the control port."""
     process = subprocess.Popen([EMULATOR, "-i", "127.0.0.1"], stdout=subprocess.DEVNULL,
                                stderr=subprocess.DEVNULL)
-    if not wait_for(lambda: process.poll() is not None or gvcp_port_taken(), 5.0):
+    if not wait_for(lambda: process.poll() is not None or gvcp_port_taken(), 60.0):
         stop(process)
-        raise AssertionError(f"{EMULATOR} did not open UDP 127.0.0.1:{GVCP_PORT} within 5 s")
+        raise AssertionError(f"{EMULATOR} did not open UDP 127.0.0.1:{GVCP_PORT} within 60 s")
     if process.poll() is not None:
         raise AssertionError(f"{EMULATOR} exited with code {process.returncode} on start")
     return process
@@ -166,7 +166,7 @@ class DriverProcess:
             self.check_alive()
             return len(self.frames) >= count
 
-        assert wait_for(enough, within_s, 0.05), (
+        assert wait_for(enough, within_s, 0.05, progress=lambda: len(self.frames)), (
             f"{len(self.frames)} of {count} frames within {within_s} s; driver log:\n"
             f"{self.log()[-3000:]}")
 
@@ -207,7 +207,7 @@ def driver_process(tmp_path):
 
 def test_streams_from_emulator(emulator, driver_process):
     driver = driver_process()
-    driver.wait_for_frames(10, 30.0)
+    driver.wait_for_frames(10, 120.0)
     frames = list(driver.frames)
     assert all(f.image.shape == (240, 320) and f.encoding == "mono8" for f in frames)
     assert [f.seq for f in frames] == sorted(f.seq for f in frames)
@@ -221,17 +221,21 @@ def test_streams_from_emulator(emulator, driver_process):
 
 def test_survives_emulator_kill_and_restart(emulator, driver_process):
     driver = driver_process()
-    driver.wait_for_frames(5, 30.0)
+    driver.wait_for_frames(5, 120.0)
     stop(emulator["process"])
     cpu_start_s, wall_start_s = driver.cpu_s(), time.monotonic()
-    time.sleep(4.0)  # the driver notices the loss (no buffer for 2 s) and waits to reconnect
+    # The driver notices the loss (no buffer for 2 s; later on a loaded machine) and waits to reconnect:
+    # its CPU is measured over at least 4 s of that.
+    assert wait_for(lambda: (driver.check_alive(), "camera gv: lost" in driver.log())[1], 120.0, 0.1), \
+        driver.log()[-3000:]
+    time.sleep(max(0.0, wall_start_s + 4.0 - time.monotonic()))
     driver.check_alive()
     cpu_fraction = (driver.cpu_s() - cpu_start_s) / (time.monotonic() - wall_start_s)
     assert cpu_fraction < 0.2, f"waiting for the camera used {cpu_fraction:.0%} CPU"
     assert "camera gv: lost" in driver.log()
     before = len(driver.frames)
     emulator["process"] = start_emulator()
-    driver.wait_for_frames(before + 5, 30.0)
+    driver.wait_for_frames(before + 5, 120.0)
     log = driver.log()
     assert log.count("camera gv: reconnected") == 1, log
     counts = driver.receiver.counts()["gv"]

@@ -62,9 +62,9 @@ def test_liveliness_token_is_seen_and_goes_away(zenoh_pair):
         return [str(r.ok.key_expr) for r in b.liveliness().get(keys.all_nodes("t"), timeout=1.0)
                 if r.ok is not None]
 
-    assert wait_for(lambda: live() == [key], 5.0)
+    assert wait_for(lambda: live() == [key])
     token.undeclare()
-    assert wait_for(lambda: live() == [], 5.0)
+    assert wait_for(lambda: live() == [])
 
 
 def test_receiver_counts_what_crosses_the_bus(zenoh_pair):

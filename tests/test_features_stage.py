@@ -99,8 +99,9 @@ def test_a_stage_beside_two_drivers_feeds_the_matcher(network):  # noqa: F811 (t
         net.threads.append(thread)
         thread.start()
     try:
-        # A malformed features message is counted, and matching goes on.
-        net.drivers_session.put(keys.features(rig.name, "left"), b"CNFT\x01 not features")
+        # A malformed features message is counted, and matching goes on. Put once the matcher's
+        # subscription has reached the drivers' session, or it would go nowhere.
+        matched_publisher(net.drivers_session, keys.features(rig.name, "left")).put(b"CNFT\x01 not features")
 
         checked = (("left", "right"), ("left", "mono_a"), ("right", "mono_b"))
 
@@ -111,11 +112,12 @@ def test_a_stage_beside_two_drivers_feeds_the_matcher(network):  # noqa: F811 (t
 
         # Sets without a stage's late features, or a late camera's frames, come first on a
         # busy machine: wait for every pair checked below.
-        assert wait_for(every_pair_pooled, 180.0), "the pooled tracks never joined every pair checked"
+        assert wait_for(every_pair_pooled, 180.0, progress=net.progress, limit_s=600.0), \
+            "the pooled tracks never joined every pair checked"
         # A stage paused for seconds on a loaded host is taken for stopped until its features come again.
         assert wait_for(lambda: net.node.frames.feature_cameras == {"left", "mono_a"}, 60.0), \
             net.node.frames.feature_cameras
-        assert net.node.rejected.counts.get("features truncated") == 1
+        assert wait_for(lambda: net.node.rejected.counts.get("features truncated") == 1), net.node.rejected.counts
         # Pooled tracks may come from the first messages: the stages keep publishing.
         assert wait_for(lambda: all(w.published >= 3 for w in workers), 60.0), [w.published for w in workers]
         assert not any(w.failures.counts for w in workers)

@@ -13,7 +13,7 @@ from camnet.drivers.base import Camera, DeviceInfo
 
 from camnet.bus import keys
 from camnet.bus.frame import ENCODINGS, Frame, FrameBuffer, decode_frame, encode_frame
-from tests.conftest import wait_for
+from tests.conftest import matched_publisher, wait_for
 
 CONFIG = Path(__file__).resolve().parent.parent / "config"
 
@@ -119,10 +119,12 @@ def test_the_driver_node_publishes_each_frame_with_its_own_pixels_through_one_bu
             received.append(frame)
 
     sub = listener.declare_subscriber(keys.frame(rig.name, "left"), on_sample)
+    # The publishing peer knows of the subscription before the first frame goes (not after a fixed delay).
+    matched_publisher(connector, keys.frame(rig.name, "left")).undeclare()
     node = DriverNode(connector, rig, camera, on_frame=offered.append)
-    time.sleep(0.5)  # the subscription reaches the publishing peer
     node.run(max_frames=12)
-    assert wait_for(lambda: len(received) >= 10, 10.0), f"{len(received)} frames arrived"
+    assert wait_for(lambda: len(received) >= 10, 60.0, progress=lambda: len(received)), \
+        f"{len(received)} frames arrived"
     sub.undeclare()
     # One buffer, reused: the first frame read as a Frame, every later one into the node's buffer,
     # the camera handing back only its seq and timestamp.

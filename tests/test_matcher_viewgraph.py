@@ -41,11 +41,14 @@ def calibration_with_mono_b_elsewhere(rig) -> dict:
 def pairs_matched(net) -> tuple[list[int], list[tuple[int, int]]]:
     """Pairs matched in each frame set of all four cameras until all six are; (pairs matched, of) as they change."""
     seen: list[tuple[int, int]] = []
-    deadline = time.monotonic() + 120.0
-    while time.monotonic() < deadline and (not seen or seen[-1][0] < 6):
+
+    def all_six() -> bool:
         if net.node.frame_sets_matched and (not seen or net.node.pairs != seen[-1]):
             seen.append(net.node.pairs)
-        time.sleep(0.01)
+        return bool(seen) and seen[-1][0] >= 6
+
+    # As long as frame sets are matched (a loaded machine matches them slowly), up to 10 minutes.
+    wait_for(all_six, 120.0, 0.01, progress=lambda: net.node.frame_sets_matched, limit_s=600.0)
     return [matched for matched, possible in seen if possible == 6], seen
 
 

@@ -20,7 +20,7 @@ from camnet.bus import keys
 from camnet.geometry.evaluate import compare_cameras
 from camnet.io.formats import parse_calibration
 from camnet.io.rig import load_rig
-from tests.conftest import free_port
+from tests.conftest import free_port, stop_process
 from tests.test_viz import read_rrd
 
 BOX_CENTRE = [0.0625, 0.0, 0.65]
@@ -86,7 +86,7 @@ def run_up(tmp_path, args: list[str], *, timeout_s: float) -> str:
     try:
         stdout, stderr = proc.communicate(timeout=timeout_s)
     finally:
-        proc.kill()
+        stop_process(proc)  # on a timeout: camnet up stops its nodes, which a SIGKILL to it alone would leave running
     logs = "\n".join(p.read_text()[-1500:] for p in (tmp_path / "run").rglob("*.log"))
     assert proc.returncode == 0, stdout + stderr + logs
     return stdout
@@ -109,7 +109,7 @@ def test_simulated_network_calibrates_to_scale_within_a_minute(tmp_path, n_camer
             publish_junk_calibrations(endpoint, load_rig(rig_path).name)
         stdout, stderr = proc.communicate(timeout=180)
     finally:
-        proc.kill()
+        stop_process(proc)
     logs = "\n".join(p.read_text()[-1500:] for p in (tmp_path / "run").rglob("*.log"))
     assert proc.returncode == 0, stdout + stderr + logs
     cal = parse_calibration(json.loads(out.read_text()))

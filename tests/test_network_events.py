@@ -10,7 +10,6 @@ import signal
 import subprocess
 import sys
 import threading
-import time
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +21,7 @@ from camnet.bus.launch import Launch
 from camnet.bus.session import BusOptions, open_session
 from camnet.io.formats import parse_calibration
 from camnet.io.rig import load_rig
-from tests.conftest import free_port, wait_for
+from tests.conftest import free_port, logs_written, wait_for
 from tests.test_network import rig_file
 
 
@@ -62,14 +61,22 @@ def test_calibrator_restart_resumes_and_a_moved_camera_is_recalibrated(tmp_path)
     state = tmp_path / "state.json"
     calibrator_cmd = ["calibrator", "--rig", rig_path, "--state", str(state), *bus]
     seen = Calibrations()
+    observations = []
+
+    def progress() -> tuple[int, int]:
+        """The network moves on: the matcher publishes observations, the calibrator calibrations."""
+        return len(observations), len(seen.docs)
+
     with open_session(BusOptions(listen=(endpoint,))) as session, Launch(tmp_path) as launch:
         sub = session.declare_subscriber(keys.calibration(rig.name), seen.on_sample)
+        observed = session.declare_subscriber(keys.observations(rig.name), lambda _: observations.append(1))
         drivers = {e.id: launch.start(f"driver-{e.id}", ["driver", "sim", "--rig", rig_path, "--camera", e.id, *bus])
                    for e in rig.cameras}
         launch.start("matcher", ["matcher", "--rig", rig_path, *bus])
         calibrator = launch.start("calibrator", calibrator_cmd)
-        assert wait_for(lambda: seen.since(0), 90), "no calibration: " + calibrator.log_tail()
-        assert wait_for(state.exists, 30), "no state written after a calibration: " + calibrator.log_tail()
+        assert wait_for(lambda: seen.since(0), 90, progress=progress, limit_s=300), \
+            "no calibration: " + calibrator.log_tail()
+        assert wait_for(state.exists), "no state written after a calibration: " + calibrator.log_tail()
 
         # Kill -9 mid-run: the restarted calibrator republishes what it persisted, numbers its
         # solves on from it, and goes on warm from it. The republished one goes out as the process
@@ -79,9 +86,10 @@ def test_calibrator_restart_resumes_and_a_moved_camera_is_recalibrated(tmp_path)
         persisted = json.loads(state.read_text())
         n = len(seen.docs)
         calibrator = launch.start("calibrator-2", calibrator_cmd)
-        assert wait_for(lambda: seen.since(n), 30), calibrator.log_tail()
+        assert wait_for(lambda: seen.since(n), 120), calibrator.log_tail()
         assert seen.since(n)[0]["solve"] >= persisted["solve"]
-        assert wait_for(lambda: any(d["solve"] > persisted["solve"] for d in seen.since(n)), 60)
+        assert wait_for(lambda: any(d["solve"] > persisted["solve"] for d in seen.since(n)), 60, progress=progress,
+                        limit_s=300), calibrator.log_tail()
         resumed = next(d for d in seen.since(n) if d["solve"] > persisted["solve"])
         assert resumed["warm_start"] is True
 
@@ -91,17 +99,31 @@ def test_calibrator_restart_resumes_and_a_moved_camera_is_recalibrated(tmp_path)
         launch.start("driver-mono_b-moved", ["driver", "sim", "--rig", moved_rig(rig_path, "mono_b", shift),
                                              "--camera", "mono_b", *bus])
         n = len(seen.docs)
-        assert wait_for(lambda: any(d["moved"] == ["mono_b"] for d in seen.since(n)), 90), calibrator.log_tail()
+        assert wait_for(lambda: any(d["moved"] == ["mono_b"] for d in seen.since(n)), 90, progress=progress,
+                        limit_s=300), calibrator.log_tail()
         truth = {c.id: c for c in load_rig(moved_rig(rig_path, "mono_b", shift)).simulated_truth()}
 
-        def mono_b_error_mm() -> float:
-            cam = {c.id: c for c in parse_calibration(seen.docs[-1]).cameras}["mono_b"]
-            return 1e3 * float(np.linalg.norm(cam.centre - truth["mono_b"].centre))
+        def mono_b_error_mm(doc: dict) -> float:
+            """mono_b's centre error in `doc`; infinite where it is left out (a solve right after the
+            move may not place it yet from its few new tracks, and says so)."""
+            cameras = {c.id: c for c in parse_calibration(doc).cameras}
+            if "mono_b" not in cameras:
+                return float("inf")
+            return 1e3 * float(np.linalg.norm(cameras["mono_b"].centre - truth["mono_b"].centre))
 
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline and mono_b_error_mm() > 5.0:
-            time.sleep(1.0)
-        assert mono_b_error_mm() < 5.0, calibrator.log_tail()
+        # The solves after the move scatter by their uncertainty (a scale sigma of 1.5% is 6 mm at mono_b):
+        # one of them within 5 mm is asked for, judged on that calibration itself, not on whichever came
+        # last (before, the check and the assert read the latest one each, and a solve could come between).
+        errors_mm: list[float] = []
+
+        def placed() -> bool:
+            errors_mm.extend(mono_b_error_mm(doc) for doc in seen.since(n + len(errors_mm)))
+            return min(errors_mm, default=float("inf")) < 5.0
+
+        # Each calibration is progress: the wait goes on while they come.
+        assert wait_for(placed, 60, 1.0, progress=lambda: len(seen.docs), limit_s=300), \
+            ([round(e, 1) for e in errors_mm], calibrator.log_tail())
+        observed.undeclare()
         sub.undeclare()
 
 
@@ -127,7 +149,8 @@ def test_sigterm_to_camnet_up_stops_every_node(tmp_path, when):
         # Drivers, matcher and calibrator all carry the rig file on their command lines.
         assert wait_for(lambda: len(processes_mentioning(rig_path)) >= 7, 60), processes_mentioning(rig_path)
         if when == "calibrating":
-            assert wait_for((tmp_path / "run" / "calibration.json").exists, 90), "no calibration"
+            assert wait_for((tmp_path / "run" / "calibration.json").exists, 90,
+                            progress=lambda: logs_written(tmp_path / "run"), limit_s=300), "no calibration"
         up.send_signal(signal.SIGTERM)
         up.wait(timeout=60)
         left = [" ".join((Path("/proc") / str(pid) / "cmdline").read_text().split("\0")[2:6])

@@ -64,15 +64,15 @@ def test_presence_publishes_statistics_with_faults_and_leaves(zenoh_pair):
     presence = Presence(a, rig="t", kind="probe", node_id="p1", tallies=(tally,), period_s=0.05,
                         report=lambda: Activity(fps=2.5, frames=7, dropped=1, detail="probing"))
     with presence:
-        assert wait_for(lambda: live() == [keys.node("t", "probe", "p1")], 5.0)
+        assert wait_for(lambda: live() == [keys.node("t", "probe", "p1")])
         tally.count("json", "dropping a message")
 
         def published_with_faults() -> bool:
             presence.publish_if_due()
             return bool(stats) and stats[-1].faults == {"json": 1}
 
-        assert wait_for(published_with_faults, 5.0)
-    assert wait_for(lambda: live() == [], 5.0)
+        assert wait_for(published_with_faults)
+    assert wait_for(lambda: live() == [])
     last = stats[-1]
     assert (last.rig, last.kind, last.node_id, last.fps, last.frames, last.dropped, last.detail) == \
         ("t", "probe", "p1", 2.5, 7, 1, "probing")

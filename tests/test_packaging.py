@@ -12,6 +12,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.conftest import free_port, run_to_end
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -84,9 +86,10 @@ def test_an_installed_wheel_runs_camnet_up_with_its_built_in_rig(wheel, tmp_path
                            cwd=tmp_path, env=env, capture_output=True, text=True, timeout=60)
     assert where.returncode == 0, where.stderr
     assert Path(where.stdout.strip()) == site / "camnet" / "rigs" / "sim.yaml"
-    up = subprocess.run([sys.executable, "-m", "camnet.cli", "up", "--duration-s", "1",
-                         "--out", str(tmp_path / "run")],
-                        cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
+    # On a loopback port of its own: on the default rendezvous it could hear another rig named sim.
+    up = run_to_end([sys.executable, "-m", "camnet.cli", "up", "--duration-s", "1",
+                     "--out", str(tmp_path / "run"), "--listen", f"tcp/127.0.0.1:{free_port()}"],
+                    cwd=tmp_path, env=env, timeout_s=120)
     # It loads the rig and starts its nodes; in a second they calibrate nothing (exit 2).
     assert "camnet up: rig 'sim', 4 cameras" in up.stdout, up.stdout + up.stderr
     assert "cannot read rig file" not in up.stdout + up.stderr

@@ -111,6 +111,9 @@ def recorded(tmp_path_factory):
             bus.put(keys.features(RIG, "left"), payload)
         bus.put(keys.observations(RIG), b"not json")  # counted, not written
         time.sleep(1.5)
+        # The recorder has written all put before it once it has counted the last (one session,
+        # one priority: they arrive in order), however loaded the machine.
+        assert wait_for(lambda: recorder.malformed.counts.get("json") == 1, 120.0), recorder.summary()
     finally:
         for node in nodes:
             node.stop.set()
@@ -249,10 +252,29 @@ def _stop(process: subprocess.Popen, sig=signal.SIGTERM) -> tuple[str, str]:
     if process.poll() is None:
         process.send_signal(sig)
         try:
-            process.wait(timeout=15)
+            process.wait(timeout=60)
         except subprocess.TimeoutExpired:
             process.kill()
-    return process.communicate(timeout=10)
+    return process.communicate(timeout=60)
+
+
+def _flushed_frames(path: Path) -> list[bytes]:
+    """The frame payloads readable in the file a recorder is writing, up to its last flush."""
+    frames = []
+    try:
+        with open(path, "rb") as stream:
+            for record in StreamReader(stream, validate_crcs=True).records:
+                if getattr(record, "data", None) is not None and record.data[:4] == b"CNFR":
+                    frames.append(record.data)
+    except Exception:  # noqa: BLE001 (the cut where writing is under way, of whatever kind)
+        pass
+    return frames
+
+
+def _wait_until_flushed(path: Path, sent: list[bytes]) -> None:
+    """Until every frame sent is in the file: the recorder's flushes, not a fixed time, decide."""
+    assert wait_for(lambda: _flushed_frames(path) == sent, 60.0, 0.1, progress=lambda: len(_flushed_frames(path))), \
+        f"{len(_flushed_frames(path))} of {len(sent)} frames flushed"
 
 
 def test_killed_recorder_leaves_a_file_readable_up_to_the_last_flush(tmp_path):
@@ -262,7 +284,7 @@ def test_killed_recorder_leaves_a_file_readable_up_to_the_last_flush(tmp_path):
         process = _record_process(path, endpoint, "kill")
         try:
             sent = _publish_frames(session, "kill", 60)
-            time.sleep(1.5)  # several flush periods
+            _wait_until_flushed(path, sent)
             os.kill(process.pid, signal.SIGKILL)
             process.wait(timeout=10)
         finally:
@@ -288,7 +310,7 @@ def test_sigterm_finishes_the_file_with_its_summary(tmp_path):
         process = _record_process(path, endpoint, "term")
         try:
             sent = _publish_frames(session, "term", 30)
-            time.sleep(0.5)
+            _wait_until_flushed(path, sent)  # all received: what SIGTERM must finish is the file
         finally:
             out, err = _stop(process)
     assert process.returncode == 0, err
@@ -330,8 +352,10 @@ def _replay(path: Path, rig: str, options: ReplayOptions, *, during=None):
         thread = run_in_thread(lambda: result.setdefault("summary", replayer.run()))
         try:
             seen = during(sub_bus) if during else None
-            thread.join(timeout=60)
-            wait_for(lambda: len(listener.frames()) >= sum(result["summary"].frames.values()), 5)
+            assert wait_for(lambda: not thread.is_alive(), 60.0, progress=lambda: len(listener.got)), \
+                "the replay did not end"
+            assert wait_for(lambda: len(listener.frames()) >= sum(result["summary"].frames.values()), 60.0,
+                            progress=lambda: len(listener.got))
         finally:
             replayer.stop.set()
             thread.join(timeout=10)
@@ -351,7 +375,7 @@ def test_features_are_recorded_and_replayed_bit_exact(recorded):
     assert channels[topic].message_encoding == "camnet.features/1"
     assert [m.data for m in by_topic[topic]] == FEATURES
     listener, _, _ = _replay(path, "copy", ReplayOptions(rate=0, rig="copy", wait_s=5))
-    assert wait_for(lambda: len([g for g in listener.got if g[0].endswith("/features")]) == 2, 5)
+    assert wait_for(lambda: len([g for g in listener.got if g[0].endswith("/features")]) == 2)
     assert [(k, d) for k, d, _ in listener.got if k.endswith("/features")] == \
         [(keys.features("copy", "left"), data) for data in FEATURES]
 
@@ -380,17 +404,25 @@ def test_replay_keeps_the_recorded_pace_with_driver_tokens_and_groundtruth(recor
     recorded_frames = [f for f in _recorded_frames(path) if f[0] != keys.frame(RIG, INJECTED)]
     span_s = (recorded_frames[-1][2] - recorded_frames[0][2]) / 1e9
 
+    expected_live = sorted(keys.node(RIG, "driver", c) for c in (*CAMERAS, INJECTED))
+
     def during(session):
-        time.sleep(0.5)
-        live = sorted(str(r.ok.key_expr) for r in
-                      session.liveliness().get(keys.all_nodes(RIG), timeout=2.0) if r.ok)
-        replies = [r.ok.payload.to_bytes() for r in
-                   session.get(keys.groundtruth(RIG), timeout=2.0) if r.ok]
+        # Asked until the replayer's tokens and queryable have reached this session (not after a
+        # fixed delay); they stay while it replays.
+        live, replies = [], []
+
+        def answered() -> bool:
+            live[:] = sorted(str(r.ok.key_expr) for r in
+                             session.liveliness().get(keys.all_nodes(RIG), timeout=2.0) if r.ok)
+            replies[:] = [r.ok.payload.to_bytes() for r in session.get(keys.groundtruth(RIG), timeout=2.0) if r.ok]
+            return live == expected_live and bool(replies)
+
+        wait_for(answered, 30.0, 0.05)
         return live, replies
 
     listener, summary, (live, truth) = _replay(
         path, RIG, ReplayOptions(rate=rate, include_results=True, wait_s=5), during=during)
-    assert live == sorted(keys.node(RIG, "driver", c) for c in (*CAMERAS, INJECTED))
+    assert live == expected_live
     _, _, by_topic, _ = read_all(path)
     assert truth == [by_topic[keys.groundtruth(RIG)][0].data]
     got = [g for g in listener.frames() if g[0] != keys.frame(RIG, INJECTED)]

@@ -26,18 +26,18 @@ def test_three_default_nodes_find_each_other_and_survive_the_holder_leaving():
     got = []
     try:
         sub = third.declare_subscriber("camnet/rdv/test", lambda s: got.append(s.payload.to_bytes()))
-        assert wait_for(lambda: len(list(second.info.peers_zid())) >= 2, 10), "peers did not meet"
-        assert wait_for(lambda: (second.put("camnet/rdv/test", b"one"), got)[1], 10)
+        assert wait_for(lambda: len(list(second.info.peers_zid())) >= 2, 60), "peers did not meet"
+        assert wait_for(lambda: (second.put("camnet/rdv/test", b"one"), got)[1], 60)
         first.close()
         # The holder left: the others still talk, and a node started now takes the port
         # and is found by them (they keep retrying the rendezvous).
         got.clear()
-        assert wait_for(lambda: (second.put("camnet/rdv/test", b"two"), got)[1], 15)
+        assert wait_for(lambda: (second.put("camnet/rdv/test", b"two"), got)[1], 60)
         late = []
         fourth = open_session(BusOptions())
         sessions.append(fourth)
         late_sub = fourth.declare_subscriber("camnet/rdv/test", lambda s: late.append(s.payload.to_bytes()))
-        assert wait_for(lambda: (second.put("camnet/rdv/test", b"three"), late)[1], 20), "late node not found"
+        assert wait_for(lambda: (second.put("camnet/rdv/test", b"three"), late)[1], 60), "late node not found"
         late_sub.undeclare()
         sub.undeclare()
     finally:

@@ -111,8 +111,8 @@ def run_pipeline(tmp_path: Path, rig_path: str, session: Path, name: str) -> dic
                       .removeprefix("lockstep: ").split(", "))
         with lock:
             published = len(got["calibration"])
-        assert wait_for(lambda: len(got["calibration"]) >= int(counts.get("good", 0)), 10), (published, counts)
-        latest = [json.loads(r.ok.payload.to_bytes()) for r in bus.get(keys.calibration(rig_name), timeout=5)
+        assert wait_for(lambda: len(got["calibration"]) >= int(counts.get("good", 0))), (published, counts)
+        latest = [json.loads(r.ok.payload.to_bytes()) for r in bus.get(keys.calibration(rig_name), timeout=30)
                   if r.ok]
         for subscriber in subscribers:
             subscriber.undeclare()

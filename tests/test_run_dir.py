@@ -74,10 +74,9 @@ def test_the_final_lines_are_readable_units_with_sigmas_and_the_verdict(live_lik
 
 def test_up_replays_a_recording_into_a_run_directory(tmp_path):
     """`camnet up RIG --replay SESSION`: no drivers, the recording's frames, results where it says."""
-    import subprocess
     import sys
 
-    from tests.conftest import free_port
+    from tests.conftest import free_port, run_to_end
     from tests.test_network import rig_file
     from tests.test_replay_lockstep import write_session
 
@@ -85,10 +84,9 @@ def test_up_replays_a_recording_into_a_run_directory(tmp_path):
     session = tmp_path / "session.mcap"
     write_session(session, rig_path)
     out = tmp_path / "results"
-    proc = subprocess.run(
+    proc = run_to_end(
         [sys.executable, "-m", "camnet", "up", rig_path, "--replay", str(session), "--out", str(out),
-         "--duration-s", "240", "--listen", f"tcp/127.0.0.1:{free_port()}"],
-        capture_output=True, text=True, timeout=400)
+         "--duration-s", "240", "--listen", f"tcp/127.0.0.1:{free_port()}"], timeout_s=400)
     logs = "\n".join(p.read_text()[-1500:] for p in out.rglob("*.log"))
     assert proc.returncode == 0, proc.stdout + proc.stderr + logs
     assert "replay: the session has been played to its end" in proc.stdout

@@ -21,7 +21,7 @@ from camnet.bus import keys
 from camnet.bus.security import IDENTITIES, ROUTER, access_control, common_name, load_secure_dir, zenoh_settings
 from camnet.bus.session import BusOptions, make_config, open_session
 from camnet.errors import InputError
-from tests.conftest import free_port, matched_publisher, running_node, wait_for
+from tests.conftest import free_port, logs_written, matched_publisher, running_node, wait_for
 
 RIG = "securig"
 ROOT = Path(__file__).resolve().parents[1]
@@ -88,7 +88,7 @@ def client(secrets: Path, identity: str, endpoint: str):
 
 def intruder(secrets: Path, identity: str, endpoint: str, changes: dict):
     """A client session of `identity` with Zenoh `changes` to its config, or the ZError that kept it
-    out (tried once, for 5 s, instead of waiting for the router as nodes do)."""
+    out (tried once, for 5 s unless `changes` say otherwise, instead of waiting for the router as nodes do)."""
     import zenoh
 
     config = make_config(BusOptions(secure=str(secrets), identity=identity, connect=(endpoint,)))
@@ -262,7 +262,8 @@ def test_only_authorised_identities_reach_the_calibrator(secrets, foreign_secret
             # Trusts the rig's router, but its own certificate comes from another rig's CA.
             "another CA": (foreign_secrets, "matcher",
                            {"transport/link/tls/root_ca_certificate": str(secrets / "ca.pem")}),
-            "stranger": (stranger_secrets(secrets, tmp_path), "driver", {}),
+            # Let in by TLS (its CA is the rig's): given as long as a loaded machine takes to connect.
+            "stranger": (stranger_secrets(secrets, tmp_path), "driver", {"connect/timeout_ms": 60_000}),
         }
         with ThreadPoolExecutor(len(attempts)) as pool:  # the refused ones each wait out their timeout
             futures = {name: pool.submit(intruder, d, identity, endpoint, changes)
@@ -375,9 +376,13 @@ def test_a_secured_network_calibrates_records_and_lists_its_nodes(secrets, tmp_p
                               cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         try:
             # The calibrator's state file appears with the first good calibration.
-            assert wait_for(lambda: (tmp_path / "run" / "calibration.json").exists() or up.poll() is not None, 150)
+            # As long as its nodes log their work (a loaded machine is slow to start six of them, and to finish).
+            running = {"progress": lambda: logs_written(tmp_path / "run"), "limit_s": 900}
+            assert wait_for(lambda: (tmp_path / "run" / "calibration.json").exists() or up.poll() is not None, 150,
+                            **running)
             status = camnet("status", "--rig", rig, "--secure", str(directory), "--connect", endpoint)
-            output, _ = up.communicate(timeout=150)
+            assert wait_for(lambda: up.poll() is not None, 150, 0.5, **running), "camnet up did not end"
+            output, _ = up.communicate(timeout=60)
         finally:
             if up.poll() is None:
                 up.terminate()
