@@ -44,15 +44,17 @@ import sys
 import tempfile
 import threading
 import time
-from collections import defaultdict
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import yaml
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+if TYPE_CHECKING:
+    from bench_matcher_stages import Stopwatch
 
 _RECORD = struct.Struct("<qHI")  # arrival ns since the start, key bytes, payload bytes
 STAGES = ("matching", "pool", "calibrations", "rest")
@@ -121,26 +123,6 @@ def record(out: Path, *, minutes: float, compare_minutes: float, features_period
         writer.close()
 
 
-class Stopwatch:
-    """CPU seconds of this process per stage, summed until `take`."""
-
-    def __init__(self) -> None:
-        self.seconds: dict[str, float] = defaultdict(float)
-
-    def wrap(self, stage: str, fn):
-        def timed(*args, **kwargs):
-            t0 = time.process_time()
-            try:
-                return fn(*args, **kwargs)
-            finally:
-                self.seconds[stage] += time.process_time() - t0
-        return timed
-
-    def take(self) -> dict[str, float]:
-        out, self.seconds = dict(self.seconds), defaultdict(float)
-        return out
-
-
 @dataclass(frozen=True)
 class SetCost:
     seconds: dict[str, float]
@@ -159,7 +141,7 @@ class _Publisher:
 
 def replay(directory: Path, name: str, *, max_sets: int) -> tuple[list[SetCost], object]:
     """Feed the recording of rig `name` to a matcher node; the cost of each frame set, and the pool's quality."""
-    from bench_matcher_stages import pool_quality
+    from bench_matcher_stages import Stopwatch, pool_quality
     from camnet.services.matcher import MatcherNode, MatcherNodeConfig, rig_options
 
     from camnet.bus import keys

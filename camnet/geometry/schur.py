@@ -124,12 +124,9 @@ def solve_damped(ne: NormalEquations, lam: float) -> tuple[np.ndarray, np.ndarra
         # rank-k update does half the work of the full product.
         # (Passed as WL^T, which is in the column order BLAS reads: no copy of WL.)
         S = scipy.linalg.blas.dsyrk(-1.0, WL.T, beta=1.0, c=S, overwrite_c=True, trans=1)
-    dc = rhs
-    if len(rhs):
-        try:
-            dc = scipy.linalg.cho_solve(scipy.linalg.cho_factor(S, check_finite=False), rhs)
-        except np.linalg.LinAlgError:
-            return None
+    dc = _solve_positive_definite(S, rhs)
+    if dc is None:
+        return None
     z = np.einsum("nij,nj->ni", L_inv, ne.gp + (ne.W.T @ dc).reshape(-1, 3))
     dp = -np.einsum("nji,nj->ni", L_inv, z)  # -V^-1 (gp + W^T dc)
     if not (np.all(np.isfinite(dc)) and np.all(np.isfinite(dp))):
@@ -150,12 +147,9 @@ def solve_eliminated(
     S = ne.U + np.diag(lam * np.maximum(np.diag(ne.U), 1e-9)) - eliminated.WVW[np.ix_(within, within)]
     y = np.einsum("nij,nj->ni", eliminated.V_inv, ne.gp)  # V^-1 g_p
     rhs = -ne.gc + ne.W @ y.reshape(-1)
-    dc = rhs
-    if len(rhs):
-        try:
-            dc = scipy.linalg.cho_solve(scipy.linalg.cho_factor(S, check_finite=False), rhs)
-        except np.linalg.LinAlgError:
-            return None
+    dc = _solve_positive_definite(S, rhs)
+    if dc is None:
+        return None
     dp = -np.einsum("nij,nj->ni", eliminated.V_inv, ne.gp + (ne.W.T @ dc).reshape(-1, 3))
     if not (np.all(np.isfinite(dc)) and np.all(np.isfinite(dp))):
         return None
@@ -282,3 +276,13 @@ def _closed_form_inverses(V: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         V_inv = L_inv.transpose(0, 2, 1) @ L_inv
         bound = np.linalg.norm(V, axis=(1, 2)) * np.linalg.norm(V_inv, axis=(1, 2))
     return V_inv, bound < 0.1 / POINT_RCOND
+
+
+def _solve_positive_definite(S: np.ndarray, rhs: np.ndarray) -> np.ndarray | None:
+    """S^-1 rhs by Cholesky; None where S is not positive definite (an empty system solves to itself)."""
+    if not len(rhs):
+        return rhs
+    try:
+        return scipy.linalg.cho_solve(scipy.linalg.cho_factor(S, check_finite=False), rhs)
+    except np.linalg.LinAlgError:
+        return None
