@@ -26,9 +26,11 @@ LEFT, RIGHT = "templeSR0007", "templeSR0008"
 # Measured (benchmarks/bench_temple.py, README "Real images: the temple ring"): with nothing known, every focal
 # length within 11% of the published one, 4.6 of its reported sigmas at most (the principal points, freed, trade
 # with the poses at this narrow field of view): beyond 3 sigmas, a known shortfall the README states; the bound
-# leaves a margin for other platforms' SIFT.
+# leaves a margin for other platforms' SIFT. The principal points moved 17-48% of the image from its centre, so the
+# solve says its scale has no linear sigma and names each such camera (it is -0.5% off; 3% leaves a margin).
 FOCAL_BOUND_REL = 0.20
 FOCAL_BOUND_SIGMAS = 7.0
+SCALE_BOUND_REL = 0.03
 
 
 def test_the_ring_with_two_views_from_one_viewpoint_calibrates_near_the_published_cameras(record_property):
@@ -53,7 +55,12 @@ def test_the_ring_with_two_views_from_one_viewpoint_calibrates_near_the_publishe
                               "points": vs.distance_points})
     record_property("focal", {c.id: (round(c.focal_rel, 4), round(c.focal_sigma_rel, 4)) for c in vs.cameras})
     assert vs.distance_points >= 100
-    assert abs(vs.distance_rel) <= 3 * vs.scale_sigma_rel, (vs.distance_rel, vs.scale_sigma_rel)
+    assert abs(vs.distance_rel) <= SCALE_BOUND_REL, vs.distance_rel
+    # Not wrong in silence: the focal lengths are off by up to 4.6 sigmas, so no scale sigma, and why.
+    scale = report.uncertainty.scale_rel
+    assert scale.value is None and "principal points" in scale.reason, scale
+    for cam_id in (LEFT, RIGHT):
+        assert any(w.startswith(f"camera {cam_id}: its principal point, freed, moved") for w in report.warnings)
     for c in vs.cameras:
         assert c.focal_sigma_rel > 0, c.id
         assert abs(c.focal_rel) <= min(FOCAL_BOUND_REL, FOCAL_BOUND_SIGMAS * c.focal_sigma_rel), (c.id, c.focal_rel,

@@ -34,6 +34,14 @@ POOR_FOCAL_REL = 0.05
 POOR_SCALE_REL = 0.01
 UNDETERMINED_SCALE = "not determined by the observations"
 MAX_LINEAR_FOCAL_REL = 0.15  # a stereo focal length's relative sigma beyond which the scale has no linear sigma
+# A freed principal point this far from where it was given (the image centre where nobody gave it), as a share
+# of the image's width or height, is no lens's (they sit a percent or so away): the data trade it with the
+# camera's rotation and focal length along a curved, nearly flat valley of the cost, where linear sigmas mean
+# nothing. Measured on the Middlebury temple ring with nothing known (pair 0012-0013): principal points freed
+# and moved 8-49% of the image from its centre at sigmas of 9-37 px; the same inliers adjusted from the
+# published cameras end 4.7% higher in cost with the pair's focal lengths 7-10% short instead of 10% long, and
+# the solve's own scale 10% off at a sigma of 1.8%.
+MAX_PP_OFFSET_REL = 0.1
 MAX_DEPTH_BASELINES = 1000.0  # a scene farther than this many baselines has next to no disparity
 DISTANCE_SIGMAS = 3.0  # a known distance this many sigmas from where the scene puts it is reported
 # A start that left cameras out, then a solution of the rest that rejects many of their observations: the
@@ -181,11 +189,14 @@ def reported_points(
 
 
 def _uncertainty(ids: list[str], problem, state, cov: Covariance, kept, warnings: list[str],
-                 notes: list[str], normal, pair_pose_given: bool) -> Uncertainty:
+                 notes: list[str], normal, pair_pose_given: bool, pp_given: np.ndarray, sizes: np.ndarray
+                 ) -> Uncertainty:
     """The solution's uncertainty; appends the warnings and notes it gives rise to.
 
     normal: the solve's unweighted normal equations at `state` in cov's layout (or None);
-    pair_pose_given: the pair's held rotation axes are held at a given pose, not the parallel pair's.
+    pair_pose_given: the pair's held rotation axes are held at a given pose, not the parallel pair's;
+    pp_given, sizes (M, 2): each camera's given principal point (the image centre where none was) and image
+    size, pixels.
     """
     weights = scale_weights(cov, state.X, kept)
     scale = scale_sigma(cov, state.X, weights) if kept.any() else None
@@ -199,7 +210,9 @@ def _uncertainty(ids: list[str], problem, state, cov: Covariance, kept, warnings
     # solution is beyond where a linear sigma means anything (measured on KITTI with nothing
     # known: focal lengths 67% off at 40% sigma, the depths 46% off at a linear 1.5%).
     pair_focal_rel = max(per_cam[ids[m]].f_px / state.intr[m, 0] for m in (0, 1))
-    nonlinear = scale is not None and pair_focal_rel > MAX_LINEAR_FOCAL_REL
+    far_pp = {m: rel for m in range(len(ids)) if (rel := _far_pp_rel(problem, state, m, pp_given[m], sizes[m]))}
+    pair_loose_pp = [m for m in (0, 1) if m in far_pp]
+    nonlinear = scale is not None and (pair_focal_rel > MAX_LINEAR_FOCAL_REL or bool(pair_loose_pp))
     if nonlinear:
         scale = None
     warnings += _distance_warnings(ids, problem, state, cov, normal)
@@ -210,11 +223,22 @@ def _uncertainty(ids: list[str], problem, state, cov: Covariance, kept, warnings
                 f"camera {cam_id}: {', '.join(unknown)} not determined by the observations (sigma null); "
                 "give them (K, dist) or add views that share more points with it"
             )
+        elif m in far_pp:
+            warnings.append(
+                f"camera {cam_id}: its principal point, freed, moved {100 * far_pp[m]:.0f}% of the image from where "
+                "it was given (no lens's is that far off): it trades with the focal length and rotation, which may "
+                "be wrong by several of their sigmas; give its K"
+            )
         elif per_cam[cam_id].f_px > POOR_FOCAL_REL * state.intr[m, 0]:
             warnings.append(f"camera {cam_id}: focal length poorly determined (sigma {per_cam[cam_id].f_px:.0f} px)")
     scale_if_pp, scale_if_pair, scale_if_both = _scale_if_exact(problem, state, cov, weights, scale)
     unknown_scale = UNDETERMINED_SCALE
-    if nonlinear:
+    if nonlinear and pair_loose_pp:
+        unknown_scale = (f"the stereo cameras' principal points, freed, moved up to "
+                         f"{100 * max(far_pp[m] for m in pair_loose_pp):.0f}% of the image from where they were given, "
+                         "trading with their focal lengths beyond where a linear sigma holds; give their K")
+        warnings.append(f"the scale is not determined: {unknown_scale}")
+    elif nonlinear:
         unknown_scale = (f"the stereo cameras' focal lengths are known to {100 * pair_focal_rel:.0f}% only (1 sigma); "
                          "give their K")
         warnings.append(f"the scale is not determined: {unknown_scale}")
@@ -244,6 +268,15 @@ def _uncertainty(ids: list[str], problem, state, cov: Covariance, kept, warnings
         _scale_message(scale_cause(uncertainty), bool(problem.n_cameras >= 2 and not problem.rot_free[1, 1]),
                        warnings, notes, given=pair_pose_given)
     return uncertainty
+
+
+def _far_pp_rel(problem, state, m: int, given_px: np.ndarray, size_px: np.ndarray) -> float:
+    """Camera m's freed principal point's offset from `given_px` as a share of the image (the larger of x / width
+    and y / height), where beyond MAX_PP_OFFSET_REL; else 0."""
+    if not problem.intr_free[m, 2:4].any():
+        return 0.0
+    rel = float(np.max(np.abs(state.intr[m, 2:4] - given_px) / size_px))
+    return rel if rel > MAX_PP_OFFSET_REL else 0.0
 
 
 def _scale_message(cause: ScaleCause, yaw_held: bool, warnings: list[str], notes: list[str], *,
@@ -376,8 +409,11 @@ def solve_report(
         warnings += structure_warnings(ids, problem.cam, problem.uv, residuals_px, state.intr,
                                        problem.intr_free[:, 4], observed)
     notes: list[str] = []
+    sizes = np.array([(obs.cameras[i].width, obs.cameras[i].height) for i in order], dtype=float)
+    pp_given = np.array([sizes[k] / 2 if obs.cameras[i].K is None else obs.cameras[i].K[:2, 2]
+                         for k, i in enumerate(order)])
     uncertainty = None if cov is None else _uncertainty(ids, problem, state, cov, kept, warnings, notes, info.normal,
-                                                        pair_pose_given)
+                                                        pair_pose_given, pp_given, sizes)
     # The held column offset is priced into the scale's sigma when the principal points entered as
     # a guess with its prior: then a caveat (a note), else the sigma cannot show it (a warning).
     priced = uncertainty is not None and uncertainty.scale_rel_if_pp_exact.value is not None
