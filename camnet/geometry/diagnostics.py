@@ -223,14 +223,14 @@ def _uncertainty(ids: list[str], problem, state, cov: Covariance, kept, warnings
                 f"camera {cam_id}: {', '.join(unknown)} not determined by the observations (sigma null); "
                 "give them (K, dist) or add views that share more points with it"
             )
-        elif m in far_pp:
+        elif per_cam[cam_id].f_px > POOR_FOCAL_REL * state.intr[m, 0]:
+            warnings.append(f"camera {cam_id}: focal length poorly determined (sigma {per_cam[cam_id].f_px:.0f} px)")
+        if m in far_pp and not unknown:
             warnings.append(
                 f"camera {cam_id}: its principal point, freed, moved {100 * far_pp[m]:.0f}% of the image from where "
                 "it was given (no lens's is that far off): it trades with the focal length and rotation, which may "
                 "be wrong by several of their sigmas; give its K"
             )
-        elif per_cam[cam_id].f_px > POOR_FOCAL_REL * state.intr[m, 0]:
-            warnings.append(f"camera {cam_id}: focal length poorly determined (sigma {per_cam[cam_id].f_px:.0f} px)")
     scale_if_pp, scale_if_pair, scale_if_both = _scale_if_exact(problem, state, cov, weights, scale)
     unknown_scale = UNDETERMINED_SCALE
     if nonlinear and pair_loose_pp:
