@@ -1,6 +1,7 @@
 """The calibrator's state machine on simulated observations: warm re-solves,
 moved cameras, and solves that must not replace a good calibration."""
 
+import json
 import re
 from dataclasses import replace
 
@@ -254,3 +255,21 @@ def test_a_long_pools_cold_solve_starts_on_its_newest_tracks():
     assert len(out.calibration.points) > 300
     within = Tracker(LiveConfig(cold_start_tracks=len(pool.track_ids))).update(pool)
     assert within.status == "good" and within.calibration.report.start == StartKind.COLD
+
+
+def test_a_scale_the_solve_leaves_undetermined_is_refused_with_its_own_reason():
+    """Before: "scale uncertain (None > inf)", and `camnet calibrate` then told the user to check cameras it
+    had not named. Now the refusal carries the report's reason (what to give)."""
+    from pathlib import Path
+
+    from camnet.geometry.live_policy import SCALE_UNDETERMINED, judge_rig
+    from camnet.geometry.model import Sigma
+    from camnet.io.formats import parse_calibration
+
+    golden = Path(__file__).parent / "golden" / "sim-refined.json"
+    cal = parse_calibration(json.loads(golden.read_text()))
+    assert judge_rig(cal, SoundnessLimits()) == ""
+    why = "the stereo cameras' principal points moved far; give their K"
+    report = replace(cal.report, uncertainty=replace(cal.uncertainty, scale_rel=Sigma.unknown(why)))
+    undetermined = replace(cal, report=report)
+    assert judge_rig(undetermined, SoundnessLimits()) == f"{SCALE_UNDETERMINED}: {why}"

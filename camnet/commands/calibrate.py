@@ -165,7 +165,7 @@ def _solve(obs: Observations, options: Options, initial: Calibration | None, pro
     from camnet.errors import SolveError
     from camnet.geometry.calibrate import calibrate
     from camnet.geometry.judged_solve import Status
-    from camnet.geometry.live_policy import soundness_check
+    from camnet.geometry.live_policy import SCALE_UNDETERMINED, soundness_check
     from camnet.geometry.newest_first import solve_newest_first
 
     if initial is None and options.method == Method.REFINED:
@@ -176,6 +176,8 @@ def _solve(obs: Observations, options: Options, initial: Calibration | None, pro
         # only uncertain, and is reported as it is: the live limit on it is no part of the check.
         judged = solve_newest_first(obs, options, soundness_check)
         progress.say(f"solved ({judged.status})")
+        if judged.status == Status.REJECTED and judged.reason.startswith(SCALE_UNDETERMINED):
+            raise SolveError(f"the calibration is refused: {judged.reason}")  # the reason says what to give
         if judged.status == Status.REJECTED:
             raise SolveError(f"the calibration is refused: {judged.reason}; check the cameras named (their "
                              "matches, their sync, whether they moved), or leave them out of the observations")

@@ -75,6 +75,10 @@ class LiveConfig:
     cold_start_tracks: int = START_TRACKS
 
 
+# A refusal for the scale's sigma being null: its reason says what to give (e.g. the stereo cameras' K).
+SCALE_UNDETERMINED = "the scale is not determined"
+
+
 def judge(cal: Calibration, obs: Observations, config: LiveConfig) -> str:
     """Why `cal` must not replace a good calibration, or "" if it may."""
     return judge_rig(cal, config.limits, max_scale_rel=config.max_scale_rel) or judge_cameras(cal, obs, config.limits)
@@ -89,9 +93,11 @@ def judge_rig(cal: Calibration, limits: SoundnessLimits, *, max_scale_rel: float
         return f"not converged ({cal.report.reason if cal.report is not None else 'unknown'})"
     if not cal.rms_reprojection_px <= limits.max_rms_px:
         return f"reprojection RMS {cal.rms_reprojection_px:.2f} px > {limits.max_rms_px} px"
-    scale_rel = cal.uncertainty.scale_rel.value if cal.uncertainty is not None else None
-    if scale_rel is None or not scale_rel <= max_scale_rel:
-        return f"scale uncertain ({scale_rel} > {max_scale_rel})"
+    scale = cal.uncertainty.scale_rel if cal.uncertainty is not None else None
+    if scale is None or scale.value is None:
+        return f"{SCALE_UNDETERMINED}: {scale.reason if scale is not None else 'no uncertainty computed'}"
+    if not scale.value <= max_scale_rel:
+        return f"scale uncertain ({scale.value} > {max_scale_rel})"
     return ""
 
 
