@@ -100,15 +100,15 @@ class PatternCamera:
         return buffer.fill(*self._next())
 
 
-def test_the_driver_node_publishes_each_frame_with_its_own_pixels_through_one_buffer(zenoh_pair):
+def _run_node(zenoh_pair, camera, frames: int, at_least: int):
+    """(node, frames received on the bus, frames handed to on_frame) of a driver node that ran `frames`
+    frames of `camera` as the sim rig's "left"; at least `at_least` received."""
     from camnet.drivers.node import DriverNode
 
     from camnet.io.rig import load_rig
 
     listener, connector = zenoh_pair
     rig = load_rig(CONFIG / "sim.yaml")
-    camera = PatternCamera(n_frames=12)
-    assert isinstance(camera, Camera)
     received: list[Frame] = []
     offered: list[Frame] = []
     lock = threading.Lock()
@@ -122,10 +122,17 @@ def test_the_driver_node_publishes_each_frame_with_its_own_pixels_through_one_bu
     # The publishing peer knows of the subscription before the first frame goes (not after a fixed delay).
     matched_publisher(connector, keys.frame(rig.name, "left")).undeclare()
     node = DriverNode(connector, rig, camera, on_frame=offered.append)
-    node.run(max_frames=12)
-    assert wait_for(lambda: len(received) >= 10, 60.0, progress=lambda: len(received)), \
+    node.run(max_frames=frames)
+    assert wait_for(lambda: len(received) >= at_least, 60.0, progress=lambda: len(received)), \
         f"{len(received)} frames arrived"
     sub.undeclare()
+    return node, received, offered
+
+
+def test_the_driver_node_publishes_each_frame_with_its_own_pixels_through_one_buffer(zenoh_pair):
+    camera = PatternCamera(n_frames=12)
+    assert isinstance(camera, Camera)
+    node, received, offered = _run_node(zenoh_pair, camera, 12, 10)
     # One buffer, reused: the first frame read as a Frame, every later one into the node's buffer,
     # the camera handing back only its seq and timestamp.
     assert camera.calls == ["read"] + ["read_into"] * 11
@@ -141,27 +148,8 @@ def test_the_driver_node_publishes_each_frame_with_its_own_pixels_through_one_bu
 
 
 def test_a_camera_that_changes_size_gets_a_new_buffer_and_every_frame_arrives_whole(zenoh_pair):
-    from camnet.drivers.node import DriverNode
-
-    from camnet.io.rig import load_rig
-
-    listener, connector = zenoh_pair
-    rig = load_rig(CONFIG / "sim.yaml")
     camera = PatternCamera(n_frames=10, resized_at=5)
-    received: list[Frame] = []
-    offered: list[Frame] = []
-    lock = threading.Lock()
-
-    def on_sample(sample):
-        frame = decode_frame(sample.payload.to_bytes())
-        with lock:
-            received.append(frame)
-
-    sub = listener.declare_subscriber(keys.frame(rig.name, "left"), on_sample)
-    time.sleep(0.5)  # the subscription reaches the publishing peer
-    DriverNode(connector, rig, camera, on_frame=offered.append).run(max_frames=10)
-    assert wait_for(lambda: len(received) >= 8, 10.0), f"{len(received)} frames arrived"
-    sub.undeclare()
+    _, received, offered = _run_node(zenoh_pair, camera, 10, 8)
     # Frame 5 did not fit the buffer: it came back as a Frame, and a buffer of its size took the rest.
     assert camera.calls == ["read"] + ["read_into"] * 9
     assert camera.buffers[3] is camera.buffers[0] and camera.buffers[4] is camera.buffers[3]
