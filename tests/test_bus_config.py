@@ -11,7 +11,6 @@ import pytest
 
 from camnet.bus.session import BusOptions, add_bus_arguments, listen_endpoints, make_config, options_from_args
 from camnet.errors import InputError
-from tests.test_rig import CONFIG
 
 
 def config_json(options: BusOptions, key: str):
@@ -98,19 +97,9 @@ def test_package_imports_no_camera_sdk():
 
 @pytest.mark.parametrize("encoding", ["mono8", "mono16", "bgr8", "rgb8"])
 def test_sim_camera_encodings_and_protocol(encoding):
-    from dataclasses import replace
+    from tests.test_driver_read_into import fast_sim_camera
 
-    from camnet.drivers.base import Camera, create_camera
-
-    from camnet.io.rig import load_rig
-
-    rig = load_rig(CONFIG / "sim.yaml")
-    entry = rig.camera("right")
-    # 5000 fps is faster than rendering (2 ms a frame with its cached background): slots are skipped,
-    # counted and seen as gaps.
-    entry = replace(entry, config=replace(entry.config, encoding=encoding, fps=5000.0))
-    camera = create_camera(entry, rig)
-    assert isinstance(camera, Camera)
+    camera = fast_sim_camera(encoding)  # 5000 fps: slots are skipped, counted and seen as gaps
     with camera:
         frames = [camera.read(timeout_s=1.0) for _ in range(3)]
     assert frames[1].encoding == encoding and frames[1].camera_id == "right"
