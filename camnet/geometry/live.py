@@ -20,7 +20,7 @@ from functools import partial
 import numpy as np
 
 from camnet.geometry.change import drop_before, moved_cameras, new_track_errors
-from camnet.geometry.judged_solve import Status, solve_judged
+from camnet.geometry.judged_solve import Judged, Status, solve_judged
 from camnet.geometry.live_policy import LiveConfig, policy_check
 from camnet.geometry.model import Calibration, Camera, Observations
 from camnet.geometry.newest_first import solve_newest_first
@@ -111,6 +111,15 @@ class Tracker:
             self._reset |= set(moved)
         return tuple(moved)
 
+    def _moved_unplaced(self, obs: Observations, warm: Judged) -> dict[str, str]:
+        """The moved cameras, each with why it is not placed, where the warm solve that places them again
+        failed; {} where none moved, or the stereo pair did (nothing is warm then)."""
+        if warm.status != Status.FAILED or {obs.stereo.left, obs.stereo.right} & self._reset:
+            return {}
+        why = warm.reason.removeprefix("solve failed: ")
+        return {cam_id: f"moved, not placed again yet ({why}); its new tracks will place it"
+                for cam_id in sorted(self._reset & set(obs.camera_ids))}
+
     def _initial(self) -> Calibration | None:
         """The warm start: the last good calibration (its points only while they mean the same tracks)."""
         if self.good is None or len(self._reset) == len(self.good.cameras):
@@ -127,6 +136,15 @@ class Tracker:
             warm = solve_judged(obs, initial, options=self.config.options, check=check, reset=self._reset)
             if warm.status == Status.GOOD:
                 return Outcome(Status.GOOD, "", warm.calibration, moved, warm=True)
+            unplaced = self._moved_unplaced(obs, warm)
+            if unplaced:
+                # A moved camera that its few new tracks cannot place yet must not send the rest cold: a cold
+                # solve placed it from those few, once 1.4 m off at 5 sigma. The others are solved warm and
+                # it is named as not placed, until its new tracks place it.
+                rest = solve_judged(obs, initial, options=self.config.options, check=check, reset=(),
+                                    leave_out=unplaced)
+                if rest.status == Status.GOOD:
+                    return Outcome(Status.GOOD, "", rest.calibration, moved, warm=True)
         # Not good warm (a camera taken for moved that fails, say): the pool is solved cold, a long one
         # on its newest tracks first.
         judged = solve_newest_first(obs, self.config.options, check, start=cold,
