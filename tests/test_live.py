@@ -8,7 +8,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from camnet.geometry.change import drop_before, new_track_errors, without_cameras
+from camnet.geometry.change import drop_before, first_moved_track, new_track_errors, without_cameras
 from camnet.geometry.live import Tracker
 from camnet.geometry.live_policy import LiveConfig, SoundnessLimits, judge
 from camnet.geometry.model import Baseline, Camera, Observations, StartKind
@@ -94,6 +94,34 @@ def test_a_moved_camera_is_placed_again_warm_on_its_new_tracks():
     error_m = np.linalg.norm(cam.centre - new_mono.centre)
     assert error_m < 4 * np.linalg.norm(cal.uncertainty.cameras[new_mono.id].centre_m), error_m
     assert error_m < np.linalg.norm(cam.centre - before.cameras[3].centre), error_m  # nearer its new place
+
+
+def test_tracks_pooled_between_the_last_solve_and_a_move_do_not_hold_the_camera_at_its_old_pose():
+    # On a loaded machine solves are far apart: the tracks pooled since the last one begin before the move,
+    # seeing the moved camera where it was. The cut-off was the first of them, so those old-pose views were
+    # kept as new: mono_b was re-placed 40 mm from its new place, 5 mm from its old one, sigma 17 mm.
+    before = make_rig(n_points=300, seed=3)
+    new_mono = moved(before.cameras[3], [0.0, -0.04, 0.0], 0.0)
+    still = replace(make_rig(n_points=60, seed=7), cameras=before.cameras)
+    after = replace(make_rig(n_points=40, seed=4), cameras=[*before.cameras[:3], new_mono])
+    tracker = Tracker(LiveConfig())
+    first = observe(before, seed=5).observations
+    assert tracker.update(first).status == "good"
+    outcome = tracker.update(pooled(first, observe(still, seed=8).observations, observe(after, seed=6).observations))
+    assert outcome.moved == (new_mono.id,) and outcome.status == "good", outcome.reason
+    cal = outcome.calibration
+    centre = {c.id: c for c in cal.cameras}[new_mono.id].centre
+    error_m = np.linalg.norm(centre - new_mono.centre)
+    assert error_m < np.linalg.norm(centre - before.cameras[3].centre), error_m
+    assert error_m < 4 * np.linalg.norm(cal.uncertainty.cameras[new_mono.id].centre_m), error_m
+
+
+def test_a_moved_cameras_cut_off_is_where_its_views_leave_the_old_pose():
+    ids = np.arange(100, 140)
+    errors_px = np.where(ids < 125, 0.3, 30.0)
+    errors_px[[3, 30]] = [9.0, 0.2]  # one false match before the move, one view that happens to fit after
+    assert first_moved_track(ids, errors_px, 2.0) == 125
+    assert first_moved_track(ids[::-1], errors_px[::-1], 2.0) == 125  # in any order
 
 
 def test_a_moved_camera_its_new_tracks_cannot_place_is_named_and_the_others_stay_warm():

@@ -36,6 +36,10 @@ class MoveRule:
     min_px: float = 2.0
     min_observations: int = 12
 
+    def limit_px(self, reference_rms_px: float | None) -> float:
+        """The error (px) beyond which a camera's observation is off its calibrated pose."""
+        return max(self.min_px, self.factor * (reference_rms_px or 0.0))
+
 
 def _normalised(camera: Camera, uv: np.ndarray) -> np.ndarray:
     """Undistorted normalised image coordinates (n, 2) of pixels (n, 2)."""
@@ -76,6 +80,12 @@ def new_track_errors(calibration: Calibration, obs: Observations, rows: np.ndarr
     tracks the pair does not both see, and points behind a camera, are left
     out. Cameras missing from `calibration` get no entry.
     """
+    return {cam_id: err for cam_id, (_, err) in track_errors(calibration, obs, rows).items()}
+
+
+def track_errors(calibration: Calibration, obs: Observations,
+                 rows: np.ndarray) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """`new_track_errors` with, beside each camera's errors (px), the ids of the tracks they are of."""
     rows, X = stereo_points(calibration, obs, rows)
     point_of_row = np.full(len(obs.track_ids), -1)
     point_of_row[rows] = np.arange(len(rows))
@@ -86,8 +96,25 @@ def new_track_errors(calibration: Calibration, obs: Observations, rows: np.ndarr
         mine = (obs.cam_index == obs.index_of(cam.id)) & (point_of_row[obs.track_index] >= 0)
         pixels = cam.project(X[point_of_row[obs.track_index[mine]]])
         err = np.linalg.norm(pixels - obs.uv[mine], axis=1)
-        errors[cam.id] = err[np.isfinite(err)]
+        finite = np.isfinite(err)
+        errors[cam.id] = (obs.track_ids[obs.track_index[mine]][finite], err[finite])
     return errors
+
+
+def first_moved_track(track_ids: np.ndarray, errors_px: np.ndarray, limit_px: float) -> int:
+    """The track id from which a moved camera's observations (of tracks `track_ids`, errors `errors_px`
+    against its calibrated pose) lie off that pose.
+
+    Track ids grow with time, so the observations of the old pose come first: the id returned splits
+    them best, most of those before it within `limit_px` and most from it on beyond. A track pooled
+    after the last solve but before the move saw the old pose: the first track id since that solve is
+    not where the move began.
+    """
+    order = np.argsort(track_ids, kind="stable")
+    off = np.where(errors_px[order] > limit_px, 1, -1)
+    # From each position on: the observations off the pose less those on it.
+    off_less_on = np.cumsum(off[::-1])[::-1]
+    return int(track_ids[order][int(np.argmax(off_less_on))])
 
 
 def moved_cameras(errors: dict[str, np.ndarray], reference_rms_px: dict[str, float],
@@ -97,8 +124,7 @@ def moved_cameras(errors: dict[str, np.ndarray], reference_rms_px: dict[str, flo
     for cam_id, err in errors.items():
         if len(err) < rule.min_observations:
             continue
-        reference = reference_rms_px.get(cam_id) or 0.0
-        if np.median(err) > max(rule.min_px, rule.factor * reference):
+        if np.median(err) > rule.limit_px(reference_rms_px.get(cam_id)):
             moved.append(cam_id)
     return sorted(moved)
 

@@ -19,7 +19,7 @@ from functools import partial
 
 import numpy as np
 
-from camnet.geometry.change import drop_before, moved_cameras, new_track_errors
+from camnet.geometry.change import drop_before, first_moved_track, moved_cameras, track_errors
 from camnet.geometry.judged_solve import Judged, Status, solve_judged
 from camnet.geometry.live_policy import LiveConfig, policy_check
 from camnet.geometry.model import Calibration, Camera, Observations
@@ -88,13 +88,15 @@ class Tracker:
         if not len(rows):
             return ()
         try:
-            errors = new_track_errors(self.good, obs, rows)
+            errors = track_errors(self.good, obs, rows)
         except (KeyError, ValueError) as exc:
             log.warning("cannot check for moved cameras: %s", exc)
             return ()
         stats = self.good.report.cameras if self.good.report is not None else {}
         reference = {cam_id: camera.rms_px for cam_id, camera in stats.items()}
-        moved = [c for c in moved_cameras(errors, reference, self.config.move_rule) if c not in self._reset]
+        rule = self.config.move_rule
+        moved = [c for c in moved_cameras({c: err for c, (_, err) in errors.items()}, reference, rule)
+                 if c not in self._reset]
         if not moved:
             return ()
         first_new = int(obs.track_ids[rows].min())
@@ -107,7 +109,8 @@ class Tracker:
         else:
             log.warning("camera(s) %s moved: re-calibrating them from the new tracks", moved)
             for cam_id in moved:
-                self._cutoffs[cam_id] = first_new
+                # Not `first_new`: the tracks pooled since the last solve may begin before the move.
+                self._cutoffs[cam_id] = first_moved_track(*errors[cam_id], rule.limit_px(reference.get(cam_id)))
             self._reset |= set(moved)
         return tuple(moved)
 
