@@ -8,10 +8,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from camnet.geometry.change import drop_before, first_moved_track, new_track_errors, without_cameras
+from camnet.geometry.change import drop_before, first_moved_track, new_track_errors, off_their_pose, without_cameras
 from camnet.geometry.live import Tracker
 from camnet.geometry.live_policy import LiveConfig, SoundnessLimits, judge
-from camnet.geometry.model import Baseline, Camera, Observations, StartKind
+from camnet.geometry.model import Baseline, Calibration, Camera, Observations, StartKind
 from camnet.geometry.projection import rotation_exp
 from camnet.sim.simulate import make_rig, observe
 
@@ -122,6 +122,25 @@ def test_a_moved_cameras_cut_off_is_where_its_views_leave_the_old_pose():
     errors_px[[3, 30]] = [9.0, 0.2]  # one false match before the move, one view that happens to fit after
     assert first_moved_track(ids, errors_px, 2.0) == 125
     assert first_moved_track(ids[::-1], errors_px[::-1], 2.0) == 125  # in any order
+
+
+def test_a_moved_camera_solved_back_at_its_old_pose_is_caught_by_its_new_views():
+    before = make_rig(n_points=300, seed=3)
+    new_mono = moved(before.cameras[3], [0.0, -0.04, 0.0], 0.0)
+    after = replace(make_rig(n_points=40, seed=4), cameras=[*before.cameras[:3], new_mono])
+    obs = pooled(observe(before, seed=5).observations, observe(after, seed=6).observations)
+
+    def placing(cameras) -> Calibration:
+        return Calibration(cameras=tuple(cameras), point_ids=np.empty(0, dtype=np.int64), points=np.empty((0, 3)),
+                           rms_reprojection_px=0.3, world_frame="left")
+
+    off = off_their_pose(placing(before.cameras), obs, {new_mono.id: 300}, {new_mono.id: 2.0}, min_observations=12)
+    assert list(off) == [new_mono.id] and off[new_mono.id] > 10, off
+    assert off_their_pose(placing(after.cameras), obs, {new_mono.id: 300}, {new_mono.id: 2.0},
+                          min_observations=12) == {}
+    # Too few views since the move to judge it by: it passes (the policy's own checks still apply).
+    assert off_their_pose(placing(before.cameras), obs, {new_mono.id: 300}, {new_mono.id: 2.0},
+                          min_observations=100) == {}
 
 
 def test_a_moved_camera_its_new_tracks_cannot_place_is_named_and_the_others_stay_warm():

@@ -14,7 +14,7 @@ Conventions: pixels with the origin at the centre of the top-left pixel,
 
 from __future__ import annotations
 
-from collections.abc import Collection
+from collections.abc import Collection, Mapping
 from dataclasses import dataclass, replace
 
 import cv2
@@ -127,6 +127,27 @@ def moved_cameras(errors: dict[str, np.ndarray], reference_rms_px: dict[str, flo
         if np.median(err) > rule.limit_px(reference_rms_px.get(cam_id)):
             moved.append(cam_id)
     return sorted(moved)
+
+
+def off_their_pose(calibration: Calibration, obs: Observations, cutoffs: Mapping[str, int],
+                   limits_px: Mapping[str, float], *, min_observations: int) -> dict[str, float]:
+    """Of the cameras in `cutoffs` that `calibration` places, those whose views of the tracks from their
+    cut-off on lie off the pose it gives them, each with its median error (px): a moved camera solved
+    back at (or near) its old pose. A camera is judged against its `limits_px` on at least
+    `min_observations` views (tracks the stereo pair sees: `track_errors`), and passes with fewer.
+    """
+    placed = {c.id for c in calibration.cameras}
+    judged = {cam_id: cut for cam_id, cut in cutoffs.items() if cam_id in placed and cam_id in obs.camera_ids}
+    if not judged:
+        return {}
+    errors = track_errors(calibration, obs, np.flatnonzero(obs.track_ids >= min(judged.values())))
+    off = {}
+    for cam_id, cut in judged.items():
+        ids, err = errors.get(cam_id, (np.empty(0), np.empty(0)))
+        err = err[ids >= cut]
+        if len(err) >= min_observations and np.median(err) > limits_px[cam_id]:
+            off[cam_id] = float(np.median(err))
+    return off
 
 
 def drop_before(obs: Observations, cutoffs: dict[str, int]) -> Observations:

@@ -19,7 +19,7 @@ from functools import partial
 
 import numpy as np
 
-from camnet.geometry.change import drop_before, first_moved_track, moved_cameras, track_errors
+from camnet.geometry.change import drop_before, first_moved_track, moved_cameras, off_their_pose, track_errors
 from camnet.geometry.judged_solve import Judged, Status, solve_judged
 from camnet.geometry.live_policy import LiveConfig, policy_check
 from camnet.geometry.model import Calibration, Camera, Observations
@@ -115,13 +115,25 @@ class Tracker:
         return tuple(moved)
 
     def _moved_unplaced(self, obs: Observations, warm: Judged) -> dict[str, str]:
-        """The moved cameras, each with why it is not placed, where the warm solve that places them again
-        failed; {} where none moved, or the stereo pair did (nothing is warm then)."""
-        if warm.status != Status.FAILED or {obs.stereo.left, obs.stereo.right} & self._reset:
+        """The moved cameras the warm solve that places them again did not place, each with why: all of
+        them where it failed, those its good solution holds off their new tracks' views (a camera solved
+        back at its old pose) where it passed; {} where none moved, or the stereo pair did."""
+        moved = sorted(self._reset & set(obs.camera_ids))
+        if not moved or {obs.stereo.left, obs.stereo.right} & self._reset:
             return {}
-        why = warm.reason.removeprefix("solve failed: ")
-        return {cam_id: f"moved, not placed again yet ({why}); its new tracks will place it"
-                for cam_id in sorted(self._reset & set(obs.camera_ids))}
+        if warm.status == Status.FAILED:
+            why = warm.reason.removeprefix("solve failed: ")
+            return {cam_id: f"moved, not placed again yet ({why}); its new tracks will place it" for cam_id in moved}
+        if warm.status != Status.GOOD or self.good is None or self.good.report is None:
+            return {}
+        rule = self.config.move_rule
+        limits = {cam_id: rule.limit_px(self.good.report.cameras[cam_id].rms_px if cam_id in
+                                        self.good.report.cameras else None) for cam_id in moved}
+        off = off_their_pose(warm.calibration, obs, {c: self._cutoffs[c] for c in moved if c in self._cutoffs},
+                             limits, min_observations=rule.min_observations)
+        return {cam_id: f"moved, not placed again yet (its views since the move lie a median {px:.1f} px off the "
+                f"pose solved for it, more than {limits[cam_id]:.1f}); its new tracks will place it"
+                for cam_id, px in off.items()}
 
     def _initial(self) -> Calibration | None:
         """The warm start: the last good calibration (its points only while they mean the same tracks)."""
@@ -137,13 +149,13 @@ class Tracker:
         check = partial(policy_check, config=self.config)
         if initial is not None:
             warm = solve_judged(obs, initial, options=self.config.options, check=check, reset=self._reset)
-            if warm.status == Status.GOOD:
-                return Outcome(Status.GOOD, "", warm.calibration, moved, warm=True)
             unplaced = self._moved_unplaced(obs, warm)
+            if warm.status == Status.GOOD and not unplaced:
+                return Outcome(Status.GOOD, "", warm.calibration, moved, warm=True)
             if unplaced:
-                # A moved camera that its few new tracks cannot place yet must not send the rest cold: a cold
-                # solve placed it from those few, once 1.4 m off at 5 sigma. The others are solved warm and
-                # it is named as not placed, until its new tracks place it.
+                # A moved camera that its few new tracks cannot place yet must not send the rest cold (a cold
+                # solve placed it from those few, once 1.4 m off at 5 sigma), nor stand where its new views
+                # say it is not. The others are solved warm and it is named, until its new tracks place it.
                 rest = solve_judged(obs, initial, options=self.config.options, check=check, reset=(),
                                     leave_out=unplaced)
                 if rest.status == Status.GOOD:
