@@ -163,6 +163,33 @@ def test_a_moved_camera_its_new_tracks_cannot_place_is_named_and_the_others_stay
     assert cal.report.cameras_left_out[new_mono.id].startswith("moved, not placed again yet")
 
 
+def test_a_moved_camera_left_out_is_placed_again_later_with_its_lens():
+    # Its first new views are poor (1.5 px of noise): it is named as not placed. It stays to be placed again,
+    # by the checked warm path and with its lens as calibrated before the move; before, the next solve
+    # placed it as a camera never seen, its focal length free on its few new tracks.
+    before = make_rig(n_points=300, seed=3)
+    new_mono = moved(before.cameras[3], [0.0, -0.04, 0.0], 0.0)
+    tracker = Tracker(LiveConfig())
+    first = observe(before, seed=5).observations
+    assert tracker.update(first).status == "good"
+    lens = {c.id: c for c in tracker.good.cameras}[new_mono.id].K
+    poor = observe(replace(make_rig(n_points=40, seed=4), cameras=[*before.cameras[:3], new_mono]), seed=6).observations
+    uv, mine = poor.uv.copy(), poor.cam_index == 3
+    uv[mine] += np.random.default_rng(0).normal(0.0, 1.5, (int(mine.sum()), 2))
+    poor = replace(poor, uv=uv)
+    out = tracker.update(pooled(first, poor))
+    assert out.moved == (new_mono.id,) and out.status == "good" and out.warm, out.reason
+    assert out.calibration.report.cameras_left_out[new_mono.id].startswith("moved, not placed again yet")
+    more = replace(make_rig(n_points=200, seed=9), cameras=[*before.cameras[:3], new_mono])
+    out = tracker.update(pooled(first, poor, observe(more, seed=7).observations))
+    assert out.status == "good" and out.warm and out.moved == (), out.reason
+    cal = out.calibration
+    cam = {c.id: c for c in cal.cameras}[new_mono.id]
+    np.testing.assert_array_equal(cam.K, lens)
+    error_m = np.linalg.norm(cam.centre - new_mono.centre)
+    assert error_m < 4 * np.linalg.norm(cal.uncertainty.cameras[new_mono.id].centre_m), error_m
+
+
 def test_detection_sees_only_the_camera_that_moved():
     before = make_rig(n_points=200, seed=8)
     tracker = Tracker(LiveConfig())
