@@ -14,7 +14,7 @@ Conventions: pixels with the origin at the centre of the top-left pixel,
 
 from __future__ import annotations
 
-from collections.abc import Collection
+from collections.abc import Collection, Mapping
 from dataclasses import dataclass, replace
 
 import cv2
@@ -35,6 +35,10 @@ class MoveRule:
     factor: float = 4.0
     min_px: float = 2.0
     min_observations: int = 12
+
+    def limit_px(self, reference_rms_px: float | None) -> float:
+        """The error (px) beyond which a camera's observation is off its calibrated pose."""
+        return max(self.min_px, self.factor * (reference_rms_px or 0.0))
 
 
 def _normalised(camera: Camera, uv: np.ndarray) -> np.ndarray:
@@ -76,6 +80,12 @@ def new_track_errors(calibration: Calibration, obs: Observations, rows: np.ndarr
     tracks the pair does not both see, and points behind a camera, are left
     out. Cameras missing from `calibration` get no entry.
     """
+    return {cam_id: err for cam_id, (_, err) in track_errors(calibration, obs, rows).items()}
+
+
+def track_errors(calibration: Calibration, obs: Observations,
+                 rows: np.ndarray) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """`new_track_errors` with, beside each camera's errors (px), the ids of the tracks they are of."""
     rows, X = stereo_points(calibration, obs, rows)
     point_of_row = np.full(len(obs.track_ids), -1)
     point_of_row[rows] = np.arange(len(rows))
@@ -86,8 +96,25 @@ def new_track_errors(calibration: Calibration, obs: Observations, rows: np.ndarr
         mine = (obs.cam_index == obs.index_of(cam.id)) & (point_of_row[obs.track_index] >= 0)
         pixels = cam.project(X[point_of_row[obs.track_index[mine]]])
         err = np.linalg.norm(pixels - obs.uv[mine], axis=1)
-        errors[cam.id] = err[np.isfinite(err)]
+        finite = np.isfinite(err)
+        errors[cam.id] = (obs.track_ids[obs.track_index[mine]][finite], err[finite])
     return errors
+
+
+def first_moved_track(track_ids: np.ndarray, errors_px: np.ndarray, limit_px: float) -> int:
+    """The track id from which a moved camera's observations (of tracks `track_ids`, errors `errors_px`
+    against its calibrated pose) lie off that pose.
+
+    Track ids grow with time, so the observations of the old pose come first: the id returned splits
+    them best, most of those before it within `limit_px` and most from it on beyond. A track pooled
+    after the last solve but before the move saw the old pose: the first track id since that solve is
+    not where the move began.
+    """
+    order = np.argsort(track_ids, kind="stable")
+    off = np.where(errors_px[order] > limit_px, 1, -1)
+    # From each position on: the observations off the pose less those on it.
+    off_less_on = np.cumsum(off[::-1])[::-1]
+    return int(track_ids[order][int(np.argmax(off_less_on))])
 
 
 def moved_cameras(errors: dict[str, np.ndarray], reference_rms_px: dict[str, float],
@@ -97,10 +124,30 @@ def moved_cameras(errors: dict[str, np.ndarray], reference_rms_px: dict[str, flo
     for cam_id, err in errors.items():
         if len(err) < rule.min_observations:
             continue
-        reference = reference_rms_px.get(cam_id) or 0.0
-        if np.median(err) > max(rule.min_px, rule.factor * reference):
+        if np.median(err) > rule.limit_px(reference_rms_px.get(cam_id)):
             moved.append(cam_id)
     return sorted(moved)
+
+
+def off_their_pose(calibration: Calibration, obs: Observations, cutoffs: Mapping[str, int],
+                   limits_px: Mapping[str, float], *, min_observations: int) -> dict[str, float]:
+    """Of the cameras in `cutoffs` that `calibration` places, those whose views of the tracks from their
+    cut-off on lie off the pose it gives them, each with its median error (px): a moved camera solved
+    back at (or near) its old pose. A camera is judged against its `limits_px` on at least
+    `min_observations` views (tracks the stereo pair sees: `track_errors`), and passes with fewer.
+    """
+    placed = {c.id for c in calibration.cameras}
+    judged = {cam_id: cut for cam_id, cut in cutoffs.items() if cam_id in placed and cam_id in obs.camera_ids}
+    if not judged:
+        return {}
+    errors = track_errors(calibration, obs, np.flatnonzero(obs.track_ids >= min(judged.values())))
+    off = {}
+    for cam_id, cut in judged.items():
+        ids, err = errors.get(cam_id, (np.empty(0), np.empty(0)))
+        err = err[ids >= cut]
+        if len(err) >= min_observations and np.median(err) > limits_px[cam_id]:
+            off[cam_id] = float(np.median(err))
+    return off
 
 
 def drop_before(obs: Observations, cutoffs: dict[str, int]) -> Observations:

@@ -273,6 +273,9 @@ def warm_start(
     for pid, p in zip(initial.point_ids, initial.points, strict=True):
         if int(pid) in index:
             X[index[int(pid)]] = p
+    # A moved camera's observations of the old points are dropped (they saw its old pose): it is placed on the
+    # points of its new tracks, which the cameras still in place triangulate here first.
+    triangulate_missing(order, xy, rows, f, R, C, X, registered)
     for m in reset:
         if not np.isfinite(f[m]):
             continue  # not in `initial` either: registered below like any new camera

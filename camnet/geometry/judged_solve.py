@@ -53,16 +53,20 @@ class Judged:
 
 
 def solve_judged(obs: Observations, start: Calibration | None, *, options: Options, check: Check,
-                 reset: Collection[str] = (), retries: int = REFUSED_RETRIES) -> Judged:
+                 reset: Collection[str] = (), retries: int = REFUSED_RETRIES,
+                 leave_out: Mapping[str, str] | None = None) -> Judged:
     """`obs` solved from `start` (None: cold) and judged by `check`; where only cameras placed wrong refuse
     it, solved again without them (named in the report with the check's reason), up to `retries` times.
 
-    reset: cameras of `start` whose pose is solved afresh (moved). Never fewer than
-    `cold_start.MIN_CAMERAS` cameras are left: a solve that would be is refused as it stands, as is
-    one whose solve without those cameras fails.
+    reset: cameras of `start` whose pose is solved afresh (moved). leave_out: cameras solved without from
+    the start, each with why (named in the report so). Never fewer than `cold_start.MIN_CAMERAS` cameras
+    are left: a solve that would be is refused as it stands, as is one whose solve without those cameras
+    fails.
     """
-    judged, refusal = _attempt(obs, start, options=options, check=check, reset=reset, left_out={})
-    left_out: dict[str, str] = {}
+    left_out: dict[str, str] = dict(leave_out or {})
+    if left_out:
+        obs = without_cameras(obs, left_out)
+    judged, refusal = _attempt(obs, start, options=options, check=check, reset=reset, left_out=dict(left_out))
     for _ in range(retries):
         refused = refusal.placed_wrong if judged.status == Status.REJECTED else {}
         if not refused or len(obs.cameras) - len(refused) < MIN_CAMERAS:

@@ -19,13 +19,15 @@ from functools import partial
 
 import numpy as np
 
-from camnet.geometry.change import drop_before, moved_cameras, new_track_errors
-from camnet.geometry.judged_solve import Status, solve_judged
+from camnet.geometry.change import drop_before, first_moved_track, moved_cameras, off_their_pose, track_errors
+from camnet.geometry.judged_solve import Judged, Status, solve_judged
 from camnet.geometry.live_policy import LiveConfig, policy_check
 from camnet.geometry.model import Calibration, Camera, Observations
 from camnet.geometry.newest_first import solve_newest_first
 
 log = logging.getLogger(__name__)
+
+MOVED_RMS_FACTOR = 2.0  # a moved camera placed again fits its new views within this times its RMS before
 
 
 @dataclass(frozen=True)
@@ -59,6 +61,8 @@ class Tracker:
     _cutoffs: dict[str, int] = field(default_factory=dict)
     _reset: set[str] = field(default_factory=set)
     _points_valid: bool = False
+    # Moved cameras (not the stereo pair) not yet placed again: as last calibrated, with their RMS (px) then.
+    _pending: dict[str, tuple[Camera, float | None]] = field(default_factory=dict)
 
     def update(self, obs: Observations, *, source: object = None) -> Outcome:
         t0 = time.perf_counter()
@@ -77,7 +81,10 @@ class Tracker:
         self.counts[outcome.status] += 1
         if outcome.status == Status.GOOD:
             self.good = outcome.calibration
-            self._reset.clear()
+            # A moved camera left out stays to be placed again (by the checked warm path, with its lens).
+            placed = {c.id for c in self.good.cameras}
+            self._pending = {c: moved_from for c, moved_from in self._pending.items() if c not in placed}
+            self._reset = set(self._pending)
             self._points_valid = True
         return outcome
 
@@ -88,13 +95,15 @@ class Tracker:
         if not len(rows):
             return ()
         try:
-            errors = new_track_errors(self.good, obs, rows)
+            errors = track_errors(self.good, obs, rows)
         except (KeyError, ValueError) as exc:
             log.warning("cannot check for moved cameras: %s", exc)
             return ()
         stats = self.good.report.cameras if self.good.report is not None else {}
         reference = {cam_id: camera.rms_px for cam_id, camera in stats.items()}
-        moved = [c for c in moved_cameras(errors, reference, self.config.move_rule) if c not in self._reset]
+        rule = self.config.move_rule
+        moved = [c for c in moved_cameras({c: err for c, (_, err) in errors.items()}, reference, rule)
+                 if c not in self._reset]
         if not moved:
             return ()
         first_new = int(obs.track_ids[rows].min())
@@ -103,30 +112,89 @@ class Tracker:
             log.warning("cameras %s moved, the stereo pair among them or most of the rig: "
                         "calibrating afresh from the new tracks", moved)
             self._cutoffs = {cam_id: first_new for cam_id in obs.camera_ids}
-            self._reset = set(obs.camera_ids)
+            self._reset, self._pending = set(obs.camera_ids), {}
         else:
             log.warning("camera(s) %s moved: re-calibrating them from the new tracks", moved)
+            calibrated = {c.id: c for c in self.good.cameras}
             for cam_id in moved:
-                self._cutoffs[cam_id] = first_new
+                self._pending[cam_id] = (calibrated[cam_id], reference.get(cam_id))
+                # Not `first_new`: the tracks pooled since the last solve may begin before the move.
+                self._cutoffs[cam_id] = first_moved_track(*errors[cam_id], rule.limit_px(reference.get(cam_id)))
             self._reset |= set(moved)
         return tuple(moved)
+
+    def _moved_unplaced(self, obs: Observations, warm: Judged) -> dict[str, str]:
+        """The moved cameras the warm solve that places them again did not place, each with why: all of
+        them where it failed, those its good solution holds off their new tracks' views (a camera solved
+        back at its old pose) where it passed; {} where none moved, or the stereo pair did."""
+        moved = sorted(self._reset & set(obs.camera_ids))
+        if not moved or {obs.stereo.left, obs.stereo.right} & self._reset:
+            return {}
+        if warm.status == Status.FAILED:
+            why = warm.reason.removeprefix("solve failed: ")
+            return {cam_id: f"moved, not placed again yet ({why}); its new tracks will place it" for cam_id in moved}
+        if warm.status != Status.GOOD:
+            return {}
+        rule, stats = self.config.move_rule, warm.calibration.report.cameras
+        before = {c: self._pending[c][1] if c in self._pending else None for c in moved}
+        limits = {c: rule.limit_px(before[c]) for c in moved}
+        off = off_their_pose(warm.calibration, obs, {c: self._cutoffs[c] for c in moved if c in self._cutoffs},
+                             limits, min_observations=rule.min_observations)
+        unplaced = {c: f"moved, not placed again yet (its views since the move lie a median {px:.1f} px off the "
+                    f"pose solved for it, more than {limits[c]:.1f}); its new tracks will place it"
+                    for c, px in off.items()}
+        for c in moved:
+            rms_px = stats[c].rms_px if c in stats else None
+            # Its new views fit a wrong pose worse than its old ones fitted the old: once 0.51 m off at 0.52 px
+            # (0.23 before the move), with a 12 mm sigma.
+            if c not in unplaced and rms_px is not None and before[c] and rms_px > MOVED_RMS_FACTOR * before[c]:
+                unplaced[c] = (f"moved, not placed again yet (its views since the move fit the pose solved at RMS "
+                               f"{rms_px:.2f} px, over {MOVED_RMS_FACTOR:g} times its {before[c]:.2f} px before); "
+                               "its new tracks will place it")
+        return unplaced
+
+    def _lens_held(self, obs: Observations) -> Observations:
+        """`obs` with the lens of each moved camera (K, dist) held as last calibrated, while it is placed again.
+
+        A bump moves a camera, not its lens. Placed on its few new tracks with its focal length free, it could
+        trade distance for focal length (a dolly zoom): placed so, 194 mm off with f 700 -> 523 px.
+        """
+        calibrated = {c: camera for c, (camera, _) in self._pending.items() if c in self._reset}
+        return replace(obs, cameras=tuple(
+            replace(info, K=calibrated[info.id].K, dist=calibrated[info.id].dist, fixed=info.fixed | {"K", "dist"})
+            if info.id in calibrated and info.model == calibrated[info.id].model else info for info in obs.cameras))
 
     def _initial(self) -> Calibration | None:
         """The warm start: the last good calibration (its points only while they mean the same tracks)."""
         if self.good is None or len(self._reset) == len(self.good.cameras):
             return None
+        start = self.good
+        # A moved camera left out of the last good one starts from its lens (its pose is solved afresh).
+        absent = [camera for c, (camera, _) in self._pending.items() if c not in {k.id for k in start.cameras}]
+        if absent:
+            start = replace(start, cameras=(*start.cameras, *absent))
         if self._points_valid:
-            return self.good
-        return replace(self.good, point_ids=np.empty(0, dtype=np.int64), points=np.empty((0, 3)))
+            return start
+        return replace(start, point_ids=np.empty(0, dtype=np.int64), points=np.empty((0, 3)))
 
     def _solve(self, obs: Observations, moved: tuple[str, ...]) -> Outcome:
         initial = self._initial()
         cold = None if self.config.stereo_pose is None else stereo_head(obs, *self.config.stereo_pose)
         check = partial(policy_check, config=self.config)
         if initial is not None:
-            warm = solve_judged(obs, initial, options=self.config.options, check=check, reset=self._reset)
-            if warm.status == Status.GOOD:
+            warm = solve_judged(self._lens_held(obs), initial, options=self.config.options, check=check,
+                                reset=self._reset)
+            unplaced = self._moved_unplaced(obs, warm)
+            if warm.status == Status.GOOD and not unplaced:
                 return Outcome(Status.GOOD, "", warm.calibration, moved, warm=True)
+            if unplaced:
+                # A moved camera that its few new tracks cannot place yet must not send the rest cold (a cold
+                # solve placed it from those few, once 1.4 m off at 5 sigma), nor stand where its new views
+                # say it is not. The others are solved warm and it is named, until its new tracks place it.
+                rest = solve_judged(obs, initial, options=self.config.options, check=check, reset=(),
+                                    leave_out=unplaced)
+                if rest.status == Status.GOOD:
+                    return Outcome(Status.GOOD, "", rest.calibration, moved, warm=True)
         # Not good warm (a camera taken for moved that fails, say): the pool is solved cold, a long one
         # on its newest tracks first.
         judged = solve_newest_first(obs, self.config.options, check, start=cold,
