@@ -69,11 +69,16 @@ def eliminate_points(ne: NormalEquations) -> PointsEliminated:
     return PointsEliminated(V_inv, WVW)
 
 
-def restrict(ne: NormalEquations, columns: np.ndarray) -> NormalEquations:
-    """The normal equations with only the camera parameters at `columns` free."""
+def restrict(ne: NormalEquations, columns: np.ndarray, *, out: np.ndarray | None = None) -> NormalEquations:
+    """The normal equations with only the camera parameters at `columns` free.
+
+    out: (len(columns), 3N) an array no one uses any more, to take their W (a few MB: fresh memory, which the
+    kernel maps and zeroes page by page, where the allocator has none to hand).
+    """
     if len(columns) == len(ne.U) and np.array_equal(columns, np.arange(len(columns))):
         return ne  # all of them, in their order
-    return NormalEquations(ne.U[np.ix_(columns, columns)], ne.W[columns], ne.V, ne.gc[columns], ne.gp, ne.cost)
+    W = np.take(ne.W, columns, axis=0, out=out)
+    return NormalEquations(ne.U[np.ix_(columns, columns)], W, ne.V, ne.gc[columns], ne.gp, ne.cost)
 
 
 def times_block_diag(W: np.ndarray, blocks: np.ndarray) -> np.ndarray:
