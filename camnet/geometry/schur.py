@@ -77,7 +77,7 @@ def restrict(ne: NormalEquations, columns: np.ndarray, *, out: np.ndarray | None
     """
     if len(columns) == len(ne.U) and np.array_equal(columns, np.arange(len(columns))):
         return ne  # all of them, in their order
-    W = np.take(ne.W, columns, axis=0, out=out)
+    W = np.take(ne.W, columns, axis=0, out=out, mode="clip")  # numpy buffers `out` where it checks the indices
     return NormalEquations(ne.U[np.ix_(columns, columns)], W, ne.V, ne.gc[columns], ne.gp, ne.cost)
 
 
