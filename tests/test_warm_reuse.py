@@ -106,3 +106,19 @@ def test_the_scale_sigmas_given_several_columns_at_once_are_those_given_each_alo
     g = scale_gradient(state.X, weights)
     assert cov.variances(None, g, givens) == [cov.variance(None, g, given=c) for c in givens]
     assert together[3] <= together[1] < together[0]  # each cause taken as exact lowers the sigma
+
+
+def test_the_elimination_tells_which_points_are_determined_as_points_determined_does():
+    """The covariance takes the points determined from the elimination's factors, not from factoring V again."""
+    rng = np.random.default_rng(3)
+    A = rng.normal(size=(120, 3, 4))
+    V = A @ A.transpose(0, 2, 1)
+    ray = rng.normal(size=(120, 3))
+    V[40:60] = 1e4 * ray[40:60, :, None] * ray[40:60, None, :] + 1e-6 * np.eye(3)  # ill conditioned, determined
+    V[60:80] = 1e4 * ray[60:80, :, None] * ray[60:80, None, :]  # seen along one ray
+    V[80:90] = 0.0  # not seen
+    ne = schur.NormalEquations(np.zeros((0, 0)), np.zeros((0, 360)), V, np.zeros(0), np.zeros((120, 3)), 0.0)
+    eliminated = schur.eliminate_points(ne)
+    np.testing.assert_array_equal(eliminated.determined, schur.points_determined(V))
+    np.testing.assert_array_equal(eliminated.V_inv, schur.point_inverses(V))
+    assert eliminated.determined[:60].all() and not eliminated.determined[60:90].any()

@@ -47,6 +47,7 @@ class Covariance:
     null: np.ndarray | None = None
     unit: np.ndarray | None = None  # (Pc,) the scaling to unit-diagonal coordinates
     S: np.ndarray | None = None  # (Pc, Pc) the Schur complement itself (unscaled)
+    determined: np.ndarray | None = None  # (N,) schur.points_determined of V, where the elimination had it
 
     @property
     def cameras(self) -> np.ndarray:
@@ -103,7 +104,7 @@ class Covariance:
         """(N, 3, 3) covariance of each point, m^2; infinite for a point not fixed in some direction."""
         N = len(self.V_inv)
         extra = point_quadratic_forms(self.W, self.S_inv, self.V_inv)  # (W V^-1)_n^T S_inv (W V^-1)_n per point
-        determined = points_determined(self.V)
+        determined = points_determined(self.V) if self.determined is None else self.determined
         cov = self.sigma_px**2 * (self.V_inv + extra)
         cov[~determined] = np.inf
         if self.null is not None and self.null.shape[1]:  # points a free camera direction moves
@@ -140,7 +141,7 @@ def covariance(
     S_inv, null, unit = inverse_spd(S)
     if sigma_px is None:
         sigma_px = float(np.sqrt(2.0 * ne.cost / max(residual_dof(problem), 1)))
-    return Covariance(sigma_px, S_inv, ne.W, points.V_inv, ne.V, problem.columns()[0], null, unit, S)
+    return Covariance(sigma_px, S_inv, ne.W, points.V_inv, ne.V, problem.columns()[0], null, unit, S, points.determined)
 
 
 def distance_checks(
