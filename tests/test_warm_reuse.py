@@ -122,3 +122,19 @@ def test_the_elimination_tells_which_points_are_determined_as_points_determined_
     np.testing.assert_array_equal(eliminated.determined, schur.points_determined(V))
     np.testing.assert_array_equal(eliminated.V_inv, schur.point_inverses(V))
     assert eliminated.determined[:60].all() and not eliminated.determined[60:90].any()
+
+
+def test_a_warm_start_takes_each_track_s_previous_point_as_a_loop_over_the_points_would():
+    """Ids repeated among the tracks or the points: the last of each, as one assignment after another leaves them."""
+    from camnet.geometry.initialise import _previous_points
+
+    rng = np.random.default_rng(11)
+    for _ in range(200):
+        track_ids, point_ids = rng.integers(0, 30, rng.integers(0, 40)), rng.integers(0, 30, rng.integers(0, 40))
+        points = rng.normal(size=(len(point_ids), 3))
+        expected = np.full((len(track_ids), 3), np.nan)
+        row = {int(t): j for j, t in enumerate(track_ids)}
+        for pid, p in zip(point_ids, points, strict=True):
+            if int(pid) in row:
+                expected[row[int(pid)]] = p
+        np.testing.assert_array_equal(_previous_points(track_ids, point_ids, points), expected)
