@@ -14,6 +14,7 @@ same start with the same free parameters.
 from __future__ import annotations
 
 import argparse
+import resource
 import sys
 import time
 from dataclasses import replace
@@ -92,13 +93,15 @@ SIZES = ((4, 250), (8, 250), (16, 250), (4, 1000), (8, 1000), (16, 1000))  # (M,
 
 def timing(repeats: int, sizes=SIZES) -> None:
     print("\nrefined solve time (median of repeats), 0.5 px noise, 60% visibility for non-stereo cameras")
-    print("warm: after 5% new tracks; reset: after the last camera moved 5 cm and 3 deg, with it reset")
+    print("warm: after 5% new tracks (wall and CPU seconds, minor page faults); reset: after the last camera moved")
+    print("  5 cm and 3 deg, with it reset")
     print("camnet vs COLMAP: the same tracks, start and free parameters (f; the stereo pair held); camnet's")
     print("  refined solve from the start with its covariance and report, COLMAP's bundle adjustment")
     print(f"  (pycolmap, Ceres: function tolerance {ANCHOR.function_tolerance:g}, gradient tolerance "
           f"{ANCHOR.gradient_tolerance:g}, at most {ANCHOR.max_num_iterations} iterations), no covariance;")
     print("  wall and CPU seconds (both solvers run on this one thread; CPU time is steadier on a shared machine)")
-    print(f"{'M':>4} {'N':>6} {'observations':>13} {'cold s':>8} {'warm +5% s':>11} {'warm CPU s':>11} {'reset s':>8} "
+    print(f"{'M':>4} {'N':>6} {'observations':>13} {'cold s':>8} {'warm +5% s':>11} {'warm CPU s':>11} "
+          f"{'warm faults':>12} {'reset s':>8} "
           f"{'camnet s':>9} {'COLMAP s':>9} {'ratio':>6} {'camnet CPU':>11} {'COLMAP CPU':>11} {'ratio':>6} "
           f"{'COLMAP its':>11}")
     for M, N in sizes:
@@ -112,7 +115,7 @@ def timing(repeats: int, sizes=SIZES) -> None:
         med = {k: float(np.median(v)) for k, v in times.items()}
         print(
             f"{M:>4} {N:>6} {len(obs.uv):>13} {med['cold']:>8.3f} {med['warm']:>11.3f} {med['warm_cpu']:>11.3f} "
-            f"{med['reset']:>8.3f} "
+            f"{med['warm_faults']:>12.0f} {med['reset']:>8.3f} "
             f"{med['camnet']:>9.3f} {med['colmap']:>9.3f} {med['camnet'] / med['colmap']:>6.2f} "
             f"{med['camnet_cpu']:>11.3f} {med['colmap_cpu']:>11.3f} {med['camnet_cpu'] / med['colmap_cpu']:>6.2f} "
             f"{med['its']:>11.0f}",
@@ -152,15 +155,21 @@ def _network_times(rig, obs, N: int, seed: int) -> dict[str, float]:
     t0 = time.perf_counter()
     previous = calibrate(old).calibration
     cold = time.perf_counter() - t0
-    t0, cpu0 = time.perf_counter(), time.thread_time()
+    t0, cpu0, faults0 = time.perf_counter(), time.thread_time(), _minor_faults()
     now = calibrate(obs, initial=previous).calibration
-    warm, warm_cpu = time.perf_counter() - t0, time.thread_time() - cpu0
+    warm, warm_cpu, warm_faults = time.perf_counter() - t0, time.thread_time() - cpu0, _minor_faults() - faults0
     bumped = rig.cameras[-1].id
     moved = move_camera(rig, bumped, shift_m=0.05, angle_deg=3.0, seed=seed)
     after = observe(moved, noise_px=0.5, seed=seed + 1, visibility=0.6).observations
     t0 = time.perf_counter()
     calibrate(after, initial=now, reset_cameras={bumped})
-    return {"cold": cold, "warm": warm, "warm_cpu": warm_cpu, "reset": time.perf_counter() - t0}
+    return {"cold": cold, "warm": warm, "warm_cpu": warm_cpu, "warm_faults": warm_faults,
+            "reset": time.perf_counter() - t0}
+
+
+def _minor_faults() -> int:
+    """This thread's minor page faults so far: fresh memory the kernel maps and zeroes page by page."""
+    return resource.getrusage(resource.RUSAGE_THREAD).ru_minflt
 
 
 def main() -> None:

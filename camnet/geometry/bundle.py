@@ -25,6 +25,7 @@ import scipy.sparse as sp
 
 from camnet.geometry.distances import Distances
 from camnet.geometry.model import Loss
+from camnet.geometry.observation_order import camera_by_camera
 from camnet.geometry.projection import (
     FISHEYE_INTRINSIC_NAMES,
     INTRINSIC_NAMES,
@@ -169,26 +170,45 @@ class Problem:
             patterns.setdefault((cols[m] >= 0).tobytes(), []).append(int(m))
         grouped = [m for cams in patterns.values() for m in cams]
         cameras = grouped + [m for m in range(self.n_cameras) if m not in set(grouped)]
-        by_camera = np.argsort(self.cam, kind="stable")
-        bounds = np.searchsorted(self.cam[by_camera], np.arange(self.n_cameras + 1))
-        order = np.concatenate([by_camera[bounds[m] : bounds[m + 1]] for m in cameras] or [np.zeros(0, int)])
-        runs = np.zeros((self.n_cameras, 2), dtype=int)
-        runs[cameras, 1] = np.cumsum(counts[cameras])
-        runs[cameras, 0] = runs[cameras, 1] - counts[cameras]
+        order, runs, point_sum = self._ordered(tuple(cameras))
         groups = []
         for cams in patterns.values():
             slots = np.flatnonzero(cols[cams[0]] >= 0)
             groups.append((slots[slots < ROT.start], slots[(slots >= ROT.start) & (slots < CEN.start)] - ROT.start,
                            slots[slots >= CEN.start] - CEN.start, np.array(cams)))
-        pt = self.pt[order]
-        n = len(order)
-        unique = n == 0 or np.bincount(self.cam * self.n_points + self.pt).max() == 1
-        by_point = np.argsort(pt, kind="stable")  # CSR by hand: scipy's COO conversion costs milliseconds
-        indptr = np.searchsorted(pt[by_point], np.arange(self.n_points + 1))
-        point_sum = sp.csr_matrix((np.ones(n), by_point, indptr), shape=(self.n_points, n))
         rest = [m for m in cameras[len(grouped) :] if counts[m]]
         blocks = _blocks([g[3] for g in groups] + [np.array(rest, dtype=int)], runs)
-        return Layout(order, self.cam[order], pt, self.uv[order], runs, groups, unique, point_sum, blocks)
+        return Layout(order, self.cam[order], self.pt[order], self.uv[order], runs, groups, self._pairs_unique,
+                      point_sum, blocks)
+
+    def freeing(self, **free: np.ndarray) -> Problem:
+        """The same observations with other parameters free (``intr_free``, ``rot_free``, ``centre_mode``).
+
+        It shares the observations' orderings (`_ordered`) with this problem, so that the normal
+        equations of both (a solve's and its report's) sort the observations once.
+        """
+        if not set(free) <= {"intr_free", "rot_free", "centre_mode"}:
+            raise ValueError(f"freeing: {sorted(free)} are not free-parameter masks")
+        other = replace(self, **free)
+        other.__dict__["_orderings"] = self._orderings
+        other.__dict__["_pairs_unique"] = self._pairs_unique
+        return other
+
+    @cached_property
+    def _orderings(self) -> dict[tuple[int, ...], tuple[np.ndarray, np.ndarray, sp.csr_matrix]]:
+        """`_ordered`'s results by sequence of cameras: they depend on the observations alone."""
+        return {}
+
+    @cached_property
+    def _pairs_unique(self) -> bool:
+        """No camera observes a point twice."""
+        return len(self.cam) == 0 or np.bincount(self.cam * self.n_points + self.pt).max() == 1
+
+    def _ordered(self, cameras: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray, sp.csr_matrix]:
+        """(order, runs, point_sum) of `Layout` for the observations taken camera by camera in `cameras`."""
+        if cameras not in self._orderings:
+            self._orderings[cameras] = camera_by_camera(self.cam, self.pt, self.n_cameras, self.n_points, cameras)
+        return self._orderings[cameras]
 
     @cached_property
     def by_point(self) -> tuple[np.ndarray, np.ndarray]:
@@ -413,12 +433,10 @@ def solve(
     lam, nu = GAUSS_NEWTON_LAMBDA, 2.0
     within = None if report is None else columns_within(problem, report)
 
-    def equations(at: State) -> tuple[NormalEquations, NormalEquations | None]:
-        """The solve's normal equations at `at`, and report's (None without one)."""
-        if within is None:
-            return normal_equations(problem, at, loss=loss, scale_px=scale_px), None
-        wide = normal_equations(report, at, loss=loss, scale_px=scale_px)
-        return restrict(wide, within), wide
+    def own(built: NormalEquations, spare: np.ndarray) -> NormalEquations:
+        """The solve's normal equations from those built at a step taken (report's, where there is one). Their
+        W goes into `spare`, the W of the solve's equations before the step, which nothing uses any more."""
+        return built if within is None else restrict(built, within, out=spare)
 
     ne = normal_equations(problem, state, loss=loss, scale_px=scale_px)
     wide = eliminated = None  # report's normal equations at `state` once a step has built them; their points eliminated
@@ -444,11 +462,11 @@ def solve(
         trial = apply_step(problem, state, *step)
         # The normal equations at the trial carry its cost: nearly every step is taken, and
         # then they are needed, so building them first saves evaluating the cost apart.
-        trial_ne, trial_wide = equations(trial)
-        decrease = ne.cost - trial_ne.cost
+        built = normal_equations(problem if report is None else report, trial, loss=loss, scale_px=scale_px)
+        decrease = ne.cost - built.cost
         if decrease > 0:
             gain = decrease / max(predicted_decrease(ne, step_lam, *step), 1e-300)
-            state, ne, wide = trial, trial_ne, trial_wide
+            state, ne, wide = trial, own(built, ne.W), None if report is None else built
             lam, nu = max(lam * max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3), 1e-12), 2.0
             eliminated = None if wide is None else eliminate_points(wide)
             gauss_newton_step, remaining, small = gauss_newton_test(ne, ftol, eliminated=eliminated, within=within)

@@ -10,9 +10,9 @@ import numpy as np
 
 from camnet.errors import SolveError
 from camnet.geometry import rowwise
-from camnet.geometry.bundle import CEN, ROT, CentreMode, Problem, State, _tangent_basis
+from camnet.geometry.bundle import ROT, CentreMode, Problem, State
+from camnet.geometry.camera_sigmas import camera_sigmas_by_id, undetermined_names
 from camnet.geometry.model import (
-    CameraSigmas,
     CameraStats,
     FreeSet,
     Method,
@@ -22,10 +22,10 @@ from camnet.geometry.model import (
     StartKind,
     Uncertainty,
 )
-from camnet.geometry.projection import INTRINSIC_NAMES, project_points
+from camnet.geometry.projection import project_points
 from camnet.geometry.residual_structure import structure_warnings
 from camnet.geometry.scale_cause import GIVE_STEREO_K, HELD_YAW_SHARE, ScaleCause, pair_rotation_todo, scale_cause
-from camnet.geometry.uncertainty import Covariance, distance_checks, scale_sigma, scale_weights
+from camnet.geometry.uncertainty import Covariance, distance_checks, scale_sigmas, scale_weights
 
 MIN_CAMERA_OBSERVATIONS = 12
 MIN_PARALLAX_DEG = 2.0
@@ -51,53 +51,6 @@ DISTANCE_SIGMAS = 3.0  # a known distance this many sigmas from where the scene 
 # 0.58 px, the scale +252% at a reported 0.58% and -94% at 7.4%. A sound solve of these rigs keeps 99%, and
 # every camera placed right in the live pools of real matches 80-99%; the RMS tells nothing apart.
 WRONG_START_INLIER_SHARE = 0.8
-
-
-def _camera_sigmas(m: int, problem, state, cols: np.ndarray, camera_cov: np.ndarray, undetermined: np.ndarray
-                   ) -> CameraSigmas:
-    """Camera m's sigmas from its columns `cols` (15,) of the covariance `camera_cov` (Pc, Pc) and its
-    `undetermined` columns (Pc,) (`Covariance.cameras`, `.undetermined`, formed once for every camera)."""
-
-    def block(slots: list[int]) -> np.ndarray:
-        c = cols[slots]
-        out = np.zeros((len(slots), len(slots)))
-        ok = c >= 0
-        out[np.ix_(ok, ok)] = camera_cov[np.ix_(c[ok], c[ok])]
-        if undetermined[c[ok]].any():  # a direction nothing fixes: the whole block is unknown
-            out[:] = np.inf
-        return out
-
-    sd = {}
-    for slot, name in enumerate(INTRINSIC_NAMES):
-        if cols[slot] >= 0:
-            variance = camera_cov[cols[slot], cols[slot]]
-            sd[name] = np.inf if undetermined[cols[slot]] else float(np.sqrt(max(variance, 0.0)))
-    rot = block(list(range(ROT.start, ROT.stop)))
-    mode = problem.centre_mode[m]
-    if mode == CentreMode.FREE:
-        cen = block(list(range(CEN.start, CEN.stop)))
-    elif mode == CentreMode.ON_BASELINE:
-        B = problem.baseline_m * _tangent_basis(state.C[m] / np.linalg.norm(state.C[m]))
-        tangent = block([CEN.start, CEN.start + 1])
-        cen = np.full((3, 3), np.inf) if np.isinf(tangent).any() else B @ tangent @ B.T
-    else:
-        cen = np.zeros((3, 3))
-    return CameraSigmas(
-        f_px=sd.get("f", 0.0),
-        cx_px=sd.get("cx", 0.0),
-        cy_px=sd.get("cy", 0.0),
-        k1=sd.get("k1", 0.0),
-        k2=sd.get("k2", 0.0),
-        rotation_deg=tuple(np.degrees(np.sqrt(np.maximum(np.diag(rot), 0.0))).tolist()),
-        centre_m=tuple(np.sqrt(np.maximum(np.diag(cen), 0.0)).tolist()),
-    )
-
-
-def _undetermined_names(s: CameraSigmas) -> list[str]:
-    """The names of a camera's parameters whose sigma is infinite (nothing fixes them)."""
-    names = [n for n in ("f_px", "cx_px", "cy_px", "k1", "k2") if not np.isfinite(getattr(s, n))]
-    names += [n for n in ("rotation_deg", "centre_m") if not np.all(np.isfinite(getattr(s, n)))]
-    return names
 
 
 def _parallax_deg(problem, state) -> np.ndarray:
@@ -199,13 +152,13 @@ def _uncertainty(ids: list[str], problem, state, cov: Covariance, kept, warnings
     size, pixels.
     """
     weights = scale_weights(cov, state.X, kept)
-    scale = scale_sigma(cov, state.X, weights) if kept.any() else None
+    exact_columns = _exact_columns(problem, cov)
+    sigmas = _scale_sigmas(cov, state.X, weights, exact_columns) if kept.any() else None
+    scale = None if sigmas is None else sigmas[0]
     undetermined_scale = scale is not None and not np.isfinite(scale)
     if undetermined_scale:
         scale = None
-    camera_cov, undetermined = cov.cameras, cov.undetermined
-    per_cam = {cam_id: _camera_sigmas(m, problem, state, cov.columns[m], camera_cov, undetermined)
-               for m, cam_id in enumerate(ids)}
+    per_cam = camera_sigmas_by_id(ids, problem, state, cov)
     # Depth goes with the stereo cameras' focal lengths: known only to tens of percent, the
     # solution is beyond where a linear sigma means anything (measured on KITTI with nothing
     # known: focal lengths 67% off at 40% sigma, the depths 46% off at a linear 1.5%).
@@ -217,7 +170,7 @@ def _uncertainty(ids: list[str], problem, state, cov: Covariance, kept, warnings
         scale = None
     warnings += _distance_warnings(ids, problem, state, cov, normal)
     for m, cam_id in enumerate(ids):
-        unknown = _undetermined_names(per_cam[cam_id])
+        unknown = undetermined_names(per_cam[cam_id])
         if unknown:
             warnings.append(
                 f"camera {cam_id}: {', '.join(unknown)} not determined by the observations (sigma null); "
@@ -231,7 +184,7 @@ def _uncertainty(ids: list[str], problem, state, cov: Covariance, kept, warnings
                 "it was given (no lens's is that far off): it trades with the focal length and rotation, which may "
                 "be wrong by several of their sigmas; give its K"
             )
-    scale_if_pp, scale_if_pair, scale_if_both = _scale_if_exact(problem, state, cov, weights, scale)
+    scale_if_pp, scale_if_pair, scale_if_both = _scale_if_exact(exact_columns, sigmas, scale)
     unknown_scale = UNDETERMINED_SCALE
     if nonlinear and pair_loose_pp:
         unknown_scale = (f"the stereo cameras' principal points, freed, moved up to "
@@ -311,29 +264,42 @@ def _scale_message(cause: ScaleCause, yaw_held: bool, warnings: list[str], notes
         warnings.append(f"{said}, {100 * cause.if_pair:.2g}% were the stereo pair's held rotation exact: {todo}")
 
 
-def _scale_if_exact(problem, state, cov: Covariance, weights, scale: float | None):
-    """(sigma were the guessed principal points exact, were the pair's held rotation exact, were both): the
-    scale's sigma with only that cause of its variance removed, each None where that cause is absent.
+def _exact_columns(problem, cov: Covariance) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
+    """The covariance's columns of (the guessed principal points, the pair's held rotation axes, both), each
+    None where absent: those the scale's sigma is taken given (`_scale_if_exact`).
 
     The covariance has more columns than the problem where guessed principal points entered as a
     prior (calibrate._uncertainty), and where the right stereo camera's held rotation axes entered at
-    the pair's tolerance (uncertainty.held_at_tolerance): the Gaussian conditional on them is the
-    sigma were they exactly as held (held_at_tolerance's update leaves that conditional as it was).
+    the pair's tolerance (uncertainty.held_at_tolerance).
     """
-    if scale is None:
-        return None, None, None
     cols = cov.columns
     pp = cols[:, 2:4][(cols[:, 2:4] >= 0) & ~problem.intr_free[:, 2:4]]
     pair = np.zeros(0, dtype=int)
     if problem.n_cameras >= 2:
         turns = cols[1, ROT]
         pair = turns[(turns >= 0) & ~problem.rot_free[1]]
+    both = np.concatenate([pp, pair]) if len(pp) and len(pair) else None
+    return (pp if len(pp) else None), (pair if len(pair) else None), both
 
-    def given(c: np.ndarray) -> float | None:
-        return scale_sigma(cov, state.X, weights, given=c) if len(c) else None
 
-    both = given(np.concatenate([pp, pair])) if len(pp) and len(pair) else None
-    return given(pp), given(pair), both
+def _scale_sigmas(cov: Covariance, points: np.ndarray, weights: np.ndarray, exact_columns) -> list[float]:
+    """The scale's sigma, then its sigma given each of `exact_columns` (`_exact_columns`) present, in their
+    order: all at once, as they share the scale's products with W (`uncertainty.scale_sigmas`)."""
+    return scale_sigmas(cov, points, weights, [(), *[c for c in exact_columns if c is not None]])
+
+
+def _scale_if_exact(columns, sigmas: list[float] | None, scale: float | None):
+    """(sigma were the guessed principal points exact, were the pair's held rotation exact, were both): the
+    scale's sigma with only that cause of its variance removed, each None where that cause is absent.
+
+    columns: `_exact_columns`; sigmas: the scale's sigma, then its sigma given each of the columns
+    present, in their order (`uncertainty.scale_sigmas`). The Gaussian conditional on a column is the
+    sigma were it exactly as held (held_at_tolerance's update leaves that conditional as it was).
+    """
+    if scale is None:
+        return None, None, None
+    given = iter(sigmas[1:])
+    return tuple(None if c is None else next(given) for c in columns)
 
 
 def _distance_warnings(ids: list[str], problem, state, cov: Covariance, normal) -> list[str]:

@@ -96,6 +96,7 @@ from camnet.geometry.uncertainty import (
     residual_dof,
     scale_gradient,
     scale_sigma,
+    scale_sigmas,
     scale_weights,
     with_guessed_pp,
 )
@@ -244,7 +245,7 @@ def _scale_cost(cov: Covariance, block: np.ndarray, ne_free, ne_held, points: np
     tolerance_rad: 1 sigma of a held rotation block (its `assumed` sigma).
     """
     weights = scale_weights(cov, points)
-    free, held = scale_sigma(cov, points, weights), scale_sigma(cov, points, weights, given=block)
+    free, held = scale_sigmas(cov, points, weights, [(), block])
     assumed = scale_sigma(held_at_tolerance(cov, block, tolerance_rad), points, weights) if tolerance_rad else held
     steps = [schur.solve_damped(ne, schur.GAUSS_NEWTON_LAMBDA) for ne in (ne_free, ne_held)]
     if steps[0] is None or steps[1] is None:
@@ -278,7 +279,7 @@ def with_block(problem: Problem, name: str, cameras: np.ndarray) -> Problem:
     else:
         for s in _SLOTS[name]:
             intr_free[cameras, s] = True
-    return replace(problem, intr_free=intr_free, rot_free=rot_free, centre_mode=centre_mode)
+    return problem.freeing(intr_free=intr_free, rot_free=rot_free, centre_mode=centre_mode)
 
 
 def choose_free(
@@ -329,7 +330,7 @@ def choose_free(
     for name in turned if (problem.intr_free != after_stereo).any() else ():
         rot_free = problem.rot_free.copy()
         rot_free[1, list(_TURNS[name])] = False
-        held = replace(problem, rot_free=rot_free)
+        held = problem.freeing(rot_free=rot_free)
         R = state.R.copy()
         R[1] = np.eye(3)  # the ideal pair's, where the rule started; the axes still free find their angles again
         held_state, _ = bundle.solve(held, replace(state, R=R), max_iterations=max_iterations)
@@ -424,13 +425,14 @@ def held_yaw_warning(pair: tuple[str, str], data: Covariance, yaw: int, held: np
     """
     weights = scale_weights(reported, points)
     g = scale_gradient(points, weights)
-    free, exact = data.variance(None, g), data.variance(None, g, given=held)
+    # The scale's regression on the yaw below takes var(scale | yaw): all three share their products with W.
+    free, exact, given_yaw = data.variances(None, g, [(), held, [yaw]])
     yaw_sd = np.sqrt(data.cameras[yaw, yaw])
     sigma = scale_sigma(reported, points, weights)
     if not (exact > 0 and yaw_sd > 0 and sigma > HELD_YAW_SHARE * np.sqrt(exact)):
         return None
     # The scale's regression on the yaw: cov(scale, yaw) / var(yaw), from var(scale) - var(scale | yaw).
-    per_tenth = np.sqrt(max(free - data.variance(None, g, given=[yaw]), 0.0)) / yaw_sd * np.radians(0.1)
+    per_tenth = np.sqrt(max(free - given_yaw, 0.0)) / yaw_sd * np.radians(0.1)
     # What freeing it costs the scale, where the data determine it.
     freed = f"free its rotation (--free stereo_rotation: {100 * np.sqrt(free):.2g}%)" if np.isfinite(free) else ""
     said = f"the scale is uncertain by {100 * sigma:.2g}% (1 sigma) and rests on the stereo pair ({pair[0]}, {pair[1]})"

@@ -268,11 +268,7 @@ def warm_start(
     if not registered[:2].all():
         raise SolveError("initial calibration: it does not hold both stereo cameras")
     xy[:] = centred(obs, order, intr)
-    X = np.full((len(obs.track_ids), 3), np.nan)
-    index = {int(t): j for j, t in enumerate(obs.track_ids)}
-    for pid, p in zip(initial.point_ids, initial.points, strict=True):
-        if int(pid) in index:
-            X[index[int(pid)]] = p
+    X = _previous_points(obs.track_ids, initial.point_ids, initial.points)
     # A moved camera's observations of the old points are dropped (they saw its old pose): it is placed on the
     # points of its new tracks, which the cameras still in place triangulate here first.
     triangulate_missing(order, xy, rows, f, R, C, X, registered)
@@ -285,6 +281,25 @@ def warm_start(
     reasons = register_over_graph(obs, order, xy, rows, intr, f, R, C, X, registered, hold_pair=True)
     left_out = {obs.cameras[order[m]].id: reasons[m] for m in np.flatnonzero(~registered)}
     return Start(f, R, C, X, registered, np.full_like(X, np.nan), f[1] / f[0], left_out=left_out)
+
+
+def _previous_points(track_ids: np.ndarray, point_ids: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(T, 3) each track's point in a previous calibration (ids `point_ids`, metres), NaN where it has none.
+
+    As a loop over the points would place them (1 us each): of tracks with one id, the last; of points with
+    one id, the last."""
+    X = np.full((len(track_ids), 3), np.nan)
+    if not len(track_ids) or not len(point_ids):
+        return X
+    ids = np.asarray(track_ids, dtype=np.int64)
+    pids = np.asarray(point_ids, dtype=np.int64)
+    by_id = np.argsort(ids, kind="stable")
+    at = np.searchsorted(ids[by_id], pids, side="right") - 1  # the last track of the id
+    found = (at >= 0) & (ids[by_id[np.maximum(at, 0)]] == pids)
+    last = len(pids) - 1 - np.unique(pids[::-1], return_index=True)[1]  # the last point of each id
+    last = last[found[last]]
+    X[by_id[at[last]]] = np.asarray(points)[last]
+    return X
 
 
 def register_pnp(

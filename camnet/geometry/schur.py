@@ -49,6 +49,7 @@ class PointsEliminated:
 
     V_inv: np.ndarray  # (N, 3, 3) `point_inverses` of V
     WVW: np.ndarray  # (Pc, Pc) W V^-1 W^T (V^-1 the block diagonal of V_inv)
+    determined: np.ndarray  # (N,) `points_determined` of V, from the same factors
 
 
 def eliminate_points(ne: NormalEquations) -> PointsEliminated:
@@ -60,20 +61,25 @@ def eliminate_points(ne: NormalEquations) -> PointsEliminated:
     symmetric rank-k update of W L^-T, V = L L^T, it is 0.6 ms faster there,
     but the sigmas of a free principal point's flat valley move by 1e-9.)
     """
-    V_inv = point_inverses(ne.V)
+    V_inv, determined = _inverses_and_determined(ne.V)
     P = len(ne.U)
     WVW = np.zeros((P, P))
     for a, b in point_blocks(len(V_inv), P) if P else ():
         W_b = ne.W[:, 3 * a : 3 * b]
         WVW += times_block_diag(W_b, V_inv[a:b]) @ W_b.T
-    return PointsEliminated(V_inv, WVW)
+    return PointsEliminated(V_inv, WVW, determined)
 
 
-def restrict(ne: NormalEquations, columns: np.ndarray) -> NormalEquations:
-    """The normal equations with only the camera parameters at `columns` free."""
+def restrict(ne: NormalEquations, columns: np.ndarray, *, out: np.ndarray | None = None) -> NormalEquations:
+    """The normal equations with only the camera parameters at `columns` free.
+
+    out: (len(columns), 3N) an array no one uses any more, to take their W (a few MB: fresh memory, which the
+    kernel maps and zeroes page by page, where the allocator has none to hand).
+    """
     if len(columns) == len(ne.U) and np.array_equal(columns, np.arange(len(columns))):
         return ne  # all of them, in their order
-    return NormalEquations(ne.U[np.ix_(columns, columns)], ne.W[columns], ne.V, ne.gc[columns], ne.gp, ne.cost)
+    W = np.take(ne.W, columns, axis=0, out=out, mode="clip")  # numpy buffers `out` where it checks the indices
+    return NormalEquations(ne.U[np.ix_(columns, columns)], W, ne.V, ne.gc[columns], ne.gp, ne.cost)
 
 
 def times_block_diag(W: np.ndarray, blocks: np.ndarray) -> np.ndarray:
@@ -252,6 +258,17 @@ def point_inverses(V: np.ndarray) -> np.ndarray:
     if not well.all():
         V_inv[~well] = np.linalg.pinv(V[~well], rcond=POINT_RCOND, hermitian=True)
     return V_inv
+
+
+def _inverses_and_determined(V: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(`point_inverses`, `points_determined`) of V (N, 3, 3), from one set of closed-form inverses."""
+    V_inv, well = _closed_form_inverses(V)
+    determined = well.copy()
+    if not well.all():
+        V_inv[~well] = np.linalg.pinv(V[~well], rcond=POINT_RCOND, hermitian=True)
+        eig = np.linalg.eigvalsh(V[~well])
+        determined[~well] = eig[:, 0] > POINT_RCOND * np.maximum(eig[:, -1], 1e-300)
+    return V_inv, determined
 
 
 def points_determined(V: np.ndarray) -> np.ndarray:

@@ -47,6 +47,7 @@ class Covariance:
     null: np.ndarray | None = None
     unit: np.ndarray | None = None  # (Pc,) the scaling to unit-diagonal coordinates
     S: np.ndarray | None = None  # (Pc, Pc) the Schur complement itself (unscaled)
+    determined: np.ndarray | None = None  # (N,) schur.points_determined of V, where the elimination had it
 
     @property
     def cameras(self) -> np.ndarray:
@@ -73,6 +74,11 @@ class Covariance:
         given: camera columns whose values are taken as exactly known (the
         Gaussian conditional: what a prior on them no longer matters to).
         """
+        return self.variances(g_cam, g_pts, [given])[0]
+
+    def variances(self, g_cam: np.ndarray | None, g_pts: np.ndarray | None, givens: list) -> list[float]:
+        """`variance` of one function given each of `givens` (lists of camera columns, as `given`) in turn:
+        the products with W and the inverse, which cost the most, once for them all."""
         Pc, N = self.S_inv.shape[0], len(self.V_inv)
         gc = np.zeros(Pc) if g_cam is None else g_cam
         gp = np.zeros((N, 3)) if g_pts is None else g_pts
@@ -81,20 +87,24 @@ class Covariance:
         y = np.einsum("nij,nj->ni", self.V_inv, gp)
         reduced = gc - self.W @ y.reshape(-1)
         if not self._determines(reduced):
-            return np.inf
+            return [np.inf] * len(givens)
         xc = self.S_inv @ reduced
         var = np.sum(gp * y) + reduced @ xc
-        if len(given):  # var(g | c) = var(g) - cov(g, c) var(c)^-1 cov(c, g); cov(c, g) = x_c
-            c = np.asarray(given)
-            var -= xc[c] @ np.linalg.solve(self.S_inv[np.ix_(c, c)], xc[c])
-        return float(self.sigma_px**2 * var)
+        out = []
+        for given in givens:
+            conditional = var
+            if len(given):  # var(g | c) = var(g) - cov(g, c) var(c)^-1 cov(c, g); cov(c, g) = x_c
+                c = np.asarray(given)
+                conditional = var - xc[c] @ np.linalg.solve(self.S_inv[np.ix_(c, c)], xc[c])
+            out.append(float(self.sigma_px**2 * conditional))
+        return out
 
     @cached_property  # the points' dense products cost more than the rest of the covariance
     def point_covariances_m2(self) -> np.ndarray:
         """(N, 3, 3) covariance of each point, m^2; infinite for a point not fixed in some direction."""
         N = len(self.V_inv)
         extra = point_quadratic_forms(self.W, self.S_inv, self.V_inv)  # (W V^-1)_n^T S_inv (W V^-1)_n per point
-        determined = points_determined(self.V)
+        determined = points_determined(self.V) if self.determined is None else self.determined
         cov = self.sigma_px**2 * (self.V_inv + extra)
         cov[~determined] = np.inf
         if self.null is not None and self.null.shape[1]:  # points a free camera direction moves
@@ -131,7 +141,7 @@ def covariance(
     S_inv, null, unit = inverse_spd(S)
     if sigma_px is None:
         sigma_px = float(np.sqrt(2.0 * ne.cost / max(residual_dof(problem), 1)))
-    return Covariance(sigma_px, S_inv, ne.W, points.V_inv, ne.V, problem.columns()[0], null, unit, S)
+    return Covariance(sigma_px, S_inv, ne.W, points.V_inv, ne.V, problem.columns()[0], null, unit, S, points.determined)
 
 
 def distance_checks(
@@ -149,7 +159,7 @@ def distance_checks(
     (the solve's `SolveInfo.normal`), when the caller has them.
     """
     # cov's column layout: a held stereo rotation it prices (`with_held_turns`) is one of its columns
-    wider = replace(problem, intr_free=cov.columns[:, :N_INTRINSICS] >= 0, rot_free=cov.columns[:, ROT] >= 0)
+    wider = problem.freeing(intr_free=cov.columns[:, :N_INTRINSICS] >= 0, rot_free=cov.columns[:, ROT] >= 0)
     ne = normal if normal is not None and normal.U.shape == cov.S.shape else normal_equations(wider, state)
     r, J = distance_rows(wider, state)
     gradient = ne.gc - times_block_diag(ne.W, cov.V_inv) @ ne.gp.reshape(-1)  # points eliminated
@@ -202,7 +212,7 @@ def with_guessed_pp(problem: Problem, guessed_pp: np.ndarray) -> Problem | None:
         return None
     intr_free = problem.intr_free.copy()
     intr_free[consider, 2:4] = True
-    return replace(problem, intr_free=intr_free)
+    return problem.freeing(intr_free=intr_free)
 
 
 def covariance_with_pp_prior(
@@ -242,7 +252,7 @@ def with_held_turns(problem: Problem) -> Problem | None:
         return None
     rot_free = problem.rot_free.copy()
     rot_free[1] = True
-    return replace(problem, rot_free=rot_free)
+    return problem.freeing(rot_free=rot_free)
 
 
 def held_turn_columns(problem: Problem, wider: Problem) -> np.ndarray:
@@ -374,8 +384,13 @@ def scale_sigma(cov: Covariance, points: np.ndarray, weights: np.ndarray | None 
     `camnet.geometry.metrics.scale_error` measures with the same weights. given: as
     in `Covariance.variance`.
     """
+    return scale_sigmas(cov, points, weights, [given])[0]
+
+
+def scale_sigmas(cov: Covariance, points: np.ndarray, weights: np.ndarray | None, givens: list) -> list[float]:
+    """`scale_sigma` given each of `givens` in turn (`Covariance.variances`)."""
     w = scale_weights(cov, points) if weights is None else weights
-    return float(np.sqrt(max(cov.variance(None, scale_gradient(points, w), given=given), 0.0)))
+    return [float(np.sqrt(max(v, 0.0))) for v in cov.variances(None, scale_gradient(points, w), givens)]
 
 
 def shape_rms_bound_m(cov: Covariance, points: np.ndarray) -> float:
