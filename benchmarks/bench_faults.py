@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import random
 import signal
 import socket
 import sys
@@ -45,6 +46,24 @@ BOX_CENTRE = [0.0625, 0.0, 0.65]
 
 
 def free_port() -> int:
+    """A TCP port of 127.0.0.1 free a moment ago, below the kernel's ephemeral range: one from
+    bind(("127.0.0.1", 0)) can be taken, before the router binds it seconds later, by any outgoing
+    connection on the machine (every Zenoh link makes one)."""
+    try:
+        low = int(Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()[0])
+    except (OSError, ValueError, IndexError):
+        low = 32768  # Linux's default
+    choice = random.Random(os.getpid() ^ time.time_ns())
+    for _ in range(1000 if low > 12_000 else 0):
+        port = choice.randint(10_000, low - 1)
+        if port == 7447:  # the rendezvous of camnet's nodes
+            continue
+        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+            try:
+                s.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+        return port
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
@@ -237,8 +256,9 @@ def kill_and_restart(name: str, outage_s: float = 0.0) -> Callable[[Network], st
     return fault
 
 
-# `camnet status` listens for a few seconds; on a loaded machine the matcher, busy matching, may not
-# report in that window, so the camera is kept silent while status is asked again, this many times.
+# `camnet status` waits for every live node's statistics, a while beyond its --wait-s; should the
+# matcher's still not reach it on a loaded machine, status is asked again while the camera stays
+# silent, this many times.
 STATUS_TRIES = 4
 
 

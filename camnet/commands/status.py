@@ -1,5 +1,9 @@
 """`camnet status --rig NAME`: the live nodes of a rig, with their frame rates and drops.
 
+Statistics are listened for `--wait-s`; a live node not heard from by then is
+waited for up to LATE_STATS_S longer (on a loaded machine a node's statistics,
+one a second, can arrive seconds late, and a node busy with a long solve sends
+them late), so that "(no statistics yet)" means a node that says nothing.
 Below the table: the cameras as the matcher receives them (a camera silent
 for longer than a frame set waits is MISSING, with the seconds since its
 last frame), and what looks wrong. Statistics are what a node says of
@@ -20,8 +24,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     parser.add_argument("--rig", required=True, metavar="NAME", help="rig name (as in its file)")
     parser.add_argument("--wait-s", type=float, default=2.0, metavar="S",
-                        help="seconds to listen for node statistics (default: 2)")
+                        help="seconds to listen for node statistics (default: 2); a live node not heard "
+                             f"from by then is waited for up to {LATE_STATS_S:.0f} s more")
     add_bus_arguments(parser)
+
+
+# Measured on a 2-core machine at load 20-60: a node's statistics, published every 1.0-1.1 s, reached
+# a subscriber up to 8 s apart, and the calibrator's up to 3 s apart while it solved.
+LATE_STATS_S = 10.0
 
 
 def format_table(nodes: list[tuple[str, str]], stats: dict) -> str:
@@ -91,7 +101,7 @@ class StatsReader:
 
         from camnet.bus.node import Tally
 
-        self._lock = threading.Lock()
+        self._arrived = threading.Condition()
         self._stats: dict = {}
         self.malformed = Tally(log)
 
@@ -104,13 +114,19 @@ class StatsReader:
         except InputError as exc:
             self.malformed.count("stats", "ignoring statistics on %s: %s", sample.key_expr, exc)
             return
-        with self._lock:
+        with self._arrived:
             self._stats[(s.kind, s.node_id)] = s
+            self._arrived.notify_all()
 
     @property
     def stats(self) -> dict:
-        with self._lock:
+        with self._arrived:
             return dict(self._stats)
+
+    def wait_for(self, nodes: set[tuple[str, str]], timeout_s: float) -> bool:
+        """Whether every one of `nodes` (kind, id) has reported, waiting up to `timeout_s` for them."""
+        with self._arrived:
+            return self._arrived.wait_for(lambda: nodes <= self._stats.keys(), timeout_s)
 
 
 def live_nodes(replies) -> list[tuple[str, str, str]]:
@@ -170,6 +186,7 @@ def run(args: argparse.Namespace) -> int:
         own, every = [session.liveliness().get(selector, timeout=2.0)
                       for selector in (keys.all_nodes(args.rig), keys.every_rigs_nodes())]
         nodes = set(live_nodes(own)) | set(live_nodes(every))
+        reader.wait_for({(kind, node_id) for node_rig, kind, node_id in nodes if node_rig == args.rig}, LATE_STATS_S)
         subscriber.undeclare()
         # Printed before the session closes: what was seen is shown even if closing it is slow.
         return report(args.rig, sorted(nodes), reader.stats)
