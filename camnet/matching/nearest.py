@@ -1,0 +1,128 @@
+"""Nearest neighbours of descriptors by one matrix product: Lowe's ratio test and the cross check.
+
+Squared L2 distances (SIFT) or Hamming distances (ORB's bits as 0/1) are
+|a - b|^2 = |a|^2 + |b|^2 - 2 a.b. Each side's descriptors extended by two
+columns, [a, 1, |a|^2] against [-2 b, |b|^2, 1], give every distance of a
+block in one product (`Operands`): no passes over the matrix to scale it and
+add the norms, a quarter of a pair's matching time. SIFT's descriptors are
+whole numbers 0-255 (OpenCV rounds them) of norm about 512, so every term
+and partial sum is an integer far below 2**24, exact in float32 whatever
+the order BLAS sums in: the distances are those of the formula term by
+term, and equal distances compare equal.
+
+With every row of a in one block (the usual case: a few thousand
+keypoints), the cross check takes each chosen column's nearest row from the
+same matrix, instead of a second product.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+# Rows of the descriptor-distance matrix computed at once: bounds memory at
+# ROW_BLOCK x n_b float32 whatever the feature count.
+ROW_BLOCK = 2048
+
+
+@dataclass(frozen=True)
+class Operands:
+    """One image's descriptors as operands of the distance product, as rows or as columns of it.
+
+    ``rows[i] @ columns[j]`` is the distance between descriptors i and j (squared L2, or Hamming of bits).
+    """
+
+    rows: np.ndarray  # (n, d + 2) float32: [v, 1, |v|^2]
+    columns: np.ndarray  # (n, d + 2) float32: [-2 v, |v|^2, 1]
+
+    def __len__(self) -> int:
+        return len(self.rows)
+
+    def __getitem__(self, index) -> Operands:
+        """The operands of a subset of the descriptors (a slice is a view: no copy)."""
+        return Operands(self.rows[index], self.columns[index])
+
+
+def operands(descriptors: np.ndarray, *, binary: bool) -> Operands:
+    """`descriptors` (n, d) as distance operands: float vectors (SIFT), or unpacked bits (`binary`, ORB's uint8)."""
+    vectors = (np.unpackbits(descriptors, axis=1) if binary else descriptors).astype(np.float32, copy=False)
+    n, d = vectors.shape
+    norms = np.einsum("ij,ij->i", vectors, vectors)
+    rows, columns = np.empty((n, d + 2), np.float32), np.empty((n, d + 2), np.float32)
+    rows[:, :d], rows[:, d], rows[:, d + 1] = vectors, 1.0, norms
+    np.multiply(vectors, np.float32(-2.0), out=columns[:, :d])
+    columns[:, d], columns[:, d + 1] = norms, 1.0
+    return Operands(rows, columns)
+
+
+def distances(a: Operands, b: Operands) -> np.ndarray:
+    """(len(a), len(b)) float32 distances, clipped at 0 (rounding, where descriptors are not whole numbers)."""
+    d = a.rows @ b.columns.T
+    np.maximum(d, 0.0, out=d)
+    return d
+
+
+def mutual_ratio(a: Operands, b: Operands, *, ratio: float, cross_check: bool,
+                 allowed: Callable[[np.ndarray], np.ndarray] | None = None,
+                 outside_margin: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
+    """Indices (m,) into a and b: rows whose nearest column passes the ratio test `ratio` (on the
+    distances as they are: squared for SIFT) and, with `cross_check`, has that row as its first nearest.
+
+    `allowed(rows)` may return a boolean (len(rows), len(b)) mask: the test and the cross check then
+    run among allowed candidates only, and the best allowed one must be within `outside_margin` times
+    the best disallowed one (see `camnet.matching.features.mutual_ratio_matches`).
+    """
+    n = len(a)
+    best = np.full(n, -1, dtype=np.int64)
+    keep = np.zeros(n, dtype=bool)
+    ratio_f, margin_f = np.float32(ratio), np.float32(outside_margin)
+    d = None
+    for start in range(0, n, ROW_BLOCK):
+        rows = np.arange(start, min(start + ROW_BLOCK, n))
+        local = np.arange(len(rows))
+        d = distances(a[start:start + len(rows)], b)
+        best_outside = np.full(len(rows), np.inf, dtype=d.dtype)
+        if allowed is not None:
+            outside = ~allowed(rows)
+            best_outside = np.where(outside, d, np.inf).min(axis=1)
+            d[outside] = np.inf
+        # The two smallest of each row: the smallest, then the smallest with it set aside (and put back).
+        first = np.argmin(d, axis=1)
+        d1 = d[local, first]
+        d[local, first] = np.inf
+        d2 = d.min(axis=1)
+        d[local, first] = d1
+        best[rows] = first
+        # Ratio on distances: an infinite second best (no other candidate) passes.
+        keep[rows] = np.isfinite(d1) & (d1 < ratio_f * d2) & (d1 <= margin_f * best_outside)
+    ia = np.flatnonzero(keep)
+    ib = best[ia]
+    if cross_check and len(ia):
+        columns, column = np.unique(ib, return_inverse=True)
+        # One block holds every row: a chosen column's first nearest row is read off it (arg-min takes the
+        # first of equal distances), as a second product of those columns against a would give.
+        nearest = d.T[columns].argmin(axis=1) if n <= ROW_BLOCK else _nearest_rows(a, b, columns, allowed)
+        mutual = nearest[column] == ia
+        ia, ib = ia[mutual], ib[mutual]
+    return ia.astype(np.int64), ib.astype(np.int64)
+
+
+def _nearest_rows(a: Operands, b: Operands, columns: np.ndarray, allowed) -> np.ndarray:
+    """For each of `columns` (indices into b), the first nearest row of a among the allowed ones (-1: none).
+
+    For more rows than one block holds: a product of those columns against a is cheaper than an arg-min
+    down the columns of every block (a strided pass). Distances are exact (module docstring), so they
+    equal the row pass's.
+    """
+    out = np.full(len(columns), -1, dtype=np.int64)
+    mask = None if allowed is None or len(columns) == 0 else allowed(np.arange(len(a)))[:, columns].T
+    for start in range(0, len(columns), ROW_BLOCK):
+        block = slice(start, min(start + ROW_BLOCK, len(columns)))
+        d = distances(b[columns[block]], a)
+        if mask is not None:
+            d[~mask[block]] = np.inf
+        nearest = np.argmin(d, axis=1)
+        out[block] = np.where(np.isfinite(d[np.arange(len(nearest)), nearest]), nearest, -1)
+    return out
