@@ -24,9 +24,8 @@ def test_one_product_gives_the_exact_squared_distances_and_hamming_distances():
     hamming = np.unpackbits(bits_a[:, None, :] ^ bits_b[None, :, :], axis=2).sum(axis=2)
     got = nearest.distances(nearest.operands(bits_a, binary=True), nearest.operands(bits_b, binary=True))
     assert np.array_equal(got.astype(np.int64), hamming)
-    # A subset's operands are a view of the whole's rows: the new keypoints of a camera cost no copy.
     ops = nearest.operands(a, binary=False)
-    assert np.shares_memory(ops[30:].rows, ops.rows) and np.array_equal(ops[30:].rows, ops.rows[30:])
+    assert np.array_equal(ops[30:].rows, ops.rows[30:]) and np.array_equal(ops[30:].columns, ops.columns[30:])
 
 
 def _reference(da: np.ndarray, db: np.ndarray, *, ratio: float, allowed=None, margin: float = 1.1):
