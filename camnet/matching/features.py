@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 
 from camnet.geometry.model import Stereo
+from camnet.matching import nearest
 from camnet.matching.images import (  # noqa: F401 (re-exported: the matcher's image functions)
     DARK_MEDIAN,
     LOW_CONTRAST_SPAN,
@@ -30,11 +31,6 @@ from camnet.matching.images import (  # noqa: F401 (re-exported: the matcher's i
 )
 
 log = logging.getLogger(__name__)
-
-# Rows of the descriptor-distance matrix computed at once: bounds memory at
-# ROW_BLOCK x n_b float32 whatever the feature count.
-ROW_BLOCK = 2048
-
 
 class Detector(enum.StrEnum):
     SIFT = "sift"  # default: accurate, scale and rotation invariant
@@ -195,29 +191,6 @@ def detect(image: np.ndarray, config: MatcherConfig = MatcherConfig()) -> Featur
     return Features(uv, descriptors, config.detector, shortage)
 
 
-def _as_distance_operands(desc: np.ndarray, detector: Detector) -> tuple[np.ndarray, np.ndarray]:
-    """(vectors, squared norms) such that distance follows from one matrix product."""
-    if detector is Detector.ORB:
-        bits = np.unpackbits(desc, axis=1).astype(np.float32)
-        return bits, bits.sum(axis=1)
-    vec = desc.astype(np.float32)
-    return vec, np.einsum("ij,ij->i", vec, vec)
-
-
-def _distance_block(va: np.ndarray, na: np.ndarray, vb: np.ndarray, nb: np.ndarray) -> np.ndarray:
-    """|a - b|^2 = |a|^2 + |b|^2 - 2 a.b: squared L2 distances, or Hamming distances of bit vectors.
-
-    SIFT's stay squared: the ratio test compares them against squared
-    thresholds, which spares a square root over every block.
-    """
-    d = va @ vb.T
-    d *= -2.0
-    d += na[:, None]
-    d += nb[None, :]
-    np.maximum(d, 0.0, out=d)
-    return d
-
-
 def stereo_candidate_mask(
     uv_left: np.ndarray, uv_right: np.ndarray, *, row_tolerance_px: float, min_disparity_px: float
 ) -> np.ndarray:
@@ -239,6 +212,7 @@ def mutual_ratio_matches(
     cross_check: bool,
     allowed=None,
     outside_margin: float = 1.1,
+    operands: tuple[nearest.Operands, nearest.Operands] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Nearest-neighbour matches a -> b passing Lowe's ratio test (and the cross check).
 
@@ -249,66 +223,23 @@ def mutual_ratio_matches(
     match inside its own band, so the best allowed candidate must also be
     within `outside_margin` times the best disallowed one: when the true
     partner lies outside the band (the prior is wrong for this point), the
-    in-band best is a random feature and is dropped.
+    in-band best is a random feature and is dropped. `operands`: `fa`'s and
+    `fb`'s descriptors as `camnet.matching.nearest.operands` made them, where
+    the caller keeps them for several pairs.
     Returns index arrays (m,) into `fa` and `fb`.
     """
-    na_pts, nb_pts = len(fa), len(fb)
     empty = np.empty(0, dtype=np.int64)
-    if na_pts < 2 or nb_pts < 2:
+    if len(fa) < 2 or len(fb) < 2:
         return empty, empty
-    if allowed is None and fa.detector is Detector.ORB:
+    if allowed is None and fa.detector is Detector.ORB and operands is None:
         return _bf_mutual_ratio(fa, fb, ratio=ratio, cross_check=cross_check)
-    va, sa = _as_distance_operands(fa.descriptors, fa.detector)
-    vb, sb = _as_distance_operands(fb.descriptors, fb.detector)
+    binary = fa.detector is Detector.ORB
+    a, b = operands or (nearest.operands(fa.descriptors, binary=binary),
+                        nearest.operands(fb.descriptors, binary=binary))
     # Distances of SIFT are squared: so are the factors they are compared with.
-    power = 1 if fa.detector is Detector.ORB else 2
-    ratio_p, margin_p = np.float32(ratio**power), np.float32(outside_margin**power)
-    best = np.full(na_pts, -1, dtype=np.int64)
-    keep = np.zeros(na_pts, dtype=bool)
-    for start in range(0, na_pts, ROW_BLOCK):
-        rows = np.arange(start, min(start + ROW_BLOCK, na_pts))
-        local = np.arange(len(rows))
-        d = _distance_block(va[rows], sa[rows], vb, sb)
-        best_outside = np.full(len(rows), np.inf, dtype=d.dtype)
-        if allowed is not None:
-            outside = ~allowed(rows)
-            best_outside = np.where(outside, d, np.inf).min(axis=1)
-            d[outside] = np.inf
-        # The two smallest of each row: the smallest, then the smallest with it set aside.
-        first = np.argmin(d, axis=1)
-        d1 = d[local, first]
-        d[local, first] = np.inf
-        d2 = d.min(axis=1)
-        best[rows] = first
-        # Ratio on distances: an infinite second best (no other candidate) passes.
-        keep[rows] = np.isfinite(d1) & (d1 < ratio_p * d2) & (d1 <= margin_p * best_outside)
-    ia = np.flatnonzero(keep)
-    ib = best[ia]
-    if cross_check:
-        columns, column = np.unique(ib, return_inverse=True)
-        mutual = _nearest_rows(va, sa, vb, sb, columns, allowed)[column] == ia
-        ia, ib = ia[mutual], ib[mutual]
-    return ia.astype(np.int64), ib.astype(np.int64)
-
-
-def _nearest_rows(va: np.ndarray, sa: np.ndarray, vb: np.ndarray, sb: np.ndarray, columns: np.ndarray,
-                  allowed) -> np.ndarray:
-    """For each of `columns` (indices into b), the first nearest row of a among the allowed ones (-1: none).
-
-    The cross check needs this only for the columns some row chose: a product of those columns against a
-    is cheaper than an arg-min down the columns of the whole distance matrix (a strided pass). Descriptors
-    are whole numbers, so every distance is an integer held exactly in float32 and equals the row pass's.
-    """
-    out = np.full(len(columns), -1, dtype=np.int64)
-    mask = None if allowed is None or len(columns) == 0 else allowed(np.arange(len(va)))[:, columns].T
-    for start in range(0, len(columns), ROW_BLOCK):
-        block = slice(start, min(start + ROW_BLOCK, len(columns)))
-        d = _distance_block(vb[columns[block]], sb[columns[block]], va, sa)
-        if mask is not None:
-            d[~mask[block]] = np.inf
-        nearest = np.argmin(d, axis=1)
-        out[block] = np.where(np.isfinite(d[np.arange(len(nearest)), nearest]), nearest, -1)
-    return out
+    power = 1 if binary else 2
+    return nearest.mutual_ratio(a, b, ratio=ratio**power, cross_check=cross_check, allowed=allowed,
+                                outside_margin=outside_margin**power)
 
 
 def _bf_mutual_ratio(fa: Features, fb: Features, *, ratio: float, cross_check: bool) -> tuple[np.ndarray, np.ndarray]:
@@ -355,9 +286,12 @@ def ransac_fundamental(
 
 
 def candidate_matches(fa: Features, fb: Features, config: MatcherConfig = MatcherConfig(), *,
-                      stereo_prior: bool = False) -> tuple[np.ndarray, np.ndarray]:
+                      stereo_prior: bool = False,
+                      operands: tuple[nearest.Operands, nearest.Operands] | None = None,
+                      ) -> tuple[np.ndarray, np.ndarray]:
     """Indices (m,) into `fa` and `fb` passing the ratio test, the cross check and the optional stereo
-    prior (a = left, b = right): the candidates RANSAC then verifies."""
+    prior (a = left, b = right): the candidates RANSAC then verifies. `operands`: as for
+    `mutual_ratio_matches`."""
     allowed = None
     if stereo_prior:
 
@@ -376,6 +310,7 @@ def candidate_matches(fa: Features, fb: Features, config: MatcherConfig = Matche
         cross_check=config.cross_check,
         allowed=allowed,
         outside_margin=config.prior_outside_margin,
+        operands=operands,
     )
 
 

@@ -51,6 +51,9 @@ from camnet.matching.tracks import FrameTracks
 
 log = logging.getLogger(__name__)
 
+# Cameras' views lie this far apart in the third coordinate of `_close_pairs`'s tree: beyond any radius.
+CAMERA_PLANE_PX = 1e6
+
 
 @dataclass(frozen=True)
 class PoolConfig:
@@ -101,27 +104,47 @@ def _agree(uv_a: np.ndarray, uv_b: np.ndarray, radius_px: float) -> tuple[int, b
     return int(both.sum()), bool(np.all(d <= radius_px))
 
 
-def _close_pairs(uv_a: np.ndarray, uv_b: np.ndarray | None, radius_px: float) -> set[tuple[int, int]]:
-    """Pairs (i, j) of tracks within `radius_px` in at least one camera.
+def _same_point(uv_a: np.ndarray, uv_b: np.ndarray, radius_px: float) -> np.ndarray:
+    """(P,) pairs of tracks `uv_a[k]`, `uv_b[k]` (P, C, 2) seen by 2+ cameras in common, within `radius_px` in
+    all of them (`_agree` of every pair at once)."""
+    both = np.isfinite(uv_a[:, :, 0]) & np.isfinite(uv_b[:, :, 0])
+    with np.errstate(invalid="ignore"):
+        close = np.hypot(*np.moveaxis(uv_a - uv_b, 2, 0)) <= radius_px
+    return (both.sum(axis=1) >= 2) & np.all(close | ~both, axis=1)
 
-    With `uv_b` None, pairs i < j within `uv_a` itself. Arrays are (T, C, 2).
+
+def _views(uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(track of each view, points (u, v, camera) of the views) of `uv` (T, C, 2), NaN = unseen: in one tree
+    the cameras lie on planes of their own, so a neighbour within a pixel is in the same camera."""
+    track, camera = np.nonzero(np.isfinite(uv[:, :, 0]))
+    return track, np.column_stack([uv[track, camera], CAMERA_PLANE_PX * camera])
+
+
+def _close_pairs(uv_a: np.ndarray, uv_b: np.ndarray | None, radius_px: float) -> np.ndarray:
+    """(k, 2) pairs (i, j) of tracks within `radius_px` in at least one camera, unique, in increasing order.
+
+    With `uv_b` None, pairs i < j within `uv_a` itself. Arrays are (T, C, 2). One tree of every camera's
+    views, not a tree per camera whose pairs Python gathers: that cost grew with the cameras.
     """
-    pairs: set[tuple[int, int]] = set()
-    for c in range(uv_a.shape[1]):
-        ia = np.flatnonzero(np.isfinite(uv_a[:, c, 0]))
-        if ia.size == 0:
-            continue
-        tree_a = cKDTree(uv_a[ia, c])
-        if uv_b is None:
-            for i, j in tree_a.query_pairs(radius_px, output_type="ndarray"):
-                pairs.add((int(ia[i]), int(ia[j])))
-            continue
-        ib = np.flatnonzero(np.isfinite(uv_b[:, c, 0]))
-        if ib.size == 0:
-            continue
-        for i, near in enumerate(tree_a.query_ball_tree(cKDTree(uv_b[ib, c]), radius_px)):
-            pairs.update((int(ia[i]), int(ib[j])) for j in near)
-    return pairs
+    track_a, points_a = _views(uv_a)
+    none = np.empty((0, 2), dtype=np.int64)
+    if len(track_a) == 0:
+        return none
+    tree_a = cKDTree(points_a)
+    if uv_b is None:
+        views = tree_a.query_pairs(radius_px, output_type="ndarray")
+        i, j = track_a[views[:, 0]], track_a[views[:, 1]]
+        i, j = np.minimum(i, j), np.maximum(i, j)
+        n = len(uv_a)
+    else:
+        track_b, points_b = _views(uv_b)
+        if len(track_b) == 0:
+            return none
+        near = tree_a.sparse_distance_matrix(cKDTree(points_b), radius_px, output_type="ndarray")
+        i, j = track_a[near["i"]], track_b[near["j"]]
+        n = len(uv_b)
+    keys = np.unique(i.astype(np.int64) * n + j)
+    return np.column_stack([keys // n, keys % n])
 
 
 def dedupe_frame_tracks(uv: np.ndarray, radius_px: float) -> tuple[np.ndarray, int]:
@@ -130,7 +153,7 @@ def dedupe_frame_tracks(uv: np.ndarray, radius_px: float) -> tuple[np.ndarray, i
     `uv`: (T, C, 2) pixels, NaN = unseen. Returns the deduplicated (T', C, 2)
     array and the number of tracks merged or dropped.
     """
-    pairs = _close_pairs(uv, None, radius_px)
+    pairs = _close_pairs(uv, None, radius_px).tolist()
     if not pairs:
         return uv, 0
     uv = uv.copy()
@@ -226,11 +249,20 @@ class TrackPool:
         is_new = np.ones(len(new_uv), dtype=bool)
         grown = np.zeros(len(self._uv), dtype=bool)
         reobserved = 0
-        for i, j in sorted(_close_pairs(new_uv, self._uv, radius)):
+        pairs = _close_pairs(new_uv, self._uv, radius)
+        same = _same_point(new_uv[pairs[:, 0]], self._uv[pairs[:, 1]], radius)
+        # A pooled track grown by a merge is judged again; one no other pair names cannot have been.
+        named = np.bincount(pairs[:, 1], minlength=len(self._uv))[pairs[:, 1]]
+        grown_now: set[int] = set()
+        for k in np.flatnonzero(same | (named > 1)).tolist():
+            i, j = int(pairs[k, 0]), int(pairs[k, 1])
             if not is_new[i]:
                 continue
-            shared, agree = _agree(new_uv[i], self._uv[j], radius)
-            if shared >= 2 and agree:
+            if j in grown_now:
+                shared, agree = _agree(new_uv[i], self._uv[j], radius)
+                same[k] = shared >= 2 and agree
+            if same[k]:
+                grown_now.add(j)
                 fill = ~np.isfinite(self._uv[j, :, 0]) & np.isfinite(new_uv[i, :, 0])
                 self._uv[j, fill] = new_uv[i, fill]
                 grown[j] = fill.any()

@@ -40,8 +40,10 @@ import numpy as np
 
 from camnet import blas
 from camnet.geometry.model import Stereo
+from camnet.matching import nearest
 from camnet.matching.edge import CameraFeatures
 from camnet.matching.features import (
+    Detector,
     Features,
     FrameSetMatches,
     MatcherConfig,
@@ -74,11 +76,12 @@ def _subset(features: Features, index: np.ndarray) -> Features:
     return Features(features.uv[index], features.descriptors[index], features.detector)
 
 
-def _new_candidates(fa: CameraFeatures, fb: CameraFeatures, config: MatcherConfig, *,
-                    prior: bool) -> tuple[np.ndarray, np.ndarray]:
+def _new_candidates(fa: CameraFeatures, fb: CameraFeatures, config: MatcherConfig, *, prior: bool,
+                    operands: tuple[nearest.Operands, nearest.Operands] | None) -> tuple[np.ndarray, np.ndarray]:
     """Candidates (indices into a and b) between the new keypoints of a and of b."""
     new_a, new_b = np.arange(fa.reused, len(fa.features)), np.arange(fb.reused, len(fb.features))
-    ia, ib = candidate_matches(_subset(fa.features, new_a), _subset(fb.features, new_b), config, stereo_prior=prior)
+    ia, ib = candidate_matches(_subset(fa.features, new_a), _subset(fb.features, new_b), config, stereo_prior=prior,
+                               operands=operands)
     return new_a[ia].astype(np.int64), new_b[ib].astype(np.int64)
 
 
@@ -113,6 +116,9 @@ class IncrementalMatcher:
         self.probe_every = probe_every
         self._probe_config = replace(self.config, min_matches=PROBE_INLIERS)
         self.seen = SeenBefore()
+        # Per camera of the frame set `prepare` took: its new keypoints' descriptors as distance operands,
+        # made once for all of its pairs (a camera has about 3 on a ring).
+        self._operands: dict[str, tuple[CameraFeatures, nearest.Operands]] = {}
 
     def forget(self, camera_id: str) -> None:
         """Match every pair of `camera_id` whole next time."""
@@ -123,7 +129,21 @@ class IncrementalMatcher:
         """The cameras of a frame set with what this matcher has seen of them before marked as reused, and
         a keyframe that continues its camera's epoch in it (`camnet.matching.seen`). Once per frame set, in
         order, before `match`; matching the cameras as they come instead matches every keyframe's pairs whole."""
-        return [self.seen.mark(camera) for camera in cameras]
+        marked = [self.seen.mark(camera) for camera in cameras]
+        self._operands = {c.camera_id: (c, nearest.operands(c.features.descriptors[c.reused:], binary=False))
+                          for c in marked if c.features.detector is Detector.SIFT}  # ORB's go to OpenCV's matcher
+        return marked
+
+    def _new_operands(self, fa: CameraFeatures,
+                      fb: CameraFeatures) -> tuple[nearest.Operands, nearest.Operands] | None:
+        """The operands `prepare` made of these very cameras' new keypoints (None: it did not)."""
+        made = []
+        for camera in (fa, fb):
+            prepared, ops = self._operands.get(camera.camera_id, (None, None))
+            if prepared is not camera:
+                return None
+            made.append(ops)
+        return made[0], made[1]
 
     def matched_well(self, min_inliers: int) -> set[frozenset[str]]:
         """Pairs whose last whole match found an F with at least `min_inliers` inliers."""
@@ -141,15 +161,17 @@ class IncrementalMatcher:
         out = []
         # The distance products of a pair are a few thousand rows: BLAS threads halve no wall time on them
         # but double the CPU (measured: 23 against 11.5 ms a product), spinning beside the other nodes.
+        # The pairs asked for, in the order of the cameras (the node asks one pair per call: walking every
+        # pair of 16 cameras for it was a millisecond a frame set).
+        index = {camera_id: k for k, camera_id in enumerate(ids)}
+        todo = ([(i, j) for i in range(len(ids)) for j in range(i + 1, len(ids))] if pairs is None else
+                sorted({tuple(sorted(index[c] for c in pair)) for pair in pairs if pair <= index.keys()}))
         with blas.one_thread():
-            for i in range(len(ids)):
-                for j in range(i + 1, len(ids)):
-                    if pairs is not None and frozenset((ids[i], ids[j])) not in pairs:
-                        continue
-                    # A parallel head is matched with its left camera as `a`: the disparity's sign depends on it.
-                    a, b = (j, i) if use_prior and (ids[j], ids[i]) == (stereo.left, stereo.right) else (i, j)
-                    prior = use_prior and (ids[a], ids[b]) == (stereo.left, stereo.right)
-                    out.append(self._match_pair(cameras[a], cameras[b], a, b, prior=prior))
+            for i, j in todo:
+                # A parallel head is matched with its left camera as `a`: the disparity's sign depends on it.
+                a, b = (j, i) if use_prior and (ids[j], ids[i]) == (stereo.left, stereo.right) else (i, j)
+                prior = use_prior and (ids[a], ids[b]) == (stereo.left, stereo.right)
+                out.append(self._match_pair(cameras[a], cameras[b], a, b, prior=prior))
         return FrameSetMatches(ids, tuple(c.features for c in cameras), tuple(out))
 
     def _match_pair(self, fa: CameraFeatures, fb: CameraFeatures, a: int, b: int, *, prior: bool) -> PairMatches:
@@ -171,7 +193,7 @@ class IncrementalMatcher:
             self._pairs[key] = PairState(keyframes, F, int(inliers.sum()))
             return PairMatches(a, b, ia[inliers], ib[inliers], F, len(ia))
         self.incremental += 1
-        ia, ib = _new_candidates(fa, fb, config, prior=prior)
+        ia, ib = _new_candidates(fa, fb, config, prior=prior, operands=self._new_operands(fa, fb))
         self.compared += (len(fa.features) - fa.reused) * (len(fb.features) - fb.reused)
         inliers = epipolar_inliers(state.F, fa.features.uv[ia], fb.features.uv[ib], config.ransac_threshold_px)
         if len(ia) == 0 or inliers.mean() < MIN_AGREEING:
