@@ -7,8 +7,8 @@ follow pull its points to it, and it ends with a small sigma at a wrong
 pose. Once every view is placed, a view whose median reprojection error
 stands far above the network's is resected again on the points the
 *other* views place (RANSAC PnP, and the IPPE twins where those points are
-nearly flat), keeping the pose that agrees with most of them; a view that
-then still stands out is left out, with the reason.
+nearly flat), keeping the pose that agrees with most of them; a view on
+whose points no consistent pose is found is left out, with the reason.
 
 Cameras in problem order, pixels centred, poses ``x_cam = R (X - C)``,
 metres, focal lengths in pixels; points one per track row, NaN where not
@@ -89,31 +89,26 @@ def recheck_placed(net: Network, which: np.ndarray, *, f_free: np.ndarray, width
             continue
         pose = _replace(net, m, bound_px, f_free=bool(f_free[m]), width_px=int(width_px[m]),
                         threshold_px=threshold_px)
+        if pose is None:  # its present pose agrees best, or the others place too few of its points to tell
+            continue
         trk = np.flatnonzero(net.rows[:, net.order[m]] >= 0)
-        if pose is not None:
-            net.f[m], net.R[m], net.C[m] = pose
-            net.X[trk] = np.nan
-            triangulate_missing(net.order, net.xy, net.rows, net.f, net.R, net.C, net.X, net.placed)
-            _, err = net.errors_px(m)
-            if len(err) >= MIN_RESECTION_POINTS and np.median(err) <= bound_px:
-                moved.append(m)
-                continue
-        worst = float(np.median(err)) if len(err) else np.inf
-        net.placed[m] = False
         net.X[trk] = np.nan
+        if isinstance(pose, str):
+            net.placed[m] = False
+            reasons[m] = (f"its observations stand out (median reprojection error {np.median(err):.1f} px, against "
+                          f"{typical:.2f} px for the others') and, on the points the others place, {pose}")
+        else:
+            net.f[m], net.R[m], net.C[m] = pose
+            moved.append(m)
         triangulate_missing(net.order, net.xy, net.rows, net.f, net.R, net.C, net.X, net.placed)
-        reasons[m] = (
-            f"its observations fit no pose that agrees with the other cameras (median reprojection error "
-            f"{worst:.1f} px, against {typical:.2f} px for theirs): check its matches, and that it did not move "
-            "while they were taken")
     return reasons, moved
 
 
 def _replace(net: Network, m: int, bound_px: float, *, f_free: bool, width_px: int,
-             threshold_px: float) -> tuple[float, np.ndarray, np.ndarray] | None:
+             threshold_px: float) -> tuple[float, np.ndarray, np.ndarray] | str | None:
     """(f, R, C) of view m that agrees with most points the other views place (errors truncated at bound_px),
     among a fresh resection and the IPPE twins, where one agrees better than its present pose; None where none
-    does, or those points are too few."""
+    does, or those points are too few; why not, where they find it no consistent pose (`resect`)."""
     others = net.placed & (np.arange(len(net.f)) != m)
     cam_rows = net.rows[:, net.order[m]]
     X_others = ray_points(np.flatnonzero(cam_rows >= 0), net.order, net.xy, net.rows, net.f, net.R, net.C, others)
@@ -123,8 +118,9 @@ def _replace(net: Network, m: int, bound_px: float, *, f_free: bool, width_px: i
     X, xy = X_others[known], net.xy[cam_rows[cam_rows >= 0][known]]
     candidates = [(net.f[m], net.R[m], net.C[m])]
     got = resect(X, xy, f_px=None if f_free else net.f[m], width_px=width_px, threshold_px=threshold_px)
-    if not isinstance(got, str):
-        candidates.append((got.f_px, got.R, got.C))
+    if isinstance(got, str):
+        return got
+    candidates.append((got.f_px, got.R, got.C))
     for f, R, C in list(candidates):
         agree = pose_errors_px(X, xy, f, R, C) < bound_px
         for R_twin, C_twin in twin_poses(X[agree], xy[agree], f):
