@@ -3,7 +3,7 @@
 import numpy as np
 
 from camnet.geometry.projection import look_at
-from camnet.geometry.register import triangulate_missing
+from camnet.geometry.triangulation import triangulate_missing
 from camnet.geometry.two_view import homography_explains
 
 

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from camnet.geometry.initialise import register_pnp
-from camnet.geometry.register import resect
+from camnet.geometry.resection import resect
 from camnet.geometry.two_view import fundamental, relative_pose
 from camnet.matching.features import MatcherConfig, ransac_fundamental
 

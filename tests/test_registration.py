@@ -15,7 +15,7 @@ from camnet.geometry.initialise import camera_order, centred, initial_intrinsics
 from camnet.geometry.live_policy import LiveConfig, judge
 from camnet.geometry.model import Stereo
 from camnet.geometry.projection import look_at, rotation_exp, skew
-from camnet.geometry.register import resect
+from camnet.geometry.resection import resect
 from camnet.geometry.two_view import bougnoux_focals, row_and_epipolar_errors
 from camnet.io.formats import calibration_to_doc, parse_calibration
 from camnet.sim.families import family

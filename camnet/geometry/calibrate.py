@@ -473,6 +473,7 @@ def _result(
     report = solve_report(
         obs, order, problem, state, cov, inliers, info, method=method, decisions=decisions, timings_s=timings,
         kept=kept, dropped=dropped, residuals_px=r, start=start, pair_pose_given=pair_pose_given,
+        placed_tracks=track_rows,
     )
     report = with_cameras_left_out(report, left_out or {})
     try:

@@ -33,14 +33,9 @@ from camnet.geometry.initialise import (
     paper_start,
 )
 from camnet.geometry.model import Observations, SolveReport, Stereo
-from camnet.geometry.register import (
-    MIN_RESECTION_POINTS,
-    register_over_graph,
-    resect,
-    seed_adjustment,
-    threshold_px,
-    triangulate_missing,
-)
+from camnet.geometry.register import register_over_graph, seed_adjustment, threshold_px
+from camnet.geometry.resection import MIN_RESECTION_POINTS, resect
+from camnet.geometry.triangulation import triangulate_missing
 from camnet.geometry.two_view import (
     MIN_PAIR_POINTS,
     RelativePose,

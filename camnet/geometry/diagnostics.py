@@ -348,7 +348,7 @@ def far_scene_warning(median_depth_m: float, baseline_m: float) -> list[str]:
 def solve_report(
     obs, order, problem, state, cov, inliers, info, *, method: Method, decisions: list[str],
     timings_s: dict[str, float], kept: np.ndarray, dropped: PointsLeftOut, residuals_px: np.ndarray,
-    start: StartKind, pair_pose_given: bool = False,
+    start: StartKind, pair_pose_given: bool = False, placed_tracks: np.ndarray | None = None,
 ) -> SolveReport:
     """The report of a solve.
 
@@ -356,7 +356,8 @@ def solve_report(
     the observations kept; info: the final adjustment's bundle.SolveInfo;
     kept (N,): the points the calibration reports; residuals_px (n, 2): the
     problem's reprojection residuals at `state`, pixels; pair_pose_given:
-    the pair's held rotation axes, if any, are held at a given pose.
+    the pair's held rotation axes, if any, are held at a given pose;
+    placed_tracks: the track rows the start placed (None: every track).
     """
     ids = [obs.cameras[i].id for i in order]
     counts = np.bincount(problem.cam, minlength=len(ids))
@@ -371,7 +372,9 @@ def solve_report(
     parallax = _parallax_deg(problem, state)[kept]
     warnings += _geometry_warnings(obs, order, problem, state, parallax, kept)
     if method != Method.PAPER:  # eq. 13 is no least-squares fit of every camera: its residuals differ by design
-        observed = np.bincount(obs.cam_index, minlength=len(obs.cameras))[order]
+        # A track the start could not place (its rays part too little to fix a depth) is not one rejected.
+        placed = np.ones(len(obs.uv), bool) if placed_tracks is None else np.isin(obs.track_index, placed_tracks)
+        observed = np.bincount(obs.cam_index[placed], minlength=len(obs.cameras))[order]
         warnings += structure_warnings(ids, problem.cam, problem.uv, residuals_px, state.intr,
                                        problem.intr_free[:, 4], observed)
     notes: list[str] = []

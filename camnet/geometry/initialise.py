@@ -20,7 +20,9 @@ from camnet.errors import SolveError
 from camnet.geometry import paper
 from camnet.geometry.model import Calibration, LensModel, Observations
 from camnet.geometry.projection import K_from_intrinsics, full_dist, intrinsics_from_K, normalised
-from camnet.geometry.register import MIN_INLIER_SHARE, register_over_graph, threshold_px, triangulate_missing
+from camnet.geometry.register import register_over_graph, threshold_px
+from camnet.geometry.resection import MIN_INLIER_SHARE
+from camnet.geometry.triangulation import triangulate_missing
 
 log = logging.getLogger(__name__)
 

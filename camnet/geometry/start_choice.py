@@ -30,7 +30,7 @@ from camnet.errors import SolveError
 from camnet.geometry.cold_start import NoStart, PairStart, pair_looks_parallel, stronger_pair
 from camnet.geometry.diagnostics import WRONG_START_INLIER_SHARE
 from camnet.geometry.model import Calibration, Observations
-from camnet.geometry.register import MIN_INLIER_SHARE, MIN_RESECTION_POINTS
+from camnet.geometry.resection import MIN_INLIER_SHARE, MIN_RESECTION_POINTS
 
 if TYPE_CHECKING:
     from camnet.geometry.calibrate import Result
