@@ -113,11 +113,15 @@ def test_calibrator_restart_resumes_and_a_moved_camera_is_recalibrated(tmp_path)
             if "mono_b" not in cameras:
                 return float("inf")
             error_mm = 1e3 * float(np.linalg.norm(cameras["mono_b"].centre - truth["mono_b"].centre))
-            sigma = ((doc.get("uncertainty") or {}).get("cameras") or {}).get("mono_b", {}).get("centre_m")
-            # Error against its reported 1 sigma (the three axes' together), for the log and a failure's message.
-            error_vs_sigma.append((doc["solve"], "moved" if doc["moved"] else "", round(error_mm, 1),
-                                   round(1e3 * float(np.linalg.norm(sigma)), 1)
-                                   if sigma is not None and None not in sigma else None))
+            uncertainty = doc.get("uncertainty") or {}
+            sigma = (uncertainty.get("cameras") or {}).get("mono_b", {}).get("centre_m")
+            scale = uncertainty.get("scale_rel")
+            # Error against its reported 1 sigma, for the log and a failure's message: the centre's three axes
+            # together (about 1 mm, given the scale) and the scale's at its distance from the left camera.
+            if sigma is not None and None not in sigma and scale is not None:
+                error_vs_sigma.append((doc["solve"], "moved" if doc["moved"] else "", round(error_mm, 1), round(
+                    1e3 * float(np.hypot(np.linalg.norm(sigma), scale * np.linalg.norm(cameras["mono_b"].centre))),
+                    1)))
             return error_mm
 
         # The solves after the move scatter by their uncertainty (a scale sigma of 1.5% is 6 mm at mono_b):
@@ -125,7 +129,7 @@ def test_calibrator_restart_resumes_and_a_moved_camera_is_recalibrated(tmp_path)
         # last (before, the check and the assert read the latest one each, and a solve could come between).
         errors_mm: list[float] = []
         # (solve, "moved" where it found the move, error mm, sigma mm) of each solve that placed mono_b
-        error_vs_sigma: list[tuple[int, str, float, float | None]] = []
+        error_vs_sigma: list[tuple[int, str, float, float]] = []
 
         def placed() -> bool:
             errors_mm.extend(mono_b_error_mm(doc) for doc in seen.since(n + len(errors_mm)))
