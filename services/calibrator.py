@@ -23,6 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from camnet.bus import heap, keys, latency, lockstep
+from camnet.bus.moved import moved_attachment
 from camnet.bus.node import Presence, Tally, guarded, stop_on_signals
 from camnet.bus.session import declare_liveliness
 from camnet.bus.stats import Activity, RateMeter
@@ -133,6 +134,8 @@ class CalibratorNode:
         self._meter = RateMeter(window_s=30.0)
         self._lock = threading.Lock()
         self._warned_s: dict[str, float] = {}  # outcome -> when it was last warned about
+        # Cameras found moved (the tracker says so in one solve only) not yet named by a published calibration.
+        self._moved_untold: set[str] = set()
 
     # ------------------------------------------------------------ bus callbacks
 
@@ -190,7 +193,9 @@ class CalibratorNode:
         payload = json.dumps(doc, allow_nan=False).encode()
         with self._lock:
             self.latest_doc = payload
-        publisher.put(payload)
+        # The matcher forgets what it pooled of a moved camera (camnet.bus.moved), told once per move.
+        publisher.put(payload, attachment=moved_attachment(self._moved_untold | set(outcome.moved)))
+        self._moved_untold = set()
         # Kept for a restart after it is published: writing it must not delay the rig's consumers.
         if self.config.state_path is not None:
             write_json_atomic(self.config.state_path, doc, private=True)  # the rig's layout: not for every user
@@ -218,6 +223,7 @@ class CalibratorNode:
                      len(cal.cameras), len(cal.points), cal.rms_reprojection_px,
                      100 * scale_sigma_rel(cal), "".join(f"; {c} left out: {why}" for c, why in left_out.items()))
         else:
+            self._moved_untold |= set(outcome.moved)  # named by the next calibration published
             # A rig that keeps failing must not flood the console: its status line counts every one.
             now_s = time.monotonic()
             loud = now_s - self._warned_s.get(outcome.status, -WARNING_PERIOD_S) >= WARNING_PERIOD_S

@@ -53,7 +53,7 @@ from dataclasses import replace
 
 import numpy as np
 from camnet.services.features import from_message
-from camnet.services.matcher_calibration import CalibrationInbox
+from camnet.services.matcher_calibration import CalibrationInbox, forget_moved
 from camnet.services.matcher_config import MatcherNodeConfig, rig_options, rig_stereo
 from camnet.services.matcher_frames import FrameSubscriptions
 
@@ -279,6 +279,7 @@ class MatcherNode:
         for camera_id, frame in frame_set.frames.items():
             self._sizes[camera_id] = (frame.width, frame.height)
         pool = self._ensure_pool()
+        forget_moved(self.calibration.take_moved(), pool, self._matcher)
         if len(pool) >= self.config.max_tracks and not self._full_pool_detection:
             self._full_pool_detection = True
             for extractor in self._extractors.values():

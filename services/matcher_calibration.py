@@ -9,18 +9,29 @@ calibration published meanwhile is newer than the answer and wins. A query
 sent before the session has learnt of the calibrator's queryable (a loaded
 machine, a router still connecting) gets no answer, so it asks again every
 `ASK_PERIOD_S` until a calibration has come.
+
+A published calibration's attachment names the cameras found moved since
+the one before (`camnet.bus.moved`); they are gathered here as they arrive,
+whether or not their calibration is ever taken, for the worker to forget
+(`take_moved`) once each time the calibrator names them.
 """
 
 from __future__ import annotations
 
+import logging
 import threading
 
 from camnet.bus import keys
+from camnet.bus.moved import parse_moved_attachment
 from camnet.bus.node import Tally, guarded
 from camnet.errors import InputError
 from camnet.geometry.model import Calibration
 from camnet.io.formats import parse_calibration
 from camnet.io.validate import decode_json
+from camnet.matching.pool import TrackPool
+from camnet.matching.reuse import IncrementalMatcher
+
+log = logging.getLogger(__name__)
 
 QUERY_TIMEOUT_S = 5.0  # the calibrator answers from memory; a rig with none yet answers nothing
 ASK_PERIOD_S = 3.0  # asked again this often while no calibration has come
@@ -38,6 +49,7 @@ class CalibrationInbox:
         self._asked_s = float("-inf")  # monotonic time of the latest query
         self._ask = None  # sends the query, once declared
         self.asked = 0  # queries sent
+        self._moved: set[str] = set()  # cameras named moved, not yet taken
         self._lock = threading.Lock()
 
     @property
@@ -46,9 +58,24 @@ class CalibrationInbox:
         return self._payload is not None
 
     def on_sample(self, sample) -> None:
-        """Subscriber callback: the newest published calibration replaces any not yet taken."""
+        """Subscriber callback: the newest published calibration replaces any not yet taken; the cameras
+        its attachment names moved are added to those not yet taken."""
+        attachment = sample.attachment
+        try:
+            moved = parse_moved_attachment(None if attachment is None else attachment.to_bytes())
+        except InputError as exc:
+            moved = ()
+            self.rejected.count("calibration attachment", "ignoring a calibration's attachment (%s); is the "
+                                "calibrator of another camnet version?", exc)
         with self._lock:
             self._payload, self._published, self._received = sample.payload.to_bytes(), True, True
+            self._moved.update(moved)
+
+    def take_moved(self) -> tuple[str, ...]:
+        """The cameras named moved since the last call (sorted), each once."""
+        with self._lock:
+            moved, self._moved = self._moved, set()
+        return tuple(sorted(moved))
 
     def on_reply(self, reply) -> None:
         """Query callback: the calibrator's latest, unless one was published since the matcher subscribed."""
@@ -87,3 +114,14 @@ class CalibrationInbox:
         except InputError as exc:
             self.rejected.count("calibration", "ignoring a calibration that does not parse (%s)", exc)
             return None
+
+
+def forget_moved(moved: tuple[str, ...], pool: TrackPool, matcher: IncrementalMatcher) -> None:
+    """Forget what `pool` and `matcher` hold of each camera in `moved`: its old-pose views would judge its
+    new ones against the old geometry (`TrackPool.forget_camera`); its pairs are matched whole next."""
+    pooled = {c.id for c in pool.cameras}
+    for camera_id in moved:
+        dropped = pool.forget_camera(camera_id) if camera_id in pooled else 0
+        matcher.forget(camera_id)
+        log.info("camera %r moved (the calibrator says): forgot its views, %d tracks left with under two "
+                 "dropped; pool %d", camera_id, dropped, len(pool))

@@ -131,6 +131,7 @@ class _Sample:
     def __init__(self, payload: bytes) -> None:
         self.payload = self
         self._payload = payload
+        self.attachment = None
 
     def to_bytes(self) -> bytes:
         return self._payload

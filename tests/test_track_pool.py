@@ -189,3 +189,57 @@ def test_a_false_view_goes_and_its_track_stays():
     assert len(pool) == before + 2
     assert views[-2:].tolist() == [2, 3]
     assert np.allclose(obs.uv[obs.track_index == len(pool) - 2], uv[0, :2])
+
+
+def _pool_across_a_move(forget: bool) -> tuple[TrackPool, int, int]:
+    """(pool, first track id after M moved 4 cm down, M views offered since): 8 frame sets before the move,
+    then one of 4 points (a camera that just came back sees little) and 6 of 100; with `forget`, the pool
+    forgets M between."""
+    moved = RIG[:2] + (_camera([-0.8, -0.04, 0.2], -35),)
+    rng = np.random.default_rng(7)
+    pool = TrackPool(CAMS, STEREO, PoolConfig(max_tracks=10_000))
+    for seq in range(8):
+        X = rng.uniform([-0.15, -0.15, 1.4], [0.25, 0.15, 1.8], size=(100, 3))
+        pool.add(FrameTracks(("L", "R", "M"), _project(X, rng)), frame_seq=seq)
+    if forget:
+        pool.forget_camera("M")
+    first, offered = pool.observations().track_ids.max() + 1, 0
+    for seq, n in enumerate([4] + [100] * 6, start=8):
+        X = rng.uniform([-0.15, -0.15, 1.4], [0.25, 0.15, 1.8], size=(n, 3))
+        x = np.stack([(p @ np.column_stack([X, np.ones(n)]).T).T for p in moved], axis=1)
+        pool.add(FrameTracks(("L", "R", "M"), x[:, :, :2] / x[:, :, 2:] + rng.normal(0, 0.2, (n, 3, 2))),
+                 frame_seq=seq)
+        offered += n
+    return pool, first, offered
+
+
+def test_a_forgotten_moved_camera_keeps_its_new_views():
+    # A moved camera's new views judged against the F its old-pose views dominate are dropped, and those
+    # that happen to fit the old geometry survive: a biased selection the calibrator cannot see. Forgotten,
+    # its views are all gone (old tracks keep their other views), and its new ones are judged only against
+    # an F fitted to them, the first few too.
+    for forget in (False, True):
+        pool, first, offered = _pool_across_a_move(forget)
+        obs = pool.observations()
+        new_m = (obs.cam_index == 2) & (obs.track_ids[obs.track_index] >= first)
+        old_m = (obs.cam_index == 2) & (obs.track_ids[obs.track_index] < first)
+        if not forget:
+            assert new_m.sum() < 0.1 * offered, "the old F let the moved camera's new views through"
+            continue
+        kept = obs.track_ids[obs.track_index[new_m]]
+        assert set(range(first, first + 4)) <= set(kept.tolist()), "the first few new views were judged by the old F"
+        assert new_m.sum() + old_m.sum() >= 0.95 * offered, f"{new_m.sum()} of {offered} new views kept"
+        # Old tracks hold M only where a new view merged into them (coinciding in L and R).
+        assert old_m.sum() < 0.1 * offered
+
+
+def test_forgetting_a_camera_drops_the_tracks_left_with_one_view():
+    pool = TrackPool(CAMS, STEREO, PoolConfig(epipolar_px=0))
+    pool.add(_tracks([[(10, 10), (20, 10), (NAN, NAN)], [(50, 50), (NAN, NAN), (60, 50)],
+                      [(90, 90), (95, 90), (99, 90)]]),
+             frame_seq=0)
+    assert pool.forget_camera("M") == 1
+    obs = pool.observations()
+    assert obs.track_ids.tolist() == [0, 2] and 2 not in obs.cam_index.tolist()
+    with pytest.raises(ValueError, match="not in the pool"):
+        pool.forget_camera("X")

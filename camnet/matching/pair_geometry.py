@@ -134,6 +134,13 @@ class PairGeometry:
         self._frame_sets = np.zeros((n_cameras, n_cameras), dtype=np.int64)  # calls that brought the pair tracks
         self._cursor = 0
 
+    def forget(self, camera: int) -> None:
+        """Forget the F of every pair of column `camera` (it moved): they are fitted afresh, as a new
+        pair's, once its tracks come from `MIN_FRAME_SETS` frame sets, and judge nothing meanwhile."""
+        for table in (self._F, self._limit_px, self._has, self._tried_at, self._frame_sets):
+            table[camera, :] = 0
+            table[:, camera] = 0
+
     def _due(self, counts: np.ndarray) -> set[tuple[int, int]]:
         a, b = np.nonzero(np.triu((counts >= self.min_inliers) & (self._frame_sets >= MIN_FRAME_SETS), k=1))
         turn = min(max(1, -(-len(a) // self.refit_every)), MAX_REFITS_IN_TURN)

@@ -280,6 +280,21 @@ class TrackPool:
         log.debug("frame %d: %s, pool %d", frame_seq, update, len(self))
         return update
 
+    def forget_camera(self, camera_id: str) -> int:
+        """Drop every view of `camera_id` (it moved: its old-pose views would judge its new ones against
+        the old geometry), and the tracks left with fewer than two views; the number of tracks dropped.
+
+        Its pairs' F are fitted afresh from its new views (`PairGeometry.forget`). Track ids stay.
+        """
+        if camera_id not in self._column:
+            raise ValueError(f"camera {camera_id!r} is not in the pool's cameras")
+        column = self._column[camera_id]
+        self._uv[:, column] = np.nan
+        self._geometry.forget(column)
+        keep = np.isfinite(self._uv[:, :, 0]).sum(axis=1) >= 2
+        self._uv, self._ids, self._last_seen = self._uv[keep], self._ids[keep], self._last_seen[keep]
+        return int((~keep).sum())
+
     def _reject_off_epipolar(self, changed: np.ndarray) -> int:
         if self.config.epipolar_px <= 0:
             return 0
