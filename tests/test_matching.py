@@ -179,7 +179,7 @@ def test_too_few_features_say_why():
 
 def _reference_mutual_ratio(da, db, *, ratio, allowed=None, margin=1.1):
     """The ratio test and cross check on the whole squared-distance matrix, arg-mins both ways."""
-    d = ((da[:, None, :] - db[None, :, :]) ** 2).sum(axis=2)
+    d = ((da[:, None, :].astype(float) - db[None, :, :]) ** 2).sum(axis=2)
     best_outside = np.full(len(da), np.inf)
     if allowed is not None:
         best_outside = np.where(allowed, np.inf, d).min(axis=1)

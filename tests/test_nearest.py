@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from camnet.matching import nearest
+from tests.test_matching import _reference_mutual_ratio
 
 
 def _sift_like(rng: np.random.Generator, n: int) -> np.ndarray:
@@ -28,22 +29,6 @@ def test_one_product_gives_the_exact_squared_distances_and_hamming_distances():
     assert np.array_equal(ops[30:].rows, ops.rows[30:]) and np.array_equal(ops[30:].columns, ops.columns[30:])
 
 
-def _reference(da: np.ndarray, db: np.ndarray, *, ratio: float, allowed=None, margin: float = 1.1):
-    """The ratio test and cross check on the whole squared-distance matrix, arg-mins both ways."""
-    d = ((da[:, None, :].astype(float) - db[None, :, :]) ** 2).sum(axis=2)
-    best_outside = np.full(len(da), np.inf)
-    if allowed is not None:
-        best_outside = np.where(allowed, np.inf, d).min(axis=1)
-        d = np.where(allowed, d, np.inf)
-    first = d.argmin(axis=1)
-    d1 = d[np.arange(len(da)), first]
-    rest = d.copy()
-    rest[np.arange(len(da)), first] = np.inf
-    keep = np.isfinite(d1) & (d1 < ratio**2 * rest.min(axis=1)) & (d1 <= margin**2 * best_outside)
-    keep &= d.argmin(axis=0)[first] == np.arange(len(da))
-    return np.flatnonzero(keep), first[keep]
-
-
 @pytest.mark.parametrize("row_block", [4096, 64])
 @pytest.mark.parametrize("prior", [False, True])
 def test_the_cross_check_read_off_the_rows_product_equals_the_whole_matrix_ties_included(row_block, prior,
@@ -62,6 +47,6 @@ def test_the_cross_check_read_off_the_rows_product_equals_the_whole_matrix_ties_
                                ratio=0.9**2, cross_check=True,
                                allowed=None if allowed is None else (lambda rows: allowed[rows]),
                                outside_margin=1.1**2 if prior else np.inf)
-    want = _reference(da, db, ratio=0.9, allowed=allowed, margin=1.1 if prior else np.inf)
+    want = _reference_mutual_ratio(da, db, ratio=0.9, allowed=allowed, margin=1.1 if prior else np.inf)
     assert len(want[0]) > 20
     assert [x.tolist() for x in got] == [x.tolist() for x in want]
