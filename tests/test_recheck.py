@@ -6,7 +6,7 @@ import pytest
 from camnet.geometry.projection import look_at
 from camnet.geometry.recheck import Network, recheck_placed
 from camnet.geometry.resection import twin_poses
-from camnet.geometry.triangulation import forget_undetermined, triangulate_missing
+from camnet.geometry.triangulation import triangulate_missing
 
 F_PX = 1500.0
 RING_M = 0.6
@@ -108,31 +108,3 @@ def test_nearly_flat_points_give_the_pose_and_its_mirrored_twin():
     errors = sorted(np.linalg.norm(c - C) for _, c in poses)
     assert errors[0] < 0.02 and errors[1] > 0.2  # the pose, and a twin far from it
     assert twin_poses(np.column_stack([X[:, :2], rng.uniform(-0.3, 0.3, 80)]), xy, F_PX) == []  # not flat
-
-
-def test_points_from_one_viewpoint_are_forgotten_once_their_views_meet():
-    # Two views of one viewpoint, placed 5 mm apart, part their rays by that error and triangulate points at
-    # a depth it decides; once an adjustment brings them together the points are free along their rays.
-    rng = np.random.default_rng(4)
-    X = rng.uniform(-0.05, 0.05, (200, 3))
-    C = np.array([[0.0, -RING_M, 0.0], [0.005, -RING_M, 0.0], [RING_M * np.sin(0.8), -RING_M * np.cos(0.8), 0.0]])
-    R = np.stack([look_at(c, np.zeros(3), up=(0.0, 0.0, -1.0))[0] for c in C])
-    R[1] = R[0]
-    seen = np.ones((len(X), 3), dtype=bool)
-    seen[:120, 2] = False  # the first 120 tracks: seen from the one viewpoint alone
-    rows = np.full(seen.shape, -1)
-    t_idx, c_idx = np.nonzero(seen)
-    rows[t_idx, c_idx] = np.arange(len(t_idx))
-    xc = np.einsum("nij,nj->ni", R[c_idx], X[t_idx] - C[c_idx])
-    xy = F_PX * xc[:, :2] / xc[:, 2:3]
-    f, placed, order = np.full(3, F_PX), np.ones(3, dtype=bool), [0, 1, 2]
-    points = np.full((len(X), 3), np.nan)
-    triangulate_missing(order, xy, rows, f, R, C, points, placed)
-    assert np.all(np.isfinite(points))
-    C[1] = C[0]  # brought together, the second view's observations now the first's
-    xy[rows[:, 1]] = xy[rows[:, 0]]
-
-    forgotten = forget_undetermined(order, xy, rows, f, R, C, points, placed, np.ones(len(X), dtype=bool))
-
-    assert forgotten == 120
-    assert np.all(np.isnan(points[:120])) and np.all(np.isfinite(points[120:]))

@@ -27,7 +27,7 @@ from camnet.geometry.model import Loss, Observations
 from camnet.geometry.projection import N_INTRINSICS
 from camnet.geometry.recheck import Network, recheck_placed
 from camnet.geometry.resection import resect
-from camnet.geometry.triangulation import forget_undetermined, triangulate_missing
+from camnet.geometry.triangulation import triangulate_missing
 
 log = logging.getLogger(__name__)
 
@@ -111,7 +111,6 @@ def register_over_graph(
     aspect = np.where(np.isfinite(intr[:, 1]), intr[:, 1], 1.0)
     threshold = threshold_px(obs, order)
     reasons: dict[int, str] = {}
-    ours = ~np.all(np.isfinite(X), axis=1)  # the points this registration places (a start's own are kept)
     given = placed.copy()
     triangulate_missing(order, xy, rows, f, R, C, X, placed)
     while not placed.all():
@@ -130,7 +129,6 @@ def register_over_graph(
             triangulate_missing(order, xy, rows, f, R, C, X, placed)
             local_adjustment(f, R, C, X, aspect=aspect, xy_rows=xy_rows, xy=xy, placed=placed, held_K=held_K,
                              hold_pair=hold_pair, baseline_m=obs.stereo.baseline_m)
-            forget_undetermined(order, xy, rows, f, R, C, X, placed, ours)
             break
         else:
             break  # no camera left that the placed ones reach
@@ -144,6 +142,5 @@ def register_over_graph(
     if left_out or moved:
         local_adjustment(f, R, C, X, aspect=aspect, xy_rows=xy_rows, xy=xy, placed=placed, held_K=held_K,
                          hold_pair=hold_pair, baseline_m=obs.stereo.baseline_m)
-        forget_undetermined(order, xy, rows, f, R, C, X, placed, ours)
     triangulate_missing(order, xy, rows, f, R, C, X, placed)
     return reasons

@@ -30,22 +30,6 @@ def triangulate_missing(order, xy, rows, f, R, C, X, registered) -> int:
     return len(good)
 
 
-def forget_undetermined(order, xy, rows, f, R, C, X, registered, which: np.ndarray) -> int:
-    """Points among `which` (T,) bool whose rays, at the cameras' present poses, part by less than
-    MIN_PARALLAX_PX, made unknown (NaN) in place; how many.
-
-    Two views from one viewpoint, each placed with an error of a few
-    millimetres, part their rays by that error and triangulate a point at a
-    depth the error decides; once an adjustment brings them together, the
-    point is free along its ray, and a later camera resected on such points
-    lands at that viewpoint whatever its own.
-    """
-    known = np.flatnonzero(which & np.all(np.isfinite(X), axis=1))
-    _, _, enough = _rays(known, order, xy, rows, f, R, C, registered)
-    X[known[~enough]] = np.nan
-    return int(np.sum(~enough))
-
-
 def ray_points(tracks: np.ndarray, order, xy, rows, f, R, C, registered) -> np.ndarray:
     """(n, 3) midpoints of `tracks` (n,) from the rays of the `registered` (M,) cameras; NaN where fewer than
     two see a track or its rays part by less than MIN_PARALLAX_PX."""
