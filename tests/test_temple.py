@@ -29,8 +29,8 @@ LEFT, RIGHT = "templeSR0007", "templeSR0008"
 # with the poses at this narrow field of view): beyond 3 sigmas, a known shortfall the README states; the bound
 # leaves a margin for other platforms' SIFT. The principal points moved 17-48% of the image from its centre, so the
 # solve says its scale has no linear sigma and names each such camera. The scale then lies anywhere along a nearly
-# flat valley: -0.5% off before the points of undetermined depth were forgotten, -4.2% since (-10.4% and -0.03%
-# with the other neighbour pair); 6% leaves a margin.
+# flat valley: -0.5% off, and -4.2% while registration forgot points of undetermined depth (-10.4% and -0.03% with
+# the other neighbour pair); 6% leaves a margin.
 FOCAL_BOUND_REL = 0.20
 FOCAL_BOUND_SIGMAS = 7.0
 SCALE_BOUND_REL = 0.06
