@@ -51,10 +51,11 @@ class Payload:
 class Sample:
     payload: Payload
     key_expr: str
+    attachment: Payload | None = None
 
 
-def sample(data: bytes, key: str) -> Sample:
-    return Sample(Payload(data), key)
+def sample(data: bytes, key: str, attachment: bytes | None = None) -> Sample:
+    return Sample(Payload(data), key, None if attachment is None else Payload(attachment))
 
 
 # ------------------------------------------------------------------ generated documents
@@ -197,11 +198,14 @@ CALIBRATION = calibration_to_doc(sim_calibration())
 
 
 @FUZZ
-@given(payload=st.one_of(RANDOM_BYTES, near_valid(CALIBRATION)))
-def test_the_matcher_survives_any_calibration(matcher, payload):
-    """What the view graph takes from the calibration key: counted when it does not parse, never raising."""
-    matcher.calibration.on_sample(sample(payload, keys.calibration("fuzz")))
+@given(payload=st.one_of(RANDOM_BYTES, near_valid(CALIBRATION)),
+       attachment=st.one_of(st.none(), RANDOM_BYTES, near_valid({"moved": ["mono_b"]})))
+def test_the_matcher_survives_any_calibration(matcher, payload, attachment):
+    """What the view graph takes from the calibration key, and the moved cameras its attachment names:
+    counted when it does not parse, never raising."""
+    matcher.calibration.on_sample(sample(payload, keys.calibration("fuzz"), attachment))
     matcher._take_calibration()
+    assert all(isinstance(camera_id, str) for camera_id in matcher.calibration.take_moved())
 
 
 @FUZZ

@@ -32,8 +32,8 @@ def parse_moved_attachment(data: bytes | None) -> tuple[str, ...]:
         return ()
     try:
         doc = json.loads(data)
-    except (ValueError, UnicodeDecodeError) as exc:
-        raise InputError(f"calibration attachment: not JSON ({exc})") from None
+    except (ValueError, RecursionError) as exc:  # nesting deep enough to exhaust the stack: RecursionError
+        raise InputError(f"calibration attachment: not JSON ({type(exc).__name__})") from None
     ids = doc.get(KEY) if isinstance(doc, dict) else None
     if not isinstance(ids, list):
         raise InputError(f"calibration attachment: expected {{{KEY!r}: [camera ids]}}, got {str(doc)[:80]!r}")
