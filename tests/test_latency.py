@@ -39,7 +39,7 @@ class Recorder:
     def __init__(self) -> None:
         self.payloads: list[bytes] = []
 
-    def put(self, payload: bytes) -> None:
+    def put(self, payload: bytes, *, attachment: bytes | None = None) -> None:
         self.payloads.append(payload)
 
 
