@@ -53,6 +53,11 @@ log = logging.getLogger(__name__)
 
 # Cameras' views lie this far apart in the third coordinate of `_close_pairs`'s tree: beyond any radius.
 CAMERA_PLANE_PX = 1e6
+# A camera blamed alone (the one view off its pairs' F in a track of three or more) in over this share of its
+# views in a frame set's tracks, and in at least MOVED_MIN_VIEWS of them, moved: its old-pose views would judge
+# its new ones against the old geometry, and the calibrator would never see the move (`_reject_off_epipolar`).
+MOVED_SHARE = 0.5
+MOVED_MIN_VIEWS = 10
 
 
 @dataclass(frozen=True)
@@ -299,6 +304,14 @@ class TrackPool:
         if self.config.epipolar_px <= 0:
             return 0
         off = self._geometry.off_views(self._uv, changed)
+        for column in moved_columns(off, np.isfinite(self._uv[:, :, 0]), changed):
+            # Its views from before this frame set go, not its new ones; its pairs are fitted to those afresh.
+            log.warning("camera %r: %d of its views in this frame set's tracks break its pairs' epipolar geometry "
+                        "alone: taken for moved, its earlier views forgotten", self.cameras[column].id,
+                        int(off[changed, column].sum()))
+            self._uv[~changed, column] = np.nan
+            self._geometry.forget(column)
+            off[:, column] = False
         self._uv[off] = np.nan
         keep = ~off.any(axis=1) | (np.isfinite(self._uv[:, :, 0]).sum(axis=1) >= 2)
         self._uv, self._ids, self._last_seen = self._uv[keep], self._ids[keep], self._last_seen[keep]
@@ -336,6 +349,16 @@ class TrackPool:
             track_index=track_index.astype(np.int64),
             uv=self._uv[track_index, cam_index].reshape(-1, 2),
         )
+
+
+def moved_columns(off: np.ndarray, seen: np.ndarray, changed: np.ndarray) -> list[int]:
+    """Columns of the cameras that moved, by `off` (T, C) the views off their pairs' F (`PairGeometry.off_views`),
+    `seen` (T, C) and `changed` (T,) the tracks of this frame set: blamed alone, in tracks of three or more
+    views, in over MOVED_SHARE of their views in those tracks and in at least MOVED_MIN_VIEWS."""
+    wide = changed & (seen.sum(axis=1) >= 3)
+    alone = off[wide] & (off[wide].sum(axis=1) == 1)[:, None]
+    blamed, views = alone.sum(axis=0), seen[wide].sum(axis=0)
+    return [int(c) for c in np.flatnonzero((blamed >= MOVED_MIN_VIEWS) & (blamed > MOVED_SHARE * views))]
 
 
 def regrow_pool(pool: TrackPool | None, cameras: list[CameraInfo], stereo: Stereo, config: PoolConfig,
