@@ -53,12 +53,19 @@ def test_warm_resolve_of_a_growing_pool():
     assert tracker.good is out2.calibration
 
 
-def test_a_moved_camera_is_detected_and_recalibrated():
+def _bumped(shift_m, turn_deg: float, n_points_after: int):
+    """(rig before, mono_b moved by `shift_m` and turned `turn_deg`, rig after with `n_points_after` new
+    points, a tracker that calibrated the rig before)."""
     before = make_rig(n_points=300, seed=3)
-    new_mono = moved(before.cameras[3], [0.03, -0.02, 0.0], 3.0)
-    after = replace(make_rig(n_points=300, seed=4), cameras=[*before.cameras[:3], new_mono])
+    new_mono = moved(before.cameras[3], shift_m, turn_deg)
+    after = replace(make_rig(n_points=n_points_after, seed=4), cameras=[*before.cameras[:3], new_mono])
     tracker = Tracker(LiveConfig())
     assert tracker.update(observe(before, seed=5).observations).status == "good"
+    return before, new_mono, after, tracker
+
+
+def test_a_moved_camera_is_detected_and_recalibrated():
+    before, new_mono, after, tracker = _bumped([0.03, -0.02, 0.0], 3.0, 300)
     rms_before = tracker.good.report.cameras[new_mono.id].rms_px
 
     obs = pooled(observe(before, seed=5).observations, observe(after, seed=6).observations)
@@ -81,11 +88,7 @@ def test_a_moved_camera_is_placed_again_warm_on_its_new_tracks():
     # the new tracks, which the warm start held no points for: every warm re-placing failed ("sees only 0
     # points placed by the other cameras") and the whole pool went cold, where a camera with few new tracks
     # was once placed 1.4 m off at 5 sigma (a live network under load).
-    before = make_rig(n_points=300, seed=3)
-    new_mono = moved(before.cameras[3], [0.0, -0.04, 0.0], 0.0)
-    after = replace(make_rig(n_points=40, seed=4), cameras=[*before.cameras[:3], new_mono])
-    tracker = Tracker(LiveConfig())
-    assert tracker.update(observe(before, seed=5).observations).status == "good"
+    before, new_mono, after, tracker = _bumped([0.0, -0.04, 0.0], 0.0, 40)
     outcome = tracker.update(pooled(observe(before, seed=5).observations, observe(after, seed=6).observations))
     assert outcome.moved == (new_mono.id,) and outcome.status == "good", outcome.reason
     assert outcome.warm
