@@ -30,7 +30,7 @@ class MatcherNodeConfig:
     # frame sets 1 s apart, offline) the matcher's CPU per set once the pool was full was 0.58 s at 960 px,
     # 0.35 s at 640 px, 0.68 s at full size; the largest focal error against the truth over the last 10
     # solves 0.05%, 0.06% and 0.03% (median scale error 0.06-0.07% each; sigmas 1.1% and 1.3%). Live, 640
-    # px doubled the focal errors run after run (README, "The live network"). On a quiet machine full size
+    # px doubled the focal errors run after run (docs/benchmarks.md, "The live network"). On a quiet machine full size
     # meets the latency (bench_live 90 s: median 0.63 s against 0.56 s at 960 px) with half the focal
     # error (median largest 0.044% against 0.090%), so full size is the default; 960 is for a loaded host.
     full_pool_image_side_px: int | None = None

@@ -24,13 +24,13 @@ from tests._groundtruth import TEMPLE_ROOT, require
 
 VIEWS = [f"templeSR{k:04d}" for k in range(1, 17)]
 LEFT, RIGHT = "templeSR0007", "templeSR0008"
-# Measured (benchmarks/bench_temple.py, README "Real images: the temple ring"): with nothing known, every focal
-# length within 11% of the published one, 4.6 of its reported sigmas at most (the principal points, freed, trade
-# with the poses at this narrow field of view): beyond 3 sigmas, a known shortfall the README states; the bound
-# leaves a margin for other platforms' SIFT. The principal points moved 17-48% of the image from its centre, so the
-# solve says its scale has no linear sigma and names each such camera. The scale then lies anywhere along a nearly
-# flat valley: -0.5% off, and -4.2% while registration forgot points of undetermined depth (-10.4% and -0.03% with
-# the other neighbour pair); 6% leaves a margin.
+# Measured (benchmarks/bench_temple.py, docs/benchmarks.md "Real images: the temple ring"): with nothing known,
+# every focal length within 11% of the published one, 4.6 of its reported sigmas at most (the principal points,
+# freed, trade with the poses at this narrow field of view): beyond 3 sigmas, a known shortfall that section
+# states; the bound leaves a margin for other platforms' SIFT. The principal points moved 17-48% of the image
+# from its centre, so the solve says its scale has no linear sigma and names each such camera. The scale then
+# lies anywhere along a nearly flat valley: -0.5% off, and -4.2% while registration forgot points of undetermined
+# depth (-10.4% and -0.03% with the other neighbour pair); 6% leaves a margin.
 FOCAL_BOUND_REL = 0.20
 FOCAL_BOUND_SIGMAS = 7.0
 SCALE_BOUND_REL = 0.06

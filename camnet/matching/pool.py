@@ -68,7 +68,7 @@ class PoolConfig:
     grid_rows: int = 8
     # A view off its pair's pooled F by more than this (Sampson, px; a pair with a wider residual spread gets a
     # wider limit) is dropped (`camnet.matching.pair_geometry`); 0: no check. 2 px, not the matcher's 1 px
-    # RANSAC threshold: an F pooled over a few frame sets is still a pixel off in places (README, "The
+    # RANSAC threshold: an F pooled over a few frame sets is still a pixel off in places (docs/benchmarks.md, "The
     # surround rig, live").
     epipolar_px: float = 2.0
     epipolar_min_tracks: int = 20  # a pair's F needs this many tracks on it (the matcher's min_matches)
