@@ -188,9 +188,11 @@ def test_a_moved_camera_left_out_is_placed_again_later_with_its_lens():
     assert out.status == "good" and out.warm and out.moved == (), out.reason
     cal = out.calibration
     cam = {c.id: c for c in cal.cameras}[new_mono.id]
-    np.testing.assert_array_equal(cam.K, lens)
-    error_m = np.linalg.norm(cam.centre - new_mono.centre)
-    assert error_m < 4 * np.linalg.norm(cal.uncertainty.cameras[new_mono.id].centre_m), error_m
+    # Placed with its lens held, then solved on with it free (held, its sigmas were too small): its focal length
+    # stays within its sigma of the lens, where a camera placed with it free from the start lost 25%.
+    sigmas = cal.uncertainty.cameras[new_mono.id]
+    assert abs(cam.K[0, 0] - lens[0, 0]) < 4 * sigmas.f_px, (cam.K[0, 0], lens[0, 0], sigmas.f_px)
+    _placed_near(cal, new_mono)
 
 
 def _placed_near(cal: Calibration, camera: Camera) -> float:
@@ -225,6 +227,22 @@ def test_a_moved_camera_is_not_placed_from_views_its_old_geometry_let_through():
     out = tracker.update(obs, forgotten={new_mono.id: int(obs.track_ids.max()) + 1 - len(fresh.observations.track_ids)})
     assert out.status == "good" and out.moved == () and out.warm, out.reason
     _placed_near(out.calibration, new_mono)
+
+
+def test_a_moved_camera_placed_again_is_published_with_its_lens_uncertain():
+    # Placed with its lens held as calibrated (`test_a_moved_camera_left_out_is_placed_again_later_with_its_lens`),
+    # the lens counted as exact: here a scale sigma of 1.07%, 1.60% the solve after. Live, mono_b was published
+    # 5.8 mm off at a reported 1.2 mm so. The placing solve is solved on with its lens free.
+    before, new_mono, after, tracker = _bumped([0.0, -0.04, 0.0], 0.0, 200)
+    first, new = observe(before, seed=5).observations, observe(after, seed=6).observations
+    placing = tracker.update(pooled(first, new))
+    assert placing.moved == (new_mono.id,) and placing.status == "good", placing.reason
+    _placed_near(placing.calibration, new_mono)
+    later = tracker.update(pooled(first, new, observe(replace(after, points=after.points[:60] + 0.003),
+                                                      seed=8).observations))
+    assert later.status == "good" and later.moved == (), later.reason
+    sigma, sigma_later = (o.calibration.uncertainty.scale_rel.value for o in (placing, later))
+    assert sigma > 0.8 * sigma_later, (sigma, sigma_later)
 
 
 def test_a_camera_the_matcher_found_moved_is_placed_again_from_its_views_since():
