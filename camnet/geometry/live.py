@@ -120,8 +120,8 @@ class Tracker:
     def _told(self, obs: Observations, forgotten: Mapping[str, int] | None) -> tuple[str, ...]:
         """The cameras the matcher forgot since its last message: each is placed again from the tracks it pooled
         since (its cut-off), no longer awaited; those not yet known moved here are returned, taken for moved.
-        A stereo camera's move is found here (the metric frame goes with it); a matcher's first message only
-        gives cut-offs (what it forgot before, a calibration it had may already hold)."""
+        A stereo camera's move is left to `_detect_moves` (the metric frame goes with it); a matcher's first
+        message only gives cut-offs (what it forgot before, a calibration resumed may already hold)."""
         if forgotten is None:
             return ()
         known, self._forgotten = self._forgotten, dict(forgotten)
@@ -228,8 +228,8 @@ class Tracker:
         lens free; (that calibration, {}) where it is good and still places them on their new views, else
         (None, the moved cameras with why).
 
-        Held, a lens counts as known exactly, and the sigmas it leaves are too small: mono_b placed again
-        5.8 mm off at a reported 1.2 mm (scale sigma 0.3%, 1.4% the solve after with its lens free).
+        Held, a lens counts as known exactly and the sigmas are too small: live, mono_b placed again 5.8 mm off
+        at a reported 1.2 mm; a scale sigma of 0.3% where the solve after, its lens free, gave 1.4%.
         """
         held = {c for c, (camera, _) in self._pending.items() if c in self._reset and camera.model
                 == obs.cameras[obs.index_of(c)].model} & {c.id for c in placed.calibration.cameras}
