@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from camnet.bus import heap, keys, latency, lockstep
-from camnet.bus.moved import moved_attachment
+from camnet.bus.moved import moved_attachment, parse_forgotten_attachment
 from camnet.bus.node import Presence, Tally, guarded, stop_on_signals
 from camnet.bus.session import declare_liveliness
 from camnet.bus.stats import Activity, RateMeter
@@ -64,29 +64,31 @@ class CalibratorConfig:
 
 
 class LatestMessage:
-    """A one-slot mailbox: the newest payload wins, superseded ones are counted."""
+    """A one-slot mailbox: the newest payload (with its attachment) wins, superseded ones are counted."""
 
     def __init__(self) -> None:
         self._ready = threading.Condition()
         self._payload: bytes | None = None
         self._received_ns = 0
+        self._attachment: bytes | None = None
         self.superseded = 0
 
-    def put(self, payload: bytes) -> None:
+    def put(self, payload: bytes, attachment: bytes | None = None) -> None:
         received_ns = latency.now_ns()
         with self._ready:
             if self._payload is not None:
                 self.superseded += 1
-            self._payload, self._received_ns = payload, received_ns
+            self._payload, self._received_ns, self._attachment = payload, received_ns, attachment
             self._ready.notify()
 
-    def take(self, *, timeout_s: float) -> tuple[bytes, int] | None:
-        """(payload, when it was put: Unix epoch, ns), or None when nothing came within `timeout_s`."""
+    def take(self, *, timeout_s: float) -> tuple[bytes, int, bytes | None] | None:
+        """(payload, when it was put: Unix epoch, ns, its attachment), or None when nothing came within
+        `timeout_s`."""
         with self._ready:
             if not self._ready.wait_for(lambda: self._payload is not None, timeout=timeout_s):
                 return None
             payload, self._payload = self._payload, None
-            return payload, self._received_ns
+            return payload, self._received_ns, self._attachment
 
 
 def load_state(path: Path | None, rig: Rig | None = None) -> Calibration | None:
@@ -145,7 +147,8 @@ class CalibratorNode:
             self.malformed.count("too large", "dropping an observations message of %d bytes, more than %d",
                                  len(payload), MAX_MESSAGE_BYTES)
             return
-        self.mailbox.put(payload)
+        attachment = sample.attachment
+        self.mailbox.put(payload, None if attachment is None else attachment.to_bytes())
 
     def _on_query(self, query) -> None:
         with self._lock:
@@ -193,15 +196,19 @@ class CalibratorNode:
         payload = json.dumps(doc, allow_nan=False).encode()
         with self._lock:
             self.latest_doc = payload
-        # The matcher forgets what it pooled of a moved camera (camnet.bus.moved), told once per move.
-        publisher.put(payload, attachment=moved_attachment(self._moved_untold | set(outcome.moved)))
+        # The matcher forgets what it pooled of a moved camera (camnet.bus.moved), told once per move: not
+        # the ones it found itself (forgotten again, their new views would be lost).
+        publisher.put(payload, attachment=moved_attachment((self._moved_untold | set(outcome.moved))
+                                                           - set(outcome.told)))
         self._moved_untold = set()
         # Kept for a restart after it is published: writing it must not delay the rig's consumers.
         if self.config.state_path is not None:
             write_json_atomic(self.config.state_path, doc, private=True)  # the rig's layout: not for every user
 
-    def handle(self, payload: bytes, publisher, *, received_ns: int | None = None) -> Outcome | None:
-        """Solve one observations message (received at `received_ns`, Unix epoch) and publish what came of it."""
+    def handle(self, payload: bytes, publisher, *, received_ns: int | None = None,
+               attachment: bytes | None = None) -> Outcome | None:
+        """Solve one observations message (received at `received_ns`, Unix epoch; with the matcher's
+        `attachment`, `camnet.bus.moved`) and publish what came of it."""
         stamps = {"solving": latency.now_ns()}
         if received_ns is not None:
             stamps["received"] = received_ns
@@ -209,7 +216,13 @@ class CalibratorNode:
         if parsed is None:
             return None
         obs, doc = parsed
-        outcome = self._solve(obs, source=doc.get("pool_id"))
+        try:
+            forgotten = parse_forgotten_attachment(attachment)
+        except InputError as exc:
+            forgotten = None
+            self.malformed.count("attachment", "ignoring an observations attachment (%s); is the matcher of "
+                                 "another camnet version?", exc)
+        outcome = self._solve(obs, source=doc.get("pool_id"), forgotten=forgotten)
         if outcome is None:
             self.tracker.counts["failed"] += 1
             return None
@@ -223,7 +236,7 @@ class CalibratorNode:
                      len(cal.cameras), len(cal.points), cal.rms_reprojection_px,
                      100 * scale_sigma_rel(cal), "".join(f"; {c} left out: {why}" for c, why in left_out.items()))
         else:
-            self._moved_untold |= set(outcome.moved)  # named by the next calibration published
+            self._moved_untold |= set(outcome.moved) - set(outcome.told)  # named by the next calibration published
             # A rig that keeps failing must not flood the console: its status line counts every one.
             now_s = time.monotonic()
             loud = now_s - self._warned_s.get(outcome.status, -WARNING_PERIOD_S) >= WARNING_PERIOD_S
@@ -290,8 +303,8 @@ class CalibratorNode:
                 while not self.stop.is_set():
                     taken = self.mailbox.take(timeout_s=0.2)
                     if taken is not None:
-                        payload, received_ns = taken
-                        outcome = self.handle(payload, publisher, received_ns=received_ns)
+                        payload, received_ns, attachment = taken
+                        outcome = self.handle(payload, publisher, received_ns=received_ns, attachment=attachment)
                         if ack_publisher is not None:
                             status = outcome.status if outcome is not None else "not solved"
                             ack_publisher.put(lockstep.Ack.for_observations(payload, status=status).to_json())

@@ -53,7 +53,7 @@ from dataclasses import replace
 
 import numpy as np
 from camnet.services.features import from_message
-from camnet.services.matcher_calibration import CalibrationInbox, forget_moved
+from camnet.services.matcher_calibration import CalibrationInbox, forget_moved, pool_attachment
 from camnet.services.matcher_config import MatcherNodeConfig, rig_options, rig_stereo
 from camnet.services.matcher_frames import FrameSubscriptions
 
@@ -413,7 +413,7 @@ class MatcherNode:
             return False
         # The bytes of json.dumps(self.document()), only the tracks that changed encoded anew.
         self._latest_document = self._encoder.encode(*self._document_parts())
-        publisher.put(self._latest_document)
+        publisher.put(self._latest_document, attachment=pool_attachment(self._ensure_pool()))
         self.published += 1
         self._dirty = False
         self._next_publish_s = clock_s + self.config.publish_period_s

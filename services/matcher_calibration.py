@@ -13,7 +13,9 @@ machine, a router still connecting) gets no answer, so it asks again every
 A published calibration's attachment names the cameras found moved since
 the one before (`camnet.bus.moved`); they are gathered here as they arrive,
 whether or not their calibration is ever taken, for the worker to forget
-(`take_moved`) once each time the calibrator names them.
+(`take_moved`) once each time the calibrator names them. Each observations
+message then says from which track on the pool holds a forgotten camera's
+views afresh (`pool_attachment`): the calibrator places it only from those.
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ import logging
 import threading
 
 from camnet.bus import keys
-from camnet.bus.moved import parse_moved_attachment
+from camnet.bus.moved import forgotten_attachment, parse_moved_attachment
 from camnet.bus.node import Tally, guarded
 from camnet.errors import InputError
 from camnet.geometry.model import Calibration
@@ -125,3 +127,9 @@ def forget_moved(moved: tuple[str, ...], pool: TrackPool, matcher: IncrementalMa
         matcher.forget(camera_id)
         log.info("camera %r moved (the calibrator says): forgot its views, %d tracks left with under two "
                  "dropped; pool %d", camera_id, dropped, len(pool))
+
+
+def pool_attachment(pool: TrackPool) -> bytes:
+    """The attachment of the observations `pool` is published as: from which track on it pooled each forgotten
+    camera's views afresh (`camnet.bus.moved.forgotten_attachment`)."""
+    return forgotten_attachment(pool.forgotten)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from camnet.geometry.change import drop_before, first_moved_track, new_track_errors, off_their_pose, without_cameras
-from camnet.geometry.live import Tracker
+from camnet.geometry.live import NOT_FORGOTTEN_YET, Tracker
 from camnet.geometry.live_policy import LiveConfig, SoundnessLimits, judge
 from camnet.geometry.model import Baseline, Calibration, Camera, Observations, StartKind
 from camnet.geometry.projection import rotation_exp
@@ -188,9 +188,81 @@ def test_a_moved_camera_left_out_is_placed_again_later_with_its_lens():
     assert out.status == "good" and out.warm and out.moved == (), out.reason
     cal = out.calibration
     cam = {c.id: c for c in cal.cameras}[new_mono.id]
-    np.testing.assert_array_equal(cam.K, lens)
-    error_m = np.linalg.norm(cam.centre - new_mono.centre)
-    assert error_m < 4 * np.linalg.norm(cal.uncertainty.cameras[new_mono.id].centre_m), error_m
+    # Placed with its lens held, then solved on with it free (held, its sigmas were too small): its focal length
+    # stays within its sigma of the lens, where a camera placed with it free from the start lost 25%.
+    sigmas = cal.uncertainty.cameras[new_mono.id]
+    assert abs(cam.K[0, 0] - lens[0, 0]) < 4 * sigmas.f_px, (cam.K[0, 0], lens[0, 0], sigmas.f_px)
+    _placed_near(cal, new_mono)
+
+
+def _placed_near(cal: Calibration, camera: Camera) -> float:
+    """`camera`'s centre error in `cal` (m), asserted within 4 times its reported sigma."""
+    error_m = np.linalg.norm({c.id: c for c in cal.cameras}[camera.id].centre - camera.centre)
+    assert error_m < 4 * np.linalg.norm(cal.uncertainty.cameras[camera.id].centre_m), error_m
+    return error_m
+
+
+def test_a_moved_camera_is_not_placed_from_views_its_old_geometry_let_through():
+    # Until the matcher forgets a moved camera, it judges its new views against its pairs' old F: the few kept
+    # may fit a wrong pose, and did (under load, the solve that found the move published mono_b 0.3 m off its
+    # new place at a 15 mm sigma). Here they are views of a pose 0.19 m off: no check on them alone tells.
+    before = make_rig(n_points=300, seed=3)
+    new_mono = moved(before.cameras[3], [0.0, -0.04, 0.0], 0.0)
+    biased = observe(replace(make_rig(n_points=60, seed=4), cameras=[
+        *before.cameras[:3], moved(before.cameras[3], [0.1, -0.2, 0.0], 0.0)]), seed=6).observations
+    tracker = Tracker(LiveConfig())
+    first = observe(before, seed=5).observations
+    assert tracker.update(first, forgotten={}).status == "good"
+    out = tracker.update(pooled(first, biased), forgotten={})
+    assert out.moved == (new_mono.id,) and out.status == "good" and out.told == (), out.reason
+    assert new_mono.id not in {c.id for c in out.calibration.cameras}, "placed from views the old F let through"
+    assert out.calibration.report.cameras_left_out[new_mono.id] == NOT_FORGOTTEN_YET
+    # Still not, while the matcher has not forgotten it.
+    out = tracker.update(pooled(first, biased, observe(replace(before, points=before.points[:30] + 0.002),
+                                                       seed=8).observations), forgotten={})
+    assert out.status == "good" and new_mono.id not in {c.id for c in out.calibration.cameras}, out.reason
+    # The matcher forgot it: placed from the tracks it pooled since alone.
+    fresh = observe(replace(make_rig(n_points=200, seed=9), cameras=[*before.cameras[:3], new_mono]), seed=7)
+    obs = pooled(first, biased, fresh.observations)
+    out = tracker.update(obs, forgotten={new_mono.id: int(obs.track_ids.max()) + 1 - len(fresh.observations.track_ids)})
+    assert out.status == "good" and out.moved == () and out.warm, out.reason
+    _placed_near(out.calibration, new_mono)
+
+
+def test_a_moved_camera_placed_again_is_published_with_its_lens_uncertain():
+    # Placed with its lens held as calibrated (`test_a_moved_camera_left_out_is_placed_again_later_with_its_lens`),
+    # the lens counted as exact: here a scale sigma of 1.07%, 1.60% the solve after. Live, mono_b was published
+    # 5.8 mm off at a reported 1.2 mm so. The placing solve is solved on with its lens free.
+    before, new_mono, after, tracker = _bumped([0.0, -0.04, 0.0], 0.0, 200)
+    first, new = observe(before, seed=5).observations, observe(after, seed=6).observations
+    placing = tracker.update(pooled(first, new))
+    assert placing.moved == (new_mono.id,) and placing.status == "good", placing.reason
+    _placed_near(placing.calibration, new_mono)
+    later = tracker.update(pooled(first, new, observe(replace(after, points=after.points[:60] + 0.003),
+                                                      seed=8).observations))
+    assert later.status == "good" and later.moved == (), later.reason
+    sigma, sigma_later = (o.calibration.uncertainty.scale_rel.value for o in (placing, later))
+    assert sigma > 0.8 * sigma_later, (sigma, sigma_later)
+
+
+def test_a_camera_the_matcher_found_moved_is_placed_again_from_its_views_since():
+    # The matcher's pool found the move first (its new views broke its pairs' F) and forgot its views: the
+    # calibrator takes it for moved at once, rather than solving it at its old pose until it sees the move.
+    before = make_rig(n_points=300, seed=3)
+    new_mono = moved(before.cameras[3], [0.0, -0.04, 0.0], 0.0)
+    tracker = Tracker(LiveConfig())
+    first = observe(before, seed=5).observations
+    assert tracker.update(first, forgotten={}).status == "good"
+    after = replace(make_rig(n_points=200, seed=9), cameras=[*before.cameras[:3], new_mono])
+    fresh = observe(after, seed=7).observations
+    since = int(first.track_ids.max()) + 1
+    out = tracker.update(pooled(first, fresh), forgotten={new_mono.id: since})
+    assert out.moved == (new_mono.id,) and out.told == (new_mono.id,) and out.status == "good", out.reason
+    _placed_near(out.calibration, new_mono)
+    # Said again in the next message: not a new move.
+    more = observe(replace(after, points=after.points[:30] + 0.003), seed=8).observations
+    out = tracker.update(pooled(first, fresh, more), forgotten={new_mono.id: since})
+    assert out.status == "good" and out.moved == (), out.reason
 
 
 def test_detection_sees_only_the_camera_that_moved():

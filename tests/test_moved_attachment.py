@@ -13,7 +13,7 @@ from camnet.services.calibrator import CalibratorNode
 from camnet.services.matcher_calibration import CalibrationInbox
 
 from camnet.bus import keys
-from camnet.bus.moved import moved_attachment, parse_moved_attachment
+from camnet.bus.moved import forgotten_attachment, moved_attachment, parse_forgotten_attachment, parse_moved_attachment
 from camnet.bus.node import Tally
 from camnet.errors import InputError
 from camnet.geometry.live import Status
@@ -51,6 +51,13 @@ def test_a_published_calibration_names_the_moved_cameras_to_the_matcher_once(zen
         publish(("mono_b",))
         publish(("mono_a", "mono_b"))
         assert inbox.take_moved() == ("mono_a", "mono_b") and inbox.take_moved() == ()
+        # One the matcher found moved itself (and forgot) is not named back to it: forgotten again, its views
+        # since would be lost; the document still names it.
+        node._publish(publisher, first.calibration, {}, replace(first, moved=("mono_a", "mono_b"), told=("mono_b",)),
+                      {})
+        arrived()
+        assert json.loads(node.latest_doc)["moved"] == ["mono_a", "mono_b"]
+        assert inbox.take_moved() == ("mono_a",)
         assert rejected.total == 0
     finally:
         publisher.undeclare()
@@ -63,3 +70,25 @@ def test_the_attachment_round_trips_and_a_foreign_one_is_refused():
     for foreign in (b"\xff", b"[1]", b'{"moved": "a"}', b'{"moved": ["a/b"]}'):
         with pytest.raises(InputError, match="attachment|camera id"):
             parse_moved_attachment(foreign)
+
+
+def test_the_matchers_forgotten_attachment_round_trips_and_a_foreign_one_is_refused():
+    assert parse_forgotten_attachment(None) is None  # a source that says nothing of it
+    assert parse_forgotten_attachment(forgotten_attachment({})) == {}
+    assert parse_forgotten_attachment(forgotten_attachment({"mono_b": 1234, "mono_a": 0})) == {"mono_a": 0,
+                                                                                               "mono_b": 1234}
+    for foreign in (b"\xff", b"[1]", b'{"forgotten": ["a"]}', b'{"forgotten": {"a": -1}}', b'{"forgotten": {"a": 1.5}}',
+                    b'{"forgotten": {"a": true}}', b'{"forgotten": {"a/b": 1}}'):
+        with pytest.raises(InputError, match="attachment|camera id"):
+            parse_forgotten_attachment(foreign)
+
+
+def test_observations_with_a_foreign_attachment_are_solved_and_it_is_counted():
+    class Publisher:
+        def put(self, payload: bytes, *, attachment: bytes | None = None) -> None:
+            self.payload = payload
+
+    node, publisher = CalibratorNode(None, RIG), Publisher()
+    outcome = node.handle(observations_payload(seed=1), publisher, attachment=b'{"forgotten": ["mono_b"]}')
+    assert outcome is not None and outcome.status == Status.GOOD and json.loads(publisher.payload)["status"]
+    assert node.malformed.counts == {"attachment": 1}

@@ -224,6 +224,7 @@ def test_a_forgotten_moved_camera_keeps_its_new_views():
     old_m = (obs.cam_index == 2) & (obs.track_ids[obs.track_index] < first)
     kept = obs.track_ids[obs.track_index[new_m]]
     assert set(range(first, first + 4)) <= set(kept.tolist()), "the first few new views were judged by the old F"
+    assert pool.forgotten == {"M": first}  # said with the observations: the calibrator places M from these
     assert new_m.sum() + old_m.sum() >= 0.95 * offered, f"{new_m.sum()} of {offered} new views kept"
     # Old tracks hold M only where a new view merged into them (coinciding in L and R).
     assert old_m.sum() < 0.1 * offered
@@ -239,6 +240,9 @@ def test_a_camera_whose_new_views_break_its_pairs_geometry_alone_is_taken_for_mo
     old_m = (obs.cam_index == 2) & (obs.track_ids[obs.track_index] < first)
     assert new_m.sum() >= 0.9 * (offered - 4), f"{new_m.sum()} of {offered} new views kept"
     assert old_m.sum() < 0.1 * offered  # its views of the old pose are gone
+    # From the frame set that found the move on: the calibrator places M from those, not from the few of the
+    # first new frame set that its old F let through.
+    assert first + 4 <= pool.forgotten["M"] <= obs.track_ids.max() and set(pool.forgotten) == {"M"}
     # A camera that did not move is never taken for moved: L and R keep every view of the 8 sets before.
     assert ((obs.cam_index == 0) & (obs.track_ids[obs.track_index] < first)).sum() >= 0.95 * 800
 

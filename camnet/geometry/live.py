@@ -8,18 +8,34 @@ older observations are dropped and its pose solved afresh; if a stereo
 camera, or most of the rig, moved, the metric frame itself is gone and the
 solve starts over from the new tracks alone. Whether a solve may replace the
 last good one is the live policy's (camnet.geometry.live_policy).
+
+A matcher that says which cameras' views it forgot (`camnet.bus.moved`) is
+heard: a camera found moved here is left out, by name, until the matcher's
+pool holds its views afresh (those since the move were judged against its
+old epipolar geometry, and the few kept fit a wrong pose: once 0.3 m off at
+a 15 mm sigma), then placed again from those alone; one the matcher found
+moved first is placed again from its views since.
 """
 
 from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from functools import partial
 
 import numpy as np
 
-from camnet.geometry.change import drop_before, first_moved_track, moved_cameras, off_their_pose, track_errors
+from camnet.geometry.change import (
+    drop_before,
+    first_moved_track,
+    moved_cameras,
+    off_their_pose,
+    track_errors,
+    without_cameras,
+)
+from camnet.geometry.cold_start import with_cameras_left_out
 from camnet.geometry.judged_solve import Judged, Status, solve_judged
 from camnet.geometry.live_policy import LiveConfig, policy_check
 from camnet.geometry.model import Calibration, Camera, Observations
@@ -28,6 +44,9 @@ from camnet.geometry.newest_first import solve_newest_first
 log = logging.getLogger(__name__)
 
 MOVED_RMS_FACTOR = 2.0  # a moved camera placed again fits its new views within this times its RMS before
+NOT_FORGOTTEN_YET = ("moved, not placed again yet (the matcher has not pooled its views afresh: those since the move "
+                     "were judged against its old geometry, and the few kept may fit a wrong pose); its new tracks "
+                     "will place it (if it stays so, restart the matcher)")
 
 
 @dataclass(frozen=True)
@@ -38,6 +57,7 @@ class Outcome:
     reason: str
     calibration: Calibration | None = None
     moved: tuple[str, ...] = ()
+    told: tuple[str, ...] = ()  # of `moved`, those the matcher found moved (and forgot) itself
     warm: bool = False
     solve_s: float = 0.0
 
@@ -63,8 +83,16 @@ class Tracker:
     _points_valid: bool = False
     # Moved cameras (not the stereo pair) not yet placed again: as last calibrated, with their RMS (px) then.
     _pending: dict[str, tuple[Camera, float | None]] = field(default_factory=dict)
+    # The matcher's word (`camnet.bus.moved`): per camera, the first track id it pooled since forgetting its
+    # views; None while its messages say nothing of it.
+    _forgotten: dict[str, int] | None = None
+    # Moved cameras (found here) whose views the matcher has not forgotten since: left out, not placed again.
+    _awaiting: set[str] = field(default_factory=set)
 
-    def update(self, obs: Observations, *, source: object = None) -> Outcome:
+    def update(self, obs: Observations, *, source: object = None,
+               forgotten: Mapping[str, int] | None = None) -> Outcome:
+        """Solve `obs` (from matcher session `source`; `forgotten`: the matcher's first track id pooled since
+        it forgot each camera's views, None where it does not say) warm from the last good calibration."""
         t0 = time.perf_counter()
         self.solves += 1
         max_id = int(obs.track_ids.max()) if len(obs.track_ids) else -1
@@ -72,12 +100,13 @@ class Tracker:
             if self._last_max_id >= 0:
                 log.info("observations from a new matcher session: old points and cut-offs dropped")
             self._source, self._cutoffs, self._last_max_id = source, {}, -1
-            self._points_valid = False
-        moved = self._detect_moves(obs)
+            self._points_valid, self._forgotten, self._awaiting = False, None, set()
+        told = self._told(obs, forgotten)
+        moved = tuple(sorted({*self._detect_moves(obs, awaits=forgotten is not None), *told}))
         self._last_max_id = max(self._last_max_id, max_id)
         solve_obs = drop_before(obs, self._cutoffs) if self._cutoffs else obs
         outcome = self._solve(solve_obs, moved)
-        outcome = replace(outcome, solve_s=time.perf_counter() - t0)
+        outcome = replace(outcome, told=told, solve_s=time.perf_counter() - t0)
         self.counts[outcome.status] += 1
         if outcome.status == Status.GOOD:
             self.good = outcome.calibration
@@ -88,7 +117,34 @@ class Tracker:
             self._points_valid = True
         return outcome
 
-    def _detect_moves(self, obs: Observations) -> tuple[str, ...]:
+    def _told(self, obs: Observations, forgotten: Mapping[str, int] | None) -> tuple[str, ...]:
+        """The cameras the matcher forgot since its last message: each is placed again from the tracks it pooled
+        since (its cut-off), no longer awaited; those not yet known moved here are returned, taken for moved.
+        A stereo camera's move is left to `_detect_moves` (the metric frame goes with it); a matcher's first
+        message only gives cut-offs (what it forgot before, a calibration resumed may already hold)."""
+        if forgotten is None:
+            return ()
+        known, self._forgotten = self._forgotten, dict(forgotten)
+        news = {c: first for c, first in forgotten.items() if (known or {}).get(c) != first
+                and c in obs.camera_ids and c not in {obs.stereo.left, obs.stereo.right}}
+        calibrated = {c.id: c for c in self.good.cameras} if self.good is not None and known is not None else {}
+        stats = self.good.report.cameras if self.good is not None and self.good.report is not None else {}
+        told = []
+        for cam_id, first in news.items():
+            self._cutoffs[cam_id] = first
+            self._awaiting.discard(cam_id)
+            if cam_id in calibrated and cam_id not in self._reset:
+                self._pending[cam_id] = (calibrated[cam_id], stats[cam_id].rms_px if cam_id in stats else None)
+                self._reset.add(cam_id)
+                told.append(cam_id)
+        if told:
+            log.warning("camera(s) %s moved (the matcher found them off their pairs' geometry): re-calibrating "
+                        "them from the tracks it pooled since", told)
+        return tuple(sorted(told))
+
+    def _detect_moves(self, obs: Observations, *, awaits: bool = False) -> tuple[str, ...]:
+        """The cameras the tracks since the last solve find moved; with `awaits`, one not the stereo pair's
+        is left out until the matcher says it forgot its views (`_told`)."""
         if self.good is None or not self._points_valid:
             return ()
         rows = np.flatnonzero(obs.track_ids > self._last_max_id)
@@ -121,6 +177,8 @@ class Tracker:
                 # Not `first_new`: the tracks pooled since the last solve may begin before the move.
                 self._cutoffs[cam_id] = first_moved_track(*errors[cam_id], rule.limit_px(reference.get(cam_id)))
             self._reset |= set(moved)
+            if awaits:
+                self._awaiting |= set(moved)
         return tuple(moved)
 
     def _moved_unplaced(self, obs: Observations, warm: Judged) -> dict[str, str]:
@@ -164,6 +222,28 @@ class Tracker:
             replace(info, K=calibrated[info.id].K, dist=calibrated[info.id].dist, fixed=info.fixed | {"K", "dist"})
             if info.id in calibrated and info.model == calibrated[info.id].model else info for info in obs.cameras))
 
+    def _lens_freed(self, obs: Observations, placed: Judged,
+                    waiting: Mapping[str, str]) -> tuple[Calibration | None, dict[str, str]]:
+        """`placed` (good, moved cameras placed again with their lens held, `_lens_held`) solved on with every
+        lens free; (that calibration, {}) where it is good and still places them on their new views, else
+        (None, the moved cameras with why).
+
+        Held, a lens counts as known exactly and the sigmas are too small: live, mono_b placed again 5.8 mm off
+        at a reported 1.2 mm; a scale sigma of 0.3% where the solve after, its lens free, gave 1.4%.
+        """
+        held = {c for c, (camera, _) in self._pending.items() if c in self._reset and camera.model
+                == obs.cameras[obs.index_of(c)].model} & {c.id for c in placed.calibration.cameras}
+        if not held:
+            return placed.calibration, {}
+        free = solve_judged(obs, placed.calibration, options=self.config.options,
+                            check=partial(policy_check, config=self.config), leave_out=waiting)
+        unplaced = self._moved_unplaced(obs, free)
+        if free.status == Status.GOOD and not set(unplaced) - set(waiting):
+            return free.calibration, {}
+        why = free.reason if free.status != Status.GOOD else "its views since the move lie off the pose then solved"
+        return None, {c: f"moved, not placed again yet (placed with its lens as calibrated, but with its lens free: "
+                         f"{why}); its new tracks will place it" for c in sorted(held)}
+
     def _initial(self) -> Calibration | None:
         """The warm start: the last good calibration (its points only while they mean the same tracks)."""
         if self.good is None or len(self._reset) == len(self.good.cameras):
@@ -181,12 +261,16 @@ class Tracker:
         initial = self._initial()
         cold = None if self.config.stereo_pose is None else stereo_head(obs, *self.config.stereo_pose)
         check = partial(policy_check, config=self.config)
+        waiting = {c: NOT_FORGOTTEN_YET for c in sorted(self._awaiting) if c in obs.camera_ids}
         if initial is not None:
             warm = solve_judged(self._lens_held(obs), initial, options=self.config.options, check=check,
-                                reset=self._reset)
-            unplaced = self._moved_unplaced(obs, warm)
-            if warm.status == Status.GOOD and not unplaced:
-                return Outcome(Status.GOOD, "", warm.calibration, moved, warm=True)
+                                reset=self._reset, leave_out=waiting)
+            unplaced = {**self._moved_unplaced(obs, warm), **waiting}
+            if warm.status == Status.GOOD and not set(unplaced) - set(waiting):
+                freed, unplaced_free = self._lens_freed(obs, warm, waiting)
+                if freed is not None:
+                    return Outcome(Status.GOOD, "", freed, moved, warm=True)
+                unplaced |= unplaced_free
             if unplaced:
                 # A moved camera that its few new tracks cannot place yet must not send the rest cold (a cold
                 # solve placed it from those few, once 1.4 m off at 5 sigma), nor stand where its new views
@@ -197,10 +281,15 @@ class Tracker:
                     return Outcome(Status.GOOD, "", rest.calibration, moved, warm=True)
         # Not good warm (a camera taken for moved that fails, say): the pool is solved cold, a long one
         # on its newest tracks first.
-        judged = solve_newest_first(obs, self.config.options, check, start=cold,
-                                    start_tracks=self.config.cold_start_tracks)
+        judged = solve_newest_first(without_cameras(obs, waiting) if waiting else obs, self.config.options, check,
+                                    start=cold, start_tracks=self.config.cold_start_tracks)
         if judged.status == Status.GOOD:
-            return Outcome(Status.GOOD, "", judged.calibration, moved, warm=cold is not None)
+            cal = judged.calibration
+            if waiting:
+                report = with_cameras_left_out(cal.report, waiting)
+                cal = replace(cal, report=replace(report, cameras_left_out={**cal.report.cameras_left_out,
+                                                                            **waiting}))
+            return Outcome(Status.GOOD, "", cal, moved, warm=cold is not None)
         return Outcome(judged.status, judged.reason, None, moved, warm=False)
 
 

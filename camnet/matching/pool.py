@@ -233,6 +233,9 @@ class TrackPool:
         self._ids = np.empty(0, dtype=np.int64)
         self._last_seen = np.empty(0, dtype=np.int64)
         self._next_id = 0
+        # Per camera whose views were forgotten (it moved), the first track id pooled since: its views of older
+        # tracks were judged against its old geometry, a biased few (told to the calibrator, `camnet.bus.moved`).
+        self.forgotten: dict[str, int] = {}
         self._geometry = PairGeometry(len(ids), threshold_px=config.epipolar_px,
                                       min_inliers=config.epipolar_min_tracks)
 
@@ -275,11 +278,12 @@ class TrackPool:
                 is_new[i] = False
                 reobserved += 1
         added = int(is_new.sum())
+        first_new_id = self._next_id
         self._uv = np.concatenate([self._uv, new_uv[is_new]])
         self._ids = np.concatenate([self._ids, self._next_id + np.arange(added)])
         self._last_seen = np.concatenate([self._last_seen, np.full(added, frame_seq)])
         self._next_id += added
-        rejected = self._reject_off_epipolar(np.concatenate([grown, np.ones(added, dtype=bool)]))
+        rejected = self._reject_off_epipolar(np.concatenate([grown, np.ones(added, dtype=bool)]), first_new_id)
         evicted = self._evict()
         update = PoolUpdate(len(tracks), merged_in_frame, reobserved, added, evicted, rejected)
         log.debug("frame %d: %s, pool %d", frame_seq, update, len(self))
@@ -289,10 +293,12 @@ class TrackPool:
         """Drop every view of `camera_id` (it moved: its old-pose views would judge its new ones against
         the old geometry), and the tracks left with fewer than two views; the number of tracks dropped.
 
-        Its pairs' F are fitted afresh from its new views (`PairGeometry.forget`). Track ids stay.
+        Its pairs' F are fitted afresh from its new views (`PairGeometry.forget`). Track ids stay; those pooled
+        from now on are `forgotten[camera_id]` on.
         """
         if camera_id not in self._column:
             raise ValueError(f"camera {camera_id!r} is not in the pool's cameras")
+        self.forgotten[camera_id] = self._next_id
         column = self._column[camera_id]
         self._uv[:, column] = np.nan
         self._geometry.forget(column)
@@ -300,7 +306,7 @@ class TrackPool:
         self._uv, self._ids, self._last_seen = self._uv[keep], self._ids[keep], self._last_seen[keep]
         return int((~keep).sum())
 
-    def _reject_off_epipolar(self, changed: np.ndarray) -> int:
+    def _reject_off_epipolar(self, changed: np.ndarray, first_new_id: int) -> int:
         if self.config.epipolar_px <= 0:
             return 0
         off = self._geometry.off_views(self._uv, changed)
@@ -311,6 +317,7 @@ class TrackPool:
                         int(off[changed, column].sum()))
             self._uv[~changed, column] = np.nan
             self._geometry.forget(column)
+            self.forgotten[self.cameras[column].id] = first_new_id
             off[:, column] = False
         self._uv[off] = np.nan
         keep = ~off.any(axis=1) | (np.isfinite(self._uv[:, :, 0]).sum(axis=1) >= 2)
