@@ -43,11 +43,12 @@ class ViewGraphConfig:
     min_overlap: float = 0.05  # of either camera's frustum the other sees
     max_axis_angle_deg: float = 75.0  # optical axes further apart: features do not match across
     # Partners per camera by the geometry (at most neighbours * M / 2 pairs). On the 16 cameras of
-    # config/hosts16.yaml 4 make 29 pairs, 3 make 23. When every keyframe matched its camera's pairs whole, 3
-    # pooled a third fewer tracks seen by 3+ cameras; since keyframes match what changed (camnet.matching.seen),
-    # 3 pool as many as 4 did (a recorded live feature stream, offline: 1802 and 1775, 1538 before) for 0.121
-    # CPU s a frame set against 0.153 (benchmarks/bench_matcher_stream.py).
-    neighbours: int = 3
+    # config/hosts16.yaml 4 make 29 pairs, 3 make 23, 2 make 16 (a ring: each camera and its two neighbours).
+    # When every keyframe matched its camera's pairs whole, 3 pooled a third fewer tracks seen by 3+ cameras
+    # than 4; since keyframes match what changed (camnet.matching.seen), 3 pool as many as 4 did, and 2 as many
+    # as 3: a track seen by 3+ cameras runs along the ring from pair to pair (a recorded live feature stream,
+    # offline, benchmarks/bench_matcher_stream.py: see the README's "The matcher").
+    neighbours: int = 2
     # Other pairs per frame set, in rotation. An explored pair without an F is probed on a quarter of one
     # camera's keypoints first (camnet.matching.reuse), and matched whole only where that finds one.
     explore_per_set: int = 1
@@ -65,7 +66,8 @@ def choose_pairs(camera_ids: Sequence[str], *, calibrated: Collection[str], over
 
     Chosen: every pair with a camera not in `calibrated`, and every pair in
     `overlapping` or `always`; a pair in `matched_well` where both its
-    cameras have fewer than `neighbours` partners so far (any, if None); then
+    cameras have fewer than `neighbours` partners so far (any, if None),
+    giving each camera one such partner before any a second; then
     `explore` of the remaining pairs (sorted by their ids), taken in rotation
     from `cursor`, so that frame set after frame set every remaining pair
     comes round.
@@ -74,10 +76,14 @@ def choose_pairs(camera_ids: Sequence[str], *, calibrated: Collection[str], over
     chosen_from = set(overlapping) | set(always)
     chosen = {p for p in all_pairs if p in chosen_from or not p <= set(calibrated)}
     degree = Counter(camera for pair in chosen for camera in pair)
-    for pair in sorted(set(matched_well) & set(all_pairs) - chosen, key=sorted):
-        if neighbours is None or max(degree[camera] for camera in pair) < neighbours:
-            chosen.add(pair)
-            degree.update(pair)
+    well = sorted(set(matched_well) & set(all_pairs) - chosen, key=sorted)
+    # Up to 1 partner a camera, then up to 2, ...: in id order alone, 4 cameras that all matched well but
+    # overlap by none of the geometry, 2 partners each, left the last with none.
+    for most in (None,) if neighbours is None else range(1, neighbours + 1):
+        for pair in well:
+            if pair not in chosen and (most is None or max(degree[camera] for camera in pair) < most):
+                chosen.add(pair)
+                degree.update(pair)
     rest = sorted((p for p in all_pairs if p not in chosen), key=sorted)
     if explore <= 0 or not rest:
         return chosen, cursor
