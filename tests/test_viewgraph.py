@@ -129,6 +129,11 @@ def test_pairs_that_matched_well_give_every_camera_a_partner_before_any_a_second
     chosen, _ = choose_pairs(ids, calibrated=ids, overlapping=(), always={frozenset("ab")},
                              matched_well={frozenset(p) for p in combinations(ids, 2)}, neighbours=2)
     assert Counter(camera for pair in chosen for camera in pair) == dict.fromkeys(ids, 2)
+    # d, which the calibration puts elsewhere, keeps 2 of the pairs it matched well though a, b and c are full.
+    triangle = {frozenset("ab"), frozenset("bc"), frozenset("ac")}
+    chosen, _ = choose_pairs(ids, calibrated=ids, overlapping=triangle,
+                             matched_well={frozenset(p) for p in combinations(ids, 2)}, neighbours=2)
+    assert Counter(camera for pair in chosen for camera in pair)["d"] == 2
 
 
 def test_a_camera_that_sees_no_point_has_no_pair():

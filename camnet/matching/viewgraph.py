@@ -24,14 +24,14 @@ Without a calibration every pair is matched.
 from __future__ import annotations
 
 from collections import Counter
-from collections.abc import Collection, Sequence
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass
 from itertools import combinations
 
 import numpy as np
 
 from camnet.geometry.model import Calibration
-from camnet.geometry.viewgraph import depth_ranges, overlapping_pairs
+from camnet.geometry.viewgraph import MIN_PARTNERS, depth_ranges, overlapping_pairs
 
 Pair = frozenset[str]
 
@@ -43,7 +43,7 @@ class ViewGraphConfig:
     min_overlap: float = 0.05  # of either camera's frustum the other sees
     max_axis_angle_deg: float = 75.0  # optical axes further apart: features do not match across
     # Partners per camera by the geometry (at most neighbours * M / 2 pairs). On the 16 cameras of
-    # config/hosts16.yaml 4 make 29 pairs, 3 make 23, 2 make 16 (a ring: each camera and its two neighbours).
+    # config/hosts16.yaml 4 make 29 pairs, 3 make 23, 2 make 16-17 (each camera and its two along the arc).
     # When every keyframe matched its camera's pairs whole, 3 pooled a third fewer tracks seen by 3+ cameras
     # than 4; since keyframes match what changed (camnet.matching.seen), 3 pool as many as 4 did, and 2 as many
     # as 3: a track seen by 3+ cameras runs along the ring from pair to pair (a recorded live feature stream,
@@ -67,7 +67,8 @@ def choose_pairs(camera_ids: Sequence[str], *, calibrated: Collection[str], over
     Chosen: every pair with a camera not in `calibrated`, and every pair in
     `overlapping` or `always`; a pair in `matched_well` where both its
     cameras have fewer than `neighbours` partners so far (any, if None),
-    giving each camera one such partner before any a second; then
+    giving each camera one such partner before any a second (a camera with
+    fewer than 2 partners takes them whatever the other's); then
     `explore` of the remaining pairs (sorted by their ids), taken in rotation
     from `cursor`, so that frame set after frame set every remaining pair
     comes round.
@@ -78,12 +79,20 @@ def choose_pairs(camera_ids: Sequence[str], *, calibrated: Collection[str], over
     degree = Counter(camera for pair in chosen for camera in pair)
     well = sorted(set(matched_well) & set(all_pairs) - chosen, key=sorted)
     # Up to 1 partner a camera, then up to 2, ...: in id order alone, 4 cameras that all matched well but
-    # overlap by none of the geometry, 2 partners each, left the last with none.
-    for most in (None,) if neighbours is None else range(1, neighbours + 1):
+    # overlap by none of the geometry, 2 partners each, left the last with none. A camera with fewer than
+    # MIN_PARTNERS (one the calibration puts elsewhere, say) takes them whatever its partners have.
+    def take(wanted: Callable[[list[int]], bool]) -> None:
         for pair in well:
-            if pair not in chosen and (most is None or max(degree[camera] for camera in pair) < most):
+            if pair not in chosen and wanted([degree[camera] for camera in pair]):
                 chosen.add(pair)
                 degree.update(pair)
+
+    if neighbours is None:
+        take(lambda have: True)
+    else:
+        for most in range(1, neighbours + 1):
+            take(lambda have, most=most: max(have) < most)
+        take(lambda have: min(have) < min(MIN_PARTNERS, neighbours))
     rest = sorted((p for p in all_pairs if p not in chosen), key=sorted)
     if explore <= 0 or not rest:
         return chosen, cursor
