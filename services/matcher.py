@@ -88,8 +88,9 @@ MIN_SILENCE_S = 1.0  # a camera silent this long (and longer than a set waits) i
 LOCKSTEP_FRAME_WAIT_S = 10.0  # a step's frames are on their way when it is announced
 # The view graph is renewed from the newest calibration at most this often: a static rig's overlaps barely
 # change, and parsing a calibration of 16 cameras and 5000 points and renewing its view graph took 50 ms,
-# about one per frame set (a new, uncalibrated or unseeing camera is matched with every camera meanwhile).
-VIEW_GRAPH_PERIOD_S = 10.0
+# about one per frame set. While it leaves a camera out, which is matched with every camera (a third of a
+# 16-camera set's CPU went to the first 20 sets on the view graph, with 4 then 9 cameras), at most every 2 s.
+VIEW_GRAPH_PERIOD_S, PARTIAL_VIEW_GRAPH_PERIOD_S = 10.0, 2.0
 
 
 class MatcherNode:
@@ -201,7 +202,9 @@ class MatcherNode:
     def _take_calibration(self) -> None:
         """Choose pairs with the latest calibration from now on (the first at once, then one per period)."""
         now_s = time.monotonic()
-        if self.view_graph.calibrated and now_s < self._view_graph_s + VIEW_GRAPH_PERIOD_S:
+        whole = self.view_graph.calibrated >= set(self.camera_ids)
+        if self.view_graph.calibrated and now_s < self._view_graph_s + (
+                VIEW_GRAPH_PERIOD_S if whole else PARTIAL_VIEW_GRAPH_PERIOD_S):
             return  # a newer one replaces it in the inbox meanwhile
         calibration = self.calibration.take()
         if calibration is None:

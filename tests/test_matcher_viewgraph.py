@@ -9,7 +9,12 @@ from dataclasses import replace
 
 import numpy as np
 from camnet.services.calibrator import CalibratorConfig, CalibratorNode
-from camnet.services.matcher import VIEW_GRAPH_PERIOD_S, MatcherNode, MatcherNodeConfig
+from camnet.services.matcher import (
+    PARTIAL_VIEW_GRAPH_PERIOD_S,
+    VIEW_GRAPH_PERIOD_S,
+    MatcherNode,
+    MatcherNodeConfig,
+)
 from camnet.services.matcher_calibration import ASK_PERIOD_S, CalibrationInbox
 
 from camnet.bus import keys
@@ -152,6 +157,34 @@ def test_the_view_graph_is_renewed_from_the_newest_calibration_at_most_once_a_pe
         node._take_calibration()
         assert node.calibration.waiting  # kept for the next period, or replaced by a newer one
         node._view_graph_s -= VIEW_GRAPH_PERIOD_S  # the period has passed
+        node._take_calibration()
+        assert not node.calibration.waiting
+    finally:
+        node._workers.shutdown()
+
+
+def test_a_calibration_that_leaves_a_camera_out_is_renewed_sooner():
+    # A camera the view graph's calibration leaves out is matched with every camera: on 16 cameras, the frame
+    # sets with the calibrator's first calibrations (4, then 9 cameras) cost three times the others, for a
+    # whole period after each. The next is taken after the shorter period; once it holds every camera, the long.
+    rig = parse_rig(rig_document("vgpartial"))
+    node = MatcherNode(None, rig)  # no session: nothing here touches the bus
+    try:
+        whole = calibration_with_mono_b_elsewhere(rig)
+        index = [c["id"] for c in whole["cameras"]].index("mono_b")
+        partial = {**whole, "cameras": [c for k, c in enumerate(whole["cameras"]) if k != index]}
+        node.calibration.on_sample(_Sample(json.dumps(partial).encode()))
+        node._take_calibration()
+        assert node.view_graph.calibrated == {"left", "right", "mono_a"}
+        for _ in range(2):
+            node.calibration.on_sample(_Sample(json.dumps(whole).encode()))
+            node._take_calibration()
+            assert node.calibration.waiting  # not at once: every calibration would be parsed
+            node._view_graph_s -= PARTIAL_VIEW_GRAPH_PERIOD_S
+            node._take_calibration()
+        assert node.view_graph.calibrated == {"left", "right", "mono_a", "mono_b"}
+        assert node.calibration.waiting  # the second: every camera held, the long period
+        node._view_graph_s -= VIEW_GRAPH_PERIOD_S
         node._take_calibration()
         assert not node.calibration.waiting
     finally:

@@ -106,6 +106,19 @@ def test_an_arc_round_one_object_matches_a_linear_number_of_pairs():
     assert counts[32] <= 2 * counts[16] + 1, counts
 
 
+def test_pairs_that_matched_well_give_every_camera_a_partner_before_any_a_second():
+    # Four cameras 90 degrees apart round a person: the geometry pairs none, every pair matched well.
+    ids = ["a", "b", "c", "d"]
+    chosen, _ = choose_pairs(ids, calibrated=ids, overlapping=(), always={frozenset("ab")},
+                             matched_well={frozenset(p) for p in combinations(ids, 2)}, neighbours=2)
+    assert Counter(camera for pair in chosen for camera in pair) == dict.fromkeys(ids, 2)
+    # d, which the calibration puts elsewhere, keeps 2 of the pairs it matched well though a, b and c are full.
+    triangle = {frozenset("ab"), frozenset("bc"), frozenset("ac")}
+    chosen, _ = choose_pairs(ids, calibrated=ids, overlapping=triangle,
+                             matched_well={frozenset(p) for p in combinations(ids, 2)}, neighbours=2)
+    assert Counter(camera for pair in chosen for camera in pair)["d"] == 2
+
+
 def test_a_camera_that_sees_no_point_has_no_pair():
     cameras, points = ring(8)
     away = camera("away", (0, 0, -2), (0, 0, -5))

@@ -24,14 +24,14 @@ Without a calibration every pair is matched.
 from __future__ import annotations
 
 from collections import Counter
-from collections.abc import Collection, Sequence
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass
 from itertools import combinations
 
 import numpy as np
 
 from camnet.geometry.model import Calibration
-from camnet.geometry.viewgraph import depth_ranges, overlapping_pairs
+from camnet.geometry.viewgraph import MIN_PARTNERS, depth_ranges, overlapping_pairs
 
 Pair = frozenset[str]
 
@@ -43,10 +43,12 @@ class ViewGraphConfig:
     min_overlap: float = 0.05  # of either camera's frustum the other sees
     max_axis_angle_deg: float = 75.0  # optical axes further apart: features do not match across
     # Partners per camera by the geometry (at most neighbours * M / 2 pairs). On the 16 cameras of
-    # config/hosts16.yaml 4 make 29 pairs, 3 make 23. When every keyframe matched its camera's pairs whole, 3
-    # pooled a third fewer tracks seen by 3+ cameras; since keyframes match what changed (camnet.matching.seen),
-    # 3 pool as many as 4 did (a recorded live feature stream, offline: 1802 and 1775, 1538 before) for 0.121
-    # CPU s a frame set against 0.153 (benchmarks/bench_matcher_stream.py).
+    # config/hosts16.yaml 4 make 29 pairs, 3 make 23, 2 make 16-17. When every keyframe matched its camera's
+    # pairs whole, 3 pooled a third fewer tracks seen by 3+ cameras than 4; since keyframes match what changed
+    # (camnet.matching.seen), 3 pool as many as 4 did, and 2 as many as 3, for 16% less CPU a calibrated set
+    # of 16 cameras (4.8 pairs of 6 at 4). But on a recorded stream (benchmarks/bench_matcher_stream.py) the
+    # calibrations solved from 2 partners' pool had a larger focal error (median of the largest 0.13-0.14%
+    # against 0.10%), so 3.
     neighbours: int = 3
     # Other pairs per frame set, in rotation. An explored pair without an F is probed on a quarter of one
     # camera's keypoints first (camnet.matching.reuse), and matched whole only where that finds one.
@@ -65,7 +67,9 @@ def choose_pairs(camera_ids: Sequence[str], *, calibrated: Collection[str], over
 
     Chosen: every pair with a camera not in `calibrated`, and every pair in
     `overlapping` or `always`; a pair in `matched_well` where both its
-    cameras have fewer than `neighbours` partners so far (any, if None); then
+    cameras have fewer than `neighbours` partners so far (any, if None),
+    giving each camera one such partner before any a second (a camera with
+    fewer than 2 partners takes them whatever the other's); then
     `explore` of the remaining pairs (sorted by their ids), taken in rotation
     from `cursor`, so that frame set after frame set every remaining pair
     comes round.
@@ -74,10 +78,22 @@ def choose_pairs(camera_ids: Sequence[str], *, calibrated: Collection[str], over
     chosen_from = set(overlapping) | set(always)
     chosen = {p for p in all_pairs if p in chosen_from or not p <= set(calibrated)}
     degree = Counter(camera for pair in chosen for camera in pair)
-    for pair in sorted(set(matched_well) & set(all_pairs) - chosen, key=sorted):
-        if neighbours is None or max(degree[camera] for camera in pair) < neighbours:
-            chosen.add(pair)
-            degree.update(pair)
+    well = sorted(set(matched_well) & set(all_pairs) - chosen, key=sorted)
+    # Up to 1 partner a camera, then up to 2, ...: in id order alone, 4 cameras that all matched well but
+    # overlap by none of the geometry, 2 partners each, left the last with none. A camera with fewer than
+    # MIN_PARTNERS (one the calibration puts elsewhere, say) takes them whatever its partners have.
+    def take(wanted: Callable[[list[int]], bool]) -> None:
+        for pair in well:
+            if pair not in chosen and wanted([degree[camera] for camera in pair]):
+                chosen.add(pair)
+                degree.update(pair)
+
+    if neighbours is None:
+        take(lambda have: True)
+    else:
+        for most in range(1, neighbours + 1):
+            take(lambda have, most=most: max(have) < most)
+        take(lambda have: min(have) < min(MIN_PARTNERS, neighbours))
     rest = sorted((p for p in all_pairs if p not in chosen), key=sorted)
     if explore <= 0 or not rest:
         return chosen, cursor
