@@ -4,7 +4,6 @@ import argparse
 import logging
 import subprocess
 import sys
-import time
 from collections import defaultdict
 from pathlib import Path
 
@@ -282,17 +281,44 @@ rng = np.random.default_rng(0)
 for i in range(int(sys.argv[2])):
     rec.set_time("solve", sequence=i)
     rec.log("blob", rr.Tensor(rng.integers(0, 256, 2**20, dtype=np.uint8)))  # 1 MiB that compresses to no less
+rec.set_time("solve", sequence=int(sys.argv[2]))
+rec.log("end", rr.TextLog("all logged"))  # the newest: a late viewer that holds it holds all it will get
 rec.flush()
 print("logged", flush=True)
 sys.stdin.readline()
 """
 
 
+class GrowingRecording:
+    """An .rrd file another process writes, read whenever it has stopped growing between two polls."""
+
+    def __init__(self, path: Path) -> None:
+        self.path, self.size = path, 0
+
+    def current_size(self) -> int:
+        return self.path.stat().st_size if self.path.exists() else 0
+
+    def holds(self, entity: str) -> bool:
+        """Whether the file, unchanged since the last call, holds `entity` (a file being written may end
+        mid-chunk: then not yet)."""
+        size, self.size = self.size, self.current_size()
+        if self.size == 0 or self.size != size:
+            return False
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # no footer yet: the writer is still running
+            try:
+                return entity in read_rrd(self.path)
+            except Exception:  # noqa: BLE001  (a chunk half written: read again once it has grown)
+                return False
+
+
 def test_a_served_recording_keeps_a_bounded_history_for_late_viewers(tmp_path):
     """Measured before: Rerun's server kept up to 1 GiB for viewers that connect later, and a served
     calibrator grew by about 0.5 MB a solve. A late viewer (`rerun URL --save`) of 48 MiB logged
     gets the newest part of it: at most `SERVE_MEMORY_LIMIT` (16 MiB), and more than half of that."""
-    from tests.conftest import free_port
+    from tests.conftest import free_port, wait_for
 
     logged_mib, grpc_port = 48, free_port()
     server = viewer = None
@@ -304,17 +330,15 @@ def test_a_served_recording_keeps_a_bounded_history_for_late_viewers(tmp_path):
         rerun = str(Path(sys.executable).with_name("rerun"))
         viewer = subprocess.Popen([rerun, f"rerun+http://127.0.0.1:{grpc_port}/proxy", "--save", str(saved)],
                                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        # Done when the file has stopped growing for 5 s, within 120 s.
-        sizes: list[int] = []
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline and not (len(sizes) >= 10 and sizes[-1] > 0 and len(set(sizes[-10:])) == 1):
-            time.sleep(0.5)
-            sizes.append(saved.stat().st_size if saved.exists() else 0)
+        # Done when the file holds the newest message logged; waited for while it grows.
+        late = GrowingRecording(saved)
+        assert wait_for(lambda: late.holds("/end"), 60.0, 0.5, progress=late.current_size, limit_s=300.0), \
+            f"the late viewer's file never held the last message ({late.size} bytes)"
     finally:
         for process in (viewer, server):
             if process is not None and process.poll() is None:
                 process.kill()
                 process.wait(10)
-    mib, limit_mib = sizes[-1] / 2**20, int(viz.SERVE_MEMORY_LIMIT.removesuffix("MiB"))
+    mib, limit_mib = late.size / 2**20, int(viz.SERVE_MEMORY_LIMIT.removesuffix("MiB"))
     # The file adds its own framing (about 1%) to what the server kept.
     assert limit_mib / 2 < mib <= 1.05 * limit_mib, f"a late viewer got {mib:.1f} MiB of the {logged_mib} MiB logged"
