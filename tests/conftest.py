@@ -43,11 +43,11 @@ def wait_for(predicate, timeout_s: float = 60.0, period_s: float = 0.02, *, prog
     return predicate()
 
 
-def logs_written(directory: Path) -> int:
-    """Bytes of the *.log files under `directory`: the progress of nodes that log as they work
-    (`camnet up` starts its nodes with -v, logging to its run directory)."""
+def logs_written(directory: Path, pattern: str = "*.log") -> int:
+    """Bytes of the *.log files (or those `pattern` matches) under `directory`: the progress of nodes that
+    log as they work (`camnet up` starts its nodes with -v, logging to its run directory)."""
     total = 0
-    for path in Path(directory).rglob("*.log"):
+    for path in Path(directory).rglob(pattern):
         try:
             total += path.stat().st_size
         except OSError:  # rotated or removed meanwhile

@@ -337,5 +337,7 @@ def test_a_served_recording_keeps_a_bounded_history_for_late_viewers(tmp_path):
                 process.kill()
                 process.wait(10)
     mib, limit_mib = size / 2**20, int(viz.SERVE_MEMORY_LIMIT.removesuffix("MiB"))
-    # The file adds its own framing (about 1%) to what the server kept.
-    assert limit_mib / 2 < mib <= 1.05 * limit_mib, f"a late viewer got {mib:.1f} MiB of the {logged_mib} MiB logged"
+    # The server drops whole messages, oldest first, and may hold one (1 MiB here) over its limit: a late
+    # viewer got 14.1-17.1 MiB in 6 runs on a loaded machine. The file adds its own framing (about 1%).
+    assert limit_mib / 2 < mib <= 1.05 * (limit_mib + 1), \
+        f"a late viewer got {mib:.1f} MiB of the {logged_mib} MiB logged"
