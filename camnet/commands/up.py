@@ -338,7 +338,7 @@ def run(args: argparse.Namespace) -> int:
     if doc is None and stop.is_set():
         return 130
     if args.until_frame_sets is not None and follower.reached is None and not stop.is_set():
-        last = f"the last from {_frame_sets(doc)}" if doc is not None else "none at all"
+        last = f"the last was from {_frame_sets(doc)}" if doc is not None else "none at all"
         raise CamnetError(f"--until-frame-sets: no calibration from {args.until_frame_sets} frame sets in "
                           f"{args.duration_s:.0f} s ({last}); give a longer --duration-s, or see the nodes' logs "
                           f"in {run_dir / 'logs'}")
