@@ -10,7 +10,7 @@ import json
 import re
 import subprocess
 import sys
-import time
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -71,8 +71,8 @@ def rig_file(tmp_path, n_cameras: int) -> str:
     return str(path)
 
 
-def publish_junk_calibrations(endpoint: str, rig_name: str, process: subprocess.Popen) -> None:
-    """`{}`, 100k-deep JSON and bytes that are not UTF-8 on the calibration key, until `process` ends.
+def publish_junk_calibrations(endpoint: str, rig_name: str, stop: threading.Event) -> None:
+    """`{}`, 100k-deep JSON and bytes that are not UTF-8 on the calibration key, until `stop` is set.
 
     Measured before: `{}` there stopped `camnet up` and its six nodes a second later.
     """
@@ -80,10 +80,11 @@ def publish_junk_calibrations(endpoint: str, rig_name: str, process: subprocess.
 
     with open_session(BusOptions(connect=(endpoint,))) as peer:
         publisher = peer.declare_publisher(keys.calibration(rig_name))
-        while process.poll() is None:
+        while True:
             for junk in (b"{}", b"[" * 100_000, b"\xff\xfe"):
                 publisher.put(junk)
-            time.sleep(0.5)
+            if stop.wait(0.5):
+                return
 
 
 def run_up(tmp_path, args: list[str], *, timeout_s: float) -> str:
@@ -113,11 +114,19 @@ def test_simulated_network_calibrates_to_scale(tmp_path, n_cameras):
          str(tmp_path / "run"), "-o", str(out), "--listen", endpoint, "--rerun", f"save={rrd}",
          "--record", str(session)],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    # Any peer may publish on the calibration key: junk there, all the while camnet up runs, stops nothing.
+    # Published from a thread, so that camnet up's output is read meanwhile (a full pipe would stall it).
+    stop_junk = threading.Event()
+    junk = threading.Thread(target=publish_junk_calibrations, args=(endpoint, load_rig(rig_path).name, stop_junk),
+                            daemon=True)
     try:
-        if n_cameras == 4:  # any peer may publish on the calibration key: junk there stops nothing
-            publish_junk_calibrations(endpoint, load_rig(rig_path).name, proc)
+        if n_cameras == 4:
+            junk.start()
         stdout, stderr = proc.communicate(timeout=END_TIMEOUT_S)
     finally:
+        stop_junk.set()
+        if junk.is_alive():
+            junk.join(timeout=60)
         stop_process(proc)
     logs = "\n".join(p.read_text()[-1500:] for p in (tmp_path / "run").rglob("*.log"))
     assert proc.returncode == 0, stdout + stderr + logs
