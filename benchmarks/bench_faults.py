@@ -22,9 +22,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import random
 import signal
-import socket
 import sys
 import tempfile
 import threading
@@ -38,35 +36,12 @@ import yaml
 
 from camnet.bus import keys
 from camnet.bus.launch import Child, Launch, NetworkSpec, start_network
+from camnet.bus.ports import free_port
 from camnet.bus.session import BusOptions, open_session
 from camnet.errors import InputError
 from camnet.io.validate import decode_json
 
 BOX_CENTRE = [0.0625, 0.0, 0.65]
-
-
-def free_port() -> int:
-    """A TCP port of 127.0.0.1 free a moment ago, below the kernel's ephemeral range: one from
-    bind(("127.0.0.1", 0)) can be taken, before the router binds it seconds later, by any outgoing
-    connection on the machine (every Zenoh link makes one)."""
-    try:
-        low = int(Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()[0])
-    except (OSError, ValueError, IndexError):
-        low = 32768  # Linux's default
-    choice = random.Random(os.getpid() ^ time.time_ns())
-    for _ in range(1000 if low > 12_000 else 0):
-        port = choice.randint(10_000, low - 1)
-        if port == 7447:  # the rendezvous of camnet's nodes
-            continue
-        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-            try:
-                s.bind(("127.0.0.1", port))
-            except OSError:
-                continue
-        return port
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def rig_document(name: str, *, fps: float = 30.0, n_cameras: int = 4, side_px: int = 320) -> dict:

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import queue
-import socket
 import struct
 import sys
 import time
@@ -37,18 +36,13 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from camnet.bus.frame import Frame, FrameBuffer  # noqa: E402
+from camnet.bus.ports import free_port  # noqa: E402,F401  (bench_bus, bench_driver_frame, bench_record take it from here)
 
 RIG_FILE = ROOT / "config" / "sim.yaml"
 POOL_FRAMES = 4
 # Offsets of seq and timestamp_ns in the frame header (docs/frame-format.md).
 SEQ_AND_TIMESTAMP = struct.Struct("<QQ")
 SEQ_OFFSET = 20
-
-
-def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def camera_id(index: int) -> str:

@@ -2,10 +2,7 @@
 
 from __future__ import annotations
 
-import os
-import random
 import signal
-import socket
 import subprocess
 import threading
 import time
@@ -14,40 +11,7 @@ from pathlib import Path
 
 import pytest
 
-_PORTS_GIVEN: set[int] = set()
-_PORT_CHOICE = random.Random(os.getpid() ^ time.time_ns())
-
-
-def _ephemeral_range() -> tuple[int, int]:
-    try:
-        low, high = map(int, Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split())
-    except (OSError, ValueError):
-        low, high = 32768, 60999  # Linux's default
-    return low, high
-
-
-def free_port() -> int:
-    """A TCP port of 127.0.0.1, free a moment ago, that no other call in this process has returned.
-
-    Below the kernel's ephemeral range: a port from bind(("127.0.0.1", 0)) can be taken, before the
-    test's server binds it, by any outgoing connection on the machine (every Zenoh link makes one),
-    and two calls could return the same one.
-    """
-    low, high = _ephemeral_range()
-    first, last = (10_000, low - 1) if low > 12_000 else (high + 1, 65_535)
-    for _ in range(1000):
-        port = _PORT_CHOICE.randint(first, last)
-        if port in _PORTS_GIVEN or port == 7447:  # 7447: the rendezvous of camnet's nodes
-            continue
-        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-            try:
-                s.bind(("127.0.0.1", port))
-            except OSError:
-                continue
-        _PORTS_GIVEN.add(port)
-        return port
-    raise RuntimeError(f"no free TCP port of 127.0.0.1 in {first}-{last}")
-
+from camnet.bus.ports import free_port  # noqa: F401  (the tests import it from here)
 
 # wait_for's clock, replaced by a fake one in tests/test_waiting.py.
 _monotonic, _sleep = time.monotonic, time.sleep
@@ -79,11 +43,11 @@ def wait_for(predicate, timeout_s: float = 60.0, period_s: float = 0.02, *, prog
     return predicate()
 
 
-def logs_written(directory: Path) -> int:
-    """Bytes of the *.log files under `directory`: the progress of nodes that log as they work
-    (`camnet up` starts its nodes with -v, logging to its run directory)."""
+def logs_written(directory: Path, pattern: str = "*.log") -> int:
+    """Bytes of the *.log files (or those `pattern` matches) under `directory`: the progress of nodes that
+    log as they work (`camnet up` starts its nodes with -v, logging to its run directory)."""
     total = 0
-    for path in Path(directory).rglob("*.log"):
+    for path in Path(directory).rglob(pattern):
         try:
             total += path.stat().st_size
         except OSError:  # rotated or removed meanwhile

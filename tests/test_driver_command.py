@@ -7,7 +7,6 @@ import contextlib
 import json
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +17,7 @@ from camnet.bus import keys
 from camnet.bus.features_wire import decode_features
 from camnet.bus.receiver import FrameReceiver
 from camnet.bus.session import BusOptions, open_session
+from camnet.io.rig import load_rig
 from tests.conftest import free_port, wait_for
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -41,16 +41,17 @@ def stop(process: subprocess.Popen) -> str:
 
 
 def test_sim_driver_process_publishes_frames_groundtruth_and_status():
+    from camnet.drivers.node import RATE_WINDOW_S
+
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     driver = camnet("driver", "sim", "--rig", str(RIG), "--camera", "mono_a", "--listen",
                     endpoint, "--stats-period-s", "0.5")
     try:
         receiver = FrameReceiver()
-        frames, arrivals_s = [], []
+        frames = []
 
         def on_frame(sample) -> None:
             frames.append(receiver.accept(sample.payload.to_bytes()))
-            arrivals_s.append(time.monotonic())
 
         with open_session(BusOptions(connect=(endpoint,))) as session:
             session.declare_subscriber(keys.frame("sim", "mono_a"), on_frame)
@@ -67,20 +68,22 @@ def test_sim_driver_process_publishes_frames_groundtruth_and_status():
             cams = {c["id"]: c for c in truth["cameras"]}
             assert truth["world_frame"] == "left" and len(cams) == 4
             assert np.allclose(cams["mono_a"]["K"][0][0], 1300)
-            asked_s = time.monotonic()
+            received_before_asking = len(frames)
             status = subprocess.run(
                 [sys.executable, "-m", "camnet", "status", "--rig", "sim", "--connect", endpoint,
                  "--wait-s", "5"], cwd=ROOT, capture_output=True, text=True, timeout=120)
-            answered_s = time.monotonic()
             assert status.returncode == 0, status.stderr
             line = next(row for row in status.stdout.splitlines() if "mono_a" in row)
-            kind, node_id, fps, dropped = line.split()[:4]
+            kind, node_id, fps, dropped, sent = line.split()[:5]
             assert (kind, node_id) == ("driver", "mono_a")
-            # The rate it reports is the rate that arrives here; on a loaded machine both fall together.
-            # Counted over the whole of the status command (5 s or more), not its last seconds, which a
-            # loaded machine may deliver late and in a burst.
-            received_fps = sum(asked_s <= t <= answered_s for t in arrivals_s) / (answered_s - asked_s)
-            assert float(fps) > 0.5 * received_fps > 0 and int(dropped) >= 0, (line, received_fps)
+            # Bounds that hold however loaded the machine, not rates over two windows compared: the
+            # driver reports after it puts a frame, and status hears only reports made after it was
+            # asked, so they count every frame that had arrived here by then; and the rate is of
+            # frames sent over its last RATE_WINDOW_S or more, at least that last frame, and never
+            # above the camera's (a simulated camera skips the slots it is late for).
+            assert int(sent) >= received_before_asking > 0, (line, received_before_asking)
+            camera_fps = load_rig(RIG).camera("mono_a").config.fps
+            assert 0 < float(fps) <= camera_fps + 1 / RATE_WINDOW_S and int(dropped) >= 0, line
     finally:
         err = stop(driver)
     assert driver.returncode == 0, err
@@ -230,10 +233,10 @@ def test_a_failing_camera_stops_the_other_cameras_of_its_process():
     from camnet.drivers.node import run_together
 
     nodes = [FailingCamera("a", None), FailingCamera("b", 0.3), FailingCamera("c", None)]
-    started_s = time.monotonic()
     with pytest.raises(OSError, match="camera b unplugged"):
         run_together(nodes)
-    assert nodes[0].stopped and nodes[2].stopped and time.monotonic() - started_s < 30.0
+    # Stopped, not failed by themselves 60 s on: no clock needed to tell the two apart.
+    assert nodes[0].stopped and nodes[2].stopped
 
 
 def test_router_relays_between_peers():

@@ -163,9 +163,16 @@ def processes_mentioning(text: str) -> list[int]:
 @pytest.mark.parametrize("when", ["starting", "calibrating"])
 def test_sigterm_to_camnet_up_stops_every_node(tmp_path, when):
     rig_path = rig_file(tmp_path, 4)
-    up = subprocess.Popen([sys.executable, "-m", "camnet.cli", "up", rig_path, "--duration-s", "300",
-                           "--run-dir", str(tmp_path / "run"), "--listen", f"tcp/127.0.0.1:{free_port()}"],
-                          stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    console = tmp_path / "up.txt"  # a file, not a pipe that nobody reads until the end and that could fill
+    with open(console, "w") as out:
+        up = subprocess.Popen([sys.executable, "-m", "camnet.cli", "up", rig_path, "--duration-s", "300",
+                               "--run-dir", str(tmp_path / "run"), "--listen", f"tcp/127.0.0.1:{free_port()}"],
+                              stdout=out, stderr=subprocess.STDOUT, text=True)
+
+    def stopping() -> tuple[int, int]:
+        """Progress of camnet up on its way out: its nodes go, then it writes its results and says so."""
+        return len(processes_mentioning(rig_path)), logs_written(tmp_path, "*")
+
     try:
         # Drivers, matcher and calibrator all carry the rig file on their command lines.
         assert wait_for(lambda: len(processes_mentioning(rig_path)) >= 7, 60), processes_mentioning(rig_path)
@@ -173,11 +180,13 @@ def test_sigterm_to_camnet_up_stops_every_node(tmp_path, when):
             assert wait_for((tmp_path / "run" / "calibration.json").exists, 90,
                             progress=lambda: logs_written(tmp_path / "run"), limit_s=300), "no calibration"
         up.send_signal(signal.SIGTERM)
-        up.wait(timeout=60)
+        # Waited for while it goes on stopping (at load 33-50, all of it took over 60 s, twice).
+        assert wait_for(lambda: up.poll() is not None, 60, 0.2, progress=stopping, limit_s=600), \
+            f"camnet up did not stop: {processes_mentioning(rig_path)}\n{console.read_text()}"
         left = [" ".join((Path("/proc") / str(pid) / "cmdline").read_text().split("\0")[2:6])
                 for pid in processes_mentioning(rig_path)] if not wait_for(
             lambda: processes_mentioning(rig_path) == [], 20) else []
-        assert not left, f"still running: {left}\n{up.stdout.read()}"
+        assert not left, f"still running: {left}\n{console.read_text()}"
     finally:
         if up.poll() is None:
             up.kill()

@@ -1,5 +1,6 @@
-"""The tests' own waiting and port helpers (tests/conftest.py), on a fake clock: a wait with progress
-goes on while the progress moves and ends a timeout after it stops; ports are never handed out twice."""
+"""The tests' own waiting and port helpers (tests/conftest.py, camnet/bus/ports.py), on a fake clock: a
+wait with progress goes on while the progress moves and ends a timeout after it stops; ports are never
+handed out twice."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ import socket
 
 import pytest
 
+from camnet.bus import ports
 from tests import conftest
 
 
@@ -61,9 +63,9 @@ def test_the_predicate_ends_the_wait_once_true(clock):
 
 
 def test_free_ports_are_bindable_outside_the_ephemeral_range_and_never_repeated():
-    low, high = conftest._ephemeral_range()
-    ports = [conftest.free_port() for _ in range(200)]
-    assert len(set(ports)) == len(ports)
-    assert not any(low <= port <= high for port in ports)
+    low, high = ports.ephemeral_range()
+    given = [conftest.free_port() for _ in range(200)]
+    assert len(set(given)) == len(given)
+    assert not any(low <= port <= high for port in given)
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", ports[-1]))
+        s.bind(("127.0.0.1", given[-1]))

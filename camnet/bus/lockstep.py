@@ -38,24 +38,16 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass
 
 from camnet.bus.frame import Frame
+from camnet.bus.json_payload import decode_json_payload
 from camnet.errors import InputError
 
 STEP_FORMAT = "camnet.lockstep-step/1"
 ACK_FORMAT = "camnet.lockstep-ack/1"
 
 
-def _decode(payload: bytes) -> object:
-    """The JSON value of `payload`; InputError for anything else, however malformed (nesting deep
-    enough to exhaust the stack is a RecursionError, not a ValueError)."""
-    try:
-        return json.loads(payload)
-    except (ValueError, RecursionError) as exc:
-        raise InputError(f"not JSON ({type(exc).__name__})") from None
-
-
 def _load(payload: bytes, expected_format: str) -> dict:
     try:
-        doc = _decode(payload)
+        doc = decode_json_payload(payload)
     except InputError as exc:
         raise InputError(f"{expected_format}: {exc}") from None
     if not isinstance(doc, dict) or doc.get("format") != expected_format:
@@ -113,7 +105,7 @@ class Ack:
     def for_observations(cls, payload: bytes, *, status: str) -> Ack:
         """The calibrator's ack of one observations message (unreadable ones name no document)."""
         try:
-            doc = _decode(payload)
+            doc = decode_json_payload(payload)
         except InputError:
             doc = None
         if not isinstance(doc, dict):

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import json
 
+from camnet.bus.json_payload import decode_json_payload
 from camnet.errors import InputError
 from camnet.ids import validate_id
 
@@ -45,9 +46,9 @@ def parse_moved_attachment(data: bytes | None) -> tuple[str, ...]:
     if data is None:
         return ()
     try:
-        doc = json.loads(data)
-    except (ValueError, RecursionError) as exc:  # nesting deep enough to exhaust the stack: RecursionError
-        raise InputError(f"calibration attachment: not JSON ({type(exc).__name__})") from None
+        doc = decode_json_payload(data)
+    except InputError as exc:
+        raise InputError(f"calibration attachment: {exc}") from None
     ids = doc.get(KEY) if isinstance(doc, dict) else None
     if not isinstance(ids, list):
         raise InputError(f"calibration attachment: expected {{{KEY!r}: [camera ids]}}, got {str(doc)[:80]!r}")

@@ -190,6 +190,8 @@ class PreviewWorker:
                         log_frame(self.rec, self.entry.id, frame.image, time_ns=frame.timestamp_ns,
                                   encoding=frame.encoding)
                         self.shown += 1
+                        if self.shown == 1:  # opening a camera can take seconds: say when it streams
+                            print(f"preview: streaming {self.entry.id}", flush=True)
         except EndOfStream:
             return
         except DeviceError as exc:

@@ -2,7 +2,8 @@
 
 Starts one driver per camera, the matcher and the calibrator as child
 processes on the bus, follows the calibrations they produce, and ends (after
-`--duration-s`, or never with `--forever`) by printing the last calibration,
+`--duration-s`, or never with `--forever`; with `--until-frame-sets N` at the
+first calibration from N pooled frame sets) by printing the last calibration,
 beside the ground truth when the rig is simulated. With no rig file it runs
 the built-in simulated rig: the paper's four cameras.
 """
@@ -29,6 +30,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--duration-s", type=float, default=60.0,
                         help="seconds to run before printing the result and stopping (default 60)")
     parser.add_argument("--forever", action="store_true", help="run until interrupted")
+    parser.add_argument("--until-frame-sets", type=int, metavar="N",
+                        help="end at the first calibration solved from at least N pooled frame sets, however long "
+                             "the machine takes to pool them; --duration-s (or --forever) bounds the wait, and a "
+                             "run that ends before is an error")
     parser.add_argument("--detector", type=Detector, choices=list(Detector), default=Detector.SIFT,
                         help="matcher features (default: sift)")
     parser.add_argument("--features", action="store_true",
@@ -76,6 +81,8 @@ def _checked_rig(args: argparse.Namespace):
         _check_sources(rig_path, rig)
     if not args.duration_s > 0:
         raise InputError(f"--duration-s: must be positive, got {args.duration_s}")
+    if args.until_frame_sets is not None and args.until_frame_sets < 1:
+        raise InputError(f"--until-frame-sets: must be 1 or more, got {args.until_frame_sets}")
     if args.record and Path(args.record).exists() and not Path(args.record).is_dir():
         raise InputError(f"--record: {args.record} exists; camnet never overwrites a session")
     if args.replay and not Path(args.replay).is_file():
@@ -165,6 +172,7 @@ class RunFollower:
         self.args, self.truth = args, truth
         self.on_calibration = LatestCalibration()
         self.observations = RecentObservations()
+        self.reached: dict | None = None  # the first calibration from --until-frame-sets frame sets
 
     def on_observations(self, sample) -> None:
         from camnet.errors import InputError
@@ -180,7 +188,8 @@ class RunFollower:
             self.observations.add(source_key(doc), payload)
 
     def follow(self, launch, stop, start_s: float, run_dir: Path, progress_file) -> None:
-        """Print a line per calibration until the duration is up, Ctrl-C, or a replay's end."""
+        """Print a line per calibration until the duration is up, Ctrl-C, a replay's end, or the first
+        calibration from --until-frame-sets frame sets (kept in `reached`)."""
         import json
         import time
 
@@ -190,7 +199,8 @@ class RunFollower:
         next_wait_note = start_s + 10.0
         numbering = SolveNumbering()
         replay_done_s = None
-        while (self.args.forever or time.monotonic() - start_s < self.args.duration_s) and not stop.is_set():
+        while ((self.args.forever or time.monotonic() - start_s < self.args.duration_s) and not stop.is_set()
+               and self.reached is None):
             replay_done_s = replay_done_s or _replay_ended(launch)
             if replay_done_s is not None and time.monotonic() - replay_done_s > REPLAY_TAIL_S:
                 break  # the matcher's last pool has been solved by now, or never will be
@@ -204,10 +214,21 @@ class RunFollower:
                     if progress_file is not None:
                         progress_file.write(json.dumps(summary) + "\n")
                         progress_file.flush()
+                    if self.reached is None and _frame_sets(doc) >= (self.args.until_frame_sets or _NEVER):
+                        self.reached = doc
             elif "doc" not in latest and time.monotonic() >= next_wait_note:
                 print(f"{time.monotonic() - start_s:7.1f} s  waiting for the first calibration "
                       f"(see {run_dir / 'logs'}/*.log)", flush=True)
                 next_wait_note = time.monotonic() + 10.0
+
+
+_NEVER = float("inf")  # the frame sets to reach without --until-frame-sets
+
+
+def _frame_sets(doc: dict) -> int:
+    """The pooled frame sets a calibration was solved from (0 where it does not say)."""
+    frame_sets = doc.get("frame_sets")
+    return frame_sets if isinstance(frame_sets, int) and not isinstance(frame_sets, bool) else 0
 
 
 class SolveNumbering:
@@ -313,9 +334,14 @@ def run(args: argparse.Namespace) -> int:
             print("interrupted", flush=True)
         for subscriber in subscribers:
             subscriber.undeclare()
-    doc = follower.on_calibration.latest.get("doc")
+    doc = follower.reached or follower.on_calibration.latest.get("doc")
     if doc is None and stop.is_set():
         return 130
+    if args.until_frame_sets is not None and follower.reached is None and not stop.is_set():
+        last = f"the last was from {_frame_sets(doc)}" if doc is not None else "none at all"
+        raise CamnetError(f"--until-frame-sets: no calibration from {args.until_frame_sets} frame sets in "
+                          f"{args.duration_s:.0f} s ({last}); give a longer --duration-s, or see the nodes' logs "
+                          f"in {run_dir / 'logs'}")
     if doc is None:
         raise CamnetError(f"no calibration in {args.duration_s:.0f} s; the nodes' logs are in {run_dir / 'logs'}")
     print(_finish(args, run_dir, doc, follower, truth))

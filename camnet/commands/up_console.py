@@ -10,6 +10,7 @@ def summarise(elapsed_s: float, doc: dict, truth) -> dict:
     summary = {
         "elapsed_s": round(elapsed_s, 3),
         "solve": doc.get("solve"),
+        "frame_sets": doc.get("frame_sets"),
         "cameras": len(doc["cameras"]),
         "points": len(doc.get("points", [])),
         "rms_px": doc.get("rms_reprojection_px"),
