@@ -68,9 +68,9 @@ def parse_forgotten_attachment(data: bytes | None) -> dict[str, int] | None:
     if data is None:
         return None
     try:
-        doc = json.loads(data)
-    except (ValueError, RecursionError) as exc:
-        raise InputError(f"observations attachment: not JSON ({type(exc).__name__})") from None
+        doc = decode_json_payload(data)
+    except InputError as exc:
+        raise InputError(f"observations attachment: {exc}") from None
     first_ids = doc.get(FORGOTTEN_KEY) if isinstance(doc, dict) else None
     if not isinstance(first_ids, dict) or not all(
             type(i) is int and 0 <= i < MAX_TRACK_ID for i in first_ids.values()):
