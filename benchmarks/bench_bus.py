@@ -38,11 +38,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from sim_publishers import (  # noqa: E402
     SEQ_OFFSET,
     camera_id,
-    free_port,
     render_pool,
     rig_name,
     run_publishers,
 )
+
+from camnet.bus.ports import free_port  # noqa: E402
 
 _SEQ = struct.Struct("<Q")
 # Frames of the first second are sent but not scored, in both modes: the first put of each

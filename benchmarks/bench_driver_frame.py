@@ -38,10 +38,11 @@ from sim_publishers import (  # noqa: E402
     SEQ_AND_TIMESTAMP,
     SEQ_OFFSET,
     PooledCamera,
-    free_port,
     render_pool,
     sleep_until,
 )
+
+from camnet.bus.ports import free_port  # noqa: E402
 
 WARMUP_FRAMES = 30  # left out: the first puts wait for routes
 

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import socket
 import sys
 import tempfile
 import threading
@@ -40,6 +39,7 @@ from camnet.bus import keys
 from camnet.bus.features_wire import encode_features
 from camnet.bus.frame import Frame, encode_frame
 from camnet.bus.launch import Launch
+from camnet.bus.ports import free_port
 from camnet.bus.session import BusOptions, open_session
 from camnet.geometry.model import Calibration
 from camnet.io.formats import calibration_to_doc
@@ -47,12 +47,6 @@ from camnet.io.rig import load_rig
 from camnet.matching.edge import FeatureExtractor
 
 ROOT = Path(__file__).resolve().parent.parent
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def prepare(rig, slots: int, features_every: int) -> tuple[dict, dict]:

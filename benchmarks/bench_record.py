@@ -25,7 +25,9 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from sim_publishers import free_port, run_publishers  # noqa: E402  (the same camera processes)
+from sim_publishers import run_publishers  # noqa: E402  (the same camera processes)
+
+from camnet.bus.ports import free_port  # noqa: E402
 
 
 def record(compression: str, *, cameras: int, fps: float, seconds: float, size, directory: Path):

@@ -36,7 +36,6 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from camnet.bus.frame import Frame, FrameBuffer  # noqa: E402
-from camnet.bus.ports import free_port  # noqa: E402,F401  (bench_bus, bench_driver_frame, bench_record take it from here)
 
 RIG_FILE = ROOT / "config" / "sim.yaml"
 POOL_FRAMES = 4

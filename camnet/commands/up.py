@@ -214,15 +214,13 @@ class RunFollower:
                     if progress_file is not None:
                         progress_file.write(json.dumps(summary) + "\n")
                         progress_file.flush()
-                    if self.reached is None and _frame_sets(doc) >= (self.args.until_frame_sets or _NEVER):
+                    wanted = self.args.until_frame_sets
+                    if self.reached is None and wanted is not None and _frame_sets(doc) >= wanted:
                         self.reached = doc
             elif "doc" not in latest and time.monotonic() >= next_wait_note:
                 print(f"{time.monotonic() - start_s:7.1f} s  waiting for the first calibration "
                       f"(see {run_dir / 'logs'}/*.log)", flush=True)
                 next_wait_note = time.monotonic() + 10.0
-
-
-_NEVER = float("inf")  # the frame sets to reach without --until-frame-sets
 
 
 def _frame_sets(doc: dict) -> int:
