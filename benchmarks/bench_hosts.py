@@ -268,7 +268,7 @@ def table(phase: Phase) -> list[str]:
                     f"as a cost per second ({fixed:.2f} cores): {(2 - fixed) / rest:.2f} sets/s")
     per_set = phase.matcher_cpu_per_set_s()
     rows.append(f"matcher: {last['frame_sets']} frame sets matched, "
-                f"{'n/a' if per_set is None else f'{per_set:.2f}'} CPU s per frame set")
+                f"{'n/a' if per_set is None else f'{per_set:.3f}'} CPU s per frame set")
     return rows
 
 
@@ -284,8 +284,8 @@ def verdicts(main: Phase, compare: Phase | None) -> list[tuple[str, bool]]:
         many, few = main.matcher_cpu_per_set_s(), compare.matcher_cpu_per_set_s()
         ratio = many / few if many is not None and few else None
         found.append((f"matcher CPU per frame set, {main.n_cameras} vs {compare.n_cameras} cameras <= "
-                      f"{MAX_MATCHER_CPU_RATIO:g}x: {'n/a' if ratio is None else f'{ratio:.1f}x'} "
-                      f"({'n/a' if many is None else f'{many:.2f}'} s vs {'n/a' if few is None else f'{few:.2f}'} s)",
+                      f"{MAX_MATCHER_CPU_RATIO:g}x: {'n/a' if ratio is None else f'{ratio:.2f}x'} "
+                      f"({'n/a' if many is None else f'{many:.3f}'} s vs {'n/a' if few is None else f'{few:.3f}'} s)",
                       ratio is not None and ratio <= MAX_MATCHER_CPU_RATIO))
     return found
 

@@ -29,10 +29,14 @@ and what the matching did per frame set: pairs matched, of them whole
 the keypoint comparisons (rows times columns of the descriptor products,
 millions). Then the pool's tracks seen by 3+ cameras (the median over the
 sets once the pool is full) and the share of its observation pairs on the
-true epipolar lines. `--repeats` runs each recording again, taking turns.
+true epipolar lines. `--solve-every N` also solves the pool of every Nth
+frame set on the view graph (once it is full) as the live calibrator does
+(`camnet.geometry.live_policy.LiveConfig`'s options, cold), and reports the
+median scale error and largest focal error against the simulation's truth.
+`--repeats` runs each recording again, taking turns.
 
     python benchmarks/bench_matcher_stream.py record --out DIR [--minutes 3] [--compare-minutes 2]
-    python benchmarks/bench_matcher_stream.py replay DIR [--repeats 2] [--sets 120]
+    python benchmarks/bench_matcher_stream.py replay DIR [--repeats 2] [--sets 120] [--solve-every 40]
 """
 
 from __future__ import annotations
@@ -56,6 +60,8 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 if TYPE_CHECKING:
     from bench_matcher_stages import Stopwatch
+
+    from camnet.geometry.model import Observations
 
 _RECORD = struct.Struct("<qHI")  # arrival ns since the start, key bytes, payload bytes
 STAGES = ("matching", "pool", "calibrations", "rest")
@@ -137,12 +143,14 @@ class SetCost:
 
 
 class _Publisher:
-    def put(self, payload: bytes) -> None:
+    def put(self, payload: bytes, *, attachment: bytes | None = None) -> None:
         self.last = payload
 
 
-def replay(directory: Path, name: str, *, max_sets: int) -> tuple[list[SetCost], object]:
-    """Feed the recording of rig `name` to a matcher node; the cost of each frame set, and the pool's quality."""
+def replay(directory: Path, name: str, *, max_sets: int,
+           solve_every: int = 0) -> tuple[list[SetCost], object, list[Observations]]:
+    """Feed the recording of rig `name` to a matcher node; the cost of each frame set, the pool's quality,
+    and the pool of every `solve_every`th frame set on the view graph once it is full (none for 0)."""
     from bench_matcher_stages import Stopwatch, pool_quality
     from camnet.services.matcher import MatcherNode, MatcherNodeConfig, rig_options
 
@@ -158,8 +166,9 @@ def replay(directory: Path, name: str, *, max_sets: int) -> tuple[list[SetCost],
         node._matcher.prepare = watch.wrap("matching", node._matcher.prepare)
     node._take_calibration = watch.wrap("calibrations", node._take_calibration)
     node._ensure_pool = _wrap_pool(node._ensure_pool, watch)
-    publisher, costs = _Publisher(), []
+    publisher, costs, pools = _Publisher(), [], []
     calibration_key = keys.calibration(rig.name)
+    max_tracks = node.config.max_tracks
 
     def take(now_s: float) -> None:
         frame_set = node._sync.pop(now_s=now_s)
@@ -178,6 +187,9 @@ def replay(directory: Path, name: str, *, max_sets: int) -> tuple[list[SetCost],
                              int(np.sum(np.bincount(pool.observations().track_index) >= 3)),
                              bool(node.view_graph.calibrated),
                              node.view_graph.calibrated >= set(node.camera_ids)))
+        on_graph = sum(c.calibrated for c in costs)
+        if solve_every and costs[-1].calibrated and on_graph % solve_every == 0 and len(pool) >= 0.9 * max_tracks:
+            pools.append(node._document_parts()[0])
 
     for t_s, key, payload in read_stream(directory / f"{name}.stream"):
         if len(costs) >= max_sets:
@@ -188,7 +200,23 @@ def replay(directory: Path, name: str, *, max_sets: int) -> tuple[list[SetCost],
         elif key.endswith("/features"):
             node._sync.add(decode_features(payload), now_s=t_s)
             take(t_s)
-    return costs, pool_quality(node.pool.observations(), rig.simulated_truth())
+    return costs, pool_quality(node.pool.observations(), rig.simulated_truth()), pools
+
+
+def solve_errors(pools: list[Observations], truth) -> dict[str, float]:
+    """Median over `pools` of each one's calibration's scale error and largest focal error (%), solved cold
+    with the live calibrator's options."""
+    from camnet.geometry.calibrate import calibrate
+    from camnet.geometry.evaluate import compare_cameras
+    from camnet.geometry.live_policy import LiveConfig
+
+    scale, focal = [], []
+    for obs in pools:
+        c = compare_cameras(calibrate(obs, LiveConfig().options).calibration, truth)
+        scale.append(100 * abs(c.scale_rel))
+        focal.append(100 * max(abs(e.focal_rel) for e in c.cameras))
+    return {"solves": len(pools), "scale_pct": statistics.median(scale) if scale else nan,
+            "focal_pct": statistics.median(focal) if focal else nan}
 
 
 def _wrap_pool(ensure_pool, watch: Stopwatch):
@@ -236,18 +264,25 @@ def main() -> int:
     rep.add_argument("--repeats", type=int, default=1)
     rep.add_argument("--sets", type=int, default=10**9, help="at most this many frame sets of each recording")
     rep.add_argument("--only", help="only the recording of this rig")
+    rep.add_argument("--solve-every", type=int, default=0, metavar="N",
+                     help="solve the full pool of every Nth frame set on the view graph (0: none)")
     args = parser.parse_args()
     if args.command == "record":
         record(args.out, minutes=args.minutes, compare_minutes=args.compare_minutes,
                features_period_s=args.features_period_s)
         return 0
+    from camnet.io.rig import load_rig
+
     names = sorted((p.stem for p in args.recording.glob("*.stream") if args.only in (None, p.stem)),
                    key=lambda n: ("_first" in n, n))
     rows = {}
     for k in range(args.repeats):
         for name in names:
-            costs, quality = replay(args.recording, name, max_sets=args.sets)
-            rows[f"{name} #{k + 1}"] = (len(costs), summary(costs), quality)
+            costs, quality, pools = replay(args.recording, name, max_sets=args.sets, solve_every=args.solve_every)
+            if pools:
+                print(f"  {name} #{k + 1}: solving {len(pools)} pools", file=sys.stderr, flush=True)
+            errors = solve_errors(pools, load_rig(args.recording / f"{name}.yaml").simulated_truth())
+            rows[f"{name} #{k + 1}"] = (len(costs), summary(costs) | errors, quality)
             print(f"  {name} #{k + 1}: {len(costs)} frame sets, {summary(costs)['total']:.3f} CPU s a set",
                   file=sys.stderr, flush=True)
     print_table(rows)
@@ -268,7 +303,11 @@ def print_table(rows: dict) -> None:
                             ("pool: tracks seen by 3+ cameras (median, full pool)", "pool_3plus", "{:.0f}")):
         print(f"| {label} | " + " | ".join(fmt.format(rows[n][1][key]) for n in names) + " |")
     print("| pool: observation pairs within 1.5 px of the true epipolar lines | "
-          + " | ".join(f"{100 * rows[n][2].true_share:.1f}%" for n in names) + " |")
+          + " | ".join(f"{100 * rows[n][2].true_share:.2f}%" for n in names) + " |")
+    if any(rows[n][1]["solves"] for n in names):
+        for label, key in (("pools solved", "solves"), ("their scale error, median %", "scale_pct"),
+                           ("their largest focal error, median %", "focal_pct")):
+            print(f"| {label} | " + " | ".join(f"{rows[n][1][key]:.3g}" for n in names) + " |")
     for key, label in (("total", "every set"), ("held_total", "with every camera calibrated")):
         sixteen = [rows[n][1][key] for n in names if "_first" not in n]
         four = [rows[n][1][key] for n in names if "_first" in n]

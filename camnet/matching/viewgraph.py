@@ -43,13 +43,13 @@ class ViewGraphConfig:
     min_overlap: float = 0.05  # of either camera's frustum the other sees
     max_axis_angle_deg: float = 75.0  # optical axes further apart: features do not match across
     # Partners per camera by the geometry (at most neighbours * M / 2 pairs). On the 16 cameras of
-    # config/hosts16.yaml 4 make 29 pairs, 3 make 23, 2 make 16-17. When every keyframe matched its camera's
-    # pairs whole, 3 pooled a third fewer tracks seen by 3+ cameras than 4; since keyframes match what changed
-    # (camnet.matching.seen), 3 pool as many as 4 did, and 2 as many as 3, for 16% less CPU a calibrated set
-    # of 16 cameras (4.8 pairs of 6 at 4). But on a recorded stream (benchmarks/bench_matcher_stream.py) the
-    # calibrations solved from 2 partners' pool had a larger focal error (median of the largest 0.13-0.14%
-    # against 0.10%), so 3.
-    neighbours: int = 3
+    # config/hosts16.yaml 4 make 29 pairs, 3 make 23, 2 make 16-17: on a ring, each camera and its two
+    # neighbours, whose tracks chain into tracks of 3+ cameras through the middle one. Since keyframes match
+    # what changed (camnet.matching.seen), 2 pool as many tracks seen by 3+ cameras as 3 and 4, for a fifth less
+    # CPU a set of 16 cameras (5 pairs of 6 at 4). Calibrations solved from recorded streams' pools
+    # (benchmarks/bench_matcher_stream.py --solve-every) differ from 3's by less than either's spread, and by a
+    # tenth of the scale sigma they report (docs/benchmarks.md, "The matcher").
+    neighbours: int = 2
     # Other pairs per frame set, in rotation. An explored pair without an F is probed on a quarter of one
     # camera's keypoints first (camnet.matching.reuse), and matched whole only where that finds one.
     explore_per_set: int = 1
