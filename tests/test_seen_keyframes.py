@@ -96,26 +96,3 @@ def test_a_pair_that_does_not_overlap_is_probed_not_matched_whole(rig_images):
     assert matcher.probed == 1 and matcher.whole == 0 and len(matches.pairs[0]) == 0
     # Below a quarter of a whole match's comparisons.
     assert matcher.compared <= len(left.features) * len(noise.features) / 4 + len(noise.features)
-
-
-def test_a_pair_without_an_f_is_tried_again_only_once_a_keyframe_changes(rig_images):
-    rig, images, _ = rig_images
-    left = FeatureExtractor("left").extract(images[0]["left"], seq=1, timestamp_ns=1)
-    rng = np.random.default_rng(0)
-    noise_stage = FeatureExtractor("right")
-    noise = noise_stage.extract((rng.random((512, 640)) * 255).astype(np.uint8), seq=1, timestamp_ns=1)
-    matcher = IncrementalMatcher(MatcherConfig(), stereo=rig_stereo(rig))
-    matcher.match([left, noise])
-    compared = matcher.compared
-    # The same keyframes again: nothing has changed that could give the pair an F.
-    assert len(matcher.match([left, noise]).pairs[0]) == 0
-    assert matcher.probed == 1 and matcher.compared == compared
-    # A new keyframe of one camera (its scene changed, or it moved): probed again.
-    changed = noise_stage.extract((rng.random((512, 640)) * 255).astype(np.uint8), seq=2, timestamp_ns=2)
-    assert changed.keyframe_seq == 2
-    matcher.match([left, changed])
-    assert matcher.probed == 2 and matcher.compared > compared
-    # And a camera forgotten (it moved) is tried afresh with the same keyframes too.
-    matcher.forget("right")
-    matcher.match([left, changed])
-    assert matcher.probed == 3

@@ -101,7 +101,7 @@ def epipolar_inliers(F: np.ndarray, uv_a: np.ndarray, uv_b: np.ndarray, threshol
 class IncrementalMatcher:
     """Matches the frame sets of one static rig in order, remembering what each pair has matched.
 
-    Not thread-safe: the matcher node owns one. Memory: one `PairState` (or keyframe pair) per pair.
+    Not thread-safe: the matcher node owns one. Memory: one `PairState` per pair.
     """
 
     def __init__(self, config: MatcherConfig | None = None, *, stereo: Stereo | None = None,
@@ -109,11 +109,6 @@ class IncrementalMatcher:
         self.config = MatcherConfig() if config is None else config
         self.stereo = stereo
         self._pairs: dict[tuple[str, str], PairState] = {}
-        # Pairs whose probe or whole match found no F, with the keyframes (epochs) it was tried on: nothing has
-        # changed for them until one of those does (a camera moved, its scene changed), so they are not tried
-        # again till then: a pair the view graph keeps choosing (one that matched well, or the stereo pair) with
-        # no F would be probed every frame set, and matched whole (2000 x 2000 keypoints) where the probe passes.
-        self._fruitless: dict[tuple[str, str], tuple[int, int]] = {}
         self.whole = 0  # pairs matched whole
         self.incremental = 0  # pairs matched on their new keypoints only
         self.probed = 0  # pairs with no F probed on a share of their keypoints (`_probe`)
@@ -128,7 +123,6 @@ class IncrementalMatcher:
     def forget(self, camera_id: str) -> None:
         """Match every pair of `camera_id` whole next time."""
         self._pairs = {k: v for k, v in self._pairs.items() if camera_id not in k}
-        self._fruitless = {k: v for k, v in self._fruitless.items() if camera_id not in k}
         self.seen.forget(camera_id)
 
     def prepare(self, cameras: Sequence[CameraFeatures]) -> list[CameraFeatures]:
@@ -186,10 +180,7 @@ class IncrementalMatcher:
         state = self._pairs.get(key)
         keyframes = (fa.keyframe_seq, fb.keyframe_seq)
         empty = np.empty(0, dtype=np.int64)
-        if state is None and self._fruitless.get(key) == keyframes:
-            return PairMatches(a, b, empty, empty, None, 0)
         if state is None and not self._probe(fa.features, fb.features, prior=prior):
-            self._fruitless[key] = keyframes
             return PairMatches(a, b, empty, empty, None, 0)
         if state is None or state.keyframes != keyframes:
             ia, ib = candidate_matches(fa.features, fb.features, config, stereo_prior=prior)
@@ -198,9 +189,7 @@ class IncrementalMatcher:
             self.whole += 1
             if F is None or inliers.sum() < config.min_matches:
                 self._pairs.pop(key, None)
-                self._fruitless[key] = keyframes
                 return PairMatches(a, b, empty, empty, None, len(ia))
-            self._fruitless.pop(key, None)
             self._pairs[key] = PairState(keyframes, F, int(inliers.sum()))
             return PairMatches(a, b, ia[inliers], ib[inliers], F, len(ia))
         self.incremental += 1
