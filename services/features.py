@@ -31,7 +31,6 @@ import logging
 import threading
 from dataclasses import dataclass
 
-from camnet.bus import heap
 from camnet.bus.features_wire import FeaturesMessage, encode_features
 from camnet.bus.frame import Frame
 from camnet.bus.node import Tally, guarded, name_os_thread
@@ -149,18 +148,14 @@ def pick_frame(frames: collections.abc.Sequence[Frame], period_ns: int,
 class FeatureWorker:
     """Detects and publishes one camera's features on its own thread while the context lasts.
 
-    With `pace`, only on the grid points of its level (`MatcherPace`); without, on every one. After a
-    detection, the process's heap is trimmed if `trim_heap_period_s` has passed (`camnet.bus.heap`): SIFT's
-    image pyramids and descriptors are freed at every frame detected, and a camera host's four stages left its
-    resident memory's floor moving by 5% either way over ten minutes (`benchmarks/bench_hosts.py`).
+    With `pace`, only on the grid points of its level (`MatcherPace`); without, on every one.
     """
 
     def __init__(self, publisher, camera_id: str, config: FeatureStageConfig = FeatureStageConfig(), *,
-                 pace: MatcherPace | None = None, trim_heap_period_s: float = heap.TRIM_PERIOD_S) -> None:
+                 pace: MatcherPace | None = None) -> None:
         self.publisher = publisher
         self.config = config
         self.pace = pace
-        self.heap_trim = heap.process_trim(trim_heap_period_s)  # shared by the stages and nodes of the process
         self.extractor = FeatureExtractor(camera_id, config.matcher, config.edge)
         self.failures = Tally(log)
         self.published = 0
@@ -218,7 +213,6 @@ class FeatureWorker:
             start_s = time.perf_counter()
             detect(frame)
             self.last_detect_s = time.perf_counter() - start_s
-            self.heap_trim.if_due(time.monotonic())
 
     def _detect_and_publish(self, frame: Frame) -> None:
         features = self.extractor.extract(frame.image, seq=frame.seq, timestamp_ns=frame.timestamp_ns)

@@ -171,22 +171,6 @@ def test_a_feature_node_of_its_own_detects_a_cameras_frames_from_the_bus(zenoh_p
     assert node.receiver.malformed.counts == {"unknown-camera": 1}
 
 
-def test_a_stage_trims_the_processs_heap_after_detecting_once_a_period_has_passed(zenoh_pair):
-    from camnet.drivers.base import create_camera
-
-    session, _ = zenoh_pair
-    rig = parse_rig(rig_document("trim"))
-    camera = create_camera(rig.camera("left"), rig)
-    publisher = session.declare_publisher(keys.features(rig.name, "left"))
-    # A period of 0: due after every detection (the default, 5 s, shared by the process's nodes).
-    with FeatureWorker(publisher, "left", FeatureStageConfig(period_s=0.25), trim_heap_period_s=0.0) as worker:
-        before = worker.heap_trim.trims
-        for slot in range(3):
-            worker.offer(Frame("left", slot, slot * 250_000_000, "mono8", camera.render(slot)))
-            assert wait_for(lambda n=slot: worker.published > n, 60.0), f"no features for frame {slot}"
-        assert wait_for(lambda: worker.heap_trim.trims - before >= 3, 10.0), worker.heap_trim.trims - before
-
-
 def test_the_features_command_refuses_a_camera_not_in_the_rig(tmp_path):
     import subprocess
     import sys
