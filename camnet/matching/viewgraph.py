@@ -47,8 +47,8 @@ class ViewGraphConfig:
     # neighbours, whose tracks chain into tracks of 3+ cameras through the middle one. Since keyframes match
     # what changed (camnet.matching.seen), 2 pool as many tracks seen by 3+ cameras as 3 and 4, for a fifth less
     # CPU a set of 16 cameras (5 pairs of 6 at 4). Calibrations solved from recorded streams' pools
-    # (benchmarks/bench_matcher_stream.py --solve-every) differ from 3's by less than either's spread, and by a
-    # tenth of the scale sigma they report (docs/benchmarks.md, "The matcher").
+    # (benchmarks/bench_matcher_stream.py --solve-every) and live runs differ from 3's by less than the spread
+    # between runs, whose scale errors stay well inside the sigma reported (docs/benchmarks.md, "The matcher").
     neighbours: int = 2
     # Other pairs per frame set, in rotation. An explored pair without an F is probed on a quarter of one
     # camera's keypoints first (camnet.matching.reuse), and matched whole only where that finds one.
