@@ -27,15 +27,7 @@ from functools import partial
 
 import numpy as np
 
-from camnet.geometry.change import (
-    drop_before,
-    first_moved_track,
-    moved_cameras,
-    off_their_pose,
-    track_errors,
-    without_cameras,
-)
-from camnet.geometry.cold_start import with_cameras_left_out
+from camnet.geometry.change import drop_before, first_moved_track, moved_cameras, off_their_pose, track_errors
 from camnet.geometry.judged_solve import Judged, Status, solve_judged
 from camnet.geometry.live_policy import LiveConfig, policy_check
 from camnet.geometry.model import Calibration, Camera, Observations
@@ -281,15 +273,10 @@ class Tracker:
                     return Outcome(Status.GOOD, "", rest.calibration, moved, warm=True)
         # Not good warm (a camera taken for moved that fails, say): the pool is solved cold, a long one
         # on its newest tracks first.
-        judged = solve_newest_first(without_cameras(obs, waiting) if waiting else obs, self.config.options, check,
-                                    start=cold, start_tracks=self.config.cold_start_tracks)
+        judged = solve_newest_first(obs, self.config.options, check, start=cold,
+                                    start_tracks=self.config.cold_start_tracks, leave_out=waiting)
         if judged.status == Status.GOOD:
-            cal = judged.calibration
-            if waiting:
-                report = with_cameras_left_out(cal.report, waiting)
-                cal = replace(cal, report=replace(report, cameras_left_out={**cal.report.cameras_left_out,
-                                                                            **waiting}))
-            return Outcome(Status.GOOD, "", cal, moved, warm=cold is not None)
+            return Outcome(Status.GOOD, "", judged.calibration, moved, warm=cold is not None)
         return Outcome(judged.status, judged.reason, None, moved, warm=False)
 
 

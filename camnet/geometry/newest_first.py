@@ -18,12 +18,14 @@ file's ids say nothing of age, its "newest" tracks are merely a subset.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import replace
 from functools import partial
 
 import numpy as np
 
 from camnet.geometry.calibrate import Options
+from camnet.geometry.change import without_cameras
 from camnet.geometry.judged_solve import Check, Judged, Status, solve_judged
 from camnet.geometry.model import Calibration, Observations
 
@@ -44,14 +46,17 @@ def newest_tracks(obs: Observations, count: int) -> Observations:
 
 
 def solve_newest_first(obs: Observations, options: Options, check: Check, *, start: Calibration | None = None,
-                       start_tracks: int = START_TRACKS) -> Judged:
+                       start_tracks: int = START_TRACKS, leave_out: Mapping[str, str] | None = None) -> Judged:
     """A pool solved from `start` (None: cold) as the live calibrator solves one without a good calibration.
 
     A pool of at least twice `start_tracks` tracks is solved on its newest `start_tracks` first, the whole
     pool warm from there; where that is short or not good, the whole pool from `start`. Every solve is
-    judged by `check` (`judged_solve.solve_judged`: without the cameras it finds placed wrong, named).
+    judged by `check` (`judged_solve.solve_judged`: without the cameras it finds placed wrong, named), and
+    without the cameras of `leave_out` from the start, named with why.
     """
-    solve = partial(solve_judged, options=options, check=check)
+    if leave_out:
+        obs = without_cameras(obs, leave_out)  # before the newest tracks are chosen: those that keep 2 views
+    solve = partial(solve_judged, options=options, check=check, leave_out=leave_out)
     if len(obs.track_ids) >= 2 * start_tracks:
         seed = solve(newest_tracks(obs, start_tracks), start)
         if seed.status == Status.GOOD:
