@@ -43,7 +43,7 @@ from sim_publishers import (  # noqa: E402
     run_publishers,
 )
 
-from camnet.bus.ports import free_port  # noqa: E402
+from camnet.testing.ports import free_port  # noqa: E402
 
 _SEQ = struct.Struct("<Q")
 # Frames of the first second are sent but not scored, in both modes: the first put of each

@@ -28,15 +28,16 @@ from pathlib import Path
 import numpy as np
 from camnet.drivers.base import create_camera
 
-from camnet.geometry.evaluate import compare_cameras
-from camnet.geometry.live import Tracker
-from camnet.geometry.live_policy import LiveConfig
-from camnet.geometry.model import CameraInfo, Observations, Stereo
 from camnet.io.formats import observations_to_doc
 from camnet.io.rig import load_rig
+from camnet.live.policy import LiveConfig
+from camnet.live.tracker import Tracker
 from camnet.matching.features import MatcherConfig, match_frame_set
 from camnet.matching.pool import PoolConfig, TrackPool
 from camnet.matching.tracks import FrameTracks, build_tracks
+from camnet.model.accuracy import compare_cameras
+from camnet.model.camera import CameraInfo
+from camnet.model.observations import Observations, Stereo
 
 FALSE_PX = 2.0
 

@@ -42,7 +42,7 @@ from sim_publishers import (  # noqa: E402
     sleep_until,
 )
 
-from camnet.bus.ports import free_port  # noqa: E402
+from camnet.testing.ports import free_port  # noqa: E402
 
 WARMUP_FRAMES = 30  # left out: the first puts wait for routes
 

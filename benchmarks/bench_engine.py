@@ -22,11 +22,10 @@ from dataclasses import replace
 import numpy as np
 from colmap_anchor import AnchorSolver, camnet_start, colmap_adjust
 
-from camnet.geometry.calibrate import Options, calibrate
-from camnet.geometry.evaluate import point_weights
-from camnet.geometry.metrics import scale_error, shape_rms_m
+from camnet.model.accuracy import point_weights, scale_error, shape_rms_m
 from camnet.sim.bounds import cramer_rao
 from camnet.sim.simulate import make_rig, move_camera, observe
+from camnet.solve import Options, calibrate
 
 SCENARIOS = [
     ("paper rig", dict(), dict(), frozenset({"f"})),

@@ -36,10 +36,10 @@ import yaml
 
 from camnet.bus import keys
 from camnet.bus.launch import Child, Launch, NetworkSpec, start_network
-from camnet.bus.ports import free_port
 from camnet.bus.session import BusOptions, open_session
 from camnet.errors import InputError
 from camnet.io.validate import decode_json
+from camnet.testing.ports import free_port
 
 BOX_CENTRE = [0.0625, 0.0, 0.65]
 

@@ -27,10 +27,11 @@ import numpy as np
 from camnet.datasets.published import VsPublished, compare
 from camnet.datasets.strecha import image_path, in_frame_of, read_cameras
 from camnet.errors import CamnetError
-from camnet.geometry.calibrate import Options, calibrate
-from camnet.geometry.model import CameraInfo, Stereo
 from camnet.matching.features import MatcherConfig
 from camnet.matching.pipeline import observations_from_frame_sets, with_known_intrinsics
+from camnet.model.camera import CameraInfo
+from camnet.model.observations import Stereo
+from camnet.solve import Options, calibrate
 
 ROOT = Path(__file__).resolve().parents[1]
 FOUNTAIN = ROOT.parent / "shared" / "data" / "strecha_fountain_p11"

@@ -21,12 +21,12 @@ import argparse
 import numpy as np
 
 from camnet.errors import SolveError
-from camnet.geometry.bundle import ROT
-from camnet.geometry.calibrate import Options, calibrate
-from camnet.geometry.evaluate import compare
-from camnet.geometry.free_rule import PAIR_TOLERANCE_DEG
-from camnet.geometry.uncertainty import scale_sigma, scale_weights
+from camnet.model.accuracy import compare
 from camnet.sim.families import family, observe_family
+from camnet.solve import Options, calibrate
+from camnet.solve.bundle import ROT
+from camnet.solve.free_rule import PAIR_TOLERANCE_DEG
+from camnet.solve.uncertainty import scale_sigma, scale_weights
 
 
 def solve(name: str, seed: int, yaw_deg: float, options: Options):

@@ -128,7 +128,7 @@ class Phase:
     minutes: float
     samples: list[dict]  # t_s, cpu_s and rss_mb per process, matcher frame sets
     calibrations: list[tuple[float, dict]]  # (s since the start, document) of every good calibration
-    truth: list  # the simulated cameras (camnet.geometry.model.Camera)
+    truth: list  # the simulated cameras (camnet.model.camera.Camera)
 
     @property
     def window_s(self) -> float:

@@ -28,7 +28,7 @@ from camnet.commands.up import calibrate_live
 from camnet.datasets.kitti import SCENARIOS, KittiExtract, pooled_observations, prepare_scenario
 from camnet.datasets.published import VsPublished, compare
 from camnet.errors import CamnetError
-from camnet.geometry.calibrate import Options, calibrate
+from camnet.solve import Options, calibrate
 
 ROOT = Path(__file__).resolve().parents[1]
 KITTI = ROOT.parent / "shared" / "data" / "kitti_raw_2011_09_26_extract_3cam"

@@ -22,8 +22,8 @@ import tempfile
 from pathlib import Path
 
 from camnet.bus.latency import STAGES
-from camnet.bus.ports import free_port
 from camnet.matching.features import Detector
+from camnet.testing.ports import free_port
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -101,7 +101,7 @@ def ring_document(m: int) -> dict:
 
 def ground_truth_calibration(rig, time_s: float = 0.0):
     """The rig's true cameras and points on its scene's quads, in the left camera's frame: a perfect calibration."""
-    from camnet.geometry.model import Calibration
+    from camnet.model.calibration import Calibration
     from camnet.sim.scene import Scene
 
     rng = np.random.default_rng(0)

@@ -39,12 +39,12 @@ from camnet.bus import keys
 from camnet.bus.features_wire import encode_features
 from camnet.bus.frame import Frame, encode_frame
 from camnet.bus.launch import Launch
-from camnet.bus.ports import free_port
 from camnet.bus.session import BusOptions, open_session
-from camnet.geometry.model import Calibration
 from camnet.io.formats import calibration_to_doc
 from camnet.io.rig import load_rig
 from camnet.matching.edge import FeatureExtractor
+from camnet.model.calibration import Calibration
+from camnet.testing.ports import free_port
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -25,11 +25,12 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from camnet.geometry.model import CameraInfo, Stereo  # noqa: E402
 from camnet.io.formats import observations_to_doc  # noqa: E402
 from camnet.io.observations_encoder import ObservationsEncoder  # noqa: E402
 from camnet.matching.pool import PoolConfig, TrackPool  # noqa: E402
-from camnet.sim.random_tracks import HEIGHT, WIDTH, random_tracks, reseen  # noqa: E402
+from camnet.model.camera import CameraInfo  # noqa: E402
+from camnet.model.observations import Stereo
+from camnet.testing.random_tracks import HEIGHT, WIDTH, random_tracks, reseen  # noqa: E402
 
 
 def main() -> int:

@@ -31,7 +31,7 @@ millions). Then the pool's tracks seen by 3+ cameras (the median over the
 sets once the pool is full) and the share of its observation pairs on the
 true epipolar lines. `--solve-every N` also solves the pool of every Nth
 frame set on the view graph (once it is full) as the live calibrator does
-(`camnet.geometry.live_policy.LiveConfig`'s options, cold), and reports the
+(`camnet.live.policy.LiveConfig`'s options, cold), and reports the
 median scale error and largest focal error against the simulation's truth.
 `--repeats` runs each recording again, taking turns.
 
@@ -61,7 +61,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 if TYPE_CHECKING:
     from bench_matcher_stages import Stopwatch
 
-    from camnet.geometry.model import Observations
+    from camnet.model.observations import Observations
 
 _RECORD = struct.Struct("<qHI")  # arrival ns since the start, key bytes, payload bytes
 STAGES = ("matching", "pool", "calibrations", "rest")
@@ -207,9 +207,9 @@ def replay(directory: Path, name: str, *, max_sets: int,
 def solve_errors(pools: list[Observations], truth) -> dict[str, float]:
     """Median over `pools` of each one's calibration's scale error and largest focal error (%), solved cold
     with the live calibrator's options."""
-    from camnet.geometry.calibrate import calibrate
-    from camnet.geometry.evaluate import compare_cameras
-    from camnet.geometry.live_policy import LiveConfig
+    from camnet.live.policy import LiveConfig
+    from camnet.model.accuracy import compare_cameras
+    from camnet.solve import calibrate
 
     scale, focal = [], []
     for obs in pools:

@@ -27,7 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from sim_publishers import run_publishers  # noqa: E402  (the same camera processes)
 
-from camnet.bus.ports import free_port  # noqa: E402
+from camnet.testing.ports import free_port  # noqa: E402
 
 
 def record(compression: str, *, cameras: int, fps: float, seconds: float, size, directory: Path):

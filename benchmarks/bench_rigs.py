@@ -33,12 +33,11 @@ import numpy as np
 from colmap_anchor import colmap_adjust
 
 from camnet.errors import CamnetError
-from camnet.geometry.calibrate import calibrate
-from camnet.geometry.evaluate import compare
-from camnet.geometry.metrics import scale_error
+from camnet.model.accuracy import compare, scale_error
 from camnet.sim.bounds import cramer_rao
 from camnet.sim.families import FAMILIES, family, observe_family
 from camnet.sim.simulate import make_rig, observe, with_head
+from camnet.solve import calibrate
 
 NOISE_PX = 0.5
 

@@ -52,16 +52,17 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from camnet.errors import CamnetError
-from camnet.geometry.bundle import apply_step, residuals
-from camnet.geometry.calibrate import Result, calibrate
-from camnet.geometry.evaluate import compare_cameras
-from camnet.geometry.live_policy import LiveConfig, judge
-from camnet.geometry.model import Camera, CameraInfo, Observations, Stereo
-from camnet.geometry.uncertainty import with_guessed_pp
 from camnet.io.rig import Rig, load_rig
+from camnet.live.policy import LiveConfig, judge
 from camnet.matching.features import MatcherConfig, match_frame_set
 from camnet.matching.pool import PoolConfig, TrackPool
 from camnet.matching.tracks import FrameTracks, build_tracks
+from camnet.model.accuracy import compare_cameras
+from camnet.model.camera import Camera, CameraInfo
+from camnet.model.observations import Observations, Stereo
+from camnet.solve import Result, calibrate
+from camnet.solve.bundle import apply_step, residuals
+from camnet.solve.uncertainty import with_guessed_pp
 
 RIG_FILE = Path(__file__).resolve().parents[1] / "config" / "surround.yaml"
 SAME_POINT_M = 0.002

@@ -27,9 +27,10 @@ import numpy as np
 from camnet.datasets.published import VsPublished, compare, in_frame_of
 from camnet.datasets.temple import image_path, read_cameras
 from camnet.errors import CamnetError
-from camnet.geometry.calibrate import Options, calibrate
-from camnet.geometry.model import CameraInfo, Stereo
 from camnet.matching.pipeline import observations_from_frame_sets, with_known_intrinsics
+from camnet.model.camera import CameraInfo
+from camnet.model.observations import Stereo
+from camnet.solve import Options, calibrate
 
 ROOT = Path(__file__).resolve().parents[1]
 TEMPLE = ROOT.parent / "shared" / "data" / "middlebury_temple_sparse_ring"

@@ -20,10 +20,10 @@ import cv2
 import numpy as np
 
 from camnet import viz, viz_sinks
-from camnet.geometry.calibrate import calibrate
 from camnet.io.formats import Calibration
 from camnet.sim.scene import procedural_texture
 from camnet.sim.simulate import make_rig, observe
+from camnet.solve import calibrate
 
 T0_NS = 1_700_000_000_000_000_000
 

@@ -20,9 +20,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from camnet.geometry.cold_start import cold_start
-from camnet.geometry.initialise import camera_order, centred, initial_intrinsics, observation_rows
-from camnet.geometry.model import Observations
+from camnet.model.observations import Observations
+from camnet.solve.context import camera_order, centred, initial_intrinsics, observation_rows
+from camnet.solve.start.cold import cold_start
 
 COLMAP_PIXEL_SHIFT = 0.5
 
@@ -67,7 +67,7 @@ def _params(cam, f_start: float, camera_model: str) -> list[float]:
 
 
 def camnet_start(obs: Observations, seed: int = 0):
-    """(order, start): camnet's cold start of `obs`, as `camnet.geometry.calibrate` computes it."""
+    """(order, start): camnet's cold start of `obs`, as `camnet.solve.pipeline` computes it."""
     order = camera_order(obs)
     intr = initial_intrinsics(obs, order)
     xy = centred(obs, order, intr)

@@ -53,7 +53,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from camnet.errors import CamnetError
-from camnet.geometry.model import Calibration, Camera, Observations
+from camnet.model.calibration import Calibration
+from camnet.model.camera import Camera
+from camnet.model.observations import Observations
 from camnet.viz_sinks import RerunSink
 
 if TYPE_CHECKING:
@@ -223,8 +225,8 @@ class ReprojectionErrors:
 
 
 def reprojection_errors(calibration: Calibration, observations: Observations) -> ReprojectionErrors:
-    """Per observation and per point, from `camnet.geometry.residuals.reprojection_residuals` (pixels)."""
-    from camnet.geometry.residuals import reprojection_residuals
+    """Per observation and per point, from `camnet.solve.report.reprojection.reprojection_residuals` (pixels)."""
+    from camnet.solve.report.reprojection import reprojection_residuals
 
     residuals = reprojection_residuals(calibration, observations)
     obs_error = np.full(len(observations.uv), np.nan)
@@ -329,7 +331,7 @@ def _scalar(rec: rr.RecordingStream, value: float, *parts: str) -> None:
 
 
 def _log_series(rec: rr.RecordingStream, calibration: Calibration, truth) -> None:
-    from camnet.geometry.evaluate import compare, compare_cameras, scale_sigma_rel
+    from camnet.model.accuracy import compare, compare_cameras, scale_sigma_rel
 
     stats = calibration.report.cameras if calibration.report is not None else {}
     sigmas = calibration.uncertainty.cameras if calibration.uncertainty is not None else {}

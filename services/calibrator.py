@@ -1,7 +1,7 @@
 """The calibrator node: observations in, a metric calibration out, kept current.
 
 Every observations message (the matcher's pooled tracks, latest value only)
-is handed to the live policy (`camnet.geometry.live`), which solves it warm
+is handed to the live policy (`camnet.live.tracker`), which solves it warm
 from the last good calibration and says whether the result may replace it.
 Good calibrations are published on the rig's calibration key (with the
 stage times of `camnet.bus.latency`), answered to
@@ -28,10 +28,6 @@ from camnet.bus.node import Presence, Tally, guarded, stop_on_signals
 from camnet.bus.session import declare_liveliness
 from camnet.bus.stats import Activity, RateMeter
 from camnet.errors import InputError
-from camnet.geometry.evaluate import scale_sigma_rel
-from camnet.geometry.live import Outcome, Tracker
-from camnet.geometry.live_policy import LiveConfig
-from camnet.geometry.model import Calibration, Observations
 from camnet.io.formats import (
     MAX_TRACKS,
     calibration_to_doc,
@@ -43,6 +39,11 @@ from camnet.io.formats import (
 from camnet.io.rig import Rig
 from camnet.io.rig_match import calibration_mismatch, observations_mismatch
 from camnet.io.validate import decode_json
+from camnet.live.policy import LiveConfig
+from camnet.live.tracker import Outcome, Tracker
+from camnet.model.accuracy import scale_sigma_rel
+from camnet.model.calibration import Calibration
+from camnet.model.observations import Observations
 
 log = logging.getLogger(__name__)
 
@@ -184,7 +185,7 @@ class CalibratorNode:
 
     def _publish(self, publisher, cal: Calibration, doc_in: dict, outcome: Outcome, stamps: dict[str, int]) -> None:
         doc = calibration_to_doc(cal)
-        # The status is the verdict's level (camnet.geometry.verdict): a poor result is published, never "good".
+        # The status is the verdict's level (camnet.solve.report.verdict): a poor result is published, never "good".
         doc.update({"rig": self.rig_name, "solve": self.tracker.solves, "status": doc["verdict"]["level"],
                     "warm_start": outcome.warm, "moved": list(outcome.moved), "solved_ns": latency.now_ns()})
         for key in ("latest_capture_ns", "frame_sets"):

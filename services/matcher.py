@@ -66,7 +66,6 @@ from camnet.bus.session import declare_liveliness
 from camnet.bus.stats import Activity, CameraSeen, RateMeter
 from camnet.bus.sync import FrameSet, FrameSynchronizer, SyncCounts
 from camnet.errors import InputError
-from camnet.geometry.model import Observations
 from camnet.io.formats import observations_to_doc
 from camnet.io.observations_encoder import ObservationsEncoder
 from camnet.io.rig import Rig, camera_info, configured_size
@@ -76,6 +75,7 @@ from camnet.matching.pool import PoolUpdate, TrackPool, regrow_pool
 from camnet.matching.reuse import IncrementalMatcher
 from camnet.matching.tracks import build_tracks
 from camnet.matching.viewgraph import ViewGraph, ViewGraphConfig
+from camnet.model.observations import Observations
 
 __all__ = ["MatcherNode", "MatcherNodeConfig", "rig_options", "rig_stereo"]  # the options live in matcher_config
 log = logging.getLogger(__name__)

@@ -27,11 +27,11 @@ from camnet.bus import keys
 from camnet.bus.moved import forgotten_attachment, parse_moved_attachment
 from camnet.bus.node import Tally, guarded
 from camnet.errors import InputError
-from camnet.geometry.model import Calibration
 from camnet.io.formats import parse_calibration
 from camnet.io.validate import decode_json
 from camnet.matching.pool import TrackPool
 from camnet.matching.reuse import IncrementalMatcher
+from camnet.model.calibration import Calibration
 
 log = logging.getLogger(__name__)
 

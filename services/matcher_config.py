@@ -5,10 +5,10 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 from camnet.errors import InputError
-from camnet.geometry.model import Stereo
 from camnet.io.rig import Rig
 from camnet.matching.features import Detector, MatcherConfig
 from camnet.matching.pool import PoolConfig
+from camnet.model.observations import Stereo
 
 
 @dataclass(frozen=True)

@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from camnet.geometry.model import Camera
+from camnet.model.camera import Camera
 
 DATA_ROOT = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 KITTI_ROOT = DATA_ROOT / "kitti_raw_2011_09_26_extract_3cam"

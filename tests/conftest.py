@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from camnet.bus.ports import free_port  # noqa: F401  (the tests import it from here)
+from camnet.testing.ports import free_port  # noqa: F401  (the tests import it from here)
 
 # wait_for's clock, replaced by a fake one in tests/test_waiting.py.
 _monotonic, _sleep = time.monotonic, time.sleep

@@ -9,10 +9,11 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from camnet.geometry.calibrate import Options, calibrate
-from camnet.geometry.evaluate import compare
-from camnet.geometry.model import Baseline, Method, Observations
+from camnet.model.accuracy import compare
+from camnet.model.methods import Method
+from camnet.model.observations import Baseline, Observations
 from camnet.sim.simulate import PAPER_BASELINE_M, make_rig, observe, with_head
+from camnet.solve import Options, calibrate
 
 HEAD = ("mono_b", "mono_b_right")
 

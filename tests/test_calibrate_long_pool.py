@@ -8,9 +8,9 @@ from pathlib import Path
 
 import numpy as np
 
-from camnet.geometry.evaluate import compare_cameras
 from camnet.io.formats import parse_calibration
 from camnet.io.rig import load_rig
+from camnet.model.accuracy import compare_cameras
 
 ROOT = Path(__file__).parent.parent
 # config/surround.yaml rendered every 15 frames (7.5 s), 10 frame sets pooled as the matcher pools
@@ -36,7 +36,7 @@ def test_a_long_pool_is_solved_from_its_newest_tracks_and_places_every_camera(tm
     for e in c.cameras:
         assert abs(e.focal_rel) < 0.02 and e.centre_mm < 60.0, e
     # Rotation sigmas of 0.3-0.6 degrees on the far side (true errors 0.04-0.18), most of them the
-    # principal points' (estimated): K and R hold together, so not poor (camnet.geometry.verdict).
+    # principal points' (estimated): K and R hold together, so not poor (camnet.solve.report.verdict).
     assert doc["verdict"]["level"] in ("good", "usable"), doc["verdict"]
 
 

@@ -9,9 +9,9 @@ import pytest
 from camnet.services.calibrator import CalibratorConfig, CalibratorNode, load_state
 
 from camnet.bus import keys
-from camnet.geometry.verdict import judge
 from camnet.io.formats import observations_to_doc, parse_calibration
 from camnet.sim.simulate import make_rig, observe
+from camnet.solve.report.verdict import judge
 from tests.conftest import matched_publisher, running_node, wait_for
 
 RIG = "calnode"
@@ -117,7 +117,7 @@ def test_solves_that_are_not_kept_warn_once_a_period_not_each_time(caplog):
     """A rig whose every solve is refused: measured before, one warning per solve."""
     import logging
 
-    from camnet.geometry.live_policy import LiveConfig, SoundnessLimits
+    from camnet.live.policy import LiveConfig, SoundnessLimits
 
     node = CalibratorNode(None, RIG, CalibratorConfig(live=LiveConfig(limits=SoundnessLimits(max_rms_px=1e-9))))
     caplog.set_level(logging.INFO, logger="camnet.services.calibrator")

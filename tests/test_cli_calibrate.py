@@ -158,7 +158,7 @@ def test_calibrate_tells_a_person_on_stderr_and_json_only_when_asked(tmp_path, g
     assert summary["verdict"] == verdict and summary["output"] == str(out)
 
 
-HEAVY_MODULES = ("scipy.optimize", "scipy.sparse", "cv2", "zenoh", "rerun", "pycolmap", "camnet.geometry.calibrate")
+HEAVY_MODULES = ("scipy.optimize", "scipy.sparse", "cv2", "zenoh", "rerun", "pycolmap", "camnet.solve")
 
 
 @pytest.mark.parametrize("command", ["", "calibrate"])

@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 
 from camnet.errors import SolveError
-from camnet.geometry.calibrate import Options, calibrate
-from camnet.geometry.evaluate import compare, rotation_angle_deg
-from camnet.geometry.projection import project_with_jacobians, rotation_exp
-from camnet.geometry.uncertainty import covariance, scale_sigma
+from camnet.model.accuracy import compare, rotation_angle_deg
+from camnet.model.projection import project_with_jacobians, rotation_exp
 from camnet.sim.bounds import truth_state
 from camnet.sim.simulate import make_rig, move_camera, observe
+from camnet.solve import Options, calibrate
+from camnet.solve.uncertainty import covariance, scale_sigma
 
 
 def assert_exact(result, rig, rel=1e-6):

@@ -15,10 +15,11 @@ import pytest
 import yaml
 
 from camnet.errors import InputError
-from camnet.geometry.model import Calibration, Camera
 from camnet.io.export import export, kalibr_camchain, opencv_yaml, ros_camera_info
 from camnet.io.export_colmap import colmap_binary, colmap_model, colmap_text
 from camnet.io.formats import calibration_to_doc, observations_to_doc
+from camnet.model.calibration import Calibration
+from camnet.model.camera import Camera
 from camnet.sim.families import family
 from camnet.sim.simulate import make_rig, observe
 
@@ -46,7 +47,7 @@ def rig_calibration(*, k3: bool = True, seed: int = 4) -> tuple[Calibration, obj
 
 
 def cv2_project(cam: Camera, X: np.ndarray) -> np.ndarray:
-    """OpenCV's own projection, independent of camnet.geometry.projection.project."""
+    """OpenCV's own projection, independent of camnet.model.projection.project."""
     rvec, _ = cv2.Rodrigues(cam.R)
     uv, _ = cv2.projectPoints(X.reshape(-1, 1, 3), rvec, cam.t.reshape(3, 1), cam.K, cam.dist)
     return uv.reshape(-1, 2)

@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 
 from camnet.errors import InputError
-from camnet.geometry.model import Calibration
 from camnet.io.export_anipose import anipose_toml
+from camnet.model.calibration import Calibration
 from camnet.sim.simulate import make_rig
 from tests.test_export import fisheye_calibration, in_image, rig_calibration
 

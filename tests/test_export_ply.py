@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 from camnet.errors import InputError
-from camnet.geometry.calibrate import calibrate
 from camnet.io.export_ply import ply_points
 from camnet.io.formats import parse_calibration
 from camnet.sim.simulate import make_rig, observe
+from camnet.solve import calibrate
 from tests.test_export import rig_calibration
 
 plyfile = pytest.importorskip("plyfile", reason="plyfile (the test extra) is not installed")

@@ -17,9 +17,9 @@ import numpy as np
 import pytest
 
 from camnet.errors import SolveError
-from camnet.geometry.calibrate import calibrate
-from camnet.geometry.evaluate import compare
+from camnet.model.accuracy import compare
 from camnet.sim.families import FAMILIES, family, observe_family
+from camnet.solve import calibrate
 
 FIRST_SEED = 20
 SEEDS = 20  # per family: 95% then allows one miss per family and quantity

@@ -2,8 +2,8 @@
 
 import numpy as np
 
-from camnet.geometry import diagnostics
-from camnet.geometry.bundle import CentreMode, Problem, State
+from camnet.solve.bundle import CentreMode, Problem, State
+from camnet.solve.report import assemble as diagnostics
 
 
 def _problem_and_state(pp_px):

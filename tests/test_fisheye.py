@@ -12,21 +12,22 @@ import numpy as np
 import pytest
 
 from camnet.errors import InputError
-from camnet.geometry.calibrate import calibrate
-from camnet.geometry.evaluate import compare
-from camnet.geometry.initialise import (
+from camnet.io.formats import calibration_to_doc, observations_to_doc, parse_calibration, parse_observations
+from camnet.io.rig import parse_rig
+from camnet.model.accuracy import compare
+from camnet.model.calibration import Calibration
+from camnet.model.camera import Camera, LensModel
+from camnet.model.projection import normalised, project_points, project_with_jacobians, rotation_exp
+from camnet.sim.families import FISHEYE_DIST, family
+from camnet.sim.simulate import make_rig, observe
+from camnet.solve import calibrate
+from camnet.solve.context import (
     FISHEYE_START_CORNER_RAD,
     camera_order,
     centred,
     initial_intrinsics,
     with_guessed_fisheye_focal,
 )
-from camnet.geometry.model import Calibration, Camera, LensModel
-from camnet.geometry.projection import normalised, project_points, project_with_jacobians, rotation_exp
-from camnet.io.formats import calibration_to_doc, observations_to_doc, parse_calibration, parse_observations
-from camnet.io.rig import parse_rig
-from camnet.sim.families import FISHEYE_DIST, family
-from camnet.sim.simulate import make_rig, observe
 
 K = np.array([[515.0, 0.0, 641.3], [0.0, 517.0, 509.8], [0.0, 0.0, 1.0]])
 

@@ -6,10 +6,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from camnet.geometry.calibrate import calibrate
-from camnet.geometry.evaluate import compare
+from camnet.model.accuracy import compare
 from camnet.sim.families import WIDE_DIST, family, observe_family
 from camnet.sim.simulate import observe
+from camnet.solve import calibrate
 
 
 # Seeds 2, 3, 8: one camera's k2 alone is not significant until the others' is freed.

@@ -12,10 +12,10 @@ import pytest
 import yaml
 
 from camnet.errors import InputError
-from camnet.geometry.model import Calibration
 from camnet.io.formats import calibration_to_doc, observations_to_doc, parse_calibration, parse_observations
 from camnet.io.rig import load_rig
 from camnet.io.rig_match import calibration_mismatch, observations_mismatch
+from camnet.model.calibration import Calibration
 from camnet.sim.simulate import make_rig, observe
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -14,12 +14,14 @@ import numpy as np
 import pytest
 
 from camnet.errors import InputError
-from camnet.geometry import bundle
-from camnet.geometry.calibrate import Options, calibrate
-from camnet.geometry.evaluate import compare
-from camnet.geometry.free_rule import PAIR_TOLERANCE_DEG
-from camnet.geometry.live import stereo_head
-from camnet.geometry.uncertainty import (
+from camnet.io.rig import parse_rig
+from camnet.live.tracker import stereo_head
+from camnet.model.accuracy import compare
+from camnet.sim.families import family, observe_family
+from camnet.sim.simulate import make_rig, observe
+from camnet.solve import Options, bundle, calibrate
+from camnet.solve.free_rule import PAIR_TOLERANCE_DEG
+from camnet.solve.uncertainty import (
     covariance,
     held_at_tolerance,
     held_turn_columns,
@@ -28,9 +30,6 @@ from camnet.geometry.uncertainty import (
     scale_weights,
     with_held_turns,
 )
-from camnet.io.rig import parse_rig
-from camnet.sim.families import family, observe_family
-from camnet.sim.simulate import make_rig, observe
 
 GOLDEN = Path(__file__).parent / "golden"
 

@@ -28,9 +28,9 @@ from pathlib import Path
 import pytest
 
 from camnet.bus.security import COMMAND_IDENTITY
-from camnet.geometry.evaluate import compare_cameras
 from camnet.io.formats import parse_calibration
 from camnet.io.rig import load_rig
+from camnet.model.accuracy import compare_cameras
 from tests.test_docker import DOCKER, ROOT, camnet_services, load_compose, service_argv
 from tests.test_network import rig_file
 

@@ -7,11 +7,11 @@ import pytest
 
 from camnet.datasets.kitti import KittiExtract, parse_calib_cam_to_cam, read_image
 from camnet.errors import InputError
-from camnet.geometry.model import CameraInfo
 from camnet.io.formats import observations_to_doc, parse_observations
 from camnet.matching.features import MatcherConfig, match_frame_set
 from camnet.matching.pool import PoolConfig, TrackPool
 from camnet.matching.tracks import build_tracks
+from camnet.model.camera import CameraInfo
 from tests._groundtruth import KITTI_ROOT, pairwise_epipolar_fractions, require
 
 

@@ -18,9 +18,11 @@ import pytest
 from camnet.datasets.kitti import SCENARIOS, KittiExtract, pooled_observations, prepare_scenario, read_image
 from camnet.datasets.published import compare, compare_cameras, distance_scale
 from camnet.errors import InputError, SolveError
-from camnet.geometry.calibrate import Options, calibrate
-from camnet.geometry.model import Calibration, Camera, CameraInfo, Observations, Stereo
 from camnet.matching.pipeline import with_known_intrinsics
+from camnet.model.calibration import Calibration
+from camnet.model.camera import Camera, CameraInfo
+from camnet.model.observations import Observations, Stereo
+from camnet.solve import Options, calibrate
 from tests._groundtruth import KITTI_ROOT, require
 
 

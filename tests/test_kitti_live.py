@@ -21,8 +21,8 @@ import pytest
 from camnet.commands.up import calibrate_live
 from camnet.datasets.kitti import KittiExtract, pooled_observations, prepare_scenario
 from camnet.datasets.published import compare
-from camnet.geometry.calibrate import Options, calibrate
 from camnet.io.rig import load_rig
+from camnet.solve import Options, calibrate
 from tests._groundtruth import KITTI_ROOT, require
 from tests.conftest import free_port
 

@@ -8,11 +8,19 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from camnet.geometry.change import drop_before, first_moved_track, new_track_errors, off_their_pose, without_cameras
-from camnet.geometry.live import NOT_FORGOTTEN_YET, Tracker
-from camnet.geometry.live_policy import LiveConfig, SoundnessLimits, judge
-from camnet.geometry.model import Baseline, Calibration, Camera, Observations, StartKind
-from camnet.geometry.projection import rotation_exp
+from camnet.live.moved_cameras import (
+    drop_before,
+    first_moved_track,
+    new_track_errors,
+    off_their_pose,
+    without_cameras,
+)
+from camnet.live.policy import LiveConfig, SoundnessLimits, judge
+from camnet.live.tracker import NOT_FORGOTTEN_YET, Tracker
+from camnet.model.calibration import Calibration, StartKind
+from camnet.model.camera import Camera
+from camnet.model.observations import Baseline, Observations
+from camnet.model.projection import rotation_exp
 from camnet.sim.simulate import make_rig, observe
 
 
@@ -311,7 +319,7 @@ def test_a_bad_solve_never_replaces_a_good_calibration(broken):
 def test_the_command_default_is_the_live_default():
     from camnet.commands.calibrate import parse_free
     from camnet.commands.calibrator import DEFAULT_FREE
-    from camnet.geometry.live_policy import LIVE_FREE
+    from camnet.live.policy import LIVE_FREE
 
     assert parse_free(DEFAULT_FREE) == LIVE_FREE == LiveConfig().options.free
 
@@ -321,8 +329,8 @@ def test_a_factory_head_without_points_or_rms_is_a_state_to_resume_from(tmp_path
 
     from camnet.services.calibrator import load_state
 
-    from camnet.geometry.model import Calibration
     from camnet.io.formats import calibration_to_doc, write_json_atomic
+    from camnet.model.calibration import Calibration
 
     rig = make_rig(seed=1)
     head = Calibration(cameras=tuple(rig.cameras[:2]), point_ids=np.empty(0, dtype=np.int64), points=np.empty((0, 3)),
@@ -337,8 +345,8 @@ def test_a_factory_head_without_points_or_rms_is_a_state_to_resume_from(tmp_path
 
 def test_a_known_stereo_head_is_held():
     """A rig file's stereo pose (a factory head): every solve starts from it and, its axes held, keeps it."""
-    from camnet.geometry.evaluate import rotation_angle_deg
     from camnet.matching.pipeline import with_known_intrinsics
+    from camnet.model.accuracy import rotation_angle_deg
 
     rig = make_rig(n_points=200, seed=5, stereo_rotation_deg=0.5)
     obs = with_known_intrinsics(observe(rig, seed=5).observations, {c.id: c for c in rig.cameras[:2]})
@@ -451,9 +459,9 @@ def test_a_scale_the_solve_leaves_undetermined_is_refused_with_its_own_reason():
     had not named. Now the refusal carries the report's reason (what to give)."""
     from pathlib import Path
 
-    from camnet.geometry.live_policy import SCALE_UNDETERMINED, judge_rig
-    from camnet.geometry.model import Sigma
     from camnet.io.formats import parse_calibration
+    from camnet.live.policy import SCALE_UNDETERMINED, judge_rig
+    from camnet.model.calibration import Sigma
 
     golden = Path(__file__).parent / "golden" / "sim-refined.json"
     cal = parse_calibration(json.loads(golden.read_text()))

@@ -13,12 +13,13 @@ from camnet.services.matcher import MatcherNode, MatcherNodeConfig
 from camnet.bus import keys
 from camnet.bus.features_wire import FeaturesMessage, encode_features
 from camnet.bus.frame import Frame, encode_frame
-from camnet.geometry.model import CameraInfo, Stereo
 from camnet.io.formats import observations_to_doc, parse_observations
 from camnet.io.observations_encoder import ObservationsEncoder
 from camnet.io.rig import parse_rig
 from camnet.matching.pool import PoolConfig, TrackPool, regrow_pool
-from camnet.sim.random_tracks import HEIGHT, WIDTH, random_tracks, reseen
+from camnet.model.camera import CameraInfo
+from camnet.model.observations import Stereo
+from camnet.testing.random_tracks import HEIGHT, WIDTH, random_tracks, reseen
 from tests.conftest import matched_publisher, wait_for
 from tests.test_matcher_node import rig_document
 

@@ -19,9 +19,9 @@ from camnet.services.matcher_calibration import ASK_PERIOD_S, CalibrationInbox
 
 from camnet.bus import keys
 from camnet.bus.node import Tally
-from camnet.geometry.model import Calibration
 from camnet.io.formats import calibration_to_doc
 from camnet.io.rig import parse_rig
+from camnet.model.calibration import Calibration
 from tests.conftest import matched_publisher, running_node, wait_for
 from tests.test_matcher_node import network, rig_document  # noqa: F401 (network: the fixture)
 

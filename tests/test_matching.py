@@ -6,7 +6,6 @@ import cv2
 import numpy as np
 import pytest
 
-from camnet.geometry.model import Stereo
 from camnet.matching.features import (
     Detector,
     Features,
@@ -18,6 +17,7 @@ from camnet.matching.features import (
     stereo_candidate_mask,
     to_grey,
 )
+from camnet.model.observations import Stereo
 
 
 def textured_image(seed: int, height: int = 480, width: int = 640) -> np.ndarray:

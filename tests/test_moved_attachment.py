@@ -16,8 +16,8 @@ from camnet.bus import keys
 from camnet.bus.moved import forgotten_attachment, moved_attachment, parse_forgotten_attachment, parse_moved_attachment
 from camnet.bus.node import Tally
 from camnet.errors import InputError
-from camnet.geometry.live import Status
-from camnet.geometry.model import Calibration
+from camnet.live.tracker import Status
+from camnet.model.calibration import Calibration
 from tests.conftest import matched_publisher, wait_for
 from tests.test_calibrator_node import RIG, observations_payload
 

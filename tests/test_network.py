@@ -19,9 +19,9 @@ import yaml
 from mcap.reader import make_reader
 
 from camnet.bus import keys
-from camnet.geometry.evaluate import compare_cameras
 from camnet.io.formats import parse_calibration
 from camnet.io.rig import load_rig
+from camnet.model.accuracy import compare_cameras
 from tests.conftest import free_port, stop_process
 from tests.test_viz import read_rrd
 

@@ -7,11 +7,11 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from camnet.geometry import bundle, schur
-from camnet.geometry.bundle import CentreMode, Problem, State
-from camnet.geometry.projection import N_INTRINSICS, intrinsics_from_K
-from camnet.geometry.uncertainty import covariance
+from camnet.model.projection import N_INTRINSICS, intrinsics_from_K
 from camnet.sim.simulate import make_rig, observe
+from camnet.solve import bundle, schur
+from camnet.solve.bundle import CentreMode, Problem, State
+from camnet.solve.uncertainty import covariance
 
 MB = 1 << 20
 

@@ -2,9 +2,9 @@
 
 import numpy as np
 
-from camnet.geometry.projection import look_at
-from camnet.geometry.triangulation import triangulate_missing
-from camnet.geometry.two_view import homography_explains
+from camnet.model.projection import look_at
+from camnet.model.triangulation import triangulate_missing
+from camnet.model.two_view import homography_explains
 
 
 def rotation(centre, target) -> np.ndarray:

@@ -13,10 +13,10 @@ import cv2
 import numpy as np
 import pytest
 
-from camnet.geometry.initialise import register_pnp
-from camnet.geometry.resection import resect
-from camnet.geometry.two_view import fundamental, relative_pose
 from camnet.matching.features import MatcherConfig, ransac_fundamental
+from camnet.model.resection import resect
+from camnet.model.two_view import fundamental, relative_pose
+from camnet.solve.start.warm import register_pnp
 
 
 def scene(seed: int = 0, n: int = 150, outliers: float = 0.5):

@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from camnet.geometry.projection import look_at
-from camnet.geometry.recheck import Network, recheck_placed
-from camnet.geometry.resection import twin_poses
-from camnet.geometry.triangulation import triangulate_missing
+from camnet.model.projection import look_at
+from camnet.model.resection import twin_poses
+from camnet.model.triangulation import triangulate_missing
+from camnet.solve.start.recheck import Network, recheck_placed
 
 F_PX = 1500.0
 RING_M = 0.6

@@ -7,19 +7,19 @@ import numpy as np
 import pytest
 
 from camnet.errors import SolveError
-from camnet.geometry.calibrate import Options, calibrate, check_solvable
-from camnet.geometry.cold_start import cold_start, is_parallel
-from camnet.geometry.diagnostics import refuse_wrong_start
-from camnet.geometry.evaluate import compare
-from camnet.geometry.initialise import camera_order, centred, initial_intrinsics, observation_rows
-from camnet.geometry.live_policy import LiveConfig, judge
-from camnet.geometry.model import Stereo
-from camnet.geometry.projection import look_at, rotation_exp, skew
-from camnet.geometry.resection import resect
-from camnet.geometry.two_view import bougnoux_focals, row_and_epipolar_errors
 from camnet.io.formats import calibration_to_doc, parse_calibration
+from camnet.live.policy import LiveConfig, judge
+from camnet.model.accuracy import compare
+from camnet.model.observations import Stereo
+from camnet.model.projection import look_at, rotation_exp, skew
+from camnet.model.resection import resect
+from camnet.model.two_view import bougnoux_focals, row_and_epipolar_errors
 from camnet.sim.families import family
 from camnet.sim.simulate import make_rig, observe
+from camnet.solve import Options, calibrate
+from camnet.solve.context import camera_order, centred, initial_intrinsics, observation_rows
+from camnet.solve.report.assemble import refuse_wrong_start
+from camnet.solve.start.cold import check_solvable, cold_start, is_parallel
 
 
 def family_observations(name: str, seed: int):

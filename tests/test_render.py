@@ -5,9 +5,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from camnet.geometry.model import Camera, LensModel
-from camnet.geometry.projection import look_at, rotation_exp
 from camnet.io.rig import load_rig
+from camnet.model.camera import Camera, LensModel
+from camnet.model.projection import look_at, rotation_exp
 from camnet.sim.families import FISHEYE_DIST
 from camnet.sim.render import Quad, Renderer, distortion_map
 from camnet.sim.scene import Scene

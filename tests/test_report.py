@@ -18,12 +18,12 @@ import numpy as np
 import pytest
 
 from camnet.errors import InputError
-from camnet.geometry.calibrate import Options, calibrate
-from camnet.geometry.model import CameraInfo
-from camnet.geometry.residuals import reprojection_residuals
 from camnet.io.formats import calibration_to_doc, observations_to_doc, parse_calibration
 from camnet.io.report import SECTIONS, bounding_box, frustum_xz, render_report
+from camnet.model.camera import CameraInfo
 from camnet.sim.simulate import make_rig, observe
+from camnet.solve import Options, calibrate
+from camnet.solve.report.reprojection import reprojection_residuals
 
 # matplotlib's tab10 colours of cameras 0..3 (BGR, as cv2 reads the screenshot).
 CAMERA_BGR = [(0xB4, 0x77, 0x1F), (0x0E, 0x7F, 0xFF), (0x2C, 0xA0, 0x2C), (0x28, 0x27, 0xD6)]

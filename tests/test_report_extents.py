@@ -11,10 +11,10 @@ import cv2
 import numpy as np
 import pytest
 
-from camnet.geometry.calibrate import Options, calibrate
 from camnet.io.report import bounding_box_figure, layout_figure, render_report, robust_box
 from camnet.sim.families import family
 from camnet.sim.simulate import make_rig, observe
+from camnet.solve import Options, calibrate
 from tests._groundtruth import KITTI_ROOT
 from tests.test_report import screenshot
 

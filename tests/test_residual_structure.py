@@ -5,9 +5,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from camnet.geometry.calibrate import Options, calibrate
 from camnet.sim.families import family
 from camnet.sim.simulate import make_rig, observe
+from camnet.solve import Options, calibrate
 
 
 def structure(warnings) -> list[str]:

@@ -6,8 +6,8 @@ import pytest
 import yaml
 
 from camnet.errors import InputError
-from camnet.geometry.projection import look_at
 from camnet.io.rig import AravisConfig, V4l2Config, load_rig, parse_rig
+from camnet.model.projection import look_at
 from camnet.sim.config import SimConfig
 
 CONFIG = Path(__file__).resolve().parent.parent / "config"

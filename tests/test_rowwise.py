@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from camnet.geometry import rowwise
+from camnet.model import rowwise
 
 
 @pytest.mark.parametrize("k", [2, 3])

@@ -9,12 +9,12 @@ import pytest
 
 from camnet.commands.up import RunFollower, _finish
 from camnet.commands.up_console import final_report, progress_line, summarise
-from camnet.geometry.calibrate import Options, calibrate
-from camnet.geometry.change import drop_before
-from camnet.geometry.live_policy import LIVE_FREE
 from camnet.io.formats import calibration_to_doc, observations_to_doc, parse_calibration
 from camnet.io.run_dir import RecentObservations, default_run_dir, source_key
+from camnet.live.moved_cameras import drop_before
+from camnet.live.policy import LIVE_FREE
 from camnet.sim.simulate import make_rig, observe
+from camnet.solve import Options, calibrate
 
 
 @pytest.fixture(scope="module")

@@ -4,11 +4,10 @@ from dataclasses import replace
 
 import numpy as np
 
-from camnet.geometry import bundle, schur, uncertainty
-from camnet.geometry.calibrate import Options, calibrate
-from camnet.geometry.model import StartKind
-from camnet.geometry.uncertainty import covariance
+from camnet.model.calibration import StartKind
 from camnet.sim.simulate import make_rig, observe
+from camnet.solve import Options, bundle, calibrate, schur, uncertainty
+from camnet.solve.uncertainty import covariance
 
 
 def _solved(seed: int):

@@ -7,8 +7,10 @@ import numpy as np
 import pytest
 
 from camnet.errors import InputError
-from camnet.geometry.model import Calibration, Camera, Method, StartKind
 from camnet.io.formats import calibration_to_doc, parse_calibration
+from camnet.model.calibration import Calibration, StartKind
+from camnet.model.camera import Camera
+from camnet.model.methods import Method
 
 GOLDEN = Path(__file__).parent / "golden"
 

@@ -1,18 +1,18 @@
-"""Which start a cold solve used, and the retry from a start not yet used (camnet.geometry.start_choice)."""
+"""Which start a cold solve used, and the retry from a start not yet used (camnet.solve.start.choice)."""
 
 from dataclasses import replace
 
 import numpy as np
 import pytest
 
-from camnet.geometry.calibrate import calibrate
-from camnet.geometry.cold_start import NoStart, PairStart, cold_start, stronger_pair
-from camnet.geometry.evaluate import compare
-from camnet.geometry.initialise import camera_order, centred, initial_intrinsics, observation_rows
-from camnet.geometry.model import Stereo
-from camnet.geometry.start_choice import start_order
+from camnet.model.accuracy import compare
+from camnet.model.observations import Stereo
 from camnet.sim.families import family
 from camnet.sim.simulate import observe
+from camnet.solve import calibrate
+from camnet.solve.context import camera_order, centred, initial_intrinsics, observation_rows
+from camnet.solve.start.choice import start_order
+from camnet.solve.start.cold import NoStart, PairStart, cold_start, stronger_pair
 
 
 def far_pair(seed: int):

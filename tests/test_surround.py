@@ -6,13 +6,14 @@ from __future__ import annotations
 import numpy as np
 from camnet.drivers.base import create_camera
 
-from camnet.geometry.calibrate import calibrate
-from camnet.geometry.evaluate import compare_cameras
-from camnet.geometry.live_policy import LiveConfig, judge
-from camnet.geometry.model import CameraInfo, Stereo
 from camnet.io.rig import load_rig
+from camnet.live.policy import LiveConfig, judge
 from camnet.matching.features import MatcherConfig, match_frame_set
 from camnet.matching.pipeline import observations_from_frame_sets
+from camnet.model.accuracy import compare_cameras
+from camnet.model.camera import CameraInfo
+from camnet.model.observations import Stereo
+from camnet.solve import calibrate
 from tests._groundtruth import epipolar_distance_px
 from tests.test_rig import CONFIG
 

@@ -17,9 +17,10 @@ import pytest
 
 from camnet.datasets.published import compare, in_frame_of
 from camnet.datasets.temple import image_path, read_cameras
-from camnet.geometry.calibrate import calibrate
-from camnet.geometry.model import CameraInfo, Stereo
 from camnet.matching.pipeline import observations_from_frame_sets, with_known_intrinsics
+from camnet.model.camera import CameraInfo
+from camnet.model.observations import Stereo
+from camnet.solve import calibrate
 from tests._groundtruth import TEMPLE_ROOT, require
 
 VIEWS = [f"templeSR{k:04d}" for k in range(1, 17)]

@@ -5,10 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from camnet.geometry.model import CameraInfo, Stereo
 from camnet.io.formats import observations_to_doc, parse_observations
 from camnet.matching.pool import PoolConfig, TrackPool, crowding, dedupe_frame_tracks
 from camnet.matching.tracks import FrameTracks
+from camnet.model.camera import CameraInfo
+from camnet.model.observations import Stereo
 
 CAMS = (CameraInfo("L", 640, 480), CameraInfo("R", 640, 480), CameraInfo("M", 640, 480))
 STEREO = Stereo("L", "R", 0.12)

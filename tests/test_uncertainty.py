@@ -5,21 +5,14 @@ from dataclasses import replace
 import numpy as np
 import scipy.linalg
 
-from camnet.geometry import schur
-from camnet.geometry.bundle import CEN, CentreMode
-from camnet.geometry.calibrate import Options, calibrate
-from camnet.geometry.diagnostics import reported_points
-from camnet.geometry.evaluate import compare
-from camnet.geometry.model import PointsLeftOut
-from camnet.geometry.schur import POINT_RCOND, point_inverses, points_determined
-from camnet.geometry.uncertainty import (
-    covariance,
-    inverse_spd,
-    residual_dof,
-    scale_sigma,
-    scale_weights,
-)
+from camnet.model.accuracy import compare
+from camnet.model.calibration import PointsLeftOut
 from camnet.sim.simulate import make_rig, observe
+from camnet.solve import Options, calibrate, schur
+from camnet.solve.bundle import CEN, CentreMode
+from camnet.solve.report.assemble import reported_points
+from camnet.solve.schur import POINT_RCOND, point_inverses, points_determined
+from camnet.solve.uncertainty import covariance, inverse_spd, residual_dof, scale_sigma, scale_weights
 
 
 def test_inverse_keeps_the_weak_directions_of_a_badly_scaled_matrix():
@@ -142,7 +135,7 @@ def test_the_scale_given_exact_principal_points_is_the_conditional_sigma():
 
 def test_a_solve_reports_the_normal_equations_of_a_wider_problem():
     """The covariance over held principal points comes with the solve's last step: it must be exact."""
-    from camnet.geometry import bundle
+    from camnet.solve import bundle
 
     rig = make_rig(n_cameras=5, n_points=80, seed=4)
     obs = observe(rig, noise_px=0.5, seed=4).observations
@@ -165,7 +158,7 @@ def test_a_solve_reports_the_normal_equations_of_a_wider_problem():
 
 def test_a_track_seen_twice_by_one_camera_adds_to_the_normal_equations():
     """Observations are terms of a sum: a repeated one counts twice, not once."""
-    from camnet.geometry import bundle
+    from camnet.solve import bundle
 
     rig = make_rig(n_cameras=4, n_points=40, seed=5)
     obs = observe(rig, noise_px=0.5, seed=5).observations

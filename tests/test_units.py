@@ -5,11 +5,11 @@ import json
 import pytest
 
 from camnet.errors import InputError
-from camnet.geometry.calibrate import calibrate
-from camnet.geometry.diagnostics import far_scene_warning
 from camnet.io.formats import observations_to_doc, parse_observations
 from camnet.io.rig import parse_rig
 from camnet.sim.simulate import make_rig, observe
+from camnet.solve import calibrate
+from camnet.solve.report.assemble import far_scene_warning
 from tests.test_cli_calibrate import run_camnet
 
 

@@ -12,10 +12,10 @@ from camnet.bus import keys
 from camnet.cli import build_parser
 from camnet.commands.calibrator import FRAME_PERIOD_S
 from camnet.commands.up import LatestCalibration, SolveNumbering, _network_spec
-from camnet.geometry.calibrate import calibrate
 from camnet.io.formats import calibration_to_doc
 from camnet.io.rig import load_rig
 from camnet.sim.simulate import make_rig, observe
+from camnet.solve import calibrate
 from tests.conftest import free_port, matched_publisher, wait_for
 from tests.test_network import rig_file
 from tests.test_web_viewer import stop, wait_for_line

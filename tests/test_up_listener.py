@@ -4,9 +4,9 @@ import json
 
 from camnet.bus import keys
 from camnet.commands.up import LatestCalibration
-from camnet.geometry.calibrate import calibrate
 from camnet.io.formats import calibration_to_doc
 from camnet.sim.simulate import make_rig, observe
+from camnet.solve import calibrate
 from tests.conftest import matched_publisher, wait_for
 
 

@@ -5,13 +5,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from camnet.geometry.calibrate import Options, calibrate
-from camnet.geometry.live_policy import LIVE_FREE
-from camnet.geometry.model import Calibration
-from camnet.geometry.verdict import Action, Level, Thresholds, format_verdict, judge
 from camnet.io.formats import calibration_to_doc, parse_calibration
+from camnet.live.policy import LIVE_FREE
+from camnet.model.calibration import Calibration
 from camnet.sim.families import family, observe_family
 from camnet.sim.simulate import make_rig, observe
+from camnet.solve import Options, calibrate
+from camnet.solve.report.verdict import Action, Level, Thresholds, format_verdict, judge
 
 LIVE = Options(free=LIVE_FREE)
 

@@ -12,18 +12,23 @@ guessed principal points were no longer named.
 import numpy as np
 import pytest
 
-from camnet.geometry.calibrate import Options, calibrate
-from camnet.geometry.evaluate import compare
-from camnet.geometry.free_rule import PAIR_TOLERANCE_DEG
-from camnet.geometry.judged_solve import Status
-from camnet.geometry.live import Tracker
-from camnet.geometry.live_policy import LiveConfig
-from camnet.geometry.model import Sigma, Uncertainty
-from camnet.geometry.scale_cause import GIVE_PAIR_ROTATION, TIGHTEN_PAIR_TOLERANCE, pair_rotation_todo, scale_cause
-from camnet.geometry.verdict import Action, Level, format_verdict, judge
 from camnet.io.formats import calibration_to_doc, parse_calibration
 from camnet.io.report import render_report
+from camnet.live.judged_solve import Status
+from camnet.live.policy import LiveConfig
+from camnet.live.tracker import Tracker
+from camnet.model.accuracy import compare
+from camnet.model.calibration import Sigma, Uncertainty
 from camnet.sim.families import family, observe_family
+from camnet.solve import Options, calibrate
+from camnet.solve.free_rule import PAIR_TOLERANCE_DEG
+from camnet.solve.report.scale_cause import (
+    GIVE_PAIR_ROTATION,
+    TIGHTEN_PAIR_TOLERANCE,
+    pair_rotation_todo,
+    scale_cause,
+)
+from camnet.solve.report.verdict import Action, Level, format_verdict, judge
 
 HELD_YAW = "stereo_yaw held"
 

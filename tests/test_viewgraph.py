@@ -8,10 +8,11 @@ from itertools import combinations
 import numpy as np
 import pytest
 
-from camnet.geometry.model import Calibration, Camera
-from camnet.geometry.projection import look_at
-from camnet.geometry.viewgraph import axis_angles_deg, depth_ranges, frustum_overlap, overlapping_pairs
 from camnet.matching.viewgraph import ViewGraph, ViewGraphConfig, choose_pairs
+from camnet.model.calibration import Calibration
+from camnet.model.camera import Camera
+from camnet.model.overlap import axis_angles_deg, depth_ranges, frustum_overlap, overlapping_pairs
+from camnet.model.projection import look_at
 
 K = np.array([[500.0, 0.0, 319.5], [0.0, 500.0, 255.5], [0.0, 0.0, 1.0]])  # 65 degrees across 640 px
 

@@ -12,9 +12,10 @@ import pytest
 
 from camnet import viz, viz_sinks
 from camnet.errors import InputError
-from camnet.geometry.calibrate import calibrate
-from camnet.geometry.model import Calibration, Camera
+from camnet.model.calibration import Calibration
+from camnet.model.camera import Camera
 from camnet.sim.simulate import make_rig, observe
+from camnet.solve import calibrate
 
 T0_NS = 1_700_000_000_000_000_000
 

@@ -10,9 +10,9 @@ from camnet.services.calibrator import RerunView
 from camnet import viz, viz_sinks
 from camnet.bus import keys
 from camnet.bus.frame import Frame, encode_frame
-from camnet.geometry.judged_solve import Status
-from camnet.geometry.live import Outcome
-from camnet.geometry.model import Calibration
+from camnet.live.judged_solve import Status
+from camnet.live.tracker import Outcome
+from camnet.model.calibration import Calibration
 from camnet.sim.simulate import make_rig, observe
 from tests.conftest import matched_publisher, wait_for
 from tests.test_viz import read_rrd

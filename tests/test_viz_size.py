@@ -6,7 +6,8 @@ from dataclasses import replace
 import numpy as np
 
 from camnet import viz, viz_sinks
-from camnet.geometry.model import Calibration, Observations
+from camnet.model.calibration import Calibration
+from camnet.model.observations import Observations
 from camnet.sim.simulate import make_rig, observe
 
 T0_NS = 1_700_000_000_000_000_000

@@ -8,7 +8,7 @@ import socket
 
 import pytest
 
-from camnet.bus import ports
+from camnet.testing import ports
 from tests import conftest
 
 

@@ -5,9 +5,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from camnet.geometry import bundle, schur
-from camnet.geometry.calibrate import Options, calibrate
-from camnet.geometry.uncertainty import (
+from camnet.sim.simulate import make_rig, observe
+from camnet.solve import Options, bundle, calibrate, schur
+from camnet.solve.uncertainty import (
     covariance,
     scale_gradient,
     scale_sigma,
@@ -16,7 +16,6 @@ from camnet.geometry.uncertainty import (
     with_guessed_pp,
     with_held_turns,
 )
-from camnet.sim.simulate import make_rig, observe
 
 
 def _solved(n_cameras: int, n_points: int, seed: int):
@@ -126,7 +125,7 @@ def test_the_elimination_tells_which_points_are_determined_as_points_determined_
 
 def test_a_warm_start_takes_each_track_s_previous_point_as_a_loop_over_the_points_would():
     """Ids repeated among the tracks or the points: the last of each, as one assignment after another leaves them."""
-    from camnet.geometry.initialise import _previous_points
+    from camnet.solve.start.warm import _previous_points
 
     rng = np.random.default_rng(11)
     for _ in range(200):

@@ -17,7 +17,7 @@ message the matcher publishes therefore says, in its attachment
 ``{"forgotten": {camera id: track id}}``, from which track on it pooled each
 camera's views afresh (after the calibrator named it, or after its own pool
 found it moved), and the calibrator places a moved camera again only from
-those (`camnet.geometry.live`). Always sent, empty where none was forgotten:
+those (`camnet.live.tracker`). Always sent, empty where none was forgotten:
 observations without it (a recording, another version) come from a source
 that says nothing of this, and are solved as before.
 """

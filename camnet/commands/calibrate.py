@@ -8,11 +8,12 @@ import sys
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
-from camnet.geometry.choices import Loss, Method
+from camnet.model.methods import Loss, Method
 
 if TYPE_CHECKING:
-    from camnet.geometry.calibrate import Options
-    from camnet.geometry.model import Calibration, Observations
+    from camnet.model.calibration import Calibration
+    from camnet.model.observations import Observations
+    from camnet.solve import Options
 
 FREE_HELP = (
     "intrinsics to estimate: 'auto' (default: focal lengths, then whatever the data "
@@ -101,8 +102,6 @@ class Progress:
 
 def run(args: argparse.Namespace) -> int:
     from camnet.errors import InputError
-    from camnet.geometry.calibrate import Options
-    from camnet.geometry.verdict import judge
     from camnet.io.formats import (
         calibration_to_doc,
         load_json,
@@ -111,6 +110,8 @@ def run(args: argparse.Namespace) -> int:
         write_json_atomic,
     )
     from camnet.io.summary import summary_lines
+    from camnet.solve import Options
+    from camnet.solve.report.verdict import judge
 
     if not args.loss_scale_px > 0:
         raise InputError(f"--loss-scale-px: must be positive, got {args.loss_scale_px}")
@@ -163,13 +164,13 @@ def run(args: argparse.Namespace) -> int:
 def _solve(obs: Observations, options: Options, initial: Calibration | None, progress: Progress) -> Calibration:
     """The calibration of `obs`, or SolveError saying why there is none (nothing is written then)."""
     from camnet.errors import SolveError
-    from camnet.geometry.calibrate import calibrate
-    from camnet.geometry.judged_solve import Status
-    from camnet.geometry.live_policy import SCALE_UNDETERMINED, soundness_check
-    from camnet.geometry.newest_first import solve_newest_first
+    from camnet.live.judged_solve import Status
+    from camnet.live.newest_first import solve_newest_first
+    from camnet.live.policy import SCALE_UNDETERMINED, soundness_check
+    from camnet.solve import calibrate
 
     if initial is None and options.method == Method.REFINED:
-        # Solved as the live calibrator solves without a calibration (camnet.geometry.newest_first): a long
+        # Solved as the live calibrator solves without a calibration (camnet.live.newest_first): a long
         # pool on its newest tracks first, cameras placed wrong left out and named. What the live policy's
         # limits of soundness still refuse is wrong (absurd focal lengths, cameras that keep too few of their
         # observations, a large RMS): refused here too, nothing written. A large scale sigma is not wrong,

@@ -7,14 +7,14 @@ import os
 from dataclasses import replace
 from pathlib import Path
 
-# camnet.geometry.live_policy.LIVE_FREE, spelled out so that building the parser imports no numpy.
+# camnet.live.policy.LIVE_FREE, spelled out so that building the parser imports no numpy.
 DEFAULT_FREE = "f,fisheye,stereo_rotation,stereo_direction"
 FRAME_PERIOD_S = 10.0  # camnet.viz.FRAME_PERIOD_S, for the same reason
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from camnet.bus.session import add_bus_arguments
-    from camnet.geometry.model import Loss
+    from camnet.model.methods import Loss
     from camnet.viz_sinks import add_rerun_arguments
 
     parser.add_argument("--rig", required=True, metavar="RIG.yaml|NAME",
@@ -27,7 +27,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="intrinsics to estimate: a comma list of f, aspect, pp, k1, k2, fisheye, "
                              "stereo_rotation, stereo_direction, or 'auto' for the engine's rule (default: "
                              "%(default)s; principal points and pinhole distortion are held as given, see "
-                             "camnet/geometry/live_policy.py; a rig file with the pair's pose, stereo.R and "
+                             "camnet/live/policy.py; a rig file with the pair's pose, stereo.R and "
                              "stereo.t, holds the pair: default f,fisheye)")
     parser.add_argument("--loss", choices=tuple(loss.value for loss in Loss), default=Loss.CAUCHY.value,
                         help="robust loss of the adjustment (default cauchy)")
@@ -68,9 +68,9 @@ def run(args: argparse.Namespace) -> int:
     from camnet.bus.session import joined, options_from_args
     from camnet.commands.calibrate import parse_free
     from camnet.errors import InputError
-    from camnet.geometry.calibrate import Options
-    from camnet.geometry.live_policy import LiveConfig, SoundnessLimits
+    from camnet.live.policy import LiveConfig, SoundnessLimits
     from camnet.services.calibrator import CalibratorConfig, CalibratorNode, RerunView
+    from camnet.solve import Options
     from camnet.viz import close_recording, open_recording
     from camnet.viz_sinks import sinks_from_args
 

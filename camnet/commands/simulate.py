@@ -60,8 +60,8 @@ def run(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    from camnet.geometry.model import Calibration
     from camnet.io.formats import calibration_to_doc, observations_to_doc, write_json_atomic
+    from camnet.model.calibration import Calibration
 
     rig, sim = simulate_from_args(args)
     obs = sim.observations

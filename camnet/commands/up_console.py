@@ -27,8 +27,8 @@ def summarise(elapsed_s: float, doc: dict, truth) -> dict:
             summary["capture_to_solution_s"] = latency_s
             summary["stages_s"] = stage_durations_s(doc)
     if truth:
-        from camnet.geometry.evaluate import compare_cameras
         from camnet.io.formats import parse_calibration
+        from camnet.model.accuracy import compare_cameras
 
         c = compare_cameras(parse_calibration(doc), truth)
         summary["scale_error_rel"] = c.scale_rel
@@ -60,8 +60,8 @@ def _left_out(doc: dict) -> dict[str, str]:
 
 
 def final_report(cal, truth) -> str:
-    from camnet.geometry.evaluate import compare_cameras, format_comparison
     from camnet.io.summary import summary_lines
+    from camnet.model.accuracy import compare_cameras, format_comparison
 
     lines = ["", "final calibration:", *summary_lines(cal)]
     if truth:

@@ -1,6 +1,6 @@
 """The KITTI raw "extract" (unrectified) layout: calibration and frames.
 
-Reads ``calib_cam_to_cam.txt`` into `camnet.geometry.model.Camera` objects in the
+Reads ``calib_cam_to_cam.txt`` into `camnet.model.camera.Camera` objects in the
 frame of camera 0 (``x_cam = R @ X + t``, X in cam-0 coordinates, metres;
 KITTI's ``R_xx``/``T_xx`` already map cam-0 coordinates into camera xx), and
 lists which cameras have an image for each frame in ``image_0X/data/``.
@@ -18,7 +18,9 @@ import cv2
 import numpy as np
 
 from camnet.errors import InputError
-from camnet.geometry.model import Calibration, Camera, CameraInfo, Observations, Stereo
+from camnet.model.calibration import Calibration
+from camnet.model.camera import Camera, CameraInfo
+from camnet.model.observations import Observations, Stereo
 
 CALIB_FILE = "calib_cam_to_cam.txt"
 STEREO_LEFT, STEREO_RIGHT = "0", "1"

@@ -15,8 +15,10 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from camnet.geometry.evaluate import rotation_angle_deg, scale_sigma_rel
-from camnet.geometry.model import Calibration, Camera, Observations
+from camnet.model.accuracy import rotation_angle_deg, scale_sigma_rel
+from camnet.model.calibration import Calibration
+from camnet.model.camera import Camera
+from camnet.model.observations import Observations
 
 
 @dataclass(frozen=True)

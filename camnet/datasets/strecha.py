@@ -3,7 +3,7 @@
 ``images/NNNN.jpg`` (3072 x 2048, free of distortion) and
 ``gt_dense_cameras/NNNN.jpg.camera``: K (3 rows), the distortion ``0 0 0``,
 the camera-to-world rotation R_cw (3 rows), the centre C and the image size.
-Read into `camnet.geometry.model.Camera` with ``x_cam = R @ X + t``:
+Read into `camnet.model.camera.Camera` with ``x_cam = R @ X + t``:
 ``R = R_cw^T``, ``t = -R_cw^T C``, metres, in the LIDAR frame. Camera ids
 are the image names (``"0000"`` ... ``"0010"``).
 """
@@ -16,7 +16,7 @@ import numpy as np
 
 from camnet.datasets.published import in_frame_of
 from camnet.errors import InputError
-from camnet.geometry.model import Camera
+from camnet.model.camera import Camera
 
 
 def read_camera(path: Path) -> Camera:

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from camnet.errors import InputError
-from camnet.geometry.model import Camera
+from camnet.model.camera import Camera
 
 PARAMETERS_FILE = "templeSR_par.txt"
 WIDTH_PX, HEIGHT_PX = 640, 480

@@ -2,7 +2,7 @@
 
 Every exporter is a pure function from a `Calibration` to ``{file name:
 content}`` (text, or bytes for the binary formats); the `export` command
-writes the files. camnet's conventions (see camnet/geometry/projection.py):
+writes the files. camnet's conventions (see camnet/model/projection.py):
 ``x_cam = R @ X_world + t`` with the world the left stereo camera's frame,
 lengths in metres, ``K`` in pixels with the origin at the centre of the
 top-left pixel, distortion in OpenCV's order ``[k1, k2, p1, p2, k3]``, or
@@ -19,11 +19,13 @@ import math
 import numpy as np
 
 from camnet.errors import InputError
-from camnet.geometry.model import Calibration, LensModel, Observations
 from camnet.io.export_anipose import anipose_toml
 from camnet.io.export_base import require_zero_skew, safe_names
 from camnet.io.export_colmap import colmap_binary, colmap_model, colmap_text
 from camnet.io.export_ply import ply_points
+from camnet.model.calibration import Calibration
+from camnet.model.camera import LensModel
+from camnet.model.observations import Observations
 
 FORMATS = ("opencv", "colmap", "colmap-bin", "ros", "kalibr", "anipose", "ply")
 # Formats that write a directory of files rather than one file.

@@ -7,8 +7,9 @@ import math
 import numpy as np
 
 from camnet.errors import InputError
-from camnet.geometry.model import Calibration, LensModel
 from camnet.io.export_base import num, require_zero_skew
+from camnet.model.calibration import Calibration
+from camnet.model.camera import LensModel
 
 # Length units of the translations: aniposelib has none of its own (see `anipose_toml`).
 UNITS = {"m": 1.0, "mm": 1000.0}

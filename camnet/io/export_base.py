@@ -5,7 +5,7 @@ from __future__ import annotations
 import re
 
 from camnet.errors import InputError
-from camnet.geometry.model import Calibration
+from camnet.model.calibration import Calibration
 
 SKEW_TOLERANCE = 1e-9
 _UNSAFE = re.compile(r"[^A-Za-z0-9_.-]")

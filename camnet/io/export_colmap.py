@@ -14,8 +14,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from camnet.errors import InputError
-from camnet.geometry.model import Calibration, LensModel, Observations
 from camnet.io.export_base import num, require_zero_skew, safe_names
+from camnet.model.calibration import Calibration
+from camnet.model.camera import LensModel
+from camnet.model.observations import Observations
 
 # COLMAP puts the pixel origin at the top-left corner of the top-left pixel, camnet at its centre.
 COLMAP_PIXEL_SHIFT = 0.5
@@ -97,7 +99,7 @@ def colmap_model(
     - POINT3D_ID is camnet's track id (must be >= 0); XYZ in metres; colour grey.
     - With `observations`, every observation becomes a 2-D point of its image
       (``u + 0.5, v + 0.5``); one of a kept point whose reprojection error is
-      at most `max_error_px` (default: `camnet.geometry.residuals.outlier_limit_px`) joins that
+      at most `max_error_px` (default: `camnet.solve.report.reprojection.outlier_limit_px`) joins that
       point's track, others get POINT3D_ID -1. ERROR is the track's mean
       reprojection error in pixels. Without observations the images have no
       2-D points, the tracks are empty and ERROR is -1 (COLMAP's "unknown"):
@@ -146,7 +148,7 @@ def colmap_model(
 def _link_observations(cal: Calibration, observations: Observations, max_error_px: float | None):
     """Per observation: its camera's index in `cal` (-1: left out), the index of the point it joins (-1: none),
     its error (px)."""
-    from camnet.geometry.residuals import outlier_limit_px, reprojection_residuals
+    from camnet.solve.report.reprojection import outlier_limit_px, reprojection_residuals
 
     res = reprojection_residuals(cal, observations)
     limit = outlier_limit_px(cal) if max_error_px is None else max_error_px

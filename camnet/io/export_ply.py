@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from camnet.errors import InputError
-from camnet.geometry.model import Calibration
+from camnet.model.calibration import Calibration
 
 # PLY has no 64-bit integer type; camnet's track ids are counters far below this.
 MAX_PLY_INT = np.iinfo(np.int32).max

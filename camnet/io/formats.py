@@ -2,7 +2,7 @@
 ``camnet.calibration/1``): parsing with errors that name the offending path,
 and writing.
 
-The types are camnet.geometry.model's; the further keys of a calibration (its
+The types are camnet.model.calibration's; the further keys of a calibration (its
 SolveReport) are read and written by camnet.io.solve_report. Parsing is strict
 about what the contract requires and ignores unknown keys.
 Every error is an `InputError` whose message starts with the JSON path, e.g.
@@ -18,19 +18,12 @@ from typing import Any
 import numpy as np
 
 from camnet.errors import InputError
-from camnet.geometry.model import (
-    FIXABLE,
-    Baseline,
-    Calibration,
-    Camera,
-    CameraInfo,
-    LensModel,
-    Observations,
-    Stereo,
-)
-from camnet.geometry.verdict import judge
 from camnet.io import validate as v
 from camnet.io.solve_report import parse_report, report_to_doc, verdict_to_doc
+from camnet.model.calibration import Calibration
+from camnet.model.camera import FIXABLE, Camera, CameraInfo, LensModel
+from camnet.model.observations import Baseline, Observations, Stereo
+from camnet.solve.report.verdict import judge
 
 OBSERVATIONS_FORMAT = "camnet.observations/1"
 CALIBRATION_FORMAT = "camnet.calibration/1"
@@ -291,7 +284,7 @@ def calibration_to_doc(cal: Calibration) -> dict:
     }
     if cal.report is not None:
         doc.update(report_to_doc(cal.report))
-        # Derived from the report (camnet.geometry.verdict), so a reader never parses it back: it judges again.
+        # Derived from the report (camnet.solve.report.verdict), so a reader never parses it back: it judges again.
         doc["verdict"] = verdict_to_doc(judge(cal))
     return doc
 

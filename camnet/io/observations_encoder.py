@@ -19,8 +19,8 @@ import json
 
 import numpy as np
 
-from camnet.geometry.model import Observations
 from camnet.io.formats import observations_head_to_doc, observations_to_doc
+from camnet.model.observations import Observations
 
 
 class ObservationsEncoder:

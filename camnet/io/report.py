@@ -19,9 +19,10 @@ from typing import Any
 
 import numpy as np
 
-from camnet.geometry.model import Calibration, CameraSigmas, Observations, Uncertainty
-from camnet.geometry.residuals import Residuals, outlier_limit_px, reprojection_residuals
-from camnet.geometry.verdict import judge
+from camnet.model.calibration import Calibration, CameraSigmas, Uncertainty
+from camnet.model.observations import Observations
+from camnet.solve.report.reprojection import Residuals, outlier_limit_px, reprojection_residuals
+from camnet.solve.report.verdict import judge
 
 SECTIONS = {
     "summary": "Summary",

@@ -18,10 +18,11 @@ from typing import Any
 import numpy as np
 
 from camnet.errors import InputError
-from camnet.geometry.model import Baseline, Camera, CameraInfo, LensModel, Stereo
 from camnet.ids import validate_id
 from camnet.io import validate as v
 from camnet.io.rig_section import Section
+from camnet.model.camera import Camera, CameraInfo, LensModel
+from camnet.model.observations import Baseline, Stereo
 from camnet.sim.config import SceneConfig, SimConfig
 
 SIM_ENCODINGS = ("mono8", "mono16", "bgr8", "rgb8")

@@ -11,8 +11,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from camnet.geometry.model import Calibration, Observations
 from camnet.io.rig import Rig, configured_size
+from camnet.model.calibration import Calibration
+from camnet.model.observations import Observations
 
 # A solved calibration keeps an exact baseline exactly; a soft one (sigma_m) moves within its sigmas.
 BASELINE_TOLERANCE_REL = 1e-6

@@ -17,8 +17,8 @@ from typing import Any
 import numpy as np
 
 from camnet.errors import InputError
-from camnet.geometry.model import LensModel
 from camnet.io import validate as v
+from camnet.model.camera import LensModel
 
 
 class Section:

@@ -1,5 +1,5 @@
 """The further keys of ``camnet.calibration/1`` (docs/calibration-keys.md): the JSON
-codec of camnet.geometry.model.SolveReport.
+codec of camnet.model.calibration.SolveReport.
 
 Writing keeps the documented keys and their order. Reading is tolerant of a
 document without them (a factory stereo head has no report: None) and of the
@@ -13,19 +13,19 @@ from typing import Any
 
 import numpy as np
 
-from camnet.geometry.model import (
+from camnet.io import validate as v
+from camnet.model.calibration import (
     CameraSigmas,
     CameraStats,
     FreeSet,
-    Method,
     PointsLeftOut,
     Sigma,
     SolveReport,
     StartKind,
     Uncertainty,
 )
-from camnet.geometry.verdict import Verdict
-from camnet.io import validate as v
+from camnet.model.methods import Method
+from camnet.solve.report.verdict import Verdict
 
 # Timings are written to the microsecond: finer digits are noise.
 TIMING_DIGITS = 6

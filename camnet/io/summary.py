@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from camnet.geometry.model import Calibration, CameraSigmas
-from camnet.geometry.verdict import format_verdict, judge
+from camnet.model.calibration import Calibration, CameraSigmas
+from camnet.solve.report.verdict import format_verdict, judge
 
 GIVEN = "given"  # a parameter that was held, not estimated: its sigma is no measure of anything
 

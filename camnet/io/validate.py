@@ -16,8 +16,9 @@ from typing import Any
 import numpy as np
 
 from camnet.errors import InputError
-from camnet.geometry.model import Baseline, LensModel
-from camnet.geometry.projection import full_dist
+from camnet.model.camera import LensModel
+from camnet.model.observations import Baseline
+from camnet.model.projection import full_dist
 
 # R R^T = I to this, per entry: loose enough for a rotation typed into a rig file with
 # six decimals, tight enough that a scaled or sheared matrix is refused.

@@ -19,7 +19,6 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from camnet.geometry.model import Stereo
 from camnet.matching import nearest
 from camnet.matching.images import (  # noqa: F401 (re-exported: the matcher's image functions)
     DARK_MEDIAN,
@@ -29,6 +28,7 @@ from camnet.matching.images import (  # noqa: F401 (re-exported: the matcher's i
     to_8bit,
     to_grey,
 )
+from camnet.model.observations import Stereo
 
 log = logging.getLogger(__name__)
 

@@ -16,11 +16,12 @@ from dataclasses import replace
 
 import numpy as np
 
-from camnet.geometry.model import FIXABLE, Camera, CameraInfo, Observations, Stereo
-from camnet.geometry.projection import full_dist
 from camnet.matching.features import MatcherConfig, match_frame_set
 from camnet.matching.pool import PoolConfig, TrackPool
 from camnet.matching.tracks import build_tracks
+from camnet.model.camera import FIXABLE, Camera, CameraInfo
+from camnet.model.observations import Observations, Stereo
+from camnet.model.projection import full_dist
 
 log = logging.getLogger(__name__)
 

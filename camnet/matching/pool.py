@@ -45,9 +45,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from camnet.geometry.model import CameraInfo, Observations, Stereo
 from camnet.matching.pair_geometry import PairGeometry
 from camnet.matching.tracks import FrameTracks
+from camnet.model.camera import CameraInfo
+from camnet.model.observations import Observations, Stereo
 
 log = logging.getLogger(__name__)
 

@@ -39,7 +39,6 @@ import cv2
 import numpy as np
 
 from camnet import blas
-from camnet.geometry.model import Stereo
 from camnet.matching import nearest
 from camnet.matching.edge import CameraFeatures
 from camnet.matching.features import (
@@ -52,6 +51,7 @@ from camnet.matching.features import (
     ransac_fundamental,
 )
 from camnet.matching.seen import SeenBefore
+from camnet.model.observations import Stereo
 
 log = logging.getLogger(__name__)
 

@@ -5,7 +5,7 @@ camera shares its view with a few neighbours only. Once the rig has a
 calibration, a frame set matches:
 
 - the pairs whose frusta overlap in the scene's depth range
-  (`camnet.geometry.viewgraph.overlapping_pairs`, from the calibration's
+  (`camnet.model.overlap.overlapping_pairs`, from the calibration's
   cameras and points);
 - the pairs that matched well before (at least `good_matches` inliers in
   their last whole match), wherever the geometry puts them, but only where
@@ -30,15 +30,15 @@ from itertools import combinations
 
 import numpy as np
 
-from camnet.geometry.model import Calibration
-from camnet.geometry.viewgraph import MIN_PARTNERS, depth_ranges, overlapping_pairs
+from camnet.model.calibration import Calibration
+from camnet.model.overlap import MIN_PARTNERS, depth_ranges, overlapping_pairs
 
 Pair = frozenset[str]
 
 
 @dataclass(frozen=True)
 class ViewGraphConfig:
-    """How pairs are chosen once a calibration exists (see `camnet.geometry.viewgraph`)."""
+    """How pairs are chosen once a calibration exists (see `camnet.model.overlap`)."""
 
     min_overlap: float = 0.05  # of either camera's frustum the other sees
     max_axis_angle_deg: float = 75.0  # optical axes further apart: features do not match across

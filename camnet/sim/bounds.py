@@ -1,6 +1,6 @@
 """Cramér-Rao bounds of a solve on a simulated rig: its scale and shape at the ground truth.
 
-The bound of a solve is the covariance of `camnet.geometry.uncertainty` taken
+The bound of a solve is the covariance of `camnet.solve.uncertainty` taken
 at the true parameters, with the true pixel noise, for the problem the solve
 ended with: the same inlier observations, the same free parameters (what the
 free rule freed, what the observations held as given), the same known
@@ -15,12 +15,12 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from camnet.geometry.bundle import State
-from camnet.geometry.calibrate import Result
-from camnet.geometry.evaluate import point_weights
-from camnet.geometry.projection import N_INTRINSICS, intrinsics_from_K
-from camnet.geometry.uncertainty import Covariance, covariance, scale_sigma, scale_weights, shape_rms_bound_m
+from camnet.model.accuracy import point_weights
+from camnet.model.projection import N_INTRINSICS, intrinsics_from_K
 from camnet.sim.simulate import SimRig
+from camnet.solve import Result
+from camnet.solve.bundle import State
+from camnet.solve.uncertainty import Covariance, covariance, scale_sigma, scale_weights, shape_rms_bound_m
 
 
 @dataclass(frozen=True)
@@ -61,7 +61,7 @@ def cramer_rao(rig: SimRig, result: Result, noise_px: float) -> Bounds:
 
     The scale is weighted as the calibration weighs its points (its reported
     point weights; the truth's `scale_weights` where it has none), so the
-    bound is that of the scale `camnet.geometry.evaluate.compare` measures.
+    bound is that of the scale `camnet.model.accuracy.compare` measures.
     """
     cov = truth_covariance(rig, result, noise_px)
     cal = result.calibration

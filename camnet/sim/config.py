@@ -2,7 +2,7 @@
 
 Parsed and validated by `camnet.io.rig`; used by the sim driver and
 `camnet.sim.scene`. World frame = the left stereo camera's (x right, y down,
-z forward), lengths in metres, pixels as in `camnet.geometry.projection`.
+z forward), lengths in metres, pixels as in `camnet.model.projection`.
 """
 
 from __future__ import annotations
@@ -11,8 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from camnet.geometry.model import Camera, LensModel
-from camnet.geometry.projection import full_dist, look_at
+from camnet.model.camera import Camera, LensModel
+from camnet.model.projection import full_dist, look_at
 
 
 @dataclass(frozen=True)
@@ -40,7 +40,7 @@ class SimConfig:
     model: LensModel = LensModel.PINHOLE
 
     def camera(self, camera_id: str) -> Camera:
-        """The ground-truth camnet.geometry.model.Camera of this simulated camera."""
+        """The ground-truth camnet.model.camera.Camera of this simulated camera."""
         K = np.array([[self.fx_px, 0.0, self.cx_px], [0.0, self.fy_px, self.cy_px], [0, 0, 1.0]])
         centre = np.array(self.centre_m, dtype=float)
         if self.look_at_m is None:

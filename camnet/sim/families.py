@@ -28,8 +28,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from camnet.geometry.model import Baseline, Camera, LensModel, Observations
-from camnet.geometry.projection import distort_fisheye, look_at, rotation_exp
+from camnet.model.camera import Camera, LensModel
+from camnet.model.observations import Baseline, Observations
+from camnet.model.projection import distort_fisheye, look_at, rotation_exp
 from camnet.sim.simulate import HEIGHT, WIDTH, SimRig, make_rig, observe
 
 FAMILIES = ("ring", "ring_K", "two_heads", "tape_pair", "wide", "fisheye")

@@ -1,4 +1,4 @@
-"""A pure renderer of textured planar quads seen by a camnet.geometry.model.Camera.
+"""A pure renderer of textured planar quads seen by a camnet.model.camera.Camera.
 
 Each quad is a textured rectangle in 3-D (origin corner + two edge vectors, m).
 A quad is drawn by warping its texture with the exact plane-to-image
@@ -21,8 +21,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from camnet.geometry.model import Camera, LensModel
-from camnet.geometry.projection import distort, full_dist, lens_terms, rotation_exp
+from camnet.model.camera import Camera, LensModel
+from camnet.model.projection import distort, full_dist, lens_terms, rotation_exp
 
 _NEAR_M = 0.01  # near clipping plane in camera z
 

@@ -13,8 +13,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from camnet.geometry.model import Baseline, Camera, CameraInfo, Observations, Stereo
-from camnet.geometry.projection import look_at, rotation_exp
+from camnet.model.camera import Camera, CameraInfo
+from camnet.model.observations import Baseline, Observations, Stereo
+from camnet.model.projection import look_at, rotation_exp
 
 WIDTH, HEIGHT = 1280, 1024
 OBJECT_CENTRE = np.array([0.0625, 0.0, 0.65])

@@ -1,0 +1,67 @@
+"""A long pool's cold solve: its newest tracks first, then the whole pool warm from their solution.
+
+A track pool (camnet.matching.pool) numbers its tracks in time and keeps
+the newest; its oldest tracks are the falsest. On config/surround.yaml's
+pools of 5000 tracks (benchmarks/bench_cold_pool.py, rendered every 7.5 s)
+the multi-view tracks of the older half were 37-42% false against the
+truth, of the newer half 5-9%, and a cold solve of the whole pool placed
+the cameras facing away from the head wrong, where one started on the
+newest 2500 placed them all. The live calibrator (camnet.live.tracker)
+and `camnet calibrate` both start a long pool so (`solve_newest_first`),
+each solve judged by the live policy's check and solved again without the
+cameras it finds placed wrong (camnet.live.judged_solve).
+
+Ids are only an order of preference here: the whole pool is what is solved
+in the end, and a caller falls back to the whole pool solved cold. Where a
+file's ids say nothing of age, its "newest" tracks are merely a subset.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import replace
+from functools import partial
+
+import numpy as np
+
+from camnet.live.judged_solve import Check, Judged, Status, solve_judged
+from camnet.live.moved_cameras import without_cameras
+from camnet.model.calibration import Calibration
+from camnet.model.observations import Observations
+from camnet.solve import Options
+
+# A pool of at least twice as many tracks starts on its newest this many (the matcher's pool of 5000
+# is full after two frame sets of nine cameras). A smaller pool is of a frame set or two, whose ids
+# say nothing of age: on one 9-camera frame set starting on its newest tracks cost 31 s against 8 s.
+START_TRACKS = 2500
+
+
+def newest_tracks(obs: Observations, count: int) -> Observations:
+    """`obs` with only its `count` newest tracks (the largest ids: a pool numbers them in time)."""
+    keep = np.zeros(len(obs.track_ids), dtype=bool)
+    keep[np.argsort(obs.track_ids, kind="stable")[-count:]] = True
+    rows = keep[obs.track_index]
+    new_row = np.cumsum(keep) - 1
+    return replace(obs, track_ids=obs.track_ids[keep], cam_index=obs.cam_index[rows],
+                   track_index=new_row[obs.track_index[rows]], uv=obs.uv[rows])
+
+
+def solve_newest_first(obs: Observations, options: Options, check: Check, *, start: Calibration | None = None,
+                       start_tracks: int = START_TRACKS, leave_out: Mapping[str, str] | None = None) -> Judged:
+    """A pool solved from `start` (None: cold) as the live calibrator solves one without a good calibration.
+
+    A pool of at least twice `start_tracks` tracks is solved on its newest `start_tracks` first, the whole
+    pool warm from there; where that is short or not good, the whole pool from `start`. Every solve is
+    judged by `check` (`judged_solve.solve_judged`: without the cameras it finds placed wrong, named), and
+    without the cameras of `leave_out` from the start, named with why.
+    """
+    if leave_out:
+        obs = without_cameras(obs, leave_out)  # before the newest tracks are chosen: those that keep 2 views
+    solve = partial(solve_judged, options=options, check=check, leave_out=leave_out)
+    if len(obs.track_ids) >= 2 * start_tracks:
+        seed = solve(newest_tracks(obs, start_tracks), start)
+        if seed.status == Status.GOOD:
+            whole = solve(obs, seed.calibration)
+            if whole.status == Status.GOOD:
+                return whole
+    return solve(obs, start)

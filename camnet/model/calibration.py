@@ -1,0 +1,174 @@
+"""A solved network (a frozen Calibration) and the typed report of its solve.
+
+Pure values, no I/O: the JSON codec of these types is camnet.io.formats, and docs/calibration-keys.md
+documents the report's keys. Conventions are those of camnet.model.camera: ``x_cam = R @ X_world + t``,
+lengths in metres, pixels with the origin at the centre of the top-left pixel.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from enum import StrEnum
+
+import numpy as np
+
+from camnet.model.camera import Camera
+from camnet.model.methods import Method
+
+
+class StartKind(StrEnum):
+    """How a solve started: the paper's solver, or a previous calibration (a warm start)."""
+
+    COLD = "cold"
+    WARM = "warm"  # every camera still fitted: only new tracks got the robust fit
+    WARM_ROBUST = "warm, robust"  # some camera no longer fitted (it moved): the robust adjustment ran
+
+
+@dataclass(frozen=True)
+class Sigma:
+    """A 1-sigma value that the data may not determine; then `value` is None and `reason` says why."""
+
+    value: float | None
+    reason: str = ""
+
+    @staticmethod
+    def unknown(reason: str) -> Sigma:
+        return Sigma(None, reason)
+
+
+@dataclass(frozen=True)
+class CameraSigmas:
+    """One camera's 1-sigma uncertainties (0 where a parameter is held).
+
+    rotation_deg: 3 axes, left perturbation; centre_m: 3 axes of the camera centre.
+    """
+
+    f_px: float
+    cx_px: float
+    cy_px: float
+    k1: float
+    k2: float
+    rotation_deg: tuple[float, float, float]
+    centre_m: tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class Uncertainty:
+    """The solution's uncertainty, from the Jacobian at the solution.
+
+    scale_rel: relative 1 sigma of the network's scale (weighted by
+    `point_weights`); scale_rel_if_pp_exact: the same were the guessed
+    principal points exactly right; scale_rel_if_pair_exact: the same were
+    the stereo pair's held rotation axes exactly as held (each is otherwise
+    counted at the pair's tolerance); scale_rel_if_pp_and_pair_exact: were
+    both exact, what the scene alone leaves (each of the three removes only
+    the cause its name says); point_weights (N,): per reported point,
+    its weight in the scale; point_sigma_m (N,): per reported point, its
+    1-sigma position error in metres (RMS over the three axes); each None
+    when not given.
+    """
+
+    sigma_px: float
+    scale_rel: Sigma
+    scale_rel_if_pp_exact: Sigma
+    cameras: Mapping[str, CameraSigmas]
+    point_weights: np.ndarray | None
+    point_sigma_m: np.ndarray | None = None
+    scale_rel_if_pair_exact: Sigma = Sigma(None, "no rotation axis of the stereo pair was held at a tolerance")
+    scale_rel_if_pp_and_pair_exact: Sigma = Sigma(None, "not both a principal point guessed and a pair's axis held")
+
+
+@dataclass(frozen=True)
+class CameraStats:
+    """One camera's inlier observations and their reprojection RMS (None without inliers)."""
+
+    rms_px: float | None
+    inliers: int
+
+
+@dataclass(frozen=True)
+class FreeSet:
+    """Which parameters moved in a solve (reused by warm starts).
+
+    intrinsics: per camera id, the names of camnet.model.projection.INTRINSIC_NAMES
+    (FISHEYE_INTRINSIC_NAMES for a fisheye camera)
+    that were free; stereo_rotation_axes: of "xyz", the right stereo camera's
+    free rotation axes; stereo_direction: whether its baseline could turn.
+    """
+
+    intrinsics: Mapping[str, tuple[str, ...]]
+    stereo_rotation_axes: tuple[str, ...]
+    stereo_direction: bool
+
+
+@dataclass(frozen=True)
+class PointsLeftOut:
+    """Tracks with a solution that a calibration does not report, by reason."""
+
+    fewer_than_two_views: int = 0
+    behind_a_camera: int = 0
+    undetermined: int = 0
+
+
+@dataclass(frozen=True)
+class SolveReport:
+    """How a calibration was solved and how well it is determined (docs/calibration-keys.md).
+
+    converged, reason, iterations: the final adjustment's; observations,
+    inliers: used and kept after outlier rejection; free_rule: the automatic
+    rule's decisions; warnings: near-degenerate geometry; notes: what the
+    reader should know of a good solve (what a guessed principal point
+    costs); timings_s: seconds per stage; cameras_left_out: camera id -> why
+    the solve could not place it (the calibration holds the others). Fields
+    a document may lack are None (`free`, `start`, `points_left_out`,
+    `uncertainty`, `median_parallax_deg`).
+    """
+
+    method: Method
+    converged: bool
+    reason: str
+    iterations: int
+    observations: int
+    inliers: int
+    cameras: Mapping[str, CameraStats]
+    median_parallax_deg: float | None
+    free: FreeSet | None
+    free_rule: tuple[str, ...]
+    warnings: tuple[str, ...]
+    points_left_out: PointsLeftOut | None
+    start: StartKind | None
+    timings_s: Mapping[str, float]
+    uncertainty: Uncertainty | None = None
+    cameras_left_out: Mapping[str, str] = field(default_factory=dict)
+    notes: tuple[str, ...] = ()
+    # Whether some rotation axis of the stereo pair was held, and at a pose given (a factory head's R, t, or that of
+    # the calibration a warm start began from: camnet.solve.report.scale_cause.held_at_given_pose), not the
+    # parallel pair.
+    pair_pose_given: bool = False
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """A solved network: cameras in the left stereo camera's frame, metric points.
+
+    rms_reprojection_px is NaN when no observation went into it (a factory
+    stereo head); report is None when no solve made it.
+    """
+
+    cameras: tuple[Camera, ...]
+    point_ids: np.ndarray  # (N,) int, the track ids kept
+    points: np.ndarray  # (N, 3) metres, world frame
+    rms_reprojection_px: float
+    world_frame: str
+    report: SolveReport | None = None
+
+    @property
+    def uncertainty(self) -> Uncertainty | None:
+        """The report's uncertainty; None without a report or without uncertainty in it."""
+        return self.report.uncertainty if self.report is not None else None
+
+    @property
+    def warnings(self) -> tuple[str, ...]:
+        """The report's warnings; none without a report."""
+        return self.report.warnings if self.report is not None else ()

@@ -1,0 +1,28 @@
+"""The options of a solve (camnet.solve.pipeline): its method, robust loss, free set, outlier rule and priors."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from camnet.model.methods import Loss, Method
+
+
+@dataclass(frozen=True)
+class Options:
+    method: Method = Method.REFINED
+    loss: Loss = Loss.CAUCHY  # robust loss of the first adjustment
+    loss_scale_px: float = 2.0
+    free: str | frozenset[str] = "auto"  # "auto" or a subset of free_rule.FREE_NAMES
+    determined_px: float = 1.0
+    significance: float = 1e-3  # false-alarm rate of the auto rule's chi-square test
+    outlier_sigmas: float = 4.0  # reject residuals beyond this many robust sigmas
+    min_outlier_px: float = 1.5  # never reject residuals below this
+    max_iterations: int = 300  # LM stops on the Gauss-Newton decrement long before this in most solves
+    # 1 sigma of a guessed principal point about the image centre, as a fraction of the image size,
+    # in the reported uncertainty (see uncertainty.covariance_with_pp_prior); 0 reports sigmas conditional on the guess.
+    pp_prior_rel: float = 0.01
+    # 1 sigma, degrees, of each rotation axis of the stereo pair that the solve holds, in the reported
+    # uncertainty (uncertainty.held_at_tolerance); 0 reports sigmas conditional on the pair's held rotation.
+    # None: free_rule.PAIR_TOLERANCE_DEG (it says why), or 0 from a start no solve made (a pose given as known).
+    pair_tolerance_deg: float | None = None
+    seed: int = 0
