@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from camnet.model.observations import Observations
-from camnet.solve.context import camera_order, centred, initial_intrinsics, observation_rows
+from camnet.solve.context import SolveContext
 from camnet.solve.start.cold import cold_start
 
 COLMAP_PIXEL_SHIFT = 0.5
@@ -68,11 +68,8 @@ def _params(cam, f_start: float, camera_model: str) -> list[float]:
 
 def camnet_start(obs: Observations, seed: int = 0):
     """(order, start): camnet's cold start of `obs`, as `camnet.solve.pipeline` computes it."""
-    order = camera_order(obs)
-    intr = initial_intrinsics(obs, order)
-    xy = centred(obs, order, intr)
-    start = cold_start(obs, order, intr, xy, observation_rows(obs), seed=seed, max_tracks=150)
-    return order, start
+    ctx = SolveContext.of(obs)
+    return list(ctx.order), cold_start(ctx, seed=seed, max_tracks=150)
 
 
 def colmap_adjust(obs: Observations, seed: int = 0, solver: AnchorSolver = AnchorSolver()) -> AnchorResult:

@@ -17,7 +17,7 @@ from camnet.model.two_view import bougnoux_focals, row_and_epipolar_errors
 from camnet.sim.families import family
 from camnet.sim.simulate import make_rig, observe
 from camnet.solve import Options, calibrate
-from camnet.solve.context import camera_order, centred, initial_intrinsics, observation_rows
+from camnet.solve.context import SolveContext
 from camnet.solve.report.assemble import refuse_wrong_start
 from camnet.solve.start.cold import check_solvable, cold_start, is_parallel
 
@@ -75,9 +75,7 @@ def test_a_start_that_left_cameras_out_and_fits_the_rest_badly_is_refused():
 
 
 def _start(obs):
-    order = camera_order(obs)
-    intr = initial_intrinsics(obs, order)
-    return cold_start(obs, order, intr, centred(obs, order, intr), observation_rows(obs), seed=0, max_tracks=150)
+    return cold_start(SolveContext.of(obs), seed=0, max_tracks=150)
 
 
 def test_the_paper_rig_starts_from_the_paper_solver_and_a_tape_pair_from_the_essential_matrix():
@@ -110,11 +108,10 @@ def test_a_camera_with_a_few_false_stereo_tracks_leaves_the_papers_start_to_the_
 
 def test_row_model_tells_a_parallel_pair_from_a_turned_one():
     def errors(obs):
-        order = camera_order(obs)
-        xy = centred(obs, order, initial_intrinsics(obs, order))
-        rows = observation_rows(obs)
-        both = (rows[:, order[0]] >= 0) & (rows[:, order[1]] >= 0)
-        return row_and_epipolar_errors(xy[rows[both, order[0]]], xy[rows[both, order[1]]], threshold_px=16.0)
+        ctx = SolveContext.of(obs)
+        left, right = ctx.camera_rows(0), ctx.camera_rows(1)
+        both = (left >= 0) & (right >= 0)
+        return row_and_epipolar_errors(ctx.xy[left[both]], ctx.xy[right[both]], threshold_px=16.0)
 
     assert is_parallel(*errors(observe(make_rig(seed=0, pp_offset_px=25.0), seed=0).observations))
     assert is_parallel(*errors(family_observations("ring", 0)[1]))

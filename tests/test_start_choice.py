@@ -10,7 +10,7 @@ from camnet.model.observations import Stereo
 from camnet.sim.families import family
 from camnet.sim.simulate import observe
 from camnet.solve import calibrate
-from camnet.solve.context import camera_order, centred, initial_intrinsics, observation_rows
+from camnet.solve.context import SolveContext
 from camnet.solve.start.choice import start_order
 from camnet.solve.start.cold import NoStart, PairStart, cold_start, stronger_pair
 
@@ -25,10 +25,7 @@ def far_pair(seed: int):
 
 
 def _cold_start(obs, pair: PairStart):
-    order = camera_order(obs)
-    intr = initial_intrinsics(obs, order)
-    return cold_start(obs, order, intr, centred(obs, order, intr), observation_rows(obs), seed=0, max_tracks=150,
-                      pair=pair)
+    return cold_start(SolveContext.of(obs), seed=0, max_tracks=150, pair=pair)
 
 
 def test_the_start_used_is_reported_and_one_asked_for_is_not_made_another_way():

@@ -10,11 +10,90 @@ distortion is known (camnet.solve.context.centred). Poses are ``x_cam = R (X - C
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from functools import cached_property
+
 import numpy as np
 
-from camnet.model.camera import LensModel
+from camnet.model.camera import CameraInfo, LensModel
 from camnet.model.observations import Observations
 from camnet.model.projection import K_from_intrinsics, full_dist, intrinsics_from_K, normalised
+
+
+@dataclass(frozen=True)
+class SolveContext:
+    """The observations as every stage of a solve reads them, computed once: the problem's camera order,
+    each track's observation rows, the intrinsics the observations give, and the centred pixels.
+
+    Its arrays are read-only; a stage that knows other intrinsics (a warm start's) makes a new context
+    with `with_intrinsics`.
+    """
+
+    obs: Observations
+    order: tuple[int, ...]  # problem camera m is observations camera order[m]: the stereo pair first
+    intr: np.ndarray  # (M, 9) the given intrinsics; f NaN and the image centre where not given
+    xy: np.ndarray  # (n, 2) centred pixels of every observation
+    rows: np.ndarray  # (T, cameras) observation row of each track per observations camera, -1 where none
+
+    def __post_init__(self) -> None:
+        for array in (self.intr, self.xy, self.rows):
+            array.setflags(write=False)
+
+    @staticmethod
+    def of(obs: Observations, intr: np.ndarray | None = None) -> SolveContext:
+        """The context of `obs`, with intrinsics `intr` (M, 9) in problem order, or those its cameras give."""
+        order = camera_order(obs)
+        intr = initial_intrinsics(obs, order) if intr is None else np.array(intr, dtype=float)
+        return SolveContext(obs, tuple(order), intr, centred(obs, order, intr), observation_rows(obs))
+
+    def with_intrinsics(self, intr: np.ndarray) -> SolveContext:
+        """The same observations with intrinsics `intr` (M, 9): their pixels centred anew."""
+        intr = np.array(intr, dtype=float)
+        return SolveContext(self.obs, self.order, intr, centred(self.obs, list(self.order), intr), self.rows)
+
+    @property
+    def n_cameras(self) -> int:
+        return len(self.order)
+
+    def camera(self, m: int) -> CameraInfo:
+        """What the observations say of problem camera m."""
+        return self.obs.cameras[self.order[m]]
+
+    def camera_rows(self, m: int) -> np.ndarray:
+        """(T,) problem camera m's observation row of each track, -1 where it does not see it."""
+        return self.rows[:, self.order[m]]
+
+    @cached_property
+    def problem_rows(self) -> np.ndarray:
+        """(T, M) each track's observation row per problem camera, -1 where none."""
+        return self.rows[:, list(self.order)]
+
+    @cached_property
+    def held_K(self) -> np.ndarray:
+        """(M,) bool: the observations give the camera's K and hold it."""
+        return np.array([self.camera(m).K is not None and "K" in self.camera(m).fixed for m in range(self.n_cameras)])
+
+    @cached_property
+    def held_dist(self) -> np.ndarray:
+        """(M,) bool: the observations give the camera's distortion and hold it."""
+        return np.array([self.camera(m).dist is not None and "dist" in self.camera(m).fixed
+                         for m in range(self.n_cameras)])
+
+    @cached_property
+    def guessed_K(self) -> np.ndarray:
+        """(M,) bool: the observations give no K of the camera (its principal point is guessed)."""
+        return np.array([self.camera(m).K is None for m in range(self.n_cameras)])
+
+    @cached_property
+    def threshold_px(self) -> float:
+        """RANSAC's inlier threshold of the start (`threshold_px`)."""
+        return threshold_px(self.obs, list(self.order))
+
+
+def threshold_px(obs: Observations, order: list[int]) -> float:
+    """RANSAC inlier threshold: 1% of the left image's diagonal (a start, not a fit)."""
+    left = obs.cameras[order[0]]
+    return 0.01 * float(np.hypot(left.width, left.height))
 
 
 def camera_order(obs: Observations) -> list[int]:

@@ -54,7 +54,7 @@ from camnet.model.observations import Observations
 from camnet.model.projection import INTRINSIC_NAMES, N_INTRINSICS, K_from_intrinsics, project_points
 from camnet.solve import bundle
 from camnet.solve.bundle import CentreMode, Problem, State
-from camnet.solve.context import camera_order, centred, initial_intrinsics, observation_rows
+from camnet.solve.context import SolveContext
 from camnet.solve.free_rule import (
     PAIR_TOLERANCE_DEG,
     choose_free,
@@ -85,9 +85,9 @@ from camnet.solve.start.cold import (
     PairStart,
     check_solvable,
     cold_start,
+    only_placed,
     pair_advice,
     with_cameras_left_out,
-    without_cameras,
 )
 from camnet.solve.start.state import Start
 from camnet.solve.start.warm import warm_start
@@ -109,7 +109,8 @@ _DIST = slice(INTRINSIC_NAMES.index("k1"), N_INTRINSICS)  # a camera's distortio
 # ---------------------------------------------------------------- the adjustment
 
 
-def _problem(obs, order, rows_kept, track_rows, intr_free, rot_free, right_centre) -> Problem:
+def _problem(ctx: SolveContext, rows_kept, track_rows, intr_free, rot_free, right_centre) -> Problem:
+    obs, order = ctx.obs, list(ctx.order)
     m_of = np.empty(len(obs.cameras), dtype=int)
     m_of[order] = np.arange(len(order))
     pt_of = np.full(len(obs.track_ids), -1)
@@ -175,8 +176,8 @@ def _calibrate(
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     check_solvable(obs)
-    order = camera_order(obs)
-    reset = _reset_indices(obs, order, reset_cameras)
+    ctx = SolveContext.of(obs)
+    reset = _reset_indices(ctx, reset_cameras)
     if initial is not None and reset & {0, 1}:
         log.info("a stereo camera is reset: solving from scratch")
         initial = None
@@ -186,22 +187,18 @@ def _calibrate(
         # unless the caller says to what it is known.
         factory = initial is not None and initial.report is None
         options = replace(options, pair_tolerance_deg=0.0 if factory else PAIR_TOLERANCE_DEG)
-    intr = initial_intrinsics(obs, order)
-    xy = centred(obs, order, intr)
-    rows = observation_rows(obs)
-    start = _start(obs, order, intr, xy, rows, initial, reset, options, pair)
+    ctx, start = _start(ctx, initial, reset, options, pair)
     if start.left_out:  # the calibration holds the cameras placed; the report names the others
-        obs, intr, start = without_cameras(obs, order, intr, start)
-        order, rows = camera_order(obs), observation_rows(obs)
-    held_K = np.array([obs.cameras[i].K is not None and "K" in obs.cameras[i].fixed for i in order])
-    held_dist = np.array([obs.cameras[i].dist is not None and "dist" in obs.cameras[i].fixed for i in order])
+        ctx, start = only_placed(ctx, start)
+    obs, held_K, held_dist = ctx.obs, ctx.held_K, ctx.held_dist
+    intr = ctx.intr.copy()
     intr[:, 0] = np.where(np.isfinite(intr[:, 0]) & held_K, intr[:, 0], start.f)
     timings["initialise"] = time.perf_counter() - t0
     if options.method == Method.PAPER:
-        return _paper_result(obs, order, intr, rows, start, timings)
+        return _paper_result(ctx, intr, start, timings)
 
-    full, track_rows = _full_problem(obs, order, start, options, initial, held_K, held_dist)
-    state = State(intr, start.R, start.C, start.X[track_rows])
+    full, track_rows = _full_problem(ctx, start, options, initial)
+    state = State(intr, start.R.copy(), start.C.copy(), start.X[track_rows])
     t1 = time.perf_counter()
     near, start_kind = False, StartKind.COLD
     if initial is not None:
@@ -223,17 +220,17 @@ def _calibrate(
     if options.free == "auto" and initial is None and options.method != Method.UNCONSTRAINED:
         t2 = time.perf_counter()
         full, problem, state, inliers, decisions = _apply_free_rule(
-            obs, order, full, problem, state, inliers, options, held_K, held_dist, ideal_pair=start.parallel)
+            ctx, full, problem, state, inliers, options, ideal_pair=start.parallel)
         timings["choose_free"] = time.perf_counter() - t2
 
     t3 = time.perf_counter()
-    guessed_pp = np.array([obs.cameras[i].K is None for i in order]) & ~held_K & (options.pp_prior_rel > 0)
+    guessed_pp = ctx.guessed_K & ~held_K & (options.pp_prior_rel > 0)
     problem, state, inliers, info, wider, projected = _adjust_inliers(full, problem, state, inliers, guessed_pp,
                                                                       options)
     timings["adjustment"] = time.perf_counter() - t3
-    _check_camera_inliers(obs, order, problem)
+    _check_camera_inliers(ctx, problem)
     t4 = time.perf_counter()
-    sizes = np.array([(obs.cameras[i].width, obs.cameras[i].height) for i in order], dtype=float)
+    sizes = np.array([(ctx.camera(m).width, ctx.camera(m).height) for m in range(ctx.n_cameras)], dtype=float)
     cov, warning = None, None
     if options.method != Method.UNCONSTRAINED:
         cov = covariance_with_pp_prior(problem, wider, state, info.normal, options.pp_prior_rel * sizes,
@@ -242,19 +239,20 @@ def _calibrate(
     timings["uncertainty"] = time.perf_counter() - t4
     timings["total"] = time.perf_counter() - t0
     result = _result(
-        obs, order, problem, state, track_rows, inliers, info, cov, decisions, options.method, timings,
+        ctx, problem, state, track_rows, inliers, info, cov, decisions, options.method, timings,
         start=start_kind, left_out=start.left_out, projected=projected, pair_start=start.pair, pair_pose_given=given,
     )
     return result if warning is None else _with_warning(result, warning)
 
 
-def _start(obs, order, intr, xy, rows, initial, reset, options: Options, pair: PairStart) -> Start:
-    """From `initial` where there is one, else cold (the paper's solver alone for its method)."""
+def _start(ctx: SolveContext, initial, reset, options: Options, pair: PairStart) -> tuple[SolveContext, Start]:
+    """(context, start): from `initial` where there is one (the context then with its intrinsics), else cold (the
+    paper's solver alone for its method)."""
     if initial is not None:
-        return warm_start(obs, order, intr, xy, rows, initial, reset=reset)
+        return warm_start(ctx, initial, reset=reset)
     paper_only = options.method == Method.PAPER
-    return cold_start(obs, order, intr, xy, rows, seed=options.seed, max_tracks=None if paper_only else 150,
-                      paper_only=paper_only, pair=pair)
+    return ctx, cold_start(ctx, seed=options.seed, max_tracks=None if paper_only else 150, paper_only=paper_only,
+                           pair=pair)
 
 
 def _with_warning(result: Result, warning: str) -> Result:
@@ -279,12 +277,13 @@ def _held_pair(obs, problem: Problem, wider: Problem | None, state: State, cov: 
     return reported, warning
 
 
-def _full_problem(obs, order, start: Start, options: Options, initial: Calibration | None, held_K, held_dist):
+def _full_problem(ctx: SolveContext, start: Start, options: Options, initial: Calibration | None):
     """(problem, track_rows): every observation of the tracks the start placed, and what moves at first.
 
     track_rows: problem point j is track row track_rows[j]. A warm start
     under the automatic rule takes over the free set of `initial`.
     """
+    obs, order, held_K, held_dist = ctx.obs, ctx.order, ctx.held_K, ctx.held_dist
     M = len(order)
     has_X = np.all(np.isfinite(start.X), axis=1)
     track_rows = np.flatnonzero(has_X)
@@ -307,16 +306,18 @@ def _full_problem(obs, order, start: Start, options: Options, initial: Calibrati
         right_centre = CentreMode.ON_BASELINE
     else:
         right_centre = CentreMode.FIXED
-    full = _problem(obs, order, np.flatnonzero(keep_obs), track_rows, intr_free, rot_free, right_centre)
-    known = full.distances if options.method == Method.UNCONSTRAINED else known_distances(obs, order)
+    full = _problem(ctx, np.flatnonzero(keep_obs), track_rows, intr_free, rot_free, right_centre)
+    known = full.distances if options.method == Method.UNCONSTRAINED else known_distances(obs, list(order))
     return replace(full, distances=known), track_rows
 
 
-def _apply_free_rule(obs, order, full: Problem, problem: Problem, state: State, inliers, options: Options, held_K,
-                     held_dist, *, ideal_pair):
+def _apply_free_rule(ctx: SolveContext, full: Problem, problem: Problem, state: State, inliers, options: Options,
+                     *, ideal_pair):
     """(full, problem, state, inliers, decisions): the automatic free set, chosen at the least-squares solution
     (of the ideal pair where the pair started as the paper's); the inliers judged again if it frees distortion."""
-    widths, heights = [obs.cameras[i].width for i in order], [obs.cameras[i].height for i in order]
+    widths = [ctx.camera(m).width for m in range(ctx.n_cameras)]
+    heights = [ctx.camera(m).height for m in range(ctx.n_cameras)]
+    held_K, held_dist = ctx.held_K, ctx.held_dist
     # The rule starts from the ideal pair: its rotation held at the identity.
     R = state.R.copy()
     R[1] = np.eye(3) if ideal_pair else R[1]
@@ -324,7 +325,7 @@ def _apply_free_rule(obs, order, full: Problem, problem: Problem, state: State, 
     problem, state, decisions = choose_free(
         problem, state, determined_px=options.determined_px, significance=options.significance, widths=widths,
         heights=heights, held_K=held_K, held_dist=held_dist, max_iterations=options.max_iterations,
-        guessed_pp=np.array([obs.cameras[i].K is None for i in order]) & ~held_K, pp_prior_rel=options.pp_prior_rel,
+        guessed_pp=ctx.guessed_K & ~held_K, pp_prior_rel=options.pp_prior_rel,
         pair_tolerance_deg=options.pair_tolerance_deg)
     freed_dist = (problem.intr_free[:, _DIST] & ~full.intr_free[:, _DIST]).any()
     full = replace(full, intr_free=problem.intr_free, rot_free=problem.rot_free, centre_mode=problem.centre_mode)
@@ -376,30 +377,31 @@ def _adjust_inliers(full: Problem, problem: Problem, state: State, inliers, gues
     return problem, state, inliers, info, wider, projected
 
 
-def _check_camera_inliers(obs: Observations, order, problem: Problem) -> None:
+def _check_camera_inliers(ctx: SolveContext, problem: Problem) -> None:
     """Refuse a solution in which some camera keeps too few observations."""
-    per_camera = np.bincount(problem.cam, minlength=len(order))
+    per_camera = np.bincount(problem.cam, minlength=ctx.n_cameras)
     if per_camera.min() < MIN_CAMERA_INLIERS:
-        weak = [obs.cameras[order[m]].id for m in np.flatnonzero(per_camera < MIN_CAMERA_INLIERS)]
+        weak = [ctx.camera(m).id for m in np.flatnonzero(per_camera < MIN_CAMERA_INLIERS)]
         raise SolveError(
             f"cameras {weak}: fewer than {MIN_CAMERA_INLIERS} of their observations agree with the "
             "solution; the tracks look wrong or the camera moved (re-solve with it reset)"
         )
 
 
-def _reset_indices(obs: Observations, order: list[int], reset_cameras: Collection[str]) -> set[int]:
+def _reset_indices(ctx: SolveContext, reset_cameras: Collection[str]) -> set[int]:
     """Problem indices of the cameras named in reset_cameras."""
     if isinstance(reset_cameras, str):  # one id, not its letters
         reset_cameras = [reset_cameras]
-    ids = [obs.cameras[i].id for i in order]
+    ids = [ctx.camera(m).id for m in range(ctx.n_cameras)]
     unknown = sorted(set(reset_cameras) - set(ids))
     if unknown:
         raise SolveError(f"reset_cameras: unknown camera(s) {unknown}; the observations have {ids}")
     return {ids.index(c) for c in reset_cameras}
 
 
-def _paper_result(obs, order, intr, rows, start: Start, timings) -> Result:
+def _paper_result(ctx: SolveContext, intr, start: Start, timings) -> Result:
     """The paper's method as solved by `paper_start`: points from the stereo pair alone."""
+    obs, order, rows = ctx.obs, ctx.order, ctx.rows
     t0 = time.perf_counter()
     has_P0 = np.all(np.isfinite(start.P0), axis=1)
     for m in range(2, len(order)):
@@ -416,23 +418,24 @@ def _paper_result(obs, order, intr, rows, start: Start, timings) -> Result:
     track_rows = np.flatnonzero(has_P0)
     X = start.P0[track_rows] * np.array([1.0, 1.0, f_left])
     keep = has_P0[obs.track_index]
-    problem = _problem(obs, order, np.flatnonzero(keep), track_rows, np.zeros((len(order), N_INTRINSICS), bool),
+    problem = _problem(ctx, np.flatnonzero(keep), track_rows, np.zeros((len(order), N_INTRINSICS), bool),
                        np.zeros((len(order), 3), bool), CentreMode.FIXED)
-    state = State(intr, R, C, X)
+    state = State(intr, R.copy(), C.copy(), X)
     timings["eq13"] = time.perf_counter() - t0
     timings["total"] = sum(timings.values())
     info = bundle.SolveInfo(True, "eq. 13 minimised", 0, np.nan, np.nan)
-    return _result(obs, order, problem, state, track_rows, np.ones(len(problem.cam), bool), info, None,
+    return _result(ctx, problem, state, track_rows, np.ones(len(problem.cam), bool), info, None,
                    ["paper: principal points at the image centre, no distortion"], Method.PAPER, timings)
 
 
 def _result(
-    obs, order, problem, state, track_rows, inliers, info, cov, decisions, method: Method, timings, *,
+    ctx: SolveContext, problem, state, track_rows, inliers, info, cov, decisions, method: Method, timings, *,
     start: StartKind = StartKind.COLD, left_out: dict[str, str] | None = None,
     projected: tuple[np.ndarray, np.ndarray] | None = None, pair_start: PairStart | None = None,
     pair_pose_given: bool = False,
 ) -> Result:
     """projected: the problem's residuals and camera-frame points at `state`, where the caller has them."""
+    obs, order = ctx.obs, list(ctx.order)
     cameras: list[Camera | None] = [None] * len(order)
     for m, i in enumerate(order):
         info_cam, R, model = obs.cameras[i], state.R[m], obs.cameras[i].model

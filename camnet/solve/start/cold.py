@@ -36,9 +36,9 @@ from camnet.model.two_view import (
     relative_pose,
     row_and_epipolar_errors,
 )
-from camnet.solve.context import camera_order, centred, initial_intrinsics, observation_rows
+from camnet.solve.context import SolveContext, camera_order, threshold_px
 from camnet.solve.start.paper_start import paper_start
-from camnet.solve.start.register import register_over_graph, seed_adjustment, threshold_px
+from camnet.solve.start.register import register_over_graph, seed_adjustment
 from camnet.solve.start.state import PairStart, Start
 
 log = logging.getLogger(__name__)
@@ -130,22 +130,21 @@ def is_parallel(rows_px: float, epipolar_px: float) -> bool:
 
 def pair_looks_parallel(obs: Observations) -> bool:
     """Whether `cold_start` takes the stereo pair for the paper's parallel pair (`is_parallel`)."""
-    order = camera_order(obs)
-    intr = initial_intrinsics(obs, order)
-    xy, rows = centred(obs, order, intr), observation_rows(obs)
-    left, right = _pair_rows(order, rows)
-    return is_parallel(*row_and_epipolar_errors(xy[left], xy[right], threshold_px=threshold_px(obs, order)))
+    ctx = SolveContext.of(obs)
+    left, right = _pair_rows(ctx)
+    return is_parallel(*row_and_epipolar_errors(ctx.xy[left], ctx.xy[right], threshold_px=ctx.threshold_px))
 
 
-def _pair_rows(order: list[int], rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _pair_rows(ctx: SolveContext) -> tuple[np.ndarray, np.ndarray]:
     """The pair's observation rows (left, right) of the tracks both see."""
-    left, right = rows[:, order[0]], rows[:, order[1]]
+    left, right = ctx.camera_rows(0), ctx.camera_rows(1)
     both = (left >= 0) & (right >= 0)
     return left[both], right[both]
 
 
-def _essential_start(obs, order, xy, rows, f_pair, pose: RelativePose) -> Start:
+def _essential_start(ctx: SolveContext, f_pair, pose: RelativePose) -> Start:
     """The pair placed by its relative pose, the translation scaled to the known distance, its tracks triangulated."""
+    obs, order, xy, rows = ctx.obs, ctx.order, ctx.xy, ctx.rows
     M, T = len(order), len(obs.track_ids)
     f = np.full(M, np.nan)
     f[:2] = f_pair
@@ -159,54 +158,56 @@ def _essential_start(obs, order, xy, rows, f_pair, pose: RelativePose) -> Start:
                  pair=PairStart.ESSENTIAL)
 
 
-def _focal_candidates(obs, order, intr, xy, rows) -> list[tuple[float, float]]:
+def _focal_candidates(ctx: SolveContext) -> list[tuple[float, float]]:
     """The pair's focal lengths to try: as given, else a sweep and Bougnoux's from the fundamental matrix."""
-    given = intr[:2, 0]
+    given = ctx.intr[:2, 0]
     if np.all(np.isfinite(given)):
         return [(given[0], given[1])]
-    grid = focal_grid(obs.cameras[order[0]].width)
+    grid = focal_grid(ctx.camera(0).width)
     candidates = [tuple(np.where(np.isfinite(given), given, f)) for f in grid]
-    left, right = _pair_rows(order, rows)
-    from_F = pair_focals(xy[left], xy[right], threshold_px=threshold_px(obs, order))
+    left, right = _pair_rows(ctx)
+    from_F = pair_focals(ctx.xy[left], ctx.xy[right], threshold_px=ctx.threshold_px)
     bougnoux = np.where(np.isfinite(given), given, from_F)
     if np.all((grid[0] <= bougnoux) & (bougnoux <= grid[-1])):
         candidates.append(tuple(bougnoux))
     return candidates
 
 
-def _essential_by_third_view(obs, order, intr, xy, rows) -> Start:
+def _essential_by_third_view(ctx: SolveContext) -> Start:
     """The essential-matrix start at the pair's focal lengths that the camera sharing most of its tracks fits best.
 
     Two cameras that look at one object hardly fix their focal lengths
     (their optical axes nearly meet); a third view of the pair's
     triangulated points does.
     """
-    left, right = _pair_rows(order, rows)
+    obs, order, intr, xy, rows = ctx.obs, ctx.order, ctx.intr, ctx.xy, ctx.rows
+    left, right = _pair_rows(ctx)
     both = np.flatnonzero((rows[:, order[0]] >= 0) & (rows[:, order[1]] >= 0))
     shared = [len(np.flatnonzero(rows[both, order[m]] >= 0)) for m in range(2, len(order))]
     third = 2 + int(np.argmax(shared))
-    candidates = _focal_candidates(obs, order, intr, xy, rows)
+    candidates = _focal_candidates(ctx)
     if len(candidates) > 1 and max(shared) < MIN_RESECTION_POINTS:
         raise SolveError(
             f"tracks: no camera shares more than {max(shared)} tracks with the stereo pair ({obs.stereo.left}, "
             f"{obs.stereo.right}); need at least {MIN_RESECTION_POINTS} seen by the pair and another camera "
             "(or give the pair's K)"
         )
-    threshold = threshold_px(obs, order)
+    threshold = ctx.threshold_px
     placed = []  # (MSAC of the third camera, start with it placed)
     for f_pair in candidates:
         pose = relative_pose(xy[left], xy[right], *f_pair, threshold_px=threshold)
         if pose is None or pose.inliers.sum() < MIN_PAIR_POINTS:
             continue
-        start = _essential_start(obs, order, xy, rows, f_pair, pose)
+        start = _essential_start(ctx, f_pair, pose)
         if len(candidates) == 1:
             return start
         trk = np.flatnonzero(np.all(np.isfinite(start.X), axis=1) & (rows[:, order[third]] >= 0))
         got = resect(start.X[trk], xy[rows[trk, order[third]]], f_px=intr[third, 0] if np.isfinite(intr[third, 0])
                      else None, width_px=obs.cameras[order[third]].width, threshold_px=threshold)
         if not isinstance(got, str):
-            start.f[third], start.R[third], start.C[third], start.registered[third] = got.f_px, got.R, got.C, True
-            placed.append((got.msac_px2, start))
+            f, R, C, X, registered = start.working()
+            f[third], R[third], C[third], registered[third] = got.f_px, got.R, got.C, True
+            placed.append((got.msac_px2, start.placed(f, R, C, X, registered)))
     if not placed:
         raise SolveError(
             f"cameras: {obs.cameras[order[third]].id} does not agree with the stereo pair ({obs.stereo.left}, "
@@ -215,34 +216,35 @@ def _essential_by_third_view(obs, order, intr, xy, rows) -> Start:
     # Few shared tracks fit a wrong focal length nearly as well: the three views, adjusted, decide.
     best = (np.inf, None)
     for _, start in sorted(placed, key=lambda p: p[0])[:SEED_TRIALS]:
-        cost = seed_adjustment(obs, order, xy, rows, intr, start)
+        cost, start = seed_adjustment(ctx, start)
         if cost < best[0]:
             best = (cost, start)
     log.info("the pair's focal lengths from a third view: %.0f, %.0f px (%.2f px^2)", *best[1].f[:2], best[0])
     return best[1]
 
 
-def _paper_pair(obs, order, intr, xy, rows, seed, max_tracks) -> Start | str:
+def _paper_pair(ctx: SolveContext, seed, max_tracks) -> Start | str:
     """The paper's start (pair, and every camera it places when it places all); why not where it finds none."""
     try:
-        start = paper_start(obs, order, intr, xy, rows, seed, max_tracks=max_tracks, register_rest=False)
+        start = paper_start(ctx, seed, max_tracks=max_tracks, register_rest=False)
     except SolveError as exc:
         return f"the paper's solver gives no start ({exc})"
-    grid = focal_grid(obs.cameras[order[0]].width)
-    in_front = np.mean(np.isfinite(start.P0[(rows[:, order[0]] >= 0) & (rows[:, order[1]] >= 0), 0]))
+    grid = focal_grid(ctx.camera(0).width)
+    in_front = np.mean(np.isfinite(start.P0[(ctx.camera_rows(0) >= 0) & (ctx.camera_rows(1) >= 0), 0]))
     if not (grid[0] <= start.f[0] <= grid[-1] and in_front >= PARALLEL_IN_FRONT):
         return (f"the paper's solver puts the left focal length at {start.f[0]:.0f} px and {100 * in_front:.0f}% "
                 "of the pair's tracks in front")
     if not start.registered.all():
         # Cameras that share few stereo tracks see them from the side, where the stereo cloud's
         # depth error shows most: they are placed again through the graph, on better points.
-        start.registered[2:] = False
-        start.f[2:] = np.nan
-    start.pair = PairStart.PAPER
-    return start
+        f, R, C, X, registered = start.working()
+        registered[2:] = False
+        f[2:] = np.nan
+        start = start.placed(f, R, C, X, registered)
+    return replace(start, pair=PairStart.PAPER)
 
 
-def _from_stronger_pair(obs, order, intr, xy, rows) -> Start:
+def _from_stronger_pair(ctx: SolveContext) -> Start:
     """The start from the two cameras that share the most tracks (`stronger_pair`), every camera placed through
     the graph from them, then put in the scale pair's frame and scaled to its distance.
 
@@ -250,6 +252,8 @@ def _from_stronger_pair(obs, order, intr, xy, rows) -> Start:
     and the third view that fixes their focal lengths, rest on those few,
     where a pair that sees much together fixes its own well.
     """
+    obs, order = ctx.obs, ctx.order
+    obs, order = ctx.obs, ctx.order
     found = stronger_pair(obs)
     if found is None:
         raise NoStart(f"no pair of cameras shares {WEAK_PAIR_RATIO:g} times the stereo pair's tracks")
@@ -258,10 +262,8 @@ def _from_stronger_pair(obs, order, intr, xy, rows) -> Start:
     seed_obs = replace(obs, stereo=Stereo(a, b, 1.0))  # a unit distance until the scale pair's is known
     seed_order = camera_order(seed_obs)
     m_of = [order.index(i) for i in seed_order]  # seed camera k is problem camera m_of[k]
-    seed_intr = intr[m_of]
-    start = _essential_by_third_view(seed_obs, seed_order, seed_intr, xy, rows)
-    register_over_graph(seed_obs, seed_order, xy, rows, seed_intr, start.f, start.R, start.C, start.X,
-                        start.registered, hold_pair=False)
+    seed = SolveContext(seed_obs, tuple(seed_order), ctx.intr[m_of], ctx.xy, ctx.rows)
+    start, _ = register_over_graph(seed, _essential_by_third_view(seed), hold_pair=False)
     k_of = np.argsort(m_of)  # problem camera m is seed camera k_of[m]
     f, R, C, placed = start.f[k_of], start.R[k_of], start.C[k_of], start.registered[k_of]
     if not placed[:2].all():
@@ -274,10 +276,10 @@ def _from_stronger_pair(obs, order, intr, xy, rows) -> Start:
     return Start(f, R, C, X, placed, np.full_like(X, np.nan), f[1] / f[0], parallel=False, pair=PairStart.STRONGEST)
 
 
-def _scale_pair_start(obs, order, intr, xy, rows, *, seed, max_tracks, paper_only, pair: PairStart) -> Start:
+def _scale_pair_start(ctx: SolveContext, *, seed, max_tracks, paper_only, pair: PairStart) -> Start:
     """The scale pair placed as the paper's parallel pair or by its essential matrix (see `cold_start`)."""
-    left, right = _pair_rows(order, rows)
-    rows_px, epipolar_px = row_and_epipolar_errors(xy[left], xy[right], threshold_px=threshold_px(obs, order))
+    left, right = _pair_rows(ctx)
+    rows_px, epipolar_px = row_and_epipolar_errors(ctx.xy[left], ctx.xy[right], threshold_px=ctx.threshold_px)
     parallel = is_parallel(rows_px, epipolar_px) if pair == PairStart.AUTO else pair == PairStart.PAPER
     log.info("the stereo pair's matches lie %.2f px off matching rows, %.2f px off epipolar lines: %s (%s)",
              rows_px, epipolar_px, "parallel" if parallel else "not parallel", pair.value)
@@ -287,26 +289,24 @@ def _scale_pair_start(obs, order, intr, xy, rows, *, seed, max_tracks, paper_onl
                 f"method paper: the stereo pair's matches lie {rows_px:.1f} px off matching rows, so it is not "
                 "parallel as the paper's method needs; use the refined method"
             )
-        start = paper_start(obs, order, intr, xy, rows, seed, max_tracks=max_tracks)
-        start.pair = PairStart.PAPER
-        return start
-    start = _paper_pair(obs, order, intr, xy, rows, seed, max_tracks) if parallel else None
+        return replace(paper_start(ctx, seed, max_tracks=max_tracks), pair=PairStart.PAPER)
+    start = _paper_pair(ctx, seed, max_tracks) if parallel else None
     if isinstance(start, str):
         if pair == PairStart.PAPER:  # asked for, so not made another way: the caller tries the others itself
             raise NoStart(start)
         log.info("%s: starting from the essential matrix", start)
         start = None
-    return _essential_by_third_view(obs, order, intr, xy, rows) if start is None else start
+    return _essential_by_third_view(ctx) if start is None else start
 
 
 def cold_start(
-    obs: Observations, order: list[int], intr: np.ndarray, xy: np.ndarray, rows: np.ndarray, *, seed: int,
-    max_tracks: int | None, paper_only: bool = False, pair: PairStart = PairStart.AUTO,
+    ctx: SolveContext, *, seed: int, max_tracks: int | None, paper_only: bool = False,
+    pair: PairStart = PairStart.AUTO,
 ) -> Start:
     """The start of a solve with no previous calibration; `Start.left_out` names the cameras it could not place,
     `Start.pair` how the scale pair was placed.
 
-    intr (M, 9): the given intrinsics (f NaN where unknown). paper_only:
+    paper_only:
     the paper's method, which needs a parallel pair and every camera
     sharing six stereo tracks (raises if not). pair: how the pair is
     placed (`PairStart`): AUTO decides from its matches, and starts from the
@@ -314,15 +314,13 @@ def cold_start(
     other raises `NoStart` where it cannot be made.
     """
     if pair == PairStart.STRONGEST and not paper_only:
-        start = _from_stronger_pair(obs, order, intr, xy, rows)
+        start = _from_stronger_pair(ctx)
     else:
-        start = _scale_pair_start(obs, order, intr, xy, rows, seed=seed, max_tracks=max_tracks, paper_only=paper_only,
-                                  pair=pair)
+        start = _scale_pair_start(ctx, seed=seed, max_tracks=max_tracks, paper_only=paper_only, pair=pair)
         if paper_only:
             return start
-    reasons = register_over_graph(obs, order, xy, rows, intr, start.f, start.R, start.C, start.X, start.registered,
-                                  hold_pair=start.parallel)
-    start.left_out = {obs.cameras[order[m]].id: reasons[m] for m in np.flatnonzero(~start.registered)}
+    start, reasons = register_over_graph(ctx, start, hold_pair=start.parallel)
+    start = replace(start, left_out={ctx.camera(m).id: reasons[m] for m in np.flatnonzero(~start.registered)})
     if start.registered.sum() < MIN_CAMERAS:
         raise SolveError(
             f"cameras: only {int(start.registered.sum())} could be placed; a metric solve needs at least "
@@ -331,8 +329,10 @@ def cold_start(
     return start
 
 
-def without_cameras(obs: Observations, order: list[int], intr: np.ndarray, start: Start):
-    """(obs, intr, start) with only the cameras the start placed; the same tracks, the problem order kept."""
+def only_placed(ctx: SolveContext, start: Start) -> tuple[SolveContext, Start]:
+    """(context, start) with only the cameras the start placed; the same tracks, the problem order kept, the
+    intrinsics the context had."""
+    obs, order = ctx.obs, ctx.order
     keep = np.flatnonzero(start.registered)
     kept = np.isin(np.arange(len(obs.cameras)), [order[m] for m in keep])
     new_index = np.cumsum(kept) - 1
@@ -343,9 +343,8 @@ def without_cameras(obs: Observations, order: list[int], intr: np.ndarray, start
         obs, cameras=cameras, baselines=tuple(b for b in obs.baselines if {b.a, b.b} <= ids),
         cam_index=new_index[obs.cam_index[rows]], track_index=obs.track_index[rows], uv=obs.uv[rows],
     )
-    start = Start(start.f[keep], start.R[keep], start.C[keep], start.X, start.registered[keep], start.P0, start.k,
-                  start.parallel, start.left_out, start.pair)
-    return obs, intr[keep], start
+    start = start.placed(start.f[keep], start.R[keep], start.C[keep], start.X, start.registered[keep])
+    return SolveContext.of(obs, ctx.intr[keep]), start
 
 
 def with_cameras_left_out(report: SolveReport, left_out: dict[str, str]) -> SolveReport:

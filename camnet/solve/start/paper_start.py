@@ -16,33 +16,26 @@ import numpy as np
 
 from camnet.errors import SolveError
 from camnet.model import paper
-from camnet.model.observations import Observations
 from camnet.model.resection import MIN_INLIER_SHARE
 from camnet.model.triangulation import triangulate_missing
-from camnet.solve.start.register import threshold_px
+from camnet.solve.context import SolveContext
 from camnet.solve.start.state import MIN_REGISTRATION_POINTS, Start
 
 log = logging.getLogger(__name__)
 
 EQ13_START_FTOL = 1e-4  # eq. 13 as a start for the adjustment: its last digits do not matter
+# The paper's method itself: solved to its minimum, so that its digits do not depend on where SciPy stops.
+EQ13_FTOL = 1e-12
 
 
-def paper_start(
-    obs: Observations,
-    order: list[int],
-    intr: np.ndarray,
-    xy: np.ndarray,
-    rows: np.ndarray,
-    seed: int,
-    max_tracks: int | None = None,
-    register_rest: bool = True,
-) -> Start:
+def paper_start(ctx: SolveContext, seed: int, max_tracks: int | None = None, register_rest: bool = True) -> Start:
     """The paper's unknowns from nothing but the observations, then every camera and track.
 
     max_tracks: use at most this many tracks per camera in eq. 13, which is
     plenty for a starting point; None uses all (the paper's method itself).
     register_rest: place the other cameras and every track, else the caller does.
     """
+    obs, order, intr, xy, rows = ctx.obs, ctx.order, ctx.intr, ctx.xy, ctx.rows
     M, T = len(order), len(obs.track_ids)
     left, right = rows[:, order[0]], rows[:, order[1]]
     pair = (left >= 0) & (right >= 0)
@@ -54,7 +47,7 @@ def paper_start(
     P0 = np.full((T, 3), np.nan)
     P0_pair, valid = paper.triangulate_parallel(xy[left[pair]], xy[right[pair]], k, 1.0)
     P0[np.flatnonzero(pair)[valid]] = P0_pair[valid]
-    stretched = _stretched_cameras(obs, order, xy, rows, P0, seed)
+    stretched = _stretched_cameras(ctx, P0, seed)
     if np.isfinite(given_f[0]):
         f_left = given_f[0]
     else:
@@ -90,20 +83,21 @@ def paper_start(
         others.append(m)
     if others:
         f_left, f[others], R[others], C[others], _ = paper.refine_eq13(
-            f_left, f[others], R[others], C[others], P0, cams, ftol=1e-8 if max_tracks is None else EQ13_START_FTOL
+            f_left, f[others], R[others], C[others], P0, cams, ftol=EQ13_FTOL if max_tracks is None else EQ13_START_FTOL
         )
         f[0], f[1] = f_left, k * f_left
         X = P0 * np.array([1.0, 1.0, f_left])
         registered[others] = True
     if register_rest:
-        register_and_triangulate(obs, order, xy, rows, f, R, C, X, registered, seed=seed)
+        register_and_triangulate(ctx, f, R, C, X, registered, seed=seed)
     return Start(f, R, C, X, registered, P0, k)
 
 
-def _stretched_cameras(obs, order, xy, rows, P0, seed) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+def _stretched_cameras(ctx: SolveContext, P0, seed) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     """{problem index: (DLT matrix on the stretched stereo cloud P0, its inlier tracks)} of the other cameras."""
+    obs, order, xy, rows = ctx.obs, ctx.order, ctx.xy, ctx.rows
     has_P0 = np.all(np.isfinite(P0), axis=1)
-    threshold = threshold_px(obs, order)
+    threshold = ctx.threshold_px
     stretched = {}
     for m in range(2, len(order)):
         trk = np.flatnonzero(has_P0 & (rows[:, order[m]] >= 0))
@@ -135,10 +129,14 @@ def _stretched_dlt(P0: np.ndarray, x: np.ndarray, threshold: float, seed: int) -
     return P, inl
 
 
-def register_and_triangulate(obs, order, xy, rows, f, R, C, X, registered, *, seed: int) -> None:
-    """Alternately register cameras (DLT on known points) and triangulate tracks, in place."""
+def register_and_triangulate(ctx: SolveContext, f, R, C, X, registered, *, seed: int) -> None:
+    """Alternately register cameras (DLT on known points) and triangulate tracks, in the arrays given.
+
+    f, R, C, registered (M, ...) and X (T, 3): the start's arrays in the making.
+    """
+    obs, order, xy, rows = ctx.obs, ctx.order, ctx.xy, ctx.rows
     M = len(order)
-    threshold = threshold_px(obs, order)
+    threshold = ctx.threshold_px
     while True:
         progress = False
         for m in np.flatnonzero(~registered):

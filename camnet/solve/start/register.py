@@ -22,25 +22,20 @@ import logging
 import numpy as np
 
 from camnet.model.methods import Loss
-from camnet.model.observations import Observations
 from camnet.model.projection import N_INTRINSICS
 from camnet.model.resection import resect
 from camnet.model.triangulation import triangulate_missing
 from camnet.solve import bundle
 from camnet.solve.bundle import CentreMode, Problem, State
+from camnet.solve.context import SolveContext
 from camnet.solve.start.recheck import Network, recheck_placed
+from camnet.solve.start.state import Start
 
 log = logging.getLogger(__name__)
 
 LOCAL_ITERATIONS = 30  # a start for the next camera, not the solution
 LOCAL_FTOL = 1e-4
 LOCAL_LOSS_SCALE_PX = 2.0  # the robust loss bends here, as in the final adjustment's default
-
-
-def threshold_px(obs: Observations, order: list[int]) -> float:
-    """RANSAC inlier threshold: 1% of the left image's diagonal (a start, not a fit)."""
-    left = obs.cameras[order[0]]
-    return 0.01 * float(np.hypot(left.width, left.height))
 
 
 def local_adjustment(
@@ -84,33 +79,30 @@ def local_adjustment(
     return info.final_cost / max(len(local_cam), 1)
 
 
-def seed_adjustment(obs: Observations, order: list[int], xy, rows, intr, start) -> float:
-    """The local adjustment of a start's placed cameras, in place, after triangulating what they see; its cost
-    per observation (px^2)."""
-    triangulate_missing(order, xy, rows, start.f, start.R, start.C, start.X, start.registered)
-    held_K = np.array([obs.cameras[i].K is not None and "K" in obs.cameras[i].fixed for i in order])
-    return local_adjustment(
-        start.f, start.R, start.C, start.X, aspect=np.where(np.isfinite(intr[:, 1]), intr[:, 1], 1.0),
-        xy_rows=rows[:, order], xy=xy, placed=start.registered, held_K=held_K, hold_pair=start.parallel,
-        baseline_m=obs.stereo.baseline_m,
+def seed_adjustment(ctx: SolveContext, start: Start) -> tuple[float, Start]:
+    """(cost per observation px^2, start): the local adjustment of a start's placed cameras after triangulating
+    what they see."""
+    f, R, C, X, placed = start.working()
+    triangulate_missing(ctx.order, ctx.xy, ctx.rows, f, R, C, X, placed)
+    cost = local_adjustment(
+        f, R, C, X, aspect=np.where(np.isfinite(ctx.intr[:, 1]), ctx.intr[:, 1], 1.0), xy_rows=ctx.problem_rows,
+        xy=ctx.xy, placed=placed, held_K=ctx.held_K, hold_pair=start.parallel, baseline_m=ctx.obs.stereo.baseline_m,
     )
+    return cost, start.placed(f, R, C, X, placed)
 
 
-def register_over_graph(
-    obs: Observations, order: list[int], xy: np.ndarray, rows: np.ndarray, intr: np.ndarray, f: np.ndarray,
-    R: np.ndarray, C: np.ndarray, X: np.ndarray, placed: np.ndarray, *, hold_pair: bool,
-) -> dict[int, str]:
-    """Place, in place, every camera the view graph reaches; {problem index: reason} for the others.
+def register_over_graph(ctx: SolveContext, start: Start, *, hold_pair: bool) -> tuple[Start, dict[int, str]]:
+    """(start, {problem index: reason}): `start` with every camera the view graph reaches placed, and why
+    each other one is not.
 
-    rows (T, cameras): observation row of each track per observations
-    camera; intr (M, 9): the given intrinsics (a held K's focal length is
-    kept); f, R, C, placed (M, ...) and X (T, 3) as in initialise.Start.
-    hold_pair: hold the stereo pair where it is in the local adjustments.
+    A held K's focal length is kept. hold_pair: hold the stereo pair where
+    it is in the local adjustments.
     """
-    xy_rows = rows[:, order]
-    held_K = np.array([obs.cameras[i].K is not None and "K" in obs.cameras[i].fixed for i in order])
+    f, R, C, X, placed = start.working()
+    obs, order, xy, rows, intr = ctx.obs, ctx.order, ctx.xy, ctx.rows, ctx.intr
+    xy_rows, held_K = ctx.problem_rows, ctx.held_K
     aspect = np.where(np.isfinite(intr[:, 1]), intr[:, 1], 1.0)
-    threshold = threshold_px(obs, order)
+    threshold = ctx.threshold_px
     reasons: dict[int, str] = {}
     given = placed.copy()
     triangulate_missing(order, xy, rows, f, R, C, X, placed)
@@ -120,12 +112,12 @@ def register_over_graph(
         for m in sorted(shared, key=lambda m: -len(shared[m])):
             trk = shared[m]
             got = resect(X[trk], xy[xy_rows[trk, m]], f_px=intr[m, 0] if held_K[m] else None,
-                         width_px=obs.cameras[order[m]].width, threshold_px=threshold)
+                         width_px=ctx.camera(m).width, threshold_px=threshold)
             if isinstance(got, str):
                 reasons[m] = got
                 continue
             f[m], R[m], C[m], placed[m] = got.f_px, got.R, got.C, True
-            log.debug("%s placed on %d of %d tracks", obs.cameras[order[m]].id, got.inliers.sum(), len(trk))
+            log.debug("%s placed on %d of %d tracks", ctx.camera(m).id, got.inliers.sum(), len(trk))
             reasons.pop(m, None)
             triangulate_missing(order, xy, rows, f, R, C, X, placed)
             local_adjustment(f, R, C, X, aspect=aspect, xy_rows=xy_rows, xy=xy, placed=placed, held_K=held_K,
@@ -138,10 +130,10 @@ def register_over_graph(
     left_out, moved = recheck_placed(net, ~given & (np.arange(len(order)) >= 2), f_free=~held_K,
                                      width_px=np.array([obs.cameras[i].width for i in order]), threshold_px=threshold)
     for m in moved:
-        log.info("%s placed again: its first pose disagreed with the other cameras", obs.cameras[order[m]].id)
+        log.info("%s placed again: its first pose disagreed with the other cameras", ctx.camera(m).id)
     reasons.update(left_out)
     if left_out or moved:
         local_adjustment(f, R, C, X, aspect=aspect, xy_rows=xy_rows, xy=xy, placed=placed, held_K=held_K,
                          hold_pair=hold_pair, baseline_m=obs.stereo.baseline_m)
     triangulate_missing(order, xy, rows, f, R, C, X, placed)
-    return reasons
+    return start.placed(f, R, C, X, placed), reasons

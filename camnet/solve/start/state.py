@@ -9,8 +9,10 @@ distortion is known (camnet.solve.context.centred). Poses are ``x_cam = R (X - C
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
 from enum import Enum
+from types import MappingProxyType
 
 import numpy as np
 
@@ -28,8 +30,10 @@ class PairStart(Enum):
     STRONGEST = "strongest pair"
 
 
-@dataclass
+@dataclass(frozen=True)
 class Start:
+    """A solve's starting values, read-only: a stage that places more makes a new Start (`working`, `placed`)."""
+
     f: np.ndarray  # (M,) focal lengths, px
     R: np.ndarray  # (M, 3, 3)
     C: np.ndarray  # (M, 3) centres, m
@@ -38,5 +42,21 @@ class Start:
     P0: np.ndarray  # (T, 3) the paper's stereo cloud (f_left = 1, unit baseline); NaN where unknown
     k: float  # f_right / f_left
     parallel: bool = True  # the pair is the paper's ideal parallel pair, to start with
-    left_out: dict[str, str] = field(default_factory=dict)  # camera id -> why it could not be placed
+    left_out: Mapping[str, str] = field(default_factory=dict)  # camera id -> why it could not be placed
     pair: PairStart | None = None  # how a cold start placed the scale pair (never AUTO); None: a warm start
+
+    def __post_init__(self) -> None:
+        for name in ("f", "R", "C", "X", "registered", "P0"):
+            array = np.array(getattr(self, name))  # its own copy: the caller's arrays may change after
+            array.setflags(write=False)
+            object.__setattr__(self, name, array)
+        object.__setattr__(self, "left_out", MappingProxyType(dict(self.left_out)))
+
+    def working(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Writable copies of (f, R, C, X, registered), for a stage that places more cameras and points."""
+        return self.f.copy(), self.R.copy(), self.C.copy(), self.X.copy(), self.registered.copy()
+
+    def placed(self, f: np.ndarray, R: np.ndarray, C: np.ndarray, X: np.ndarray, registered: np.ndarray,
+               **changes) -> Start:
+        """This start with the cameras and points `f, R, C, X, registered` (and any other field changed)."""
+        return replace(self, f=f, R=R, C=C, X=X, registered=registered, **changes)

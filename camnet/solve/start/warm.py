@@ -10,40 +10,33 @@ distortion is known (camnet.solve.context.centred). Poses are ``x_cam = R (X - C
 from __future__ import annotations
 
 from collections.abc import Collection
+from dataclasses import replace
 
 import numpy as np
 
 from camnet.errors import SolveError
 from camnet.model.calibration import Calibration
-from camnet.model.observations import Observations
 from camnet.model.projection import full_dist
 from camnet.model.triangulation import triangulate_missing
-from camnet.solve.context import centred
-from camnet.solve.start.register import register_over_graph, threshold_px
+from camnet.solve.context import SolveContext
+from camnet.solve.start.register import register_over_graph
 from camnet.solve.start.state import MIN_REGISTRATION_POINTS, Start
 
 
-def warm_start(
-    obs: Observations,
-    order: list[int],
-    intr: np.ndarray,
-    xy: np.ndarray,
-    rows: np.ndarray,
-    initial: Calibration,
-    *,
-    reset: Collection[int] = (),
-) -> Start:
-    """Start from a previous calibration: its cameras, its points, new tracks triangulated.
+def warm_start(ctx: SolveContext, initial: Calibration, *, reset: Collection[int] = ()) -> tuple[SolveContext, Start]:
+    """(context, start) from a previous calibration: its cameras, its points, new tracks triangulated; the
+    context with the previous intrinsics (its pixels centred by them).
 
-    `intr` and `xy` are updated in place with the previous intrinsics.
     reset: problem indices of non-stereo cameras whose previous pose is not
     trusted; they keep their intrinsics and are registered again, by PnP
     RANSAC, on the points the other cameras determine. Cameras new to
     `initial` are placed through the view graph; `Start.left_out` names
     those it cannot place.
     """
+    obs, order = ctx.obs, ctx.order
     by_id = {c.id: c for c in initial.cameras}
     M = len(order)
+    intr = ctx.intr.copy()
     f = np.full(M, np.nan)
     R = np.tile(np.eye(3), (M, 1, 1))
     C = np.zeros((M, 3))
@@ -60,20 +53,21 @@ def warm_start(
             registered[m] = True
     if not registered[:2].all():
         raise SolveError("initial calibration: it does not hold both stereo cameras")
-    xy[:] = centred(obs, order, intr)
+    ctx = ctx.with_intrinsics(intr)
     X = _previous_points(obs.track_ids, initial.point_ids, initial.points)
     # A moved camera's observations of the old points are dropped (they saw its old pose): it is placed on the
     # points of its new tracks, which the cameras still in place triangulate here first.
-    triangulate_missing(order, xy, rows, f, R, C, X, registered)
+    triangulate_missing(order, ctx.xy, ctx.rows, f, R, C, X, registered)
     for m in reset:
         if not np.isfinite(f[m]):
             continue  # not in `initial` either: registered below like any new camera
         # Points the moved camera helped to place are still fine: the other cameras hold them.
-        R[m], C[m] = register_pnp(X, xy, rows[:, order[m]], f[m], obs.cameras[order[m]].id, threshold_px(obs, order))
+        R[m], C[m] = register_pnp(X, ctx.xy, ctx.camera_rows(m), f[m], ctx.camera(m).id, ctx.threshold_px)
         registered[m] = True
-    reasons = register_over_graph(obs, order, xy, rows, intr, f, R, C, X, registered, hold_pair=True)
-    left_out = {obs.cameras[order[m]].id: reasons[m] for m in np.flatnonzero(~registered)}
-    return Start(f, R, C, X, registered, np.full_like(X, np.nan), f[1] / f[0], left_out=left_out)
+    start = Start(f, R, C, X, registered, np.full_like(X, np.nan), f[1] / f[0])
+    start, reasons = register_over_graph(ctx, start, hold_pair=True)
+    left_out = {ctx.camera(m).id: reasons[m] for m in np.flatnonzero(~start.registered)}
+    return ctx, replace(start, k=start.f[1] / start.f[0], left_out=left_out)
 
 
 def _previous_points(track_ids: np.ndarray, point_ids: np.ndarray, points: np.ndarray) -> np.ndarray:
