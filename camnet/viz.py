@@ -84,7 +84,7 @@ SAVE_FLUSH_S = 30.0
 SAVE_FLUSH_BYTES = 16 * 2**20
 # A camera's latest frame is logged with a solve at most this often (capture time). Logged at every solve, the
 # frames' JPEGs were most of a saved recording (config/sim.yaml, 4 cameras at 1280x1024: 530 of 656 kB a
-# solve; 152-161 kB a solve with this period, README), though a static camera's frame barely changes. The
+# solve; 152-161 kB a solve with this period: docs/benchmarks.md), though a static camera's frame barely changes. The
 # viewer draws a solve's observations over the camera's latest image at the time cursor, an older one included.
 FRAME_PERIOD_S = 10.0
 
