@@ -13,6 +13,7 @@ from camnet.bus.frame import Frame, encode_frame
 from camnet.geometry.judged_solve import Status
 from camnet.geometry.live import Outcome
 from camnet.geometry.model import Calibration
+from camnet.io.messages import ObservationsMessage
 from camnet.sim.simulate import make_rig, observe
 from tests.conftest import matched_publisher, wait_for
 from tests.test_viz import read_rrd
@@ -44,7 +45,8 @@ def run_view(zenoh_pair, path, *, solves: int, moved_at: dict[int, str], late: s
             assert wait_for(lambda arrived=arrived: all(c in view._frames and view._frames[c].seq == seq
                                                         for c, seq in arrived.items()), timeout_s=60.0), k
             moved = (moved_at[k],) if k in moved_at else ()
-            view.solved(Outcome(Status.GOOD, "", cal, moved), obs, {"latest_capture_ns": time_ns}, solve=k)
+            view.solved(Outcome(Status.GOOD, "", cal, moved), ObservationsMessage(obs, latest_capture_ns=time_ns),
+                        solve=k)
     finally:
         sub.undeclare()
         for publisher in publishers.values():
