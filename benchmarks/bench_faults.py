@@ -38,7 +38,8 @@ from camnet.bus import keys
 from camnet.bus.launch import Child, Launch, NetworkSpec, start_network
 from camnet.bus.session import BusOptions, open_session
 from camnet.errors import InputError
-from camnet.io.validate import decode_json
+from camnet.io.messages import CalibrationMessage, decode_calibration_message
+from camnet.solve.report.verdict import Level
 from camnet.testing.ports import free_port
 
 BOX_CENTRE = [0.0625, 0.0, 0.65]
@@ -95,7 +96,7 @@ class Network:
         self.launch = Launch(work, grace_s=5.0)
         self.matcher_flags = matcher_flags
         self.calibrator_flags = calibrator_flags
-        self.calibrations: list[tuple[float, dict]] = []  # (monotonic s, document) as published
+        self.calibrations: list[tuple[float, CalibrationMessage]] = []  # (monotonic s, message) as published
         self._lock = threading.Lock()
         self.session = None
 
@@ -129,12 +130,12 @@ class Network:
 
     def _on_calibration(self, sample) -> None:
         try:
-            doc = decode_json(sample.payload.to_bytes(), "calibration")
+            message = decode_calibration_message(sample.payload.to_bytes())
         except InputError:  # the flood reaches this observer too
             return
-        if isinstance(doc, dict) and doc.get("status") == "good":
+        if message.status == Level.GOOD:
             with self._lock:
-                self.calibrations.append((time.monotonic(), doc))
+                self.calibrations.append((time.monotonic(), message))
 
     def child(self, name: str) -> Child:
         return next(c for c in self.launch.children if c.name == name)
@@ -168,16 +169,18 @@ class Network:
             for reply in self.session.get(keys.calibration(self.rig_name), timeout=2.0):
                 if reply.ok is not None:
                     try:
-                        return int(json.loads(reply.ok.payload.to_bytes())["solved_ns"])
-                    except (ValueError, KeyError, TypeError):
+                        solved_ns = decode_calibration_message(reply.ok.payload.to_bytes()).solved_ns
+                    except InputError:
                         continue
+                    if solved_ns is not None:
+                        return solved_ns
             time.sleep(0.2)
         return None
 
     def published_ns(self) -> list[int]:
         """When each good calibration published so far was solved."""
         with self._lock:
-            return [int(d.get("solved_ns", 0)) for _, d in self.calibrations]
+            return [m.solved_ns or 0 for _, m in self.calibrations]
 
     def rss_mb(self) -> float:
         return sum(rss_mb(c.process.pid) for c in self.launch.children)
@@ -345,14 +348,13 @@ def forged_observations(net: Network) -> str:
     publisher.undeclare()
     time.sleep(3.0)
     with net._lock:
-        forged = sum(abs(_baseline(d) - 0.5) < 0.05 for _, d in net.calibrations)
+        forged = sum(abs(_baseline(m.calibration) - 0.5) < 0.05 for _, m in net.calibrations)
     return f"15 forged messages; {forged} became calibrations"
 
 
-def _baseline(doc: dict) -> float:
-    cams = {c["id"]: c for c in doc["cameras"]}
-    centres = [-np.asarray(cams[c]["R"]).T @ np.asarray(cams[c]["t"]) for c in ("left", "right")]
-    return float(np.linalg.norm(centres[0] - centres[1]))
+def _baseline(cal) -> float:
+    cams = {c.id: c for c in cal.cameras}
+    return float(np.linalg.norm(cams["left"].centre - cams["right"].centre))
 
 
 def scenarios(short: bool) -> list[tuple[str, Callable[[Network], str]]]:

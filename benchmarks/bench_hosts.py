@@ -54,6 +54,7 @@ from soak import GROWTH_LIMIT, LEVEL_S, SETTLE_S, MatcherStats, curve, growth, r
 
 from camnet.bus import keys
 from camnet.commands.up_console import summarise
+from camnet.io.messages import CalibrationMessage
 from camnet.io.rig import parse_rig
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -127,7 +128,7 @@ class Phase:
     n_cameras: int
     minutes: float
     samples: list[dict]  # t_s, cpu_s and rss_mb per process, matcher frame sets
-    calibrations: list[tuple[float, dict]]  # (s since the start, document) of every good calibration
+    calibrations: list[tuple[float, CalibrationMessage]]  # (s since the start, message) of every good one
     truth: list  # the simulated cameras (camnet.model.camera.Camera)
 
     @property
@@ -135,8 +136,8 @@ class Phase:
         """Rates and growth are measured from here on: after the first minute (half the run if shorter)
         and after the first good calibration of a full pool: one with at least `FULL_POOL_SHARE` of the most
         points any calibration of the run held (before it, the calibrator has not grown into its pool)."""
-        most = max((len(d.get("points", [])) for _, d in self.calibrations), default=0)
-        full_s = next((t for t, d in self.calibrations if len(d.get("points", [])) >= FULL_POOL_SHARE * most), 0.0)
+        most = max((len(m.calibration.points) for _, m in self.calibrations), default=0)
+        full_s = next((t for t, m in self.calibrations if len(m.calibration.points) >= FULL_POOL_SHARE * most), 0.0)
         return max(min(SETTLE_S, 30 * self.minutes), full_s)
 
     def growth(self) -> dict[str, float]:
@@ -147,14 +148,14 @@ class Phase:
 
     def frame_sets_per_s(self) -> float | None:
         """Frame sets pooled into good calibrations per second of the window (None: fewer than two)."""
-        docs = [(t, d) for t, d in self.calibrations if t >= self.window_s and isinstance(d.get("frame_sets"), int)]
-        if len(docs) < 2 or docs[-1][0] <= docs[0][0]:
+        timed = [(t, m.frame_sets) for t, m in self.calibrations if t >= self.window_s and m.frame_sets is not None]
+        if len(timed) < 2 or timed[-1][0] <= timed[0][0]:
             return None
-        return (docs[-1][1]["frame_sets"] - docs[0][1]["frame_sets"]) / (docs[-1][0] - docs[0][0])
+        return (timed[-1][1] - timed[0][1]) / (timed[-1][0] - timed[0][0])
 
     def latencies_s(self) -> list[float]:
-        return sorted((d["solved_ns"] - d["latest_capture_ns"]) / 1e9 for _, d in self.calibrations
-                      if isinstance(d.get("solved_ns"), int) and isinstance(d.get("latest_capture_ns"), int))
+        return sorted((m.solved_ns - m.latest_capture_ns) / 1e9 for _, m in self.calibrations
+                      if m.solved_ns is not None and m.latest_capture_ns is not None)
 
     def cpu_percent(self) -> dict[str, float]:
         """Per process: CPU over the window, in % of one core."""
@@ -175,7 +176,7 @@ class Phase:
 
     def errors(self) -> list[dict]:
         """Against the simulation's truth, each good calibration of the window (`summarise`'s keys)."""
-        return [summarise(t, d, self.truth) for t, d in self.calibrations if t >= self.window_s]
+        return [summarise(t, m, self.truth) for t, m in self.calibrations if t >= self.window_s]
 
     def matcher_cpu_per_set_s(self) -> float | None:
         first, last = self.settled(), self.samples[-1]

@@ -15,7 +15,6 @@ scouting), for a while, and prints one row per detector:
 from __future__ import annotations
 
 import argparse
-import json
 import socket
 import subprocess
 import sys
@@ -28,6 +27,7 @@ from camnet.services.matcher import MatcherNode, MatcherNodeConfig
 
 from camnet.bus import keys
 from camnet.bus.session import BusOptions, open_session
+from camnet.io.messages import ObservationsMessage, decode_observations_message
 from camnet.io.rig import load_rig
 from camnet.matching.features import Detector
 
@@ -47,7 +47,7 @@ def run_once(rig_path: str, rig, config: MatcherNodeConfig, seconds: float) -> d
         latencies_ms, match_ms = [], []
         session.declare_subscriber(
             keys.observations(rig.name),
-            lambda s: latencies_ms.append(_latency_ms(json.loads(s.payload.to_bytes()))))
+            lambda s: latencies_ms.append(_latency_ms(decode_observations_message(s.payload.to_bytes()))))
         worker = threading.Thread(target=node.run)
         worker.start()
         drivers = [subprocess.Popen([sys.executable, "-m", "camnet", "driver", "sim", "--rig", rig_path,
@@ -79,8 +79,8 @@ def run_once(rig_path: str, rig, config: MatcherNodeConfig, seconds: float) -> d
                 "tracks": len(node.pool) if node.pool else 0}
 
 
-def _latency_ms(doc: dict) -> float:
-    return (doc["published_ns"] - doc["latest_capture_ns"]) / 1e6
+def _latency_ms(message: ObservationsMessage) -> float:
+    return (message.published_ns - message.latest_capture_ns) / 1e6
 
 
 def main() -> None:

@@ -1,12 +1,12 @@
 #!/usr/bin/env python3
-"""Encoding the matcher's observations document at a full pool: from scratch against track by track.
+"""Encoding the matcher's observations message at a full pool: from scratch against track by track.
 
 A pool of `--tracks` tracks over `--cameras` cameras (640x512; each track seen
 by 2 to 4 of them at random pixels) is filled, then each of `--sets` frame
 sets adds `--new` tracks (evicting as many) and sees `--reseen` pooled tracks
-again with one more camera. After each set the document is encoded both ways,
-alternating which goes first: `json.dumps(observations_to_doc(...))` as the
-matcher did, and `ObservationsEncoder.encode` (camnet.io.observations_encoder),
+again with one more camera. After each set the message is encoded both ways,
+alternating which goes first: `encode_observations_message` (json.dumps of the
+whole document) and `ObservationsEncoder.encode` (camnet.io.observations_encoder),
 checked equal byte for byte. Prints the median and max of each, and their ratio.
 
     python benchmarks/bench_matcher_publish.py [--tracks 5000 --cameras 16 --sets 20]
@@ -15,7 +15,6 @@ checked equal byte for byte. Prints the median and max of each, and their ratio.
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
 import sys
 import time
@@ -25,7 +24,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from camnet.io.formats import observations_to_doc  # noqa: E402
+from camnet.bus.latency import StageStamps  # noqa: E402
+from camnet.io.messages import ObservationsMessage, encode_observations_message  # noqa: E402
 from camnet.io.observations_encoder import ObservationsEncoder  # noqa: E402
 from camnet.matching.pool import PoolConfig, TrackPool  # noqa: E402
 from camnet.model.camera import CameraInfo  # noqa: E402
@@ -48,23 +48,18 @@ def main() -> int:
     while len(pool) < args.tracks:
         pool.add(random_tracks(rng, ids, 1000), frame_seq=0)
     encoder = ObservationsEncoder()
-    encoder.encode(pool.observations())
-    own = {"rig": "bench", "pool_id": "0" * 32, "frame_sets": 0, "latest_capture_ns": 0, "latency_ns": {}}
+    encoder.encode(ObservationsMessage(pool.observations()))
     scratch_ms, cached_ms, encoded = [], [], []
     for frame_seq in range(1, args.sets + 1):
         pool.add(random_tracks(rng, ids, args.new), frame_seq=frame_seq)
         pool.add(reseen(rng, pool, args.reseen), frame_seq=frame_seq)
-        obs = pool.observations()
-        own = {**own, "frame_sets": frame_seq, "published_ns": time.time_ns()}
+        message = ObservationsMessage(pool.observations(), rig="bench", pool_id="0" * 32, frame_sets=frame_seq,
+                                      latest_capture_ns=0, latency_ns=StageStamps(), published_ns=time.time_ns())
         results = {}
         for way in (("scratch", "cached") if frame_seq % 2 else ("cached", "scratch")):
             start_s = time.perf_counter()
-            if way == "scratch":
-                doc = observations_to_doc(obs)
-                doc.update(own)
-                results[way] = json.dumps(doc).encode()
-            else:
-                results[way] = encoder.encode(obs, own)
+            encode = encode_observations_message if way == "scratch" else encoder.encode
+            results[way] = encode(message)
             (scratch_ms if way == "scratch" else cached_ms).append(1e3 * (time.perf_counter() - start_s))
         assert results["scratch"] == results["cached"], "the cached document differs from the codec's"
         encoded.append(encoder.encoded)

@@ -190,7 +190,7 @@ def replay(directory: Path, name: str, *, max_sets: int,
                              node.view_graph.calibrated >= set(node.camera_ids)))
         on_graph[0] += costs[-1].calibrated
         if solve_every and costs[-1].calibrated and on_graph[0] % solve_every == 0 and len(pool) >= 0.9 * max_tracks:
-            pools.append(node._document_parts()[0])
+            pools.append(node.message().observations)
 
     for t_s, key, payload in read_stream(directory / f"{name}.stream"):
         if len(costs) >= max_sets:

@@ -1,12 +1,13 @@
 """The calibrator node: observations in, a metric calibration out, kept current.
 
-Every observations message (the matcher's pooled tracks, latest value only)
-is handed to the live policy (`camnet.live.tracker`), which solves it warm
-from the last good calibration and says whether the result may replace it.
-Good calibrations are published on the rig's calibration key (with the
-stage times of `camnet.bus.latency`), answered to
-late joiners by a queryable, and written atomically to a state file from
-which a restarted calibrator resumes.
+Every observations message (the matcher's pooled tracks, latest value only,
+a `camnet.io.messages.ObservationsMessage`) is handed to the live policy
+(`camnet.live.tracker`), which solves it warm from the last good calibration
+and says whether the result may replace it. Good calibrations are published
+on the rig's calibration key (a `camnet.io.messages.CalibrationMessage`, with
+the stage times of `camnet.bus.latency`), answered to late joiners by a
+queryable, and written atomically to a state file from which a restarted
+calibrator resumes.
 
 With ``lockstep`` (`camnet.bus.lockstep`) every observations message is
 acknowledged once it has been solved and its result published, so that a
@@ -15,11 +16,10 @@ lockstep replay sends the next frame set only then.
 
 from __future__ import annotations
 
-import json
 import logging
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from camnet.bus import heap, keys, latency, lockstep
@@ -28,22 +28,23 @@ from camnet.bus.node import Presence, Tally, guarded, stop_on_signals
 from camnet.bus.session import declare_liveliness
 from camnet.bus.stats import Activity, RateMeter
 from camnet.errors import InputError
-from camnet.io.formats import (
-    MAX_TRACKS,
-    calibration_to_doc,
-    load_json,
-    parse_calibration,
-    parse_observations,
-    write_json_atomic,
+from camnet.io.formats import MAX_TRACKS, write_json_atomic
+from camnet.io.messages import (
+    CalibrationMessage,
+    MessageError,
+    ObservationsMessage,
+    calibration_message_to_doc,
+    decode_observations_message,
+    encode_calibration_message,
+    load_calibration_message,
 )
 from camnet.io.rig import Rig
 from camnet.io.rig_match import calibration_mismatch, observations_mismatch
-from camnet.io.validate import decode_json
 from camnet.live.policy import LiveConfig
 from camnet.live.tracker import Outcome, Tracker
 from camnet.model.accuracy import scale_sigma_rel
 from camnet.model.calibration import Calibration
-from camnet.model.observations import Observations
+from camnet.solve.report.verdict import judge
 
 log = logging.getLogger(__name__)
 
@@ -92,21 +93,21 @@ class LatestMessage:
             return payload, self._received_ns, self._attachment
 
 
-def load_state(path: Path | None, rig: Rig | None = None) -> Calibration | None:
-    """The persisted calibration, or None. A damaged file, or one of another rig than `rig`, is kept
+def load_state(path: Path | None, rig: Rig | None = None) -> CalibrationMessage | None:
+    """The persisted calibration message, or None. A damaged file, or one of another rig than `rig`, is kept
     aside, never overwritten."""
     if path is None or not path.exists():
         return None
     try:
-        cal = parse_calibration(load_json(path))
+        message = load_calibration_message(path)
     except InputError as exc:
         _set_aside(path, "damaged", str(exc))
         return None
-    mismatch = calibration_mismatch(rig, cal) if rig is not None else None
+    mismatch = calibration_mismatch(rig, message.calibration) if rig is not None else None
     if mismatch is not None:
         _set_aside(path, "other-rig", f"not a calibration of rig {rig.name!r}: {mismatch}")
         return None
-    return cal
+    return message
 
 
 def _set_aside(path: Path, why: str, reason: str) -> None:
@@ -159,42 +160,35 @@ class CalibratorNode:
 
     # ------------------------------------------------------------ work
 
-    def _parse(self, payload: bytes) -> tuple[Observations, dict] | None:
+    def _decode(self, payload: bytes) -> ObservationsMessage | None:
+        """The observations message of `payload`, or None (counted) where it is malformed or of another rig."""
         try:
-            doc = decode_json(payload, "observations")
-        except InputError as exc:
-            self.malformed.count("json", "dropping malformed observations (%s)", exc)
+            message = decode_observations_message(payload, max_tracks=MAX_TRACKS, subsample_seed=SUBSAMPLE_SEED)
+        except MessageError as exc:
+            self.malformed.count(exc.kind, "dropping malformed observations (%s)", exc)
             return None
-        try:
-            # The matcher's observations carry the rig file's distances, checked (or deliberately
-            # accepted) when the rig was loaded.
-            obs = parse_observations(doc, any_distance=True, max_tracks=MAX_TRACKS, subsample_seed=SUBSAMPLE_SEED)
-        except InputError as exc:
-            self.malformed.count(str(exc).split(":", 1)[0], "dropping malformed observations (%s)", exc)
-            return None
+        obs = message.observations
         mismatch = observations_mismatch(self.rig, obs) if self.rig is not None else None
         if mismatch is not None:
             self.malformed.count("other rig", "dropping observations that are not of rig %r: %s", self.rig_name,
                                  mismatch)
             return None
-        if len(doc["tracks"]) > len(obs.track_ids):
+        if message.subsampled_from is not None:
             self.malformed.count("subsampled", "solving %d of the %d tracks of an observations message, drawn "
-                                 "at random (at most %d per solve)", len(obs.track_ids), len(doc["tracks"]),
+                                 "at random (at most %d per solve)", len(obs.track_ids), message.subsampled_from,
                                  MAX_TRACKS)
-        return obs, doc
+        return message
 
-    def _publish(self, publisher, cal: Calibration, doc_in: dict, outcome: Outcome, stamps: dict[str, int]) -> None:
-        doc = calibration_to_doc(cal)
+    def _publish(self, publisher, cal: Calibration, source: ObservationsMessage, outcome: Outcome, *,
+                 solving_ns: int, received_ns: int | None) -> None:
+        matched = source.latency_ns or latency.StageStamps()
+        stamps = replace(matched, published_ns=source.published_ns, solving_ns=solving_ns, received_ns=received_ns)
         # The status is the verdict's level (camnet.solve.report.verdict): a poor result is published, never "good".
-        doc.update({"rig": self.rig_name, "solve": self.tracker.solves, "status": doc["verdict"]["level"],
-                    "warm_start": outcome.warm, "moved": list(outcome.moved), "solved_ns": latency.now_ns()})
-        for key in ("latest_capture_ns", "frame_sets"):
-            if key in doc_in:
-                doc[key] = doc_in[key]
-        # The matcher's stamps as they came (any peer may publish: only integers are kept), then ours.
-        doc["latency_ns"] = {**{k: v for k, v in latency.stamps(doc_in).items() if k in latency.MATCHER_STAGES[1:]
-                                or k == "published"}, **stamps}
-        payload = json.dumps(doc, allow_nan=False).encode()
+        message = CalibrationMessage(
+            cal, rig=self.rig_name, solve=self.tracker.solves, status=judge(cal).level, warm_start=outcome.warm,
+            moved=outcome.moved, solved_ns=latency.now_ns(), latest_capture_ns=source.latest_capture_ns,
+            frame_sets=source.frame_sets, latency_ns=stamps)
+        payload = encode_calibration_message(message)
         with self._lock:
             self.latest_doc = payload
         # The matcher forgets what it pooled of a moved camera (camnet.bus.moved), told once per move: not
@@ -203,33 +197,37 @@ class CalibratorNode:
                                                            - set(outcome.told)))
         self._moved_untold = set()
         # Kept for a restart after it is published: writing it must not delay the rig's consumers.
-        if self.config.state_path is not None:
-            write_json_atomic(self.config.state_path, doc, private=True)  # the rig's layout: not for every user
+        if self.config.state_path is not None:  # the rig's layout: not for every user
+            write_json_atomic(self.config.state_path, calibration_message_to_doc(message), private=True)
 
     def handle(self, payload: bytes, publisher, *, received_ns: int | None = None,
                attachment: bytes | None = None) -> Outcome | None:
         """Solve one observations message (received at `received_ns`, Unix epoch; with the matcher's
         `attachment`, `camnet.bus.moved`) and publish what came of it."""
-        stamps = {"solving": latency.now_ns()}
-        if received_ns is not None:
-            stamps["received"] = received_ns
-        parsed = self._parse(payload)
-        if parsed is None:
-            return None
-        obs, doc = parsed
+        return self._handle(payload, publisher, received_ns=received_ns, attachment=attachment)[1]
+
+    def _handle(self, payload: bytes, publisher, *, received_ns: int | None,
+                attachment: bytes | None) -> tuple[ObservationsMessage | None, Outcome | None]:
+        """`handle`, and the message solved (None where it did not decode)."""
+        solving_ns = latency.now_ns()
+        message = self._decode(payload)
+        if message is None:
+            return None, None
+        obs = message.observations
         try:
             forgotten = parse_forgotten_attachment(attachment)
         except InputError as exc:
             forgotten = None
             self.malformed.count("attachment", "ignoring an observations attachment (%s); is the matcher of "
                                  "another camnet version?", exc)
-        outcome = self._solve(obs, source=doc.get("pool_id"), forgotten=forgotten)
+        outcome = self._solve(obs, source=message.pool_id, forgotten=forgotten)
         if outcome is None:
             self.tracker.counts["failed"] += 1
-            return None
+            return message, None
         self._meter.tick()
         if outcome.status == "good":
-            self._publish(publisher, outcome.calibration, doc, outcome, stamps)
+            self._publish(publisher, outcome.calibration, message, outcome, solving_ns=solving_ns,
+                          received_ns=received_ns)
             cal = outcome.calibration
             left_out = cal.report.cameras_left_out if cal.report is not None else {}
             log.info("solve %d: good (%s, %.2f s): %d cameras, %d points, rms %.3f px, scale sigma %.3f%%%s",
@@ -247,8 +245,8 @@ class CalibratorNode:
                     "%s%s", self.tracker.solves, outcome.status, outcome.reason,
                     f" (further ones within {WARNING_PERIOD_S:.0f} s are only counted)" if loud else "")
         if self.viewer is not None:
-            self.viewer.solved(outcome, obs, doc, solve=self.tracker.solves)
-        return outcome
+            self.viewer.solved(outcome, message, solve=self.tracker.solves)
+        return message, outcome
 
     def _activity(self) -> Activity:
         counts = self.tracker.counts
@@ -264,18 +262,16 @@ class CalibratorNode:
         resumed = load_state(self.config.state_path, self.rig)
         if resumed is None:
             return
-        self.tracker.good = resumed
-        doc = load_json(self.config.state_path)
+        self.tracker.good = resumed.calibration
         # Solves are numbered on from the resumed one, so that a number names one calibration.
-        if isinstance(doc.get("solve"), int) and 0 <= doc["solve"] < 2**53:
-            self.tracker.solves = doc["solve"]
-        # The persisted document as it was published, live metadata (solve, status, ...) included:
-        # the calibration type keeps only what it models.
+        if resumed.solve is not None:
+            self.tracker.solves = resumed.solve
+        # The persisted message as it was published, its envelope (solve, status, ...) included.
         with self._lock:
             # Said so on the bus (not in the file): a listener tells it from a solve of this run.
-            self.latest_doc = json.dumps({**doc, "resumed": True}, allow_nan=False).encode()
+            self.latest_doc = encode_calibration_message(replace(resumed, resumed=True))
         publisher.put(self.latest_doc)
-        log.info("resumed from %s (%d cameras)", self.config.state_path, len(resumed.cameras))
+        log.info("resumed from %s (%d cameras)", self.config.state_path, len(resumed.calibration.cameras))
 
     def run(self) -> None:
         """Serve until `stop` is set (or SIGTERM, Ctrl-C)."""
@@ -305,10 +301,10 @@ class CalibratorNode:
                     taken = self.mailbox.take(timeout_s=0.2)
                     if taken is not None:
                         payload, received_ns, attachment = taken
-                        outcome = self.handle(payload, publisher, received_ns=received_ns, attachment=attachment)
+                        message, outcome = self._handle(payload, publisher, received_ns=received_ns,
+                                                        attachment=attachment)
                         if ack_publisher is not None:
-                            status = outcome.status if outcome is not None else "not solved"
-                            ack_publisher.put(lockstep.Ack.for_observations(payload, status=status).to_json())
+                            ack_publisher.put(_ack(message, outcome).to_json())
                     presence.publish_if_due()
         finally:
             subscriber.undeclare()
@@ -317,6 +313,15 @@ class CalibratorNode:
             queryable.undeclare()
             if ack_token is not None:
                 ack_token.undeclare()
+
+
+def _ack(message: ObservationsMessage | None, outcome: Outcome | None) -> lockstep.Ack:
+    """The lockstep ack of one observations message: the message it names (none where it did not decode),
+    and what came of it."""
+    status = outcome.status if outcome is not None else "not solved"
+    if message is None:
+        return lockstep.Ack(status=status)
+    return lockstep.Ack(pool_id=message.pool_id, frame_sets=message.frame_sets, status=status)
 
 
 class RerunView:
@@ -343,11 +348,13 @@ class RerunView:
             with self._lock:
                 self._frames[frame.camera_id] = frame
 
-    def solved(self, outcome: Outcome, obs: Observations, doc: dict, *, solve: int | None = None) -> None:
-        """Show one solve; `solve` is its number as the calibrator publishes it (`solve` of the calibration)."""
+    def solved(self, outcome: Outcome, message: ObservationsMessage, *, solve: int | None = None) -> None:
+        """Show the solve of `message`; `solve` is its number as the calibrator publishes it (`solve` of the
+        calibration)."""
         from camnet import viz
 
-        time_ns = int(doc.get("latest_capture_ns") or time.time_ns())
+        obs = message.observations
+        time_ns = message.latest_capture_ns or time.time_ns()
         with self._lock:
             frames = list(self._frames.values())
         for frame in frames:

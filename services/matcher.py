@@ -6,17 +6,8 @@ frames per camera and counts what it drops. `MatcherNode.run` is the worker:
 it takes the newest ready frame set, matches it (`camnet.matching.features`), chains
 tracks (`camnet.matching.tracks`) and pools them (`camnet.matching.pool`); when the pool
 changed it publishes the pool on ``keys.observations(rig)`` (by default at once, or at most
-once per publish period). The document carries, beside the contract's keys:
-
-- ``rig``: the rig name;
-- ``pool_id``: new whenever the pool starts afresh (a node start, or a camera
-  whose image size became known later), when track ids start over;
-- ``frame_sets``: how many frame sets contributed to the pool;
-- ``latest_capture_ns``: capture time of the newest of them (Unix epoch, ns),
-  from which a consumer measures capture-to-result latency;
-- ``latency_ns``: when that frame set was taken, detected, matched and pooled
-  (`camnet.bus.latency`);
-- ``published_ns``: when this document was published (Unix epoch, ns).
+once per publish period), as a `camnet.io.messages.ObservationsMessage`, whose fields say what it
+carries beside the contract's keys.
 
 With ``lockstep`` the node takes its frames from a lockstep replay
 (`camnet.bus.lockstep`): each announced step's frames form at most one frame
@@ -38,7 +29,7 @@ pairs (`camnet.matching.viewgraph`).
 Cameras are listed with the sizes of their frames (or of the rig file before
 the first frame) and what the rig file's `intrinsics` section knows of them
 (K, dist, fixed); nothing else is passed on, not even a simulated camera's
-ground truth. The latest document also answers queries on the same key.
+ground truth. The latest message also answers queries on the same key.
 """
 
 from __future__ import annotations
@@ -66,7 +57,7 @@ from camnet.bus.session import declare_liveliness
 from camnet.bus.stats import Activity, CameraSeen, RateMeter
 from camnet.bus.sync import FrameSet, FrameSynchronizer, SyncCounts
 from camnet.errors import InputError
-from camnet.io.formats import observations_to_doc
+from camnet.io.messages import ObservationsMessage
 from camnet.io.observations_encoder import ObservationsEncoder
 from camnet.io.rig import Rig, camera_info, configured_size
 from camnet.matching.edge import CameraFeatures, EdgeConfig, FeatureExtractor
@@ -75,7 +66,6 @@ from camnet.matching.pool import PoolUpdate, TrackPool, regrow_pool
 from camnet.matching.reuse import IncrementalMatcher
 from camnet.matching.tracks import build_tracks
 from camnet.matching.viewgraph import ViewGraph, ViewGraphConfig
-from camnet.model.observations import Observations
 
 __all__ = ["MatcherNode", "MatcherNodeConfig", "rig_options", "rig_stereo"]  # the options live in matcher_config
 log = logging.getLogger(__name__)
@@ -339,21 +329,15 @@ class MatcherNode:
         image = to_grey(item.image, encoding=item.encoding)
         return self._extractors[item.camera_id].extract(image, seq=item.seq, timestamp_ns=item.timestamp_ns)
 
-    def document(self) -> dict:
-        """The observations document of the pool now (contract keys plus the node's own)."""
-        obs, own = self._document_parts()
-        doc = observations_to_doc(obs)
-        doc.update(own)
-        return doc
-
-    def _document_parts(self) -> tuple[Observations, dict]:
-        """The pool's observations now, and the node's own keys of their document."""
+    def message(self) -> ObservationsMessage:
+        """The observations message of the pool now."""
         obs = self._ensure_pool().observations()
         # The rig's further known distances, of the cameras pooled so far (one of unknown size joins later).
         baselines = tuple(b for b in self.rig.baselines if {b.a, b.b} <= set(obs.camera_ids))
-        return replace(obs, baselines=baselines), dict(
-            rig=self.rig.name, pool_id=self._pool_id, frame_sets=self.frame_sets_pooled,
-            latest_capture_ns=self.latest_capture_ns, latency_ns=self._stamps, published_ns=latency.now_ns())
+        return ObservationsMessage(
+            replace(obs, baselines=baselines), rig=self.rig.name, pool_id=self._pool_id,
+            frame_sets=self.frame_sets_pooled, latest_capture_ns=self.latest_capture_ns,
+            latency_ns=latency.StageStamps.from_stages(self._stamps), published_ns=latency.now_ns())
 
     def sync_counts(self) -> SyncCounts:  # frames received, frame sets formed, frames dropped by synchronization
         with self._ready:
@@ -414,8 +398,8 @@ class MatcherNode:
         """Publish the pool if it changed and a publish period has passed on `clock_s` (or `force`)."""
         if not self._dirty or (clock_s < self._next_publish_s and not force):
             return False
-        # The bytes of json.dumps(self.document()), only the tracks that changed encoded anew.
-        self._latest_document = self._encoder.encode(*self._document_parts())
+        # The bytes of encode_observations_message(self.message()), only the tracks that changed encoded anew.
+        self._latest_document = self._encoder.encode(self.message())
         publisher.put(self._latest_document, attachment=pool_attachment(self._ensure_pool()))
         self.published += 1
         self._dirty = False

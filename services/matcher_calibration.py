@@ -27,8 +27,7 @@ from camnet.bus import keys
 from camnet.bus.moved import forgotten_attachment, parse_moved_attachment
 from camnet.bus.node import Tally, guarded
 from camnet.errors import InputError
-from camnet.io.formats import parse_calibration
-from camnet.io.validate import decode_json
+from camnet.io.messages import decode_calibration_message
 from camnet.matching.pool import TrackPool
 from camnet.matching.reuse import IncrementalMatcher
 from camnet.model.calibration import Calibration
@@ -112,7 +111,7 @@ class CalibrationInbox:
         if payload is None:
             return None
         try:
-            return parse_calibration(decode_json(payload, keys.calibration(self.rig_name)))
+            return decode_calibration_message(payload).calibration
         except InputError as exc:
             self.rejected.count("calibration", "ignoring a calibration that does not parse (%s)", exc)
             return None

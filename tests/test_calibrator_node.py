@@ -9,6 +9,7 @@ import pytest
 from camnet.services.calibrator import CalibratorConfig, CalibratorNode, load_state
 
 from camnet.bus import keys
+from camnet.bus.lockstep import Ack
 from camnet.io.formats import observations_to_doc, parse_calibration
 from camnet.sim.simulate import make_rig, observe
 from camnet.solve.report.verdict import judge
@@ -127,3 +128,21 @@ def test_solves_that_are_not_kept_warn_once_a_period_not_each_time(caplog):
     kept_back = [r for r in caplog.records if "the last good calibration stays" in r.getMessage()]
     assert [r.levelname for r in kept_back] == ["WARNING", "INFO", "INFO"]
     assert node.tracker.counts["rejected"] == 3
+
+
+def test_in_lockstep_each_message_is_acknowledged_naming_the_one_solved(zenoh_pair):
+    a, b = zenoh_pair
+    acks = []
+    sub = b.declare_subscriber(keys.lockstep_ack(RIG, "calibrator"),
+                               lambda s: acks.append(Ack.parse(s.payload.to_bytes())))
+    try:
+        with running_node(CalibratorNode(a, RIG, CalibratorConfig(), lockstep=True)):
+            publisher = matched_publisher(b, keys.observations(RIG))
+            publisher.put(b"{not json")  # names no message: the replayer waits for none
+            assert wait_for(lambda: len(acks) == 1)
+            publisher.put(json.dumps({**json.loads(observations_payload(seed=3)), "pool_id": "p",
+                                      "frame_sets": 4}).encode())
+            assert wait_for(lambda: len(acks) == 2, 60)
+    finally:
+        sub.undeclare()
+    assert acks == [Ack(status="not solved"), Ack(pool_id="p", frame_sets=4, status="good")]

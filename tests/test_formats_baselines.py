@@ -7,6 +7,7 @@ import pytest
 
 from camnet.errors import InputError
 from camnet.io.formats import observations_to_doc, parse_observations
+from camnet.io.messages import observations_message_to_doc
 from camnet.io.rig import parse_rig
 from camnet.sim.simulate import make_rig, observe
 
@@ -146,7 +147,7 @@ def test_bad_distances_in_a_rig_file_are_named(change, message):
 def test_the_matchers_observations_carry_the_rigs_distances():
     from camnet.services.matcher import MatcherNode, MatcherNodeConfig
 
-    doc = MatcherNode(None, parse_rig(rig_doc()), config=MatcherNodeConfig()).document()
+    doc = observations_message_to_doc(MatcherNode(None, parse_rig(rig_doc()), config=MatcherNodeConfig()).message())
     assert doc["stereo"] == rig_doc()["stereo"]
     assert doc["baselines"] == rig_doc()["baselines"]
     obs = parse_observations(doc)
@@ -158,7 +159,7 @@ def test_a_distance_to_a_camera_not_yet_pooled_waits_for_it():
 
     data = rig_doc()
     data["cameras"][3] = {"id": "d", "driver": "v4l2", "v4l2": {"source": "unused.mp4"}}  # size known when it sends
-    doc = MatcherNode(None, parse_rig(data), config=MatcherNodeConfig()).document()
+    doc = observations_message_to_doc(MatcherNode(None, parse_rig(data), config=MatcherNodeConfig()).message())
     assert [c["id"] for c in doc["cameras"]] == ["a", "b", "c"]
     assert doc["baselines"] == [rig_doc()["baselines"][1]]
     parse_observations(doc)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +17,7 @@ from camnet.bus.sync import FrameSet
 from camnet.errors import InputError
 from camnet.io import formats
 from camnet.io.formats import observations_to_doc, parse_observations
+from camnet.io.messages import decode_calibration_message, encode_observations_message
 from camnet.io.rig import load_rig, parse_rig
 from camnet.sim.render import Quad, Renderer, render_ideal
 from camnet.sim.scene import Scene
@@ -26,13 +27,12 @@ from tests.test_matcher_node import rig_document
 ROOT = Path(__file__).resolve().parent.parent
 
 
-def test_stage_durations_follow_the_stamps_and_skip_what_is_not_an_integer():
-    doc = {"latest_capture_ns": 1_000, "solved_ns": 9_000,
-           "latency_ns": {"taken": 2_000, "detected": 3_500, "matched": 4_000, "pooled": True, "published": "x",
-                          "received": 6_000, "solving": -5}}
-    durations = latency.stage_durations_s(doc)
+def test_stage_durations_follow_the_stamps_and_skip_the_stages_not_stamped():
+    stamps = latency.StageStamps(taken_ns=2_000, detected_ns=3_500, matched_ns=4_000, received_ns=6_000)
+    durations = latency.stage_durations_s(stamps, capture_ns=1_000, solved_ns=9_000)
     assert durations == {"taken": 1e-6, "detected": 1.5e-6, "matched": 0.5e-6}
-    assert latency.stamps({"latest_capture_ns": 5, "published_ns": 7}) == {"capture": 5, "published": 7}
+    assert latency.stage_durations_s(latency.StageStamps(), capture_ns=5, solved_ns=None) == {}
+    assert latency.StageStamps.from_stages({"pooled": 7, "capture": 1}).by_stage() == {"pooled": 7}
 
 
 class Recorder:
@@ -51,26 +51,29 @@ def test_every_stage_from_capture_to_calibration_is_stamped_in_order():
     frames = {c.camera_id: Frame(c.camera_id, slot, c.slot_timestamp_ns(slot), "mono8", c.render(slot))
               for c in cameras}
     matcher.process(FrameSet(cameras[0].slot_timestamp_ns(slot), frames))
-    observations = matcher.document()
-    found = latency.stamps(observations)
+    observations = matcher.message()
+    found = {"capture": observations.latest_capture_ns, **observations.latency_ns.by_stage(),
+             "published": observations.published_ns}
     assert list(found) == ["capture", *latency.MATCHER_STAGES[1:], "published"]
     assert list(found.values()) == sorted(found.values())
 
     # The calibrator adds its own to the matcher's; the simulated rig's tracks are replaced by a
     # synthetic rig's, which solves in a moment.
-    doc = observations_to_doc(observe(make_rig(n_points=150, seed=3), seed=3).observations)
-    doc.update({k: observations[k] for k in ("latest_capture_ns", "latency_ns", "published_ns")})
+    synthetic = replace(observations, observations=observe(make_rig(n_points=150, seed=3), seed=3).observations)
     calibrator, publisher = CalibratorNode(None, "stamps"), Recorder()
     received_ns = latency.now_ns()
-    outcome = calibrator.handle(json.dumps(doc).encode(), publisher, received_ns=received_ns)
+    outcome = calibrator.handle(encode_observations_message(synthetic), publisher, received_ns=received_ns)
     assert outcome is not None and outcome.status == "good"
-    published = json.loads(publisher.payloads[-1])
-    stamped = latency.stamps(published)
-    assert list(stamped) == list(latency.STAGES) and stamped["received"] == received_ns
-    assert list(stamped.values()) == sorted(stamped.values())
-    durations = latency.stage_durations_s(published)
+    published = decode_calibration_message(publisher.payloads[-1])
+    stamped = {"capture": published.latest_capture_ns, **published.latency_ns.by_stage(),
+               "solved": published.solved_ns}
+    assert sorted(stamped, key=latency.STAGES.index) == list(latency.STAGES)
+    assert stamped["received"] == received_ns and stamped["published"] == observations.published_ns
+    assert [stamped[stage] for stage in latency.STAGES] == sorted(stamped.values())
+    durations = latency.stage_durations_s(published.latency_ns, capture_ns=published.latest_capture_ns,
+                                          solved_ns=published.solved_ns)
     assert list(durations) == list(latency.STAGES[1:])
-    assert sum(durations.values()) == pytest.approx((published["solved_ns"] - published["latest_capture_ns"]) / 1e9)
+    assert sum(durations.values()) == pytest.approx((published.solved_ns - published.latest_capture_ns) / 1e9)
 
 
 def test_the_kept_background_gives_the_image_drawn_whole():

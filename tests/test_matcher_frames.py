@@ -13,7 +13,9 @@ from camnet.services.matcher import MatcherNode, MatcherNodeConfig
 from camnet.bus import keys
 from camnet.bus.features_wire import FeaturesMessage, encode_features
 from camnet.bus.frame import Frame, encode_frame
+from camnet.bus.latency import StageStamps
 from camnet.io.formats import observations_to_doc, parse_observations
+from camnet.io.messages import ObservationsMessage, encode_observations_message
 from camnet.io.observations_encoder import ObservationsEncoder
 from camnet.io.rig import parse_rig
 from camnet.matching.pool import PoolConfig, TrackPool, regrow_pool
@@ -31,7 +33,6 @@ def test_the_cached_document_is_the_codecs_byte_for_byte_through_adds_reobservat
     stereo = Stereo("cam0", "cam1", 0.125)
     pool = TrackPool(cameras, stereo, PoolConfig(max_tracks=600))
     encoder = ObservationsEncoder()
-    own = {"rig": "r", "pool_id": "p", "frame_sets": 0, "latency_ns": {"taken": 1}}
     done = {"reobserved": 0, "evicted": 0}
     for frame_seq in range(12):
         update = pool.add(random_tracks(rng, ids, 150), frame_seq=frame_seq)
@@ -39,18 +40,20 @@ def test_the_cached_document_is_the_codecs_byte_for_byte_through_adds_reobservat
             update = pool.add(reseen(rng, pool, 40), frame_seq=frame_seq)
             done["reobserved"] += update.reobserved
         done["evicted"] += update.evicted
-        own = {**own, "frame_sets": frame_seq + 1}
-        doc = observations_to_doc(pool.observations())
-        doc.update(own)
-        assert encoder.encode(pool.observations(), own) == json.dumps(doc).encode(), frame_seq
+        message = ObservationsMessage(pool.observations(), rig="r", pool_id="p", frame_sets=frame_seq + 1,
+                                      latency_ns=StageStamps(taken_ns=1))
+        # The contract's document, then the envelope's keys in their order, None left out.
+        doc = {**observations_to_doc(pool.observations()), "rig": "r", "pool_id": "p", "frame_sets": frame_seq + 1,
+               "latency_ns": {"taken": 1}}
+        assert encoder.encode(message) == json.dumps(doc).encode() == encode_observations_message(message), frame_seq
         if frame_seq > 0:
             assert encoder.encoded < len(pool)  # the unchanged tracks came from the cache
     assert done["reobserved"] >= 20 and done["evicted"] >= 600, done
     # A camera joins: the pool starts afresh over seven cameras, track ids renumbered.
     grown = regrow_pool(pool, [*cameras, CameraInfo("cam6", WIDTH, HEIGHT)], stereo, pool.config, frame_seq=12)
-    assert encoder.encode(grown.observations()) == json.dumps(observations_to_doc(grown.observations())).encode()
-    assert parse_observations(json.loads(encoder.encode(grown.observations()))).uv.shape == (
-        grown.observations().uv.shape)
+    bare = ObservationsMessage(grown.observations())
+    assert encoder.encode(bare) == json.dumps(observations_to_doc(grown.observations())).encode()
+    assert parse_observations(json.loads(encoder.encode(bare))).uv.shape == grown.observations().uv.shape
 
 
 class CountingMatcher(MatcherNode):

@@ -221,15 +221,16 @@ def test_a_camera_of_unknown_size_joins_the_pool_when_it_shows_up():
     node = MatcherNode(None, node_rig, config=MatcherNodeConfig())  # process() needs no bus
     node.process(render_set(sim_rig, 1_000_000_000, ("left", "right", "mono_a")))
     assert [c.id for c in node.pool.cameras] == ["left", "right", "mono_a"]
-    pooled, first_pool_id = len(node.pool), node.document()["pool_id"]
+    pooled, first_pool_id = len(node.pool), node.message().pool_id
     assert pooled > 100
     node.process(render_set(sim_rig, 3_000_000_000, tuple(CAMERAS)))
     assert [(c.id, c.width) for c in node.pool.cameras] == [(c, 640) for c in CAMERAS]
     assert len(node.pool) > pooled  # the earlier tracks were carried over
-    doc = node.document()
-    assert doc["pool_id"] != first_pool_id  # track ids started over
-    assert any("mono_b" in t["observations"] for t in doc["tracks"])
-    assert doc["frame_sets"] == 2 and doc["latest_capture_ns"] == 3_000_000_000
+    message = node.message()
+    assert message.pool_id != first_pool_id  # track ids started over
+    assert "mono_b" in message.observations.camera_ids and np.any(
+        message.observations.cam_index == message.observations.camera_ids.index("mono_b"))
+    assert message.frame_sets == 2 and message.latest_capture_ns == 3_000_000_000
 
 
 def test_grey_from_every_frame_encoding():

@@ -16,6 +16,7 @@ from camnet.bus import keys
 from camnet.bus.moved import forgotten_attachment, moved_attachment, parse_forgotten_attachment, parse_moved_attachment
 from camnet.bus.node import Tally
 from camnet.errors import InputError
+from camnet.io.messages import decode_observations_message
 from camnet.live.tracker import Status
 from camnet.model.calibration import Calibration
 from tests.conftest import matched_publisher, wait_for
@@ -34,12 +35,14 @@ def test_a_published_calibration_names_the_moved_cameras_to_the_matcher_once(zen
             assert wait_for(lambda: inbox.waiting, 60.0), "the calibration did not arrive"
             return inbox.take()
 
+        source = decode_observations_message(observations_payload(seed=1))
         first = node.handle(observations_payload(seed=1), publisher)  # a first solve: nothing moved
         assert first is not None and first.status == Status.GOOD and not first.moved
         assert arrived() is not None and inbox.take_moved() == ()
 
         def publish(moved: tuple[str, ...]) -> None:  # as a solve that found `moved` publishes
-            node._publish(publisher, first.calibration, {}, replace(first, moved=moved), {})
+            node._publish(publisher, first.calibration, source, replace(first, moved=moved), solving_ns=1,
+                          received_ns=None)
             arrived()
 
         publish(("mono_b",))
@@ -53,8 +56,8 @@ def test_a_published_calibration_names_the_moved_cameras_to_the_matcher_once(zen
         assert inbox.take_moved() == ("mono_a", "mono_b") and inbox.take_moved() == ()
         # One the matcher found moved itself (and forgot) is not named back to it: forgotten again, its views
         # since would be lost; the document still names it.
-        node._publish(publisher, first.calibration, {}, replace(first, moved=("mono_a", "mono_b"), told=("mono_b",)),
-                      {})
+        node._publish(publisher, first.calibration, source, replace(first, moved=("mono_a", "mono_b"),
+                                                                    told=("mono_b",)), solving_ns=1, received_ns=None)
         arrived()
         assert json.loads(node.latest_doc)["moved"] == ["mono_a", "mono_b"]
         assert inbox.take_moved() == ("mono_a",)

@@ -177,9 +177,6 @@ def test_lockstep_messages_and_inbox():
     step = Step(3, 42, {"left": 7, "right": 7})
     assert Step.parse(step.to_json()) == step
     assert Ack.parse(Ack(step=3, pool_id="p", frame_sets=2, status="matched").to_json()).frame_sets == 2
-    assert Ack.for_observations(b'{"pool_id": "p", "frame_sets": 4}', status="good") == \
-        Ack(pool_id="p", frame_sets=4, status="good")
-    assert Ack.for_observations(b"not json", status="not solved").pool_id is None
     with pytest.raises(Exception, match="lockstep-step"):
         Step.parse(b'{"format": "other"}')
     inbox = StepInbox(capacity=3)

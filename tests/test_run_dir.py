@@ -3,29 +3,33 @@
 import argparse
 import json
 import re
+from dataclasses import replace
 
 import cv2
 import pytest
 
 from camnet.commands.up import RunFollower, _finish
 from camnet.commands.up_console import final_report, progress_line, summarise
-from camnet.io.formats import calibration_to_doc, observations_to_doc, parse_calibration
-from camnet.io.run_dir import RecentObservations, default_run_dir, source_key
+from camnet.io.formats import parse_calibration
+from camnet.io.messages import CalibrationMessage, ObservationsMessage
+from camnet.io.run_dir import RecentObservations, default_run_dir
 from camnet.live.moved_cameras import drop_before
 from camnet.live.policy import LIVE_FREE
 from camnet.sim.simulate import make_rig, observe
-from camnet.solve import Options, calibrate
+from camnet.solve.options import Options
+from camnet.solve.pipeline import calibrate
+from camnet.solve.report.verdict import Level
 
 
 @pytest.fixture(scope="module")
 def live_like():
-    """A calibration document as the calibrator publishes it, and the observations document behind it."""
+    """A calibration message as the calibrator publishes it, and the observations message behind it."""
     rig = make_rig(n_points=300, seed=4)
     obs = observe(rig, noise_px=0.3, seed=4).observations
-    obs_doc = {**observations_to_doc(obs), "frame_sets": 7, "latest_capture_ns": 123456789}
-    cal_doc = {**calibration_to_doc(calibrate(obs, Options(free=LIVE_FREE)).calibration),
-               "frame_sets": 7, "latest_capture_ns": 123456789, "solve": 3, "status": "good"}
-    return rig, cal_doc, obs_doc
+    obs_message = ObservationsMessage(obs, frame_sets=7, latest_capture_ns=123456789)
+    cal_message = CalibrationMessage(calibrate(obs, Options(free=LIVE_FREE)).calibration, frame_sets=7,
+                                     latest_capture_ns=123456789, solve=3, status=Level.GOOD)
+    return rig, cal_message, obs_message
 
 
 def test_the_default_run_directory_names_the_rig_and_the_time():
@@ -33,20 +37,23 @@ def test_the_default_run_directory_names_the_rig_and_the_time():
     assert path.parts[0] == "runs" and re.fullmatch(r"sim-\d{8}-\d{6}", path.name)
 
 
-def test_recent_observations_keep_the_last_few_by_source():
+def test_recent_observations_keep_the_last_few_by_source(live_like):
+    _, cal_message, obs_message = live_like
     recent = RecentObservations(keep=2)
     for k in range(3):
-        recent.add((k, k), str(k).encode())
-    assert recent.get((0, 0)) is None and recent.get((2, 2)) == b"2"
+        recent.add(replace(obs_message, frame_sets=k, latest_capture_ns=k))
+    assert recent.source_of(replace(cal_message, frame_sets=0, latest_capture_ns=0)) is None
+    assert recent.source_of(replace(cal_message, frame_sets=2, latest_capture_ns=2)).frame_sets == 2
+    assert recent.source_of(replace(cal_message, frame_sets=2, latest_capture_ns=1)) is None
 
 
 def test_the_run_directory_holds_the_results_and_the_last_lines_name_them(tmp_path, live_like):
-    rig, cal_doc, obs_doc = live_like
+    rig, cal_message, obs_message = live_like
     follower = RunFollower(argparse.Namespace(), truth=None)
-    follower.observations.add(source_key(obs_doc), json.dumps(obs_doc).encode())
-    follower.observations.add((8, 999), b"{}")  # a newer pool that no calibration was solved from
+    follower.observations.add(obs_message)
+    follower.observations.add(replace(obs_message, frame_sets=8, latest_capture_ns=999))  # solved from by none
     run_dir = tmp_path / "runs" / "sim-1"
-    text = _finish(argparse.Namespace(output=None), run_dir, cal_doc, follower, truth=None)
+    text = _finish(argparse.Namespace(output=None), run_dir, cal_message, follower, truth=None)
     names = sorted(p.name for p in run_dir.iterdir())
     assert names == ["calibration.json", "calibration.yaml", "colmap", "observations.json", "points.ply",
                      "report.html"]
@@ -64,8 +71,8 @@ def test_the_run_directory_holds_the_results_and_the_last_lines_name_them(tmp_pa
 
 
 def test_the_final_lines_are_readable_units_with_sigmas_and_the_verdict(live_like):
-    _, cal_doc, _ = live_like
-    text = final_report(parse_calibration(cal_doc), truth=None)
+    _, cal_message, _ = live_like
+    text = final_report(cal_message.calibration, truth=None)
     assert "[" not in text, "raw arrays"
     mono_a = next(line for line in text.splitlines() if line.startswith("mono_a"))
     assert re.search(r"\d+\.\d ± \d+\.\d", mono_a) and mono_a.split()[-1] in ("good", "usable", "poor")
@@ -103,14 +110,13 @@ def test_a_partial_calibrations_run_directory_and_final_table_name_the_camera_le
     obs = drop_before(obs, {away: int(obs.track_ids.max()) + 1})
     cal = calibrate(obs, Options(free=LIVE_FREE)).calibration
     assert away not in {c.id for c in cal.cameras}
-    obs_doc = {**observations_to_doc(obs), "frame_sets": 7, "latest_capture_ns": 1}
-    cal_doc = {**calibration_to_doc(cal), "frame_sets": 7, "latest_capture_ns": 1, "solve": 3}
+    cal_message = CalibrationMessage(cal, frame_sets=7, latest_capture_ns=1, solve=3)
     follower = RunFollower(argparse.Namespace(), truth=None)
-    follower.observations.add(source_key(obs_doc), json.dumps(obs_doc).encode())
-    text = _finish(argparse.Namespace(output=None), tmp_path / "run", cal_doc, follower, truth=None)
+    follower.observations.add(ObservationsMessage(obs, frame_sets=7, latest_capture_ns=1))
+    text = _finish(argparse.Namespace(output=None), tmp_path / "run", cal_message, follower, truth=None)
     assert re.search(rf"^{away}\s+not calibrated: it shares only 0 tracks", text, flags=re.MULTILINE), text
     assert "Needs the observations" not in (tmp_path / "run" / "report.html").read_text()
     images = (tmp_path / "run" / "colmap" / "images.txt").read_text()
     assert away not in images and "mono_a" in images
-    line = progress_line(summarise(1.0, cal_doc, truth=None))
+    line = progress_line(summarise(1.0, cal_message, truth=None))
     assert f"missing: {away} (it shares only 0 tracks" in line, line

@@ -36,7 +36,7 @@ def test_two_calibrations_in_quick_succession_are_both_shown(zenoh_pair):
             publisher.put(json.dumps({**doc, "solve": solve}).encode())
         taken = []
         assert wait_for(lambda: taken.extend(listener.take()) or len(taken) >= 2), taken
-        assert [d["solve"] for d in taken] == [1, 2] and listener.latest["doc"]["solve"] == 2
+        assert [m.solve for m in taken] == [1, 2] and listener.latest.solve == 2
         assert listener.take() == []
     finally:
         subscriber.undeclare()

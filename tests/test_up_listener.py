@@ -5,6 +5,7 @@ import json
 from camnet.bus import keys
 from camnet.commands.up import LatestCalibration
 from camnet.io.formats import calibration_to_doc
+from camnet.io.messages import calibration_message_to_doc
 from camnet.sim.simulate import make_rig, observe
 from camnet.solve import calibrate
 from tests.conftest import matched_publisher, wait_for
@@ -17,13 +18,16 @@ def test_anything_but_a_calibration_is_counted_and_never_kept(zenoh_pair):
     subscriber = a.declare_subscriber(keys.calibration("uptest"), listener)
     try:
         publisher = matched_publisher(b, keys.calibration("uptest"))
-        for junk in (b"{}", b"[" * 100_000, b"\xff\xfe", json.dumps({"format": "camnet.calibration/1"}).encode()):
-            publisher.put(junk)
-        assert wait_for(lambda: sum(listener.malformed.counts.values()) == 4), listener.malformed.counts
-        assert "doc" not in listener.latest and not listener.arrived.is_set()
         good = calibration_to_doc(calibrate(observe(make_rig(seed=1), seed=1).observations).calibration)
+        # The last: a calibration whose solve number is no number (before, shown as solve 'three').
+        for junk in (b"{}", b"[" * 100_000, b"\xff\xfe", json.dumps({"format": "camnet.calibration/1"}).encode(),
+                     json.dumps({**good, "solve": "three"}).encode()):
+            publisher.put(junk)
+        assert wait_for(lambda: sum(listener.malformed.counts.values()) == 5), listener.malformed.counts
+        assert listener.malformed.counts["solve"] == 1
+        assert listener.latest is None and not listener.arrived.is_set()
         publisher.put(json.dumps(good).encode())
         assert wait_for(listener.arrived.is_set)
-        assert listener.latest["doc"]["cameras"] == good["cameras"]
+        assert calibration_message_to_doc(listener.latest)["cameras"] == good["cameras"]
     finally:
         subscriber.undeclare()

@@ -10,6 +10,7 @@ from camnet.services.calibrator import RerunView
 from camnet import viz, viz_sinks
 from camnet.bus import keys
 from camnet.bus.frame import Frame, encode_frame
+from camnet.io.messages import ObservationsMessage
 from camnet.live.judged_solve import Status
 from camnet.live.tracker import Outcome
 from camnet.model.calibration import Calibration
@@ -44,7 +45,8 @@ def run_view(zenoh_pair, path, *, solves: int, moved_at: dict[int, str], late: s
             assert wait_for(lambda arrived=arrived: all(c in view._frames and view._frames[c].seq == seq
                                                         for c, seq in arrived.items()), timeout_s=60.0), k
             moved = (moved_at[k],) if k in moved_at else ()
-            view.solved(Outcome(Status.GOOD, "", cal, moved), obs, {"latest_capture_ns": time_ns}, solve=k)
+            view.solved(Outcome(Status.GOOD, "", cal, moved), ObservationsMessage(obs, latest_capture_ns=time_ns),
+                        solve=k)
     finally:
         sub.undeclare()
         for publisher in publishers.values():

@@ -101,17 +101,6 @@ class Ack:
                 raise InputError(f"{ACK_FORMAT}: {name} must be {kind.__name__} or null, got {type(value).__name__}")
         return cls(step, pool_id, frame_sets, str(doc.get("status", "")))
 
-    @classmethod
-    def for_observations(cls, payload: bytes, *, status: str) -> Ack:
-        """The calibrator's ack of one observations message (unreadable ones name no document)."""
-        try:
-            doc = decode_json_payload(payload)
-        except InputError:
-            doc = None
-        if not isinstance(doc, dict):
-            return cls(status=status)
-        return cls(pool_id=doc.get("pool_id"), frame_sets=doc.get("frame_sets"), status=status)
-
 
 class StepInbox:
     """The matcher's side: frames and step messages as Zenoh's threads deliver them, in any order.

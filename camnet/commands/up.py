@@ -12,6 +12,10 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from camnet.io.messages import CalibrationMessage
 
 # The built-in rig, config/sim.yaml: installed with camnet as camnet/rigs/sim.yaml
 # (pyproject.toml), read from config/ in a source checkout (an editable install).
@@ -116,9 +120,9 @@ def _check_sources(rig_path: Path, rig) -> None:
 
 
 class LatestCalibration:
-    """Subscriber callback keeping the latest valid calibration document (`latest["doc"]`), and every
-    one that arrived since the last `take`, in order (a few at most: two solves in quick succession
-    are both shown, not just the second).
+    """Subscriber callback keeping the latest valid calibration message (`latest`), and every one that
+    arrived since the last `take`, in order (a few at most: two solves in quick succession are both
+    shown, not just the second).
 
     Any peer may publish on the calibration key: what is no calibration is
     counted and logged once per kind, never shown or kept.
@@ -133,34 +137,31 @@ class LatestCalibration:
 
         from camnet.bus.node import Tally
 
-        self.latest: dict[str, dict] = {}
+        self.latest: CalibrationMessage | None = None
         self.arrived = threading.Event()
         self.malformed = Tally(logging.getLogger("camnet.up"))
-        self._pending: collections.deque[dict] = collections.deque(maxlen=self.PENDING)
+        self._pending: collections.deque[CalibrationMessage] = collections.deque(maxlen=self.PENDING)
         self._lock = threading.Lock()
 
     def __call__(self, sample) -> None:
-        from camnet.errors import InputError
-        from camnet.io.formats import parse_calibration
-        from camnet.io.validate import decode_json
+        from camnet.io.messages import MessageError, decode_calibration_message
 
         try:
-            doc = decode_json(sample.payload.to_bytes(), str(sample.key_expr))
-            parse_calibration(doc)
-        except InputError as exc:
-            self.malformed.count(str(exc).split(":", 1)[0], "ignoring a message that is no calibration (%s)", exc)
+            message = decode_calibration_message(sample.payload.to_bytes())
+        except MessageError as exc:
+            self.malformed.count(exc.kind, "ignoring a message that is no calibration (%s)", exc)
             return
         with self._lock:
-            self._pending.append(doc)
-            self.latest["doc"] = doc
+            self._pending.append(message)
+            self.latest = message
         self.arrived.set()
 
-    def take(self) -> list[dict]:
-        """The calibrations that arrived since the last call, oldest first."""
+    def take(self) -> list[CalibrationMessage]:
+        """The calibration messages that arrived since the last call, oldest first."""
         with self._lock:
-            docs = list(self._pending)
+            messages = list(self._pending)
             self._pending.clear()
-        return docs
+        return messages
 
 
 class RunFollower:
@@ -172,20 +173,15 @@ class RunFollower:
         self.args, self.truth = args, truth
         self.on_calibration = LatestCalibration()
         self.observations = RecentObservations()
-        self.reached: dict | None = None  # the first calibration from --until-frame-sets frame sets
+        self.reached: CalibrationMessage | None = None  # the first calibration from --until-frame-sets frame sets
 
     def on_observations(self, sample) -> None:
-        from camnet.errors import InputError
-        from camnet.io.run_dir import source_key
-        from camnet.io.validate import decode_json
+        from camnet.io.messages import MessageError, decode_observations_message
 
-        payload = sample.payload.to_bytes()
         try:
-            doc = decode_json(payload, str(sample.key_expr))
-        except InputError:
-            return  # no JSON, no observations: the calibrator counts and logs it
-        if isinstance(doc, dict):
-            self.observations.add(source_key(doc), payload)
+            self.observations.add(decode_observations_message(sample.payload.to_bytes()))
+        except MessageError:
+            return  # no observations: the calibrator counts and logs it
 
     def follow(self, launch, stop, start_s: float, run_dir: Path, progress_file) -> None:
         """Print a line per calibration until the duration is up, Ctrl-C, a replay's end, or the first
@@ -195,7 +191,6 @@ class RunFollower:
 
         from camnet.commands.up_console import progress_line, summarise
 
-        latest, arrived = self.on_calibration.latest, self.on_calibration.arrived
         next_wait_note = start_s + 10.0
         numbering = SolveNumbering()
         replay_done_s = None
@@ -205,28 +200,22 @@ class RunFollower:
             if replay_done_s is not None and time.monotonic() - replay_done_s > REPLAY_TAIL_S:
                 break  # the matcher's last pool has been solved by now, or never will be
             launch.check()
-            if arrived.wait(timeout=0.5):
-                arrived.clear()
-                for doc in self.on_calibration.take():
-                    summary = summarise(time.monotonic() - start_s, doc, self.truth)
-                    note = numbering.note(summary["solve"], run_dir, resumed=doc.get("resumed") is True)
+            if self.on_calibration.arrived.wait(timeout=0.5):
+                self.on_calibration.arrived.clear()
+                for message in self.on_calibration.take():
+                    summary = summarise(time.monotonic() - start_s, message, self.truth)
+                    note = numbering.note(message.solve, run_dir, resumed=message.resumed)
                     print(progress_line(summary) + note, flush=True)
                     if progress_file is not None:
                         progress_file.write(json.dumps(summary) + "\n")
                         progress_file.flush()
                     wanted = self.args.until_frame_sets
-                    if self.reached is None and wanted is not None and _frame_sets(doc) >= wanted:
-                        self.reached = doc
-            elif "doc" not in latest and time.monotonic() >= next_wait_note:
+                    if self.reached is None and wanted is not None and (message.frame_sets or 0) >= wanted:
+                        self.reached = message
+            elif self.on_calibration.latest is None and time.monotonic() >= next_wait_note:
                 print(f"{time.monotonic() - start_s:7.1f} s  waiting for the first calibration "
                       f"(see {run_dir / 'logs'}/*.log)", flush=True)
                 next_wait_note = time.monotonic() + 10.0
-
-
-def _frame_sets(doc: dict) -> int:
-    """The pooled frame sets a calibration was solved from (0 where it does not say)."""
-    frame_sets = doc.get("frame_sets")
-    return frame_sets if isinstance(frame_sets, int) and not isinstance(frame_sets, bool) else 0
 
 
 class SolveNumbering:
@@ -236,10 +225,10 @@ class SolveNumbering:
     def __init__(self) -> None:
         self.last: int | None = None
 
-    def note(self, solve: object, run_dir: Path, *, resumed: bool = False) -> str:
-        """A note for the line of calibration `solve`: resumed from the state file (the calibrator
-        numbers on from it), or after solves that were not kept; else ''."""
-        if not isinstance(solve, int) or isinstance(solve, bool):
+    def note(self, solve: int | None, run_dir: Path, *, resumed: bool = False) -> str:
+        """A note for the line of calibration `solve` (None: unnumbered): resumed from the state file (the
+        calibrator numbers on from it), or after solves that were not kept; else ''."""
+        if solve is None:
             return ""
         first = 1 if self.last is None or solve <= self.last else self.last + 1
         self.last = solve
@@ -332,34 +321,35 @@ def run(args: argparse.Namespace) -> int:
             print("interrupted", flush=True)
         for subscriber in subscribers:
             subscriber.undeclare()
-    doc = follower.reached or follower.on_calibration.latest.get("doc")
-    if doc is None and stop.is_set():
+    message = follower.reached or follower.on_calibration.latest
+    if message is None and stop.is_set():
         return 130
     if args.until_frame_sets is not None and follower.reached is None and not stop.is_set():
-        last = f"the last was from {_frame_sets(doc)}" if doc is not None else "none at all"
+        last = f"the last was from {message.frame_sets or 0}" if message is not None else "none at all"
         raise CamnetError(f"--until-frame-sets: no calibration from {args.until_frame_sets} frame sets in "
                           f"{args.duration_s:.0f} s ({last}); give a longer --duration-s, or see the nodes' logs "
                           f"in {run_dir / 'logs'}")
-    if doc is None:
+    if message is None:
         raise CamnetError(f"no calibration in {args.duration_s:.0f} s; the nodes' logs are in {run_dir / 'logs'}")
-    print(_finish(args, run_dir, doc, follower, truth))
+    print(_finish(args, run_dir, message, follower, truth))
     return 0
 
 
-def _finish(args: argparse.Namespace, run_dir: Path, doc: dict, follower: RunFollower, truth) -> str:
-    """Write the run directory's results; the final lines: the calibration, the files, the next commands."""
+def _finish(args: argparse.Namespace, run_dir: Path, message: CalibrationMessage, follower: RunFollower,
+            truth) -> str:
+    """Write the run directory's results of calibration `message`; the final lines: the calibration, the
+    files, the next commands."""
     from camnet.commands.up_console import final_report
-    from camnet.io.formats import parse_calibration, write_json_atomic
-    from camnet.io.run_dir import source_key, write_results
-    from camnet.io.validate import decode_json
+    from camnet.io.formats import write_json_atomic
+    from camnet.io.messages import calibration_message_to_doc
+    from camnet.io.run_dir import write_results
 
-    payload = follower.observations.get(source_key(doc))
-    observations = decode_json(payload, "observations") if payload is not None else None
-    written = write_results(run_dir, doc, observations)
+    observations = follower.observations.source_of(message)
+    written = write_results(run_dir, message, observations)
     if args.output:
-        write_json_atomic(args.output, doc)
+        write_json_atomic(args.output, calibration_message_to_doc(message))
         written.append(Path(args.output))
-    lines = [final_report(parse_calibration(doc), truth), "", f"files in {run_dir}:"]
+    lines = [final_report(message.calibration, truth), "", f"files in {run_dir}:"]
     lines += [f"  {p.name + ('/' if p.is_dir() else ''):<20} {_DESCRIBE.get(p.name, '')}".rstrip() for p in written]
     if observations is None:
         lines.append("  (the observations behind the last calibration were not received: no observations.json)")
@@ -381,18 +371,15 @@ _DESCRIBE = {
 }
 
 
-def _document(sample, parse, log) -> dict | None:
-    """The JSON document of a bus `sample` if `parse` accepts it; None, logged, for anything else."""
-    from camnet.errors import InputError
-    from camnet.io.validate import decode_json
+def _decoded(decode, sample, log):
+    """`decode` of a bus `sample`'s payload; None, logged, where it does not decode."""
+    from camnet.io.messages import MessageError
 
     try:
-        doc = decode_json(sample.payload.to_bytes(), str(sample.key_expr))
-        parse(doc)
-    except InputError as exc:
-        log.warning("ignoring a message that does not parse (%s)", exc)
+        return decode(sample.payload.to_bytes())
+    except MessageError as exc:
+        log.warning("ignoring a message on %s that does not decode (%s)", sample.key_expr, exc)
         return None
-    return doc
 
 
 def calibrate_live(rig_path: str | Path, *, run_dir: Path, endpoint: str, max_tracks: int = 3000,
@@ -417,29 +404,30 @@ def calibrate_live(rig_path: str | Path, *, run_dir: Path, endpoint: str, max_tr
     from camnet.bus.launch import Launch, NetworkSpec, start_network
     from camnet.bus.session import BusOptions, open_session
     from camnet.errors import CamnetError
-    from camnet.io.formats import parse_calibration, parse_observations
+    from camnet.io.messages import decode_calibration_message, decode_observations_message
     from camnet.io.rig import load_rig
+    from camnet.io.run_dir import source_key
 
     log = logging.getLogger(__name__)
     rig = load_rig(rig_path)
     run_dir.mkdir(parents=True, exist_ok=True)
-    observed: dict[tuple[int, int], dict] = {}
-    calibrations: list[dict] = []
+    observed = {}  # observations messages by source_key
+    calibrations = []  # calibration messages not looked at yet
     lock = threading.Lock()
     arrived = threading.Event()
 
-    # Any peer may publish on these keys: only what parses is kept.
+    # Any peer may publish on these keys: only what decodes is kept.
     def on_observations(sample) -> None:
-        doc = _document(sample, lambda d: parse_observations(d, any_distance=True), log)
-        if doc is not None and all(isinstance(doc.get(k), int) for k in ("frame_sets", "latest_capture_ns")):
+        message = _decoded(decode_observations_message, sample, log)
+        if message is not None and message.frame_sets is not None and message.latest_capture_ns is not None:
             with lock:
-                observed[doc["frame_sets"], doc["latest_capture_ns"]] = doc
+                observed[source_key(message)] = message
 
     def on_calibration(sample) -> None:
-        doc = _document(sample, parse_calibration, log)
-        if doc is not None:
+        message = _decoded(decode_calibration_message, sample, log)
+        if message is not None:
             with lock:
-                calibrations.append(doc)
+                calibrations.append(message)
             arrived.set()
 
     spec = NetworkSpec(rig_path=Path(rig_path), rig_name=rig.name,
@@ -459,14 +447,13 @@ def calibrate_live(rig_path: str | Path, *, run_dir: Path, endpoint: str, max_tr
             with lock:
                 pending = calibrations[:]
                 calibrations.clear()
-            for doc in pending:
-                cameras = {c["id"] for c in doc["cameras"]}
-                log.info("calibration %s: cameras %s, %s frame sets, %.1f s", doc.get("solve"),
-                         ",".join(sorted(cameras)), doc.get("frame_sets"), time.monotonic() - start_s)
+            for message in pending:
+                cameras = {c.id for c in message.calibration.cameras}
+                log.info("calibration %s: cameras %s, %s frame sets, %.1f s", message.solve,
+                         ",".join(sorted(cameras)), message.frame_sets, time.monotonic() - start_s)
                 with lock:
-                    source = observed.get((doc.get("frame_sets"), doc.get("latest_capture_ns")))
-                if cameras == want and doc.get("frame_sets", 0) >= min_frame_sets and source is not None:
-                    observations = parse_observations(source, any_distance=True)  # the rig's, checked at load
-                    return parse_calibration(doc), observations, time.monotonic() - start_s
+                    source = observed.get(source_key(message))
+                if cameras == want and (message.frame_sets or 0) >= min_frame_sets and source is not None:
+                    return message.calibration, source.observations, time.monotonic() - start_s
     raise CamnetError(f"no calibration of cameras {sorted(want)} from {min_frame_sets} frame sets in "
                       f"{timeout_s:.0f} s; the nodes' logs are in {run_dir}")

@@ -2,35 +2,44 @@
 
 from __future__ import annotations
 
+import math
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from camnet.io.messages import CalibrationMessage
+
 RECORDED_CLOCK_S = 3600.0  # a capture this far from the host clock was stamped by a recording
 
 
-def summarise(elapsed_s: float, doc: dict, truth) -> dict:
-    """What one calibration holds, how sure it is, and how right when the truth is known."""
+def summarise(elapsed_s: float, message: CalibrationMessage, truth) -> dict:
+    """What one calibration message holds, how sure it is, and how right when the truth is known."""
+    cal = message.calibration
+    uncertainty = cal.uncertainty
     summary = {
         "elapsed_s": round(elapsed_s, 3),
-        "solve": doc.get("solve"),
-        "frame_sets": doc.get("frame_sets"),
-        "cameras": len(doc["cameras"]),
-        "points": len(doc.get("points", [])),
-        "rms_px": doc.get("rms_reprojection_px"),
-        "scale_sigma_rel": doc.get("uncertainty", {}).get("scale_rel"),
-        "moved": doc.get("moved", []),
-        "left_out": _left_out(doc),
+        "solve": message.solve,
+        "frame_sets": message.frame_sets,
+        "cameras": len(cal.cameras),
+        "points": len(cal.points),
+        "rms_px": float(cal.rms_reprojection_px) if math.isfinite(cal.rms_reprojection_px) else None,
+        "scale_sigma_rel": uncertainty.scale_rel.value if uncertainty is not None else None,
+        "moved": list(message.moved or ()),
+        "left_out": dict(cal.report.cameras_left_out) if cal.report is not None else {},
     }
-    if "latest_capture_ns" in doc and "solved_ns" in doc:
-        latency_s = (doc["solved_ns"] - doc["latest_capture_ns"]) / 1e9
+    if message.latest_capture_ns is not None and message.solved_ns is not None:
+        latency_s = (message.solved_ns - message.latest_capture_ns) / 1e9
         # Recorded frames (an image sequence with its timestamps) keep their own clock: no latency then.
         if abs(latency_s) < RECORDED_CLOCK_S:
-            from camnet.bus.latency import stage_durations_s
+            from camnet.bus.latency import StageStamps, stage_durations_s
 
             summary["capture_to_solution_s"] = latency_s
-            summary["stages_s"] = stage_durations_s(doc)
+            summary["stages_s"] = stage_durations_s(message.latency_ns or StageStamps(),
+                                                    capture_ns=message.latest_capture_ns,
+                                                    solved_ns=message.solved_ns)
     if truth:
-        from camnet.io.formats import parse_calibration
         from camnet.model.accuracy import compare_cameras
 
-        c = compare_cameras(parse_calibration(doc), truth)
+        c = compare_cameras(cal, truth)
         summary["scale_error_rel"] = c.scale_rel
         summary["max_focal_error_rel"] = max(abs(e.focal_rel) for e in c.cameras)
         summary["max_centre_error_mm"] = max(e.centre_mm for e in c.cameras)
@@ -51,12 +60,6 @@ def progress_line(s: dict) -> str:
     if s.get("left_out"):
         line += "  missing: " + "; ".join(f"{cam_id} ({why})" for cam_id, why in s["left_out"].items())
     return line
-
-
-def _left_out(doc: dict) -> dict[str, str]:
-    """The cameras a calibration left out, each with why (its `diagnostics.cameras_left_out`)."""
-    left_out = doc.get("diagnostics", {}).get("cameras_left_out", {})
-    return {str(k): str(v) for k, v in left_out.items()} if isinstance(left_out, dict) else {}
 
 
 def final_report(cal, truth) -> str:

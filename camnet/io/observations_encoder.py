@@ -1,4 +1,4 @@
-"""The ``camnet.observations/1`` document of a growing track pool as JSON bytes, each track encoded once.
+"""The observations message of a growing track pool as JSON bytes, each track encoded once.
 
 A live pool is published after every frame set that changed it, and encoding
 the whole document (a full pool of 5000 tracks) took tens of milliseconds of
@@ -8,9 +8,8 @@ that seeing it again may add cameras to it. So `ObservationsEncoder` keeps
 each track's JSON text with the pixels it was made from, encodes only the
 tracks that are new or whose pixels changed, and joins the pieces.
 
-The bytes are exactly ``json.dumps(doc).encode()`` of the document that
-`camnet.io.formats.observations_to_doc` gives, followed by further keys
-(the node's own): a consumer cannot tell the two apart.
+The bytes are exactly those of `camnet.io.messages.encode_observations_message`:
+a consumer cannot tell the two apart.
 """
 
 from __future__ import annotations
@@ -19,12 +18,12 @@ import json
 
 import numpy as np
 
-from camnet.io.formats import observations_head_to_doc, observations_to_doc
-from camnet.model.observations import Observations
+from camnet.io.formats import observations_head_to_doc
+from camnet.io.messages import ObservationsMessage, encode_observations_message, observations_envelope_to_doc
 
 
 class ObservationsEncoder:
-    """Encodes successive observations of one pool; keeps the last call's tracks. Not thread-safe."""
+    """Encodes successive messages of one pool; keeps the last call's tracks. Not thread-safe."""
 
     def __init__(self) -> None:
         self._names: tuple[str, ...] = ()
@@ -33,9 +32,9 @@ class ObservationsEncoder:
         self._pieces: list[str] = []
         self.encoded = 0  # tracks encoded by the last call (the others came from the cache)
 
-    def encode(self, obs: Observations, further: dict | None = None) -> bytes:
-        """``json.dumps`` of `obs`'s document with the keys of `further` after its own, as UTF-8 bytes."""
-        further = {} if further is None else further
+    def encode(self, message: ObservationsMessage) -> bytes:
+        """`encode_observations_message(message)`, the tracks unchanged since the last call from the cache."""
+        obs = message.observations
         names = tuple(c.id for c in obs.cameras)
         cam = np.asarray(obs.cam_index, dtype=np.int64)
         trk = np.asarray(obs.track_index, dtype=np.int64)
@@ -46,12 +45,11 @@ class ObservationsEncoder:
             # pixels JSON spells its own way: encode it all as the codec does.
             self._names, self._ids, self._pieces = (), np.empty(0, dtype=np.int64), []
             self.encoded = len(obs.track_ids)
-            doc = observations_to_doc(obs)
-            doc.update(further)
-            return json.dumps(doc).encode()
+            return encode_observations_message(message)
         pieces = self._track_pieces(names, np.asarray(obs.track_ids, dtype=np.int64), cam, trk, uv)
         head = json.dumps(observations_head_to_doc(obs))
         text = f'{head[:-1]}, "tracks": [{", ".join(pieces)}]'
+        further = observations_envelope_to_doc(message)
         text += f", {json.dumps(further)[1:]}" if further else "}"
         return text.encode()
 

@@ -14,7 +14,13 @@ from pathlib import Path
 
 from camnet.io.atomic import write_directory_atomic, write_text_atomic
 from camnet.io.export import COLMAP_FORMATS, export, is_multi_file
-from camnet.io.formats import parse_calibration, parse_observations, write_json_atomic
+from camnet.io.formats import write_json_atomic
+from camnet.io.messages import (
+    CalibrationMessage,
+    ObservationsMessage,
+    calibration_message_to_doc,
+    observations_message_to_doc,
+)
 from camnet.io.report import render_report
 
 # (format of `camnet export`, file or directory name in the run directory)
@@ -27,38 +33,45 @@ def default_run_dir(rig_name: str, *, now_s: float | None = None) -> Path:
     return Path("runs") / f"{rig_name}-{time.strftime('%Y%m%d-%H%M%S', time.localtime(now_s))}"
 
 
-def source_key(doc: dict) -> tuple[object, object]:
-    """What ties a calibration to the observations it was solved from: both carry these two keys."""
-    return doc.get("frame_sets"), doc.get("latest_capture_ns")
+SourceKey = tuple[int | None, int | None]
+
+
+def source_key(message: CalibrationMessage | ObservationsMessage) -> SourceKey:
+    """What ties a calibration to the observations it was solved from: both carry their frame sets and latest
+    capture time."""
+    return message.frame_sets, message.latest_capture_ns
 
 
 class RecentObservations:
-    """The last few observations documents (raw bytes), by `source_key`; older ones are dropped."""
+    """The last few observations messages, by `source_key`; older ones are dropped."""
 
     def __init__(self, keep: int = KEPT_OBSERVATIONS) -> None:
         self.keep = keep
-        self._docs: OrderedDict[tuple, bytes] = OrderedDict()
+        self._messages: OrderedDict[SourceKey, ObservationsMessage] = OrderedDict()
 
-    def add(self, key: tuple, payload: bytes) -> None:
-        self._docs[key] = payload
-        self._docs.move_to_end(key)
-        while len(self._docs) > self.keep:
-            self._docs.popitem(last=False)
+    def add(self, message: ObservationsMessage) -> None:
+        key = source_key(message)
+        self._messages[key] = message
+        self._messages.move_to_end(key)
+        while len(self._messages) > self.keep:
+            self._messages.popitem(last=False)
 
-    def get(self, key: tuple) -> bytes | None:
-        return self._docs.get(key)
+    def source_of(self, calibration: CalibrationMessage) -> ObservationsMessage | None:
+        """The observations `calibration` was solved from, if kept."""
+        return self._messages.get(source_key(calibration))
 
 
-def write_results(run_dir: Path, calibration_doc: dict, observations_doc: dict | None) -> list[Path]:
+def write_results(run_dir: Path, calibration: CalibrationMessage, observations: ObservationsMessage | None,
+                  ) -> list[Path]:
     """Write the calibration, its observations (when known), the report and the exports; the paths written."""
     run_dir.mkdir(parents=True, exist_ok=True)
-    cal = parse_calibration(calibration_doc)
-    obs = parse_observations(observations_doc, any_distance=True) if observations_doc is not None else None
+    cal = calibration.calibration
+    obs = observations.observations if observations is not None else None
     written = [run_dir / "calibration.json"]
-    write_json_atomic(written[0], calibration_doc)
-    if observations_doc is not None:
+    write_json_atomic(written[0], calibration_message_to_doc(calibration))
+    if observations is not None:
         written.append(run_dir / "observations.json")
-        write_json_atomic(written[-1], observations_doc)
+        write_json_atomic(written[-1], observations_message_to_doc(observations))
     written.append(write_text_atomic(run_dir / "report.html", render_report(cal, obs, title=f"camnet: {run_dir.name}")))
     for fmt, name in EXPORTS:
         files = export(cal, fmt, observations=obs if fmt in COLMAP_FORMATS else None)
