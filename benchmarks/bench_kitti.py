@@ -24,11 +24,11 @@ import tempfile
 import time
 from pathlib import Path
 
-from camnet.commands.up import calibrate_live
 from camnet.datasets.kitti import SCENARIOS, KittiExtract, pooled_observations, prepare_scenario
 from camnet.datasets.published import VsPublished, compare
 from camnet.errors import CamnetError
 from camnet.solve import Options, calibrate
+from camnet.testing.live_rig import calibrate_live
 
 ROOT = Path(__file__).resolve().parents[1]
 KITTI = ROOT.parent / "shared" / "data" / "kitti_raw_2011_09_26_extract_3cam"

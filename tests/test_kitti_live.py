@@ -18,11 +18,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from camnet.commands.up import calibrate_live
 from camnet.datasets.kitti import KittiExtract, pooled_observations, prepare_scenario
 from camnet.datasets.published import compare
 from camnet.io.rig import load_rig
 from camnet.solve import Options, calibrate
+from camnet.testing.live_rig import calibrate_live
 from tests._groundtruth import KITTI_ROOT, require
 from tests.conftest import free_port
 
