@@ -1,20 +1,26 @@
-"""The matching engine behind the matcher node: frame sets in, pooled tracks out.
+"""One matching engine: `camnet match`, the offline path and the matcher node find the same tracks in the same frames.
 
 The frames are renders of the simulated rig (camnet.sim): real pixels, the same bytes on every path."""
 
 from __future__ import annotations
 
+import json
 import logging
+import subprocess
+import sys
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 from camnet.services.matcher import MatcherNode, MatcherNodeConfig, rig_stereo
 
+from camnet.io.messages import observations_message_to_doc
 from camnet.io.rig import camera_info, parse_rig
 from camnet.matching.edge import FeatureExtractor
 from camnet.matching.engine import CameraImage, EngineConfig, MatchingEngine
+from camnet.matching.pipeline import observations_from_frame_sets
 from tests.test_matcher_node import CAMERAS, render_set, rig_document
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -51,6 +57,35 @@ def assert_same_tracks(a, b) -> None:
     assert len(a.track_ids) > 300
     for name in ("track_ids", "track_index", "cam_index", "uv"):
         assert np.array_equal(getattr(a, name), getattr(b, name)), name
+
+
+def test_frame_sets_pooled_offline_are_the_tracks_the_matcher_node_pools(rig, frame_sets):
+    # The offline path (camnet match, datasets, benchmarks) ran a chain of its own: every image detected whole
+    # and every pair matched whole, frame set after frame set, while the node detected what changed and matched
+    # what was new. Now both run the one engine.
+    node = node_after(rig, frame_sets)
+    offline = observations_from_frame_sets(({c: f.image for c, f in s.frames.items()} for s in frame_sets),
+                                           cameras=[camera_info(rig, c, 640, 512) for c in CAMERAS],
+                                           stereo=rig_stereo(rig))
+    assert node.engine.matcher.incremental > 0  # later frame sets matched what was new: the live path
+    assert_same_tracks(offline, node.engine.observations())
+
+
+def test_camnet_match_writes_the_tracks_the_matcher_node_publishes(rig, frame_sets, tmp_path):
+    (first,) = frame_sets[:1]
+    for camera_id, frame in first.frames.items():
+        cv2.imwrite(str(tmp_path / f"{camera_id}.png"), frame.image)
+    rig_path = tmp_path / "rig.yaml"
+    rig_path.write_text(json.dumps(rig_document("engine")))  # JSON is YAML
+    out = tmp_path / "obs.json"
+    result = subprocess.run([sys.executable, "-m", "camnet", "match", *(str(tmp_path / f"{c}.png") for c in CAMERAS),
+                             "--rig", str(rig_path), "-o", str(out)], cwd=ROOT, capture_output=True, text=True,
+                            timeout=120)
+    assert result.returncode == 0, result.stderr
+    offline = json.loads(out.read_text())
+    live = observations_message_to_doc(node_after(rig, [first]).message())  # what the node publishes
+    assert len(offline["tracks"]) > 300
+    assert offline["cameras"] == live["cameras"] and offline["tracks"] == live["tracks"]
 
 
 def test_a_frame_set_gives_the_same_tracks_whichever_threads_take_its_cameras_and_pairs(rig, frame_sets):

@@ -1,7 +1,9 @@
 """The matching engine: frame sets in, pooled multi-view tracks out.
 
-The matcher node (`camnet matcher`) runs it: the node keeps the bus, the
-engine does the matching. Per frame set, in order:
+The matcher node (`camnet matcher`) and `camnet match`
+(`camnet.matching.pipeline.observations_from_frame_sets`) run this one engine,
+so what the offline command finds is what the live rig finds. Per frame set,
+in order:
 
 - each camera's features: detected here, each camera on its own
   `camnet.matching.edge.FeatureExtractor` (only where the image changed since
@@ -265,3 +267,19 @@ class MatchingEngine:
         return FrameSetMatches(tuple(ids), tuple(c.features for c in cameras),
                                tuple(matched for part in parts for matched in part.pairs))
 
+
+def match_frame_set(images: Mapping[str, np.ndarray] | Sequence[tuple[str, np.ndarray]],
+                    config: MatcherConfig | None = None, *, stereo: Stereo | None = None,
+                    seed: int = 0) -> FrameSetMatches:
+    """Every pair of one frame set matched whole, as the engine matches a frame set it has not seen before,
+    without probing a pair first: what matching alone finds, pair by pair (pooled tracks: `MatchingEngine`).
+
+    `images` maps camera id to its image (uint8 or uint16, grey or BGR) of one trigger. If `stereo` is a
+    parallel head (`stereo.parallel`) of two of those cameras and `config.use_stereo_prior` is set, its pair
+    is matched under the near-epipolar prior (`camnet.matching.reuse.IncrementalMatcher.match`). OpenCV's RNG
+    of the calling thread is seeded with `seed` first, so the matches are a function of the images alone.
+    """
+    config = MatcherConfig() if config is None else config
+    items = list(images.items()) if isinstance(images, Mapping) else list(images)
+    cameras = [FeatureExtractor(camera_id, config).extract(image, seq=0, timestamp_ns=0) for camera_id, image in items]
+    return IncrementalMatcher(config, stereo=stereo, probe_every=1).match(cameras, seed=seed)
