@@ -32,7 +32,8 @@ from camnet.io.formats import observations_to_doc
 from camnet.io.rig import load_rig
 from camnet.live.policy import LiveConfig
 from camnet.live.tracker import Tracker
-from camnet.matching.features import MatcherConfig, match_frame_set
+from camnet.matching.engine import match_frame_set
+from camnet.matching.features import MatcherConfig
 from camnet.matching.pool import PoolConfig, TrackPool
 from camnet.matching.tracks import FrameTracks, build_tracks
 from camnet.model.accuracy import compare_cameras

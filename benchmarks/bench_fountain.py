@@ -27,6 +27,7 @@ import numpy as np
 from camnet.datasets.published import VsPublished, compare
 from camnet.datasets.strecha import image_path, in_frame_of, read_cameras
 from camnet.errors import CamnetError
+from camnet.matching.engine import EngineConfig
 from camnet.matching.features import MatcherConfig
 from camnet.matching.pipeline import observations_from_frame_sets, with_known_intrinsics
 from camnet.model.camera import CameraInfo
@@ -74,7 +75,7 @@ def main() -> int:
     images = {v: cv2.imread(str(image_path(FOUNTAIN, v)), cv2.IMREAD_GRAYSCALE) for v in views}
     cameras = [CameraInfo(v, images[v].shape[1], images[v].shape[0]) for v in views]
     obs = observations_from_frame_sets([images], cameras=cameras, stereo=Stereo(left, right, baseline_m),
-                                       matcher=MatcherConfig(max_image_side_px=args.max_image_side_px))
+                                       config=EngineConfig(matcher=MatcherConfig(max_image_side_px=args.max_image_side_px)))
     seen = np.bincount(obs.cam_index, minlength=len(views))
     print(f"matched in {time.perf_counter() - start_s:.1f} s: {len(obs.track_ids)} tracks; observations per view: "
           + ", ".join(f"{v} {n}" for v, n in zip(views, seen, strict=True)) + "\n")

@@ -25,7 +25,8 @@ import cv2
 import numpy as np
 
 from camnet.io.formats import Stereo
-from camnet.matching.features import Detector, MatcherConfig, detect, match_frame_set
+from camnet.matching.engine import match_frame_set
+from camnet.matching.features import Detector, MatcherConfig, detect
 from camnet.matching.tracks import build_tracks
 
 WIDTH, HEIGHT = 1280, 1024

@@ -58,11 +58,11 @@ def run_once(rig_path: str, rig, config: MatcherNodeConfig, seconds: float) -> d
             seen = 0
             while time.monotonic() < end:
                 time.sleep(0.05)
-                if node.frame_sets_matched > seen:
-                    seen = node.frame_sets_matched
-                    match_ms.append(1e3 * node.last_match_s)
-                    print(f"\r  {config.detector}: {seen} frame sets, pool "
-                          f"{len(node.pool) if node.pool else 0}", end="", flush=True)
+                stats = node.engine.stats
+                if stats.frame_sets_matched > seen:
+                    seen = stats.frame_sets_matched
+                    match_ms.append(1e3 * stats.last_match_s)
+                    print(f"\r  {config.detector}: {seen} frame sets, pool {stats.tracks_pooled}", end="", flush=True)
         finally:
             for driver in drivers:
                 driver.terminate()
@@ -71,12 +71,12 @@ def run_once(rig_path: str, rig, config: MatcherNodeConfig, seconds: float) -> d
             node.stop.set()
             worker.join()
         print("\r", end="")
-        sync = node.sync_counts()
+        sync, stats = node.sync_counts(), node.engine.stats
         return {"ms_per_set": float(np.median(match_ms)) if match_ms else float("nan"),
-                "sets_per_s": node.frame_sets_matched / seconds, "partial": sync.partial_sets,
+                "sets_per_s": stats.frame_sets_matched / seconds, "partial": sync.partial_sets,
                 "dropped": sync.dropped, "frames": sync.received,
                 "latency_ms": float(np.median(latencies_ms)) if latencies_ms else float("nan"),
-                "tracks": len(node.pool) if node.pool else 0}
+                "tracks": stats.tracks_pooled}
 
 
 def _latency_ms(message: ObservationsMessage) -> float:

@@ -161,11 +161,11 @@ def replay(directory: Path, name: str, *, max_sets: int,
     rig = load_rig(directory / f"{name}.yaml")
     node = MatcherNode(None, rig, config=MatcherNodeConfig(**rig_options(rig), publish_period_s=PUBLISH_PERIOD_S))
     watch = Stopwatch()
-    node._match_pairs = watch.wrap("matching", node._match_pairs)  # the pairs' tasks in the thread pool too
-    if hasattr(node._matcher, "prepare"):  # which keypoints were seen before: part of matching
-        node._matcher.prepare = watch.wrap("matching", node._matcher.prepare)
+    engine = node.engine
+    engine._match_pairs = watch.wrap("matching", engine._match_pairs)  # the pairs' tasks in the thread pool too
+    engine.matcher.prepare = watch.wrap("matching", engine.matcher.prepare)  # which keypoints were seen before
     node._take_calibration = watch.wrap("calibrations", node._take_calibration)
-    node._ensure_pool = _wrap_pool(node._ensure_pool, watch)
+    engine._ensure_pool = _wrap_pool(engine._ensure_pool, watch)
     publisher, costs, pools = _Publisher(), [], []
     calibration_key = keys.calibration(rig.name)
     max_tracks = node.config.max_tracks
@@ -175,19 +175,19 @@ def replay(directory: Path, name: str, *, max_sets: int,
         frame_set = node._sync.pop(now_s=now_s)
         if frame_set is None:
             return
-        whole, compared = node._matcher.whole, getattr(node._matcher, "compared", 0)
+        whole, compared = engine.matcher.whole, engine.matcher.compared
         t0 = time.process_time()
         node.process(frame_set)
         node._publish_if_due(publisher, now_s)
         total = time.process_time() - t0
         seconds = watch.take()
         seconds["rest"] = total - sum(seconds.values())
-        pool = node.pool
-        costs.append(SetCost(seconds, node.pairs[0], node._matcher.whole - whole,
-                             (getattr(node._matcher, "compared", 0) - compared) / 1e6, len(pool),
+        pool = engine.pool
+        costs.append(SetCost(seconds, engine.stats.pairs[0], engine.matcher.whole - whole,
+                             (engine.matcher.compared - compared) / 1e6, len(pool),
                              int(np.sum(np.bincount(pool.observations().track_index) >= 3)),
-                             bool(node.view_graph.calibrated),
-                             node.view_graph.calibrated >= set(node.camera_ids)))
+                             bool(engine.view_graph.calibrated),
+                             engine.view_graph.calibrated >= set(node.camera_ids)))
         on_graph[0] += costs[-1].calibrated
         if solve_every and costs[-1].calibrated and on_graph[0] % solve_every == 0 and len(pool) >= 0.9 * max_tracks:
             pools.append(node.message().observations)
@@ -201,7 +201,7 @@ def replay(directory: Path, name: str, *, max_sets: int,
         elif key.endswith("/features"):
             node._sync.add(decode_features(payload), now_s=t_s)
             take(t_s)
-    return costs, pool_quality(node.pool.observations(), rig.simulated_truth()), pools
+    return costs, pool_quality(engine.observations(), rig.simulated_truth()), pools
 
 
 def solve_errors(pools: list[Observations], truth) -> dict[str, float]:
@@ -221,7 +221,7 @@ def solve_errors(pools: list[Observations], truth) -> dict[str, float]:
 
 
 def _wrap_pool(ensure_pool, watch: Stopwatch):
-    """The node's `_ensure_pool`, its pool's `add` timed as the pool stage."""
+    """The engine's `_ensure_pool`, its pool's `add` timed as the pool stage."""
     def ensured():
         pool = ensure_pool()
         if not getattr(pool.add, "_timed", False):

@@ -54,7 +54,8 @@ from scipy.spatial import cKDTree
 from camnet.errors import CamnetError
 from camnet.io.rig import Rig, load_rig
 from camnet.live.policy import LiveConfig, judge
-from camnet.matching.features import MatcherConfig, match_frame_set
+from camnet.matching.engine import match_frame_set
+from camnet.matching.features import MatcherConfig
 from camnet.matching.pool import PoolConfig, TrackPool
 from camnet.matching.tracks import FrameTracks, build_tracks
 from camnet.model.accuracy import compare_cameras

@@ -3,11 +3,12 @@
 Zenoh's callback threads only decode frames and hand them to a
 `camnet.bus.sync.FrameSynchronizer` (under a lock), which keeps the latest few
 frames per camera and counts what it drops. `MatcherNode.run` is the worker:
-it takes the newest ready frame set, matches it (`camnet.matching.features`), chains
-tracks (`camnet.matching.tracks`) and pools them (`camnet.matching.pool`); when the pool
-changed it publishes the pool on ``keys.observations(rig)`` (by default at once, or at most
-once per publish period), as a `camnet.io.messages.ObservationsMessage`, whose fields say what it
-carries beside the contract's keys.
+it takes the newest ready frame set and hands it to the rig's
+`camnet.matching.engine.MatchingEngine` (the engine `camnet match` runs too),
+which detects, matches, chains tracks and pools them; when the pool changed
+it publishes the pool on ``keys.observations(rig)`` (by default at once, or
+at most once per publish period), as a `camnet.io.messages.ObservationsMessage`,
+whose fields say what it carries beside the contract's keys.
 
 With ``lockstep`` the node takes its frames from a lockstep replay
 (`camnet.bus.lockstep`): each announced step's frames form at most one frame
@@ -18,13 +19,10 @@ A camera whose feature stage runs beside its driver (`camnet driver
 --features`) publishes keypoints and descriptors on ``keys.features``; once
 they arrive, the matcher stops receiving its frames (`matcher_frames`, until
 its stage stops) and its features join the frame sets in place of frames.
-The frames of the other cameras are detected here, each camera on its own
-`camnet.matching.edge.FeatureExtractor` (only where the image changed since
-its keyframe), in a thread pool over the cores (OpenCV releases the GIL).
-`camnet.matching.reuse.IncrementalMatcher` matches only what is new since a
-pair's last whole match, on every pair until the rig's calibration (``keys.calibration``,
-also asked of the calibrator at start: `matcher_calibration`) arrives, then on the view graph's
-pairs (`camnet.matching.viewgraph`).
+The engine detects the frames of the other cameras, in a thread pool over the
+cores (OpenCV releases the GIL), and matches every pair until the rig's
+calibration (``keys.calibration``, also asked of the calibrator at start:
+`matcher_calibration`) arrives, then the view graph's pairs.
 
 Cameras are listed with the sizes of their frames (or of the rig file before
 the first frame) and what the rig file's `intrinsics` section knows of them
@@ -38,13 +36,11 @@ import logging
 import os
 import threading
 import time
-import uuid
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 
-import numpy as np
 from camnet.services.features import from_message
-from camnet.services.matcher_calibration import CalibrationInbox, forget_moved, pool_attachment
+from camnet.services.matcher_calibration import CalibrationInbox, pool_attachment
 from camnet.services.matcher_config import MatcherNodeConfig, rig_options, rig_stereo
 from camnet.services.matcher_frames import FrameSubscriptions
 
@@ -60,19 +56,16 @@ from camnet.errors import InputError
 from camnet.io.messages import ObservationsMessage
 from camnet.io.observations_encoder import ObservationsEncoder
 from camnet.io.rig import Rig, camera_info, configured_size
-from camnet.matching.edge import CameraFeatures, EdgeConfig, FeatureExtractor
-from camnet.matching.features import FrameSetMatches, to_grey
-from camnet.matching.pool import PoolUpdate, TrackPool, regrow_pool
-from camnet.matching.reuse import IncrementalMatcher
-from camnet.matching.tracks import build_tracks
-from camnet.matching.viewgraph import ViewGraph, ViewGraphConfig
+from camnet.matching.edge import CameraFeatures
+from camnet.matching.engine import CameraImage, MatchingEngine
+from camnet.matching.pool import PoolUpdate
 
 __all__ = ["MatcherNode", "MatcherNodeConfig", "rig_options", "rig_stereo"]  # the options live in matcher_config
 log = logging.getLogger(__name__)
 
 NODE_KIND = "matcher"
 NODE_ID = "matcher"
-WARNING_PERIOD_S = 30.0  # at most one warning of each kind per this many seconds
+WARNING_PERIOD_S = 30.0  # at most one warning of frames dropped per this many seconds
 NO_SET_WARNING_S = 10.0  # frames arrive but no frame set forms for this long: say why
 MIN_SILENCE_S = 1.0  # a camera silent this long (and longer than a set waits) is reported missing
 LOCKSTEP_FRAME_WAIT_S = 10.0  # a step's frames are on their way when it is announced
@@ -83,37 +76,55 @@ LOCKSTEP_FRAME_WAIT_S = 10.0  # a step's frames are on their way when it is anno
 VIEW_GRAPH_PERIOD_S, PARTIAL_VIEW_GRAPH_PERIOD_S = 10.0, 2.0
 
 
+class HealthWatch:
+    """When the worker warns: of frames dropped for slow matching at most once per `WARNING_PERIOD_S`, and of
+    no frame set for `NO_SET_WARNING_S` once per stretch without sets (the statistics show it going on)."""
+
+    def __init__(self, now_s: float) -> None:
+        self.last_set_s = now_s
+        self._dropped = 0  # frames dropped by the last warning
+        self._dropped_warned_s = -WARNING_PERIOD_S
+        self._said_no_set = False
+
+    def frame_set_done(self, now_s: float) -> None:
+        self.last_set_s, self._said_no_set = now_s, False
+
+    def dropped_since_warning(self, dropped: int, now_s: float) -> int:
+        """Frames dropped since the last warning (of `dropped` since start) when a warning is due now, else 0."""
+        if dropped <= self._dropped or now_s - self._dropped_warned_s < WARNING_PERIOD_S:
+            return 0
+        since, self._dropped, self._dropped_warned_s = dropped - self._dropped, dropped, now_s
+        return since
+
+    def silent_s(self, now_s: float) -> float | None:
+        """Seconds without a frame set when a warning is due now, else None."""
+        if self._said_no_set or now_s - self.last_set_s < NO_SET_WARNING_S:
+            return None
+        self._said_no_set = True
+        return now_s - self.last_set_s
+
+
 class MatcherNode:
     """Matches the frames of `rig` published on `session`; `run` until `stop` is set."""
 
     def __init__(self, session, rig: Rig, *, config: MatcherNodeConfig | None = None) -> None:
-        config = MatcherNodeConfig() if config is None else config
+        self.session, self.rig = session, rig
+        self.config = config = MatcherNodeConfig() if config is None else config
         self.stereo = rig_stereo(rig)
-        self.session = session
-        self.rig = rig
-        self.config = config
         self.camera_ids = tuple(c.id for c in rig.cameras)
         self.stop = threading.Event()
-        # Frames of other cameras or sizes are refused from their header, before decoding.
-        self.receiver = FrameReceiver({c: configured_size(rig, c) for c in self.camera_ids})
-        self._matcher_config = config.matcher_config()
-        edge = EdgeConfig(keyframe_period=config.keyframe_period)
-        self._extractors = {c: FeatureExtractor(c, self._matcher_config, edge) for c in self.camera_ids}
-        self._full_pool_detection = False  # the extractors detect as config.full_pool_matcher_config()
-        self._matcher = IncrementalMatcher(self._matcher_config, stereo=self.stereo)
-        self.view_graph = ViewGraph(ViewGraphConfig(explore_per_set=config.explore_pairs),
-                                     always={frozenset((self.stereo.left, self.stereo.right))})
-        self.pairs = (0, 0)  # in the last frame set: pairs matched, pairs of its cameras
+        sizes = {c: configured_size(rig, c) for c in self.camera_ids}
         self._workers = ThreadPoolExecutor(max_workers=max(1, min(len(self.camera_ids), os.cpu_count() or 1)),
                                            thread_name_prefix="detect")
+        # A camera the rig file gives no size joins the pool with its first frame.
+        self.engine = MatchingEngine([camera_info(rig, c, *(sizes[c] or (0, 0))) for c in self.camera_ids],
+                                     self.stereo, config.engine_config(), executor=self._workers)
+        self.receiver = FrameReceiver(sizes)  # frames of other cameras or sizes are refused from their header
         self._ready = threading.Condition()
         self._sync = FrameSynchronizer(self.camera_ids, required=(self.stereo.left, self.stereo.right),
                                        tolerance_ns=round(config.sync_tolerance_ms * 1e6),
-                                       max_wait_s=config.max_wait_s,
-                                       frames_per_camera=config.frames_per_camera)
-        self._sizes = {c: s for c in self.camera_ids if (s := configured_size(rig, c)) is not None}
-        self._pool: TrackPool | None = None
-        self._pool_id = ""
+                                       max_wait_s=config.max_wait_s, frames_per_camera=config.frames_per_camera)
+        self._inbox = lockstep.StepInbox() if config.lockstep else None
         self.rejected = Tally(log)  # frames decoded but not usable, and malformed steps, by kind
         self.failures = Tally(log)  # handlers that raised (matching a frame set, say), by what and type
         self.few_features = Tally(log)  # images with too few keypoints, by camera
@@ -125,22 +136,15 @@ class MatcherNode:
         self._view_graph_s = float("-inf")  # monotonic time the view graph last took a calibration
         self._process_safely = guarded(self.process, self.failures, "matching a frame set")
         self._update_frames = guarded(self.frames.update, self.failures, "subscribing to frames")
-        self.frame_sets_matched = 0
-        self.frame_sets_pooled = 0
         self.latest_capture_ns = 0
         self._stamps: dict[str, int] = {}  # the newest pooled frame set's way through (camnet.bus.latency)
-        self.last_match_s = 0.0
         self.published = 0
         self._dirty = False
         self._latest_document: bytes | None = None
         self._encoder = ObservationsEncoder()
-        self._rate = RateMeter(window_s=10.0)
-        self._last_set_s = time.monotonic()
-        self._warned_s: dict[str, float] = {}
-        self._said_no_set = False
-        self._dropped_at_warning = 0
         self._next_publish_s = float("-inf")  # on the wall clock, or the capture clock in lockstep
-        self._inbox = lockstep.StepInbox() if config.lockstep else None
+        self._rate = RateMeter(window_s=10.0)
+        self._health = HealthWatch(time.monotonic())
 
     # ------------------------------------------------------------ Zenoh's threads
 
@@ -178,11 +182,11 @@ class MatcherNode:
             kind = "features unknown-camera"
         elif key.split("/")[-2] != message.camera_id:
             kind = "features camera-mismatch"
-        elif message.detector != str(self._matcher_config.detector):
+        elif message.detector != str(self.config.detector):
             kind = "features detector-mismatch"
         if kind is not None:
             self.rejected.count(kind, "dropping the features of camera %r (%s; this matcher uses %s)",
-                                message.camera_id, kind, self._matcher_config.detector)
+                                message.camera_id, kind, self.config.detector)
             return
         self.frames.features_arrived(message.camera_id, time.monotonic())
         with self._ready:
@@ -192,17 +196,16 @@ class MatcherNode:
     def _take_calibration(self) -> None:
         """Choose pairs with the latest calibration from now on (the first at once, then one per period)."""
         now_s = time.monotonic()
-        whole = self.view_graph.calibrated >= set(self.camera_ids)
-        if self.view_graph.calibrated and now_s < self._view_graph_s + (
-                VIEW_GRAPH_PERIOD_S if whole else PARTIAL_VIEW_GRAPH_PERIOD_S):
+        calibrated = self.engine.view_graph.calibrated
+        if calibrated and now_s < self._view_graph_s + (
+                VIEW_GRAPH_PERIOD_S if calibrated >= set(self.camera_ids) else PARTIAL_VIEW_GRAPH_PERIOD_S):
             return  # a newer one replaces it in the inbox meanwhile
         calibration = self.calibration.take()
         if calibration is None:
             return
         self._view_graph_s = now_s
-        guarded(self.view_graph.update, self.failures, "taking a calibration")(calibration)  # counted if it raises
-        log.info("calibration of %d cameras: %d overlapping pairs", len(calibration.cameras),
-                 len(self.view_graph.overlapping))
+        take = guarded(self.engine.take_calibration, self.failures, "taking a calibration")  # counted if it raises
+        take(calibration)
 
     def _check(self, frame: Frame, key: str) -> str | None:
         if frame.camera_id not in self.camera_ids:
@@ -225,10 +228,6 @@ class MatcherNode:
             query.reply(keys.observations(self.rig.name), document)
 
     # ------------------------------------------------------------ the worker
-
-    @property
-    def pool(self) -> TrackPool | None:
-        return self._pool
 
     def next_frame_set(self, *, timeout_s: float) -> FrameSet | None:
         """The newest ready frame set, waiting up to `timeout_s` for one."""
@@ -253,90 +252,38 @@ class MatcherNode:
             # Every frame of the step is here: waiting longer for a late camera changes nothing.
             return self._sync.pop(now_s=arrived_s + self.config.max_wait_s)
 
-    def _ensure_pool(self) -> TrackPool:
-        cameras = [camera_info(self.rig, c, *self._sizes[c]) for c in self.camera_ids if c in self._sizes]
-        sizes = [(c.id, c.width, c.height) for c in cameras]
-        if self._pool is None or [(c.id, c.width, c.height) for c in self._pool.cameras] != sizes:
-            if self._pool is not None:
-                log.info("cameras now %s: re-pooling %d tracks", ", ".join(f"{c.id} {c.width}x{c.height}"
-                                                                       for c in cameras), len(self._pool))
-            self._pool = regrow_pool(self._pool, cameras, self.stereo, self.config.pool_config(),
-                                     frame_seq=self.frame_sets_matched)
-            self._pool_id = uuid.uuid4().hex
-        return self._pool
-
     def process(self, frame_set: FrameSet) -> PoolUpdate:
-        """Match one frame set and pool its tracks."""
-        start_s = time.perf_counter()
-        stamps = {"taken": latency.now_ns()}
-        for camera_id, frame in frame_set.frames.items():
-            self._sizes[camera_id] = (frame.width, frame.height)
-        pool = self._ensure_pool()
-        forget_moved(self.calibration.take_moved(), pool, self._matcher)
-        if len(pool) >= self.config.max_tracks and not self._full_pool_detection:
-            self._full_pool_detection = True
-            for extractor in self._extractors.values():
-                extractor.config = self.config.full_pool_matcher_config()
-            log.info("pool full (%d tracks): detecting on images of at most %s px a side from now on", len(pool),
-                     self.config.full_pool_matcher_config().max_image_side_px)
-        cameras = self._matcher.prepare(list(self._workers.map(self._features, frame_set.frames.values())))
-        stamps["detected"] = latency.now_ns()
+        """Forget the cameras the calibrator found moved, take the latest calibration, then match one frame set
+        and pool its tracks."""
+        taken_ns = latency.now_ns()
+        self.engine.forget_moved(self.calibration.take_moved())
         self._take_calibration()
-        ids = [c.camera_id for c in cameras]
-        pairs = self.view_graph.pairs(ids, matched_well=self._matcher.matched_well(
-            self.view_graph.config.good_matches))
-        matches = self._match_pairs(cameras, pairs)
-        stamps["matched"] = latency.now_ns()
-        possible = len(ids) * (len(ids) - 1) // 2
-        self.pairs = (possible if pairs is None else len(pairs), possible)
-        for camera_id, features in zip(matches.camera_ids, matches.features, strict=True):
-            if features.shortage is not None:
-                self.few_features.count(f"few features: {camera_id}", "camera %r: %s", camera_id, features.shortage)
-        tracks = build_tracks(matches)
-        update = pool.add(tracks, frame_seq=self.frame_sets_matched)
-        stamps["pooled"] = latency.now_ns()
-        self.last_match_s = time.perf_counter() - start_s
-        self.frame_sets_matched += 1
+        result = self.engine.process([_engine_item(item) for item in frame_set.frames.values()])
+        for camera_id, reason in result.few_features.items():
+            self.few_features.count(f"few features: {camera_id}", "camera %r: %s", camera_id, reason)
         self._rate.tick()
-        if update.added or update.reobserved:
-            self.frame_sets_pooled += 1
-            if frame_set.timestamp_ns >= self.latest_capture_ns:
-                self.latest_capture_ns, self._stamps = frame_set.timestamp_ns, stamps
+        update = result.update
+        if (update.added or update.reobserved) and frame_set.timestamp_ns >= self.latest_capture_ns:
+            self.latest_capture_ns = frame_set.timestamp_ns
+            self._stamps = {"taken": taken_ns, "detected": result.detected_ns, "matched": result.matched_ns,
+                            "pooled": result.pooled_ns}
         if update.added or update.reobserved or update.evicted:
             self._dirty = True
         missing = f" (without {', '.join(frame_set.missing)})" if frame_set.missing else ""
+        stats = self.engine.stats
         log.info("frame set %d: %d cameras%s, %d of %d pairs, %d tracks (%d seen by 3+), +%d new, pool %d, %.0f ms",
-                 self.frame_sets_matched, len(frame_set.frames), missing, *self.pairs,
-                 len(tracks),
-                 int(np.sum(tracks.views >= 3)), update.added, len(pool), 1e3 * self.last_match_s)
+                 stats.frame_sets_matched, len(frame_set.frames), missing, *result.pairs, result.tracks,
+                 result.tracks_3plus, update.added, stats.tracks_pooled, 1e3 * result.elapsed_s)
         return update
-
-    def _match_pairs(self, cameras: list[CameraFeatures], pairs: set[frozenset[str]] | None) -> FrameSetMatches:
-        """`pairs` of `cameras` (None: all) matched in the thread pool, one pair per task, in the order of
-        one `IncrementalMatcher.match` call. Each task seeds OpenCV's RNG, which is per thread, so a frame
-        set gives the same matches whichever thread takes a pair; tasks touch only their own pair's state."""
-        ids = [c.camera_id for c in cameras]
-        every = [frozenset((a, b)) for i, a in enumerate(ids) for b in ids[i + 1:]]
-        chosen = every if pairs is None else [pair for pair in every if pair in pairs]
-        parts = self._workers.map(lambda pair: self._matcher.match(cameras, pairs={pair}), chosen)
-        return FrameSetMatches(tuple(ids), tuple(c.features for c in cameras),
-                               tuple(matched for part in parts for matched in part.pairs))
-
-    def _features(self, item: Frame | FeaturesMessage) -> CameraFeatures:
-        """The features of one camera's part of a frame set: as its stage sent them, or detected here."""
-        if isinstance(item, FeaturesMessage):
-            return from_message(item)
-        image = to_grey(item.image, encoding=item.encoding)
-        return self._extractors[item.camera_id].extract(image, seq=item.seq, timestamp_ns=item.timestamp_ns)
 
     def message(self) -> ObservationsMessage:
         """The observations message of the pool now."""
-        obs = self._ensure_pool().observations()
+        obs = self.engine.observations()
         # The rig's further known distances, of the cameras pooled so far (one of unknown size joins later).
         baselines = tuple(b for b in self.rig.baselines if {b.a, b.b} <= set(obs.camera_ids))
         return ObservationsMessage(
-            replace(obs, baselines=baselines), rig=self.rig.name, pool_id=self._pool_id,
-            frame_sets=self.frame_sets_pooled, latest_capture_ns=self.latest_capture_ns,
+            replace(obs, baselines=baselines), rig=self.rig.name, pool_id=self.engine.pool_id,
+            frame_sets=self.engine.stats.frame_sets_pooled, latest_capture_ns=self.latest_capture_ns,
             latency_ns=latency.StageStamps.from_stages(self._stamps), published_ns=latency.now_ns())
 
     def sync_counts(self) -> SyncCounts:  # frames received, frame sets formed, frames dropped by synchronization
@@ -346,11 +293,11 @@ class MatcherNode:
     def activity(self) -> Activity:
         counts = self.sync_counts()
         malformed = self.receiver.malformed.total + self.rejected.total
-        pooled = len(self._pool) if self._pool is not None else 0
-        detail = (f"{counts.received} frames in, {pooled} tracks pooled, {self.frame_sets_pooled} sets, "
-                  f"{self.pairs[0]} pairs, match {1e3 * self.last_match_s:.0f} ms, {counts.partial_sets} partial, "
+        stats = self.engine.stats
+        detail = (f"{counts.received} frames in, {stats.tracks_pooled} tracks pooled, {stats.frame_sets_pooled} sets, "
+                  f"{stats.pairs[0]} pairs, match {1e3 * stats.last_match_s:.0f} ms, {counts.partial_sets} partial, "
                   f"{malformed} bad frames")
-        return Activity(fps=round(self._rate.rate(), 2), frames=self.frame_sets_matched, dropped=counts.dropped,
+        return Activity(fps=round(self._rate.rate(), 2), frames=stats.frame_sets_matched, dropped=counts.dropped,
                         detail=detail, cameras=self.cameras_seen())
 
     def cameras_seen(self) -> dict[str, CameraSeen]:
@@ -370,29 +317,20 @@ class MatcherNode:
                                          missing=missing)
         return seen
 
-    def _may_warn(self, kind: str, now_s: float) -> bool:
-        """True at most once per WARNING_PERIOD_S for each kind of warning."""
-        if now_s - self._warned_s.get(kind, -WARNING_PERIOD_S) < WARNING_PERIOD_S:
-            return False
-        self._warned_s[kind] = now_s
-        return True
-
     def _check_health(self, now_s: float) -> None:
         """Say so when frames are dropped for slow matching, or when no frame set forms."""
-        dropped = self.sync_counts().dropped
-        if dropped > self._dropped_at_warning and self.frame_sets_matched and self._may_warn("drop", now_s):
+        stats, dropped = self.engine.stats, self.sync_counts().dropped
+        dropped = self._health.dropped_since_warning(dropped, now_s) if stats.frame_sets_matched else 0
+        if dropped:
             log.warning("matching (%.0f ms per frame set) is slower than the cameras: %d frames dropped "
-                        "since the last warning; the latest frames are matched", 1e3 * self.last_match_s,
-                        dropped - self._dropped_at_warning)
-            self._dropped_at_warning = dropped
-        # Said once per stretch without sets, not every period: the statistics show it going on.
-        if now_s - self._last_set_s >= NO_SET_WARNING_S and not self._said_no_set:
-            self._said_no_set = True
+                        "since the last warning; the latest frames are matched", 1e3 * stats.last_match_s, dropped)
+        silent_s = self._health.silent_s(now_s)
+        if silent_s is not None:
             counts = self.receiver.counts()
             received = ", ".join(f"{c} {counts[c].received if c in counts else 0}" for c in self.camera_ids)
             log.warning("no frame set for %.0f s (frames received: %s); the stereo cameras must publish, "
-                        "with capture times within %.1f ms of each other", now_s - self._last_set_s,
-                        received, self.config.sync_tolerance_ms)
+                        "with capture times within %.1f ms of each other", silent_s, received,
+                        self.config.sync_tolerance_ms)
 
     def _publish_if_due(self, publisher, clock_s: float, *, force: bool = False) -> bool:
         """Publish the pool if it changed and a publish period has passed on `clock_s` (or `force`)."""
@@ -400,7 +338,7 @@ class MatcherNode:
             return False
         # The bytes of encode_observations_message(self.message()), only the tracks that changed encoded anew.
         self._latest_document = self._encoder.encode(self.message())
-        publisher.put(self._latest_document, attachment=pool_attachment(self._ensure_pool()))
+        publisher.put(self._latest_document, attachment=pool_attachment(self.engine.pool))
         self.published += 1
         self._dirty = False
         self._next_publish_s = clock_s + self.config.publish_period_s
@@ -414,8 +352,8 @@ class MatcherNode:
         if frame_set is not None:
             self._process_safely(frame_set)
             # Waiting for the next set starts now: matching time is not a missing set.
-            now_s = self._last_set_s = time.monotonic()
-            self._said_no_set = False
+            now_s = time.monotonic()
+            self._health.frame_set_done(now_s)
         self._publish_if_due(publisher, now_s)
         self._check_health(now_s)
 
@@ -428,7 +366,7 @@ class MatcherNode:
             self._process_safely(frame_set)
         ack = lockstep.Ack(step=step.step, status="matched" if frame_set is not None else "no frame set")
         if self._publish_if_due(publisher, step.capture_ns / 1e9, force=step.final):
-            ack = replace(ack, pool_id=self._pool_id, frame_sets=self.frame_sets_pooled)
+            ack = replace(ack, pool_id=self.engine.pool_id, frame_sets=self.engine.stats.frame_sets_pooled)
         ack_publisher.put(ack.to_json())
 
     def run(self) -> int:
@@ -476,3 +414,11 @@ class MatcherNode:
             self.frames.close()
             self._workers.shutdown()
         return 0
+
+
+def _engine_item(item: Frame | FeaturesMessage) -> CameraImage | CameraFeatures:
+    """One camera's part of a frame set as the engine takes it: its frame's image, or its stage's features."""
+    if isinstance(item, FeaturesMessage):
+        return from_message(item)
+    return CameraImage(item.camera_id, item.image, seq=item.seq, timestamp_ns=item.timestamp_ns,
+                       encoding=item.encoding)

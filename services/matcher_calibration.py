@@ -13,14 +13,14 @@ machine, a router still connecting) gets no answer, so it asks again every
 A published calibration's attachment names the cameras found moved since
 the one before (`camnet.bus.moved`); they are gathered here as they arrive,
 whether or not their calibration is ever taken, for the worker to forget
-(`take_moved`) once each time the calibrator names them. Each observations
+(`take_moved`, `camnet.matching.engine.MatchingEngine.forget_moved`) once each
+time the calibrator names them. Each observations
 message then says from which track on the pool holds a forgotten camera's
 views afresh (`pool_attachment`): the calibrator places it only from those.
 """
 
 from __future__ import annotations
 
-import logging
 import threading
 
 from camnet.bus import keys
@@ -29,10 +29,7 @@ from camnet.bus.node import Tally, guarded
 from camnet.errors import InputError
 from camnet.io.messages import decode_calibration_message
 from camnet.matching.pool import TrackPool
-from camnet.matching.reuse import IncrementalMatcher
 from camnet.model.calibration import Calibration
-
-log = logging.getLogger(__name__)
 
 QUERY_TIMEOUT_S = 5.0  # the calibrator answers from memory; a rig with none yet answers nothing
 ASK_PERIOD_S = 3.0  # asked again this often while no calibration has come
@@ -115,17 +112,6 @@ class CalibrationInbox:
         except InputError as exc:
             self.rejected.count("calibration", "ignoring a calibration that does not parse (%s)", exc)
             return None
-
-
-def forget_moved(moved: tuple[str, ...], pool: TrackPool, matcher: IncrementalMatcher) -> None:
-    """Forget what `pool` and `matcher` hold of each camera in `moved`: its old-pose views would judge its
-    new ones against the old geometry (`TrackPool.forget_camera`); its pairs are matched whole next."""
-    pooled = {c.id for c in pool.cameras}
-    for camera_id in moved:
-        dropped = pool.forget_camera(camera_id) if camera_id in pooled else 0
-        matcher.forget(camera_id)
-        log.info("camera %r moved (the calibrator says): forgot its views, %d tracks left with under two "
-                 "dropped; pool %d", camera_id, dropped, len(pool))
 
 
 def pool_attachment(pool: TrackPool) -> bytes:

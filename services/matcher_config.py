@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 from camnet.errors import InputError
 from camnet.io.rig import Rig
+from camnet.matching.edge import EdgeConfig
+from camnet.matching.engine import EngineConfig
 from camnet.matching.features import Detector, MatcherConfig
 from camnet.matching.pool import PoolConfig
+from camnet.matching.viewgraph import ViewGraphConfig
 from camnet.model.observations import Stereo
 
 
@@ -60,20 +63,13 @@ class MatcherNodeConfig:
             if getattr(self, name) is not None and getattr(self, name) < 16:
                 raise InputError(f"{name}: must be at least 16, got {getattr(self, name)}")
 
-    def matcher_config(self) -> MatcherConfig:
-        return MatcherConfig(detector=self.detector, max_features=self.max_features,
-                             max_image_side_px=self.max_image_side_px, normalise_contrast=self.normalise_contrast)
-
-    def full_pool_matcher_config(self) -> MatcherConfig:
-        """How images are detected once the pool is full."""
-        config = self.matcher_config()
-        side = self.full_pool_image_side_px
-        if side is None or (config.max_image_side_px is not None and config.max_image_side_px <= side):
-            return config
-        return replace(config, max_image_side_px=side)
-
-    def pool_config(self) -> PoolConfig:
-        return PoolConfig(max_tracks=self.max_tracks)
+    def engine_config(self) -> EngineConfig:
+        """The matching engine's part of these options."""
+        return EngineConfig(
+            matcher=MatcherConfig(detector=self.detector, max_features=self.max_features,
+                                  max_image_side_px=self.max_image_side_px, normalise_contrast=self.normalise_contrast),
+            full_pool_image_side_px=self.full_pool_image_side_px, edge=EdgeConfig(keyframe_period=self.keyframe_period),
+            view_graph=ViewGraphConfig(explore_per_set=self.explore_pairs), pool=PoolConfig(max_tracks=self.max_tracks))
 
 
 def rig_stereo(rig: Rig) -> Stereo:

@@ -190,7 +190,7 @@ def test_the_matcher_still_matches_after_the_fuzz(matcher):
     frame_set = matcher.next_frame_set(timeout_s=1.0)
     assert frame_set is not None and set(frame_set.frames) == {"left", "right", "mono_a"}
     matcher.process(frame_set)
-    assert matcher.frame_sets_matched >= 1
+    assert matcher.engine.stats.frame_sets_matched >= 1
 
 
 # ------------------------------------------------------------------ camnet up's listener

@@ -8,7 +8,8 @@ import pytest
 from camnet.datasets.kitti import KittiExtract, parse_calib_cam_to_cam, read_image
 from camnet.errors import InputError
 from camnet.io.formats import observations_to_doc, parse_observations
-from camnet.matching.features import MatcherConfig, match_frame_set
+from camnet.matching.engine import match_frame_set
+from camnet.matching.features import MatcherConfig
 from camnet.matching.pool import PoolConfig, TrackPool
 from camnet.matching.tracks import build_tracks
 from camnet.model.camera import CameraInfo

@@ -13,7 +13,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from camnet.services.matcher import MatcherNode, MatcherNodeConfig
+from camnet.services.matcher import NO_SET_WARNING_S, WARNING_PERIOD_S, HealthWatch, MatcherNode, MatcherNodeConfig
 
 from camnet.bus import keys
 from camnet.bus.frame import Frame, encode_frame
@@ -96,7 +96,7 @@ class Network:
     def progress(self) -> tuple[int, int]:
         """What moves while the matcher works, however slowly (for `wait_for`): frame sets matched,
         observations published."""
-        return self.node.frame_sets_matched, self.count()
+        return self.node.engine.stats.frame_sets_matched, self.count()
 
     def latest(self) -> dict:
         with self.lock:
@@ -220,12 +220,12 @@ def test_a_camera_of_unknown_size_joins_the_pool_when_it_shows_up():
     node_rig = parse_rig(rig_document("grow", v4l2_camera="mono_b"))  # no size in the rig file
     node = MatcherNode(None, node_rig, config=MatcherNodeConfig())  # process() needs no bus
     node.process(render_set(sim_rig, 1_000_000_000, ("left", "right", "mono_a")))
-    assert [c.id for c in node.pool.cameras] == ["left", "right", "mono_a"]
-    pooled, first_pool_id = len(node.pool), node.message().pool_id
+    assert [c.id for c in node.engine.pool.cameras] == ["left", "right", "mono_a"]
+    pooled, first_pool_id = len(node.engine.pool), node.message().pool_id
     assert pooled > 100
     node.process(render_set(sim_rig, 3_000_000_000, tuple(CAMERAS)))
-    assert [(c.id, c.width) for c in node.pool.cameras] == [(c, 640) for c in CAMERAS]
-    assert len(node.pool) > pooled  # the earlier tracks were carried over
+    assert [(c.id, c.width) for c in node.engine.pool.cameras] == [(c, 640) for c in CAMERAS]
+    assert len(node.engine.pool) > pooled  # the earlier tracks were carried over
     message = node.message()
     assert message.pool_id != first_pool_id  # track ids started over
     assert "mono_b" in message.observations.camera_ids and np.any(
@@ -302,3 +302,16 @@ def test_a_camera_with_too_few_features_is_warned_about_once_then_counted(caplog
     warnings = [r.getMessage() for r in caplog.records if "features" in r.getMessage()]
     assert len(warnings) == 1 and "camera 'mono_a'" in warnings[0] and "dark (median grey" in warnings[0]
     assert node.few_features.counts == {"few features: mono_a": 2}
+
+
+def test_the_worker_warns_of_dropped_frames_once_a_period_and_of_no_frame_set_once_a_stretch():
+    watch = HealthWatch(100.0)
+    assert watch.dropped_since_warning(0, 100.0) == 0
+    assert watch.dropped_since_warning(5, 101.0) == 5
+    assert watch.dropped_since_warning(9, 102.0) == 0  # within the period: only counted
+    assert watch.dropped_since_warning(12, 101.0 + WARNING_PERIOD_S) == 7  # those since the last warning
+    assert watch.silent_s(100.0 + NO_SET_WARNING_S - 1.0) is None
+    assert watch.silent_s(100.0 + NO_SET_WARNING_S) == NO_SET_WARNING_S
+    assert watch.silent_s(200.0) is None  # said once for this stretch without sets
+    watch.frame_set_done(200.0)
+    assert watch.silent_s(200.0 + NO_SET_WARNING_S) == NO_SET_WARNING_S

@@ -48,12 +48,13 @@ def pairs_matched(net) -> tuple[list[int], list[tuple[int, int]]]:
     seen: list[tuple[int, int]] = []
 
     def all_six() -> bool:
-        if net.node.frame_sets_matched and (not seen or net.node.pairs != seen[-1]):
-            seen.append(net.node.pairs)
+        stats = net.node.engine.stats
+        if stats.frame_sets_matched and (not seen or stats.pairs != seen[-1]):
+            seen.append(stats.pairs)
         return bool(seen) and seen[-1][0] >= 6
 
     # As long as frame sets are matched (a loaded machine matches them slowly), up to 10 minutes.
-    wait_for(all_six, 120.0, 0.01, progress=lambda: net.node.frame_sets_matched, limit_s=600.0)
+    wait_for(all_six, 120.0, 0.01, progress=lambda: net.node.engine.stats.frame_sets_matched, limit_s=600.0)
     return [matched for matched, possible in seen if possible == 6], seen
 
 
@@ -73,7 +74,7 @@ def test_a_calibration_narrows_the_pairs_and_exploration_finds_the_rest_again(ne
     # What does not parse is counted, and the last calibration stays.
     publisher.put(b"{not a calibration")
     assert wait_for(lambda: net.node.rejected.counts.get("calibration") == 1, 60.0)
-    assert net.node.view_graph.calibrated == {"left", "right", "mono_a", "mono_b"}
+    assert net.node.engine.view_graph.calibrated == {"left", "right", "mono_a", "mono_b"}
     assert wait_for(lambda: net.count() >= 1 and any("mono_b" in t["observations"]
                                                      for t in net.latest()["tracks"]), 60.0)
 
@@ -94,7 +95,7 @@ def test_a_matcher_started_after_the_calibrator_asks_it_for_the_latest_calibrati
         net.start_driver(camera_id["id"])
     full, seen = pairs_matched(net)
     assert full and full[0] == 4, seen  # the view graph's pairs from the first frame set on
-    assert net.node.view_graph.calibrated == {"left", "right", "mono_a", "mono_b"}
+    assert net.node.engine.view_graph.calibrated == {"left", "right", "mono_a", "mono_b"}
 
 
 
@@ -151,7 +152,7 @@ def test_the_view_graph_is_renewed_from_the_newest_calibration_at_most_once_a_pe
         payload = json.dumps(calibration_with_mono_b_elsewhere(rig)).encode()
         node.calibration.on_sample(_Sample(payload))
         node._take_calibration()
-        assert node.view_graph.calibrated == {"left", "right", "mono_a", "mono_b"}
+        assert node.engine.view_graph.calibrated == {"left", "right", "mono_a", "mono_b"}
         assert not node.calibration.waiting
         node.calibration.on_sample(_Sample(payload))
         node._take_calibration()
@@ -175,14 +176,14 @@ def test_a_calibration_that_leaves_a_camera_out_is_renewed_sooner():
         partial = {**whole, "cameras": [c for k, c in enumerate(whole["cameras"]) if k != index]}
         node.calibration.on_sample(_Sample(json.dumps(partial).encode()))
         node._take_calibration()
-        assert node.view_graph.calibrated == {"left", "right", "mono_a"}
+        assert node.engine.view_graph.calibrated == {"left", "right", "mono_a"}
         for _ in range(2):
             node.calibration.on_sample(_Sample(json.dumps(whole).encode()))
             node._take_calibration()
             assert node.calibration.waiting  # not at once: every calibration would be parsed
             node._view_graph_s -= PARTIAL_VIEW_GRAPH_PERIOD_S
             node._take_calibration()
-        assert node.view_graph.calibrated == {"left", "right", "mono_a", "mono_b"}
+        assert node.engine.view_graph.calibrated == {"left", "right", "mono_a", "mono_b"}
         assert node.calibration.waiting  # the second: every camera held, the long period
         node._view_graph_s -= VIEW_GRAPH_PERIOD_S
         node._take_calibration()

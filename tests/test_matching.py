@@ -6,12 +6,12 @@ import cv2
 import numpy as np
 import pytest
 
+from camnet.matching.engine import match_frame_set
 from camnet.matching.features import (
     Detector,
     Features,
     MatcherConfig,
     detect,
-    match_frame_set,
     match_pair,
     mutual_ratio_matches,
     stereo_candidate_mask,

@@ -14,7 +14,8 @@ import pytest
 
 from camnet.datasets.kitti import KittiExtract, read_image
 from camnet.datasets.temple import read_cameras as read_temple_cameras
-from camnet.matching.features import MatcherConfig, detect, match_frame_set, to_grey
+from camnet.matching.engine import match_frame_set
+from camnet.matching.features import MatcherConfig, detect, to_grey
 from camnet.matching.tracks import build_tracks
 from tests._groundtruth import (
     KITTI_ROOT,

@@ -8,7 +8,8 @@ from camnet.drivers.base import create_camera
 
 from camnet.io.rig import load_rig
 from camnet.live.policy import LiveConfig, judge
-from camnet.matching.features import MatcherConfig, match_frame_set
+from camnet.matching.engine import match_frame_set
+from camnet.matching.features import MatcherConfig
 from camnet.matching.pipeline import observations_from_frame_sets
 from camnet.model.accuracy import compare_cameras
 from camnet.model.camera import CameraInfo

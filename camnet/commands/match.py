@@ -3,7 +3,10 @@
 Each IMAGE is ``PATH``, whose camera id is the file name without its
 extension (``cam0.png`` is camera ``cam0``), or ``ID=PATH``. The rig file
 names the cameras and the stereo pair with its known distance; its cameras
-need no driver, and their sizes come from the images.
+need no driver, and their sizes come from the images. The images go through
+the matcher node's engine (`camnet.matching.engine`) with the node's
+options, so they give the tracks a live rig gives on its first frame set of
+the same images.
 """
 
 from __future__ import annotations
@@ -82,9 +85,9 @@ def run(args: argparse.Namespace) -> int:
     from camnet.errors import InputError
     from camnet.io.formats import observations_to_doc, write_json_atomic
     from camnet.io.rig import camera_info, configured_size, load_rig
-    from camnet.matching.features import Detector, MatcherConfig
+    from camnet.matching.features import Detector
     from camnet.matching.pipeline import observations_from_frame_sets
-    from camnet.services.matcher import rig_stereo
+    from camnet.services.matcher import MatcherNodeConfig, rig_stereo
 
     rig = load_rig(args.rig)
     stereo = rig_stereo(rig)
@@ -96,9 +99,10 @@ def run(args: argparse.Namespace) -> int:
     paths = image_paths(args.images, camera_ids)
     images = {c: read_image(paths[c], configured_size(rig, c)) for c in camera_ids}
     cameras = [camera_info(rig, c, images[c].shape[1], images[c].shape[0]) for c in camera_ids]
-    config = MatcherConfig(detector=Detector(args.detector), max_features=args.max_features,
-                           max_image_side_px=args.max_image_side_px, normalise_contrast=args.normalise_contrast)
-    obs = observations_from_frame_sets([images], cameras=cameras, stereo=stereo, matcher=config)
+    # The matcher node's engine with the node's options: these images give the tracks the live rig's would.
+    config = MatcherNodeConfig(detector=Detector(args.detector), max_features=args.max_features,
+                               max_image_side_px=args.max_image_side_px, normalise_contrast=args.normalise_contrast)
+    obs = observations_from_frame_sets([images], cameras=cameras, stereo=stereo, config=config.engine_config())
     if len(obs.track_ids) == 0:
         raise InputError("no tracks: no two images share verified matches (see the warnings above); "
                          "are these images of one scene, taken at one instant?")

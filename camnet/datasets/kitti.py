@@ -136,13 +136,14 @@ def read_image(path: str | Path) -> np.ndarray:
 def pooled_observations(kitti: KittiExtract, *, max_tracks: int = 3000) -> Observations:
     """The extract's frame sets matched and pooled into tracks as camnet's matcher does (SIFT), with
     the cameras' sizes and nothing else known of them."""
-    from camnet.matching.pipeline import observations_from_frame_sets  # SIFT and the pool: only when asked
+    from camnet.matching.engine import EngineConfig  # SIFT and the pool: only when asked
+    from camnet.matching.pipeline import observations_from_frame_sets
     from camnet.matching.pool import PoolConfig
 
     infos = [CameraInfo(c.id, c.width, c.height) for c in kitti.cameras.values()]
     frame_sets = ({c: read_image(p) for c, p in f.images.items()} for f in kitti.frames())
     return observations_from_frame_sets(frame_sets, cameras=infos, stereo=kitti.stereo,
-                                        pool=PoolConfig(max_tracks=max_tracks))
+                                        config=EngineConfig(pool=PoolConfig(max_tracks=max_tracks)))
 
 
 # What a user may know before calibrating, from nothing to everything but the poses.

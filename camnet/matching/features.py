@@ -1,8 +1,8 @@
 """Features and pairwise matching for one synchronized frame set.
 
-Pure functions on numpy arrays: no I/O, no bus. The matcher node calls
-`match_frame_set` once per frame set and hands the result to
-`camnet.matching.tracks.build_tracks`.
+Pure functions on numpy arrays: no I/O, no bus. The matching engine
+(`camnet.matching.engine`) detects with them, and matches a pair whole with
+`match_pair` (`camnet.matching.reuse`).
 
 Conventions: pixels ``(u, v)``, ``u`` to the right, ``v`` down, origin at the
 centre of the top-left pixel (OpenCV's keypoint convention, so keypoints are
@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import enum
 import logging
-from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import cv2
@@ -28,7 +27,6 @@ from camnet.matching.images import (  # noqa: F401 (re-exported: the matcher's i
     to_8bit,
     to_grey,
 )
-from camnet.model.observations import Stereo
 
 log = logging.getLogger(__name__)
 
@@ -331,45 +329,3 @@ def match_pair(
         empty = np.empty(0, dtype=np.int64)
         return PairMatches(a, b, empty, empty, None, len(ia))
     return PairMatches(a, b, ia[inliers], ib[inliers], F, len(ia))
-
-
-def match_frame_set(
-    images: Mapping[str, np.ndarray] | Sequence[tuple[str, np.ndarray]],
-    config: MatcherConfig = MatcherConfig(),
-    *,
-    stereo: Stereo | None = None,
-    seed: int = 0,
-) -> FrameSetMatches:
-    """Detect in every image and match every pair of cameras.
-
-    `images` maps camera id to the image of one trigger. If `stereo` is a
-    parallel head (`stereo.parallel`) of two of those cameras and
-    `config.use_stereo_prior` is set, the pair (stereo.left, stereo.right) is
-    matched under the near-epipolar prior; all other pairs (each camera
-    against left, right and every other camera), and a pair that is not a
-    parallel head, are matched without it.
-    OpenCV's RNG of the calling thread is seeded with `seed` first, so the
-    matches are a function of the images alone.
-    """
-    # USAC keeps its own fixed state today, but OpenCV's other robust estimators draw from the
-    # thread's RNG, which the renderer and other callers in this thread also move.
-    cv2.setRNGSeed(seed)
-    items = list(images.items()) if isinstance(images, Mapping) else list(images)
-    camera_ids = tuple(cam_id for cam_id, _ in items)
-    if len(set(camera_ids)) != len(camera_ids):
-        raise ValueError(f"duplicate camera ids in frame set: {camera_ids}")
-    features = tuple(detect(img, config) for _, img in items)
-    prior_pair = None
-    use_prior = stereo is not None and stereo.parallel and config.use_stereo_prior
-    if use_prior and {stereo.left, stereo.right} <= set(camera_ids):
-        prior_pair = (camera_ids.index(stereo.left), camera_ids.index(stereo.right))
-    pairs = []
-    for i in range(len(items)):
-        for j in range(i + 1, len(items)):
-            if prior_pair == (j, i):
-                # Run the prior with left as `a`: the disparity sign depends on it.
-                m = match_pair(features[j], features[i], config, stereo_prior=True, a=j, b=i)
-            else:
-                m = match_pair(features[i], features[j], config, stereo_prior=prior_pair == (i, j), a=i, b=j)
-            pairs.append(m)
-    return FrameSetMatches(camera_ids, features, tuple(pairs))

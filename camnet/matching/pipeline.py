@@ -1,24 +1,22 @@
-"""Images to observations: the matcher's chain, as one pure function.
+"""Images to observations: the matching engine over frame sets given at once, and what a user knows of K.
 
-Per synchronized frame set: features and pairwise matches
-(`camnet.matching.features.match_frame_set`), multi-view tracks
-(`camnet.matching.tracks.build_tracks`), pooled over frame sets
-(`camnet.matching.pool.TrackPool`). The matcher node runs the same chain one
-frame set at a time; offline runs, tests and benchmarks call this function.
+`observations_from_frame_sets` runs `camnet.matching.engine.MatchingEngine`,
+the engine behind the matcher node, over frame sets in capture order: offline
+runs (`camnet match`), datasets, tests and benchmarks find what a live rig
+finds in the same frames.
 """
 
 from __future__ import annotations
 
 import logging
-import time
+import os
 from collections.abc import Iterable, Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 
 import numpy as np
 
-from camnet.matching.features import MatcherConfig, match_frame_set
-from camnet.matching.pool import PoolConfig, TrackPool
-from camnet.matching.tracks import build_tracks
+from camnet.matching.engine import CameraImage, EngineConfig, MatchingEngine
 from camnet.model.camera import FIXABLE, Camera, CameraInfo
 from camnet.model.observations import Observations, Stereo
 from camnet.model.projection import full_dist
@@ -31,46 +29,36 @@ def observations_from_frame_sets(
     *,
     cameras: Sequence[CameraInfo],
     stereo: Stereo,
-    matcher: MatcherConfig | None = None,
-    pool: PoolConfig | None = None,
+    config: EngineConfig | None = None,
 ) -> Observations:
-    """Pool the tracks of every frame set into one observation set.
+    """Pool the tracks of every frame set into one observation set, as the matcher node pools a live rig's.
 
     `frame_sets`: in capture order, each maps camera id to the image (uint8
-    grey (H, W) or BGR (H, W, 3)) taken at one trigger; a frame set may hold
-    any subset of `cameras`. `cameras` lists every camera of the rig, with
-    whatever is known of it (K, dist, fixed), which the observations carry.
-    `matcher` and `pool` default to MatcherConfig() and PoolConfig().
+    or uint16, grey (H, W) or BGR (H, W, 3)) taken at one trigger; a frame set
+    may hold any subset of `cameras`. `cameras` lists every camera of the rig,
+    with whatever is known of it (K, dist, fixed), which the observations
+    carry. `config` defaults to EngineConfig(), the matcher node's defaults.
     Logs one progress line per frame set, and a warning the first time a
     camera's image yields too few features, saying why (then only counts them).
     """
-    matcher = MatcherConfig() if matcher is None else matcher
-    track_pool = TrackPool(cameras, stereo, PoolConfig() if pool is None else pool)
     short: dict[str, int] = {}  # frame sets in which a camera had too few features
-    for seq, images in enumerate(frame_sets):
-        t0 = time.perf_counter()
-        matches = match_frame_set(images, matcher, stereo=stereo)
-        for camera_id, features in zip(matches.camera_ids, matches.features, strict=True):
-            if features.shortage is not None:
+    with ThreadPoolExecutor(max_workers=max(1, min(len(cameras), os.cpu_count() or 1)),
+                            thread_name_prefix="match") as workers:
+        engine = MatchingEngine(cameras, stereo, EngineConfig() if config is None else config, executor=workers)
+        for seq, images in enumerate(frame_sets):
+            result = engine.process([CameraImage(camera_id, image, seq=seq) for camera_id, image in images.items()])
+            for camera_id, reason in result.few_features.items():
                 if camera_id not in short:
-                    log.warning("camera %r: %s", camera_id, features.shortage)
+                    log.warning("camera %r: %s", camera_id, reason)
                 short[camera_id] = short.get(camera_id, 0) + 1
-        tracks = build_tracks(matches)
-        update = track_pool.add(tracks, frame_seq=seq)
-        log.info(
-            "frame set %d (cameras %s): %d tracks, %d new, %d re-observed, pool %d (%.1f s)",
-            seq,
-            ",".join(sorted(images)),
-            update.offered,
-            update.added,
-            update.reobserved,
-            len(track_pool),
-            time.perf_counter() - t0,
-        )
+            update = result.update
+            log.info("frame set %d (cameras %s): %d of %d pairs, %d tracks, %d new, %d re-observed, pool %d (%.1f s)",
+                     seq, ",".join(sorted(images)), *result.pairs, update.offered, update.added, update.reobserved,
+                     len(engine.pool), result.elapsed_s)
     for camera_id, count in short.items():
         if count > 1:
             log.warning("camera %r: too few features in %d frame sets", camera_id, count)
-    return track_pool.observations()
+    return engine.observations()
 
 
 def with_known_intrinsics(

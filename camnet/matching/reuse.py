@@ -48,6 +48,7 @@ from camnet.matching.features import (
     MatcherConfig,
     PairMatches,
     candidate_matches,
+    match_pair,
     ransac_fundamental,
 )
 from camnet.matching.seen import SeenBefore
@@ -183,15 +184,14 @@ class IncrementalMatcher:
         if state is None and not self._probe(fa.features, fb.features, prior=prior):
             return PairMatches(a, b, empty, empty, None, 0)
         if state is None or state.keyframes != keyframes:
-            ia, ib = candidate_matches(fa.features, fb.features, config, stereo_prior=prior)
+            matched = match_pair(fa.features, fb.features, config, stereo_prior=prior, a=a, b=b)
             self.compared += len(fa.features) * len(fb.features)
-            F, inliers = ransac_fundamental(fa.features.uv[ia], fb.features.uv[ib], config)
             self.whole += 1
-            if F is None or inliers.sum() < config.min_matches:
+            if matched.F is None:
                 self._pairs.pop(key, None)
-                return PairMatches(a, b, empty, empty, None, len(ia))
-            self._pairs[key] = PairState(keyframes, F, int(inliers.sum()))
-            return PairMatches(a, b, ia[inliers], ib[inliers], F, len(ia))
+            else:
+                self._pairs[key] = PairState(keyframes, matched.F, len(matched))
+            return matched
         self.incremental += 1
         ia, ib = _new_candidates(fa, fb, config, prior=prior, operands=self._new_operands(fa, fb))
         self.compared += (len(fa.features) - fa.reused) * (len(fb.features) - fb.reused)
