@@ -6,9 +6,9 @@ camera toed in by `--yaws` degrees, at default options, and prints per
 family and toe-in: how many seeds the rule freed the yaw on, how many carry
 the held yaw's warning, the share of scale errors within 3 reported sigmas
 (the pair's held rotation at `pair_tolerance_deg`), the same share for the
-sigma conditional on the pair being exactly parallel (what was reported
-before; taken from the same covariance, conditioned on the held axes), the
-median sigmas and error, and the largest error in reported sigmas.
+sigma conditional on the pair being exactly parallel (taken from the same
+covariance, conditioned on the held axes), the median sigmas and error, and
+the largest error in reported sigmas.
 
     python benchmarks/bench_held_pair.py [--families ring_K] [--yaws 0,0.05,0.1,0.2] [--seeds 0-19]
         [--tolerance-deg 0.08]

@@ -8,7 +8,7 @@ windows of every (slots / sets)-th slot) and solves each as the live
 calibrator does (LiveConfig). Prints per window and camera:
 
 - the focal length's error over its reported sigma (z), the scale's, and
-  the share of |z| < 3 (honest sigmas: about 99.7%; the issue asks 95%);
+  the share of |z| < 3 (honest sigmas: about 99.7%; the target is 95%);
 - the same focal errors over the part of each sigma that the observations
   give: the rest is the prior on the guessed principal point, which in
   this simulation is exact, so it widens the sigma without adding error;
@@ -29,8 +29,8 @@ its true projection plus independent noise of its camera's RMS at the truth;
 those; a " strict" suffix solves without the floor under the outlier
 threshold (Options.min_outlier_px = 0).
 
-Matching 1280x1024 images is slow (20-90 s per frame set of nine on a busy
-2-core machine); `--cache DIR` keeps each slot's tracks so that later runs only solve.
+Matching 1280x1024 images is slow (tens of seconds per frame set of nine);
+`--cache DIR` keeps each slot's tracks so that later runs only solve.
 
     python benchmarks/bench_surround_sigmas.py [--slots 36] [--sets 6] [--cache DIR] [--interleaved]
         [--variants pooled,no false,...] [--epipolar-px 0]

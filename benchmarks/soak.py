@@ -72,8 +72,8 @@ def growth(samples: list[dict], settle_s: float = SETTLE_S) -> dict[str, float]:
 
     A floor is the least of a minute's samples, not one sample: the calibrator's RSS rises by up to a
     quarter while it solves (its working memory, given back after each solve) and the matcher's by a
-    tenth while glibc holds freed blocks, so one sample caught at either end made a node whose floor
-    stayed within 1% look 25% larger or smaller. A leak raises the floor.
+    tenth while glibc holds freed blocks, so one sample caught at either end can make a node whose floor
+    is flat look a quarter larger or smaller. A leak raises the floor.
     """
     settled = [s for s in samples if s["t_s"] >= settle_s] or samples[-1:]
     first_s, last_s = settled[0]["t_s"], samples[-1]["t_s"]

@@ -70,22 +70,22 @@ ERROR_RANGE_PX = (0.0, 2.0)
 REJECTED_RGB = (128, 128, 128)
 JPEG_QUALITY = 80
 OPEN_TIMEOUT_S = 5.0
-# What `--rerun serve` keeps for viewers that connect later; static data is kept beyond it. With Rerun's
-# default of 1 GiB a calibrator grew by about 2 MB a solve of 16 cameras with their frames (170 -> 789 MB
-# over 300 solves), for hours at a few solves a minute. A viewer that connects gets the latest solves,
-# then the live stream.
+# What `--rerun serve` keeps for viewers that connect later; static data is kept beyond it. Rerun's default
+# of 1 GiB lets a calibrator grow with every solve for hours at a few solves a minute (docs/benchmarks.md,
+# "Sixteen cameras across hosts"). A viewer that connects gets the latest solves, then the live stream.
 SERVE_MEMORY_LIMIT = "16MiB"
 # A recording that is only saved is read after the run: its log calls are batched for this long (or this
 # many bytes), so that a solve's few dozen small calls (one chunk each per entity, each chunk framed with
-# its own schema, about 1.3 kB) share their framing with the solves beside them. At Rerun's default of
-# 200 ms a file grew by 49 kB a solve of 4 cameras and 300 points, whose data take 6 kB. A viewer (spawn,
-# connect, serve) keeps that default: it sees each solve as it comes. `close_recording` writes what is held.
+# its own schema, about 1.3 kB) share their framing with the solves beside them: at Rerun's default of
+# 200 ms the framing outweighs a small solve's data (docs/benchmarks.md, "Bus, recording, Rerun"). A viewer
+# (spawn, connect, serve) keeps that default: it sees each solve as it comes. `close_recording` writes what
+# is held.
 SAVE_FLUSH_S = 30.0
 SAVE_FLUSH_BYTES = 16 * 2**20
 # A camera's latest frame is logged with a solve at most this often (capture time). Logged at every solve, the
-# frames' JPEGs were most of a saved recording (config/sim.yaml, 4 cameras at 1280x1024: 530 of 656 kB a
-# solve; 152-161 kB a solve with this period: docs/benchmarks.md), though a static camera's frame barely changes. The
-# viewer draws a solve's observations over the camera's latest image at the time cursor, an older one included.
+# frames' JPEGs are most of a saved recording (docs/benchmarks.md, "Bus, recording, Rerun"), though a static
+# camera's frame barely changes. The viewer draws a solve's observations over the camera's latest image at the
+# time cursor, an older one included.
 FRAME_PERIOD_S = 10.0
 
 # Solves counted per recording; weak keys so a dropped recording leaves nothing behind.
@@ -109,9 +109,9 @@ def open_recording(
     """
     if not sinks:
         return None
-    # Rerun's allocator (mimalloc) with its default purge delay kept much of what each solve's logging
-    # freed: served (16 MiB), 16 frames and a 5000-track calibration a solve, a process grew 238 -> 283 MB
-    # from solve 25 to 300; with 0 it held 193-198 MB. Read once, as Rerun loads; an operator's setting stands.
+    # Rerun's allocator (mimalloc) with its default purge delay keeps much of what each solve's logging
+    # frees, and a served process grows (docs/benchmarks.md, "Sixteen cameras across hosts"). Read once, as
+    # Rerun loads; an operator's setting stands.
     os.environ.setdefault("MIMALLOC_PURGE_DELAY", "0")
     import rerun as rr
 

@@ -5,9 +5,8 @@ subscriber on the same host: into a Zenoh buffer, then into the shared
 memory Zenoh passes large messages through. Copied once into a
 shared-memory buffer of our own instead, it goes out with no further copy
 (a subscriber on another host gets it over the network as before; Zenoh
-copies it out of shared memory for that link). Measured on loopback,
-1280x1024 mono8: 8-35% less publisher CPU per frame
-(benchmarks/bench_bus.py).
+copies it out of shared memory for that link), which saves publisher CPU
+(docs/benchmarks.md, "Bus, recording, Rerun"; benchmarks/bench_bus.py).
 
 The shared-memory API (`zenoh.shm`) is marked unstable in Zenoh: where it
 is missing, fails to set up, or has no room left (subscribers still hold
@@ -15,10 +14,9 @@ earlier frames), a message goes out as bytes, as before. `shared` and
 `copied` count which way the frames went, `pools` the pools set up.
 
 The driver node leaves it off by default (`DriverNode(shared_memory=...)`):
-with 8 cameras at 60 fps on a loaded 2-core host, frames through shared
-memory were lost (165-371 of 2400) where the same node putting bytes lost
-0-92 and bare Zenoh none; subscribers fell behind by up to 0.8 s
-(docs/bus-benchmark.md).
+at high frame rates on a loaded host, frames through shared memory are lost
+where the same node putting bytes loses few or none, and subscribers fall
+behind (docs/benchmarks.md, "Bus, recording, Rerun"; docs/bus-benchmark.md).
 """
 
 from __future__ import annotations

@@ -22,7 +22,8 @@ import functools
 import threading
 import time
 
-TRIM_PERIOD_S = 5.0  # the matcher solves a frame set in 0.1-0.5 s: trimming every 5 s costs nothing measurable
+# Trimming a matcher's heap this often costs under 1% of a core (docs/benchmarks.md, "Sixteen cameras across hosts").
+TRIM_PERIOD_S = 5.0
 
 
 @functools.cache

@@ -10,9 +10,9 @@ newer calibration replaces one the matcher has not taken. The document itself
 stays as the formats contract says (its ``moved`` key names the moves found
 by that solve; the attachment also those of solves not published).
 
-Until the matcher has forgotten a moved camera, its new views were judged
-against its pairs' old epipolar geometry: the few that pass fit a wrong pose
-well (mono_b once published 0.3 m off at a 15 mm sigma). Each observations
+Until the matcher has forgotten a moved camera, its new views are judged
+against its pairs' old epipolar geometry: the few that pass can fit a wrong
+pose well (docs/benchmarks.md, "A moved camera"). Each observations
 message the matcher publishes therefore says, in its attachment
 ``{"forgotten": {camera id: track id}}``, from which track on it pooled each
 camera's views afresh (after the calibrator named it, or after its own pool

@@ -73,7 +73,8 @@ class NodeStats:
     cameras: dict[str, CameraSeen] = field(default_factory=dict)
 
     def to_json(self) -> bytes:
-        # Written out field by field: dataclasses.asdict took 80 us, in a driver's frame loop every second.
+        # Written out field by field: dataclasses.asdict, which deep-copies, is too slow for a driver's frame
+        # loop, where this runs every second (docs/benchmarks.md, "Evidence behind the nodes' choices").
         doc = {"format": STATS_FORMAT, "rig": self.rig, "kind": self.kind, "node_id": self.node_id,
                "fps": self.fps, "frames": self.frames, "dropped": self.dropped,
                "timestamp_ns": self.timestamp_ns, "detail": self.detail, "faults": dict(self.faults),

@@ -1,12 +1,10 @@
 """A long pool's cold solve: its newest tracks first, then the whole pool warm from their solution.
 
 A track pool (camnet.matching.pool) numbers its tracks in time and keeps
-the newest; its oldest tracks are the falsest. On config/surround.yaml's
-pools of 5000 tracks (benchmarks/bench_cold_pool.py, rendered every 7.5 s)
-the multi-view tracks of the older half were 37-42% false against the
-truth, of the newer half 5-9%, and a cold solve of the whole pool placed
-the cameras facing away from the head wrong, where one started on the
-newest 2500 placed them all. The live calibrator (camnet.live.tracker)
+the newest; its oldest tracks are the falsest, so a cold solve of a whole
+long pool can place cameras wrong that a solve started on its newest
+tracks places right (docs/benchmarks.md, "The surround rig, live";
+benchmarks/bench_cold_pool.py). The live calibrator (camnet.live.tracker)
 and `camnet calibrate` both start a long pool so (`solve_newest_first`),
 each solve judged by the live policy's check and solved again without the
 cameras it finds placed wrong (camnet.live.judged_solve).
@@ -32,7 +30,8 @@ from camnet.solve import Options
 
 # A pool of at least twice as many tracks starts on its newest this many (the matcher's pool of 5000
 # is full after two frame sets of nine cameras). A smaller pool is of a frame set or two, whose ids
-# say nothing of age: on one 9-camera frame set starting on its newest tracks cost 31 s against 8 s.
+# say nothing of age: starting it on its newest tracks only costs time (docs/benchmarks.md,
+# "Evidence behind the solver's thresholds").
 START_TRACKS = 2500
 
 

@@ -26,11 +26,10 @@ from camnet.solve import Options
 # What a live rig estimates by default: focal lengths, poses and the pair's
 # small misalignment. Principal points and distortion stay as given (image
 # centre and none when nothing is given; the reported sigmas include what a
-# guessed principal point may cost). On the simulated rigs' live tracks
-# (thousands of points, 0.25 px RMS) the principal points are not determined
-# (sigmas of thousands of pixels) and freeing k1, k2 beside the pair's yaw
-# costs a factor of 5 in focal sigma and biased every focal length alike by
-# 0.25%; with this set the focal errors stay within 0.15%. Lenses with
+# guessed principal point may cost). Live tracks of a simulated rig do not
+# determine the principal points, and freeing k1, k2 beside the pair's yaw
+# widens the focal sigmas several times and biases every focal length alike
+# (docs/benchmarks.md, "The live network"). Lenses with
 # visible distortion need their dist given, or
 # `--free f,k1,k2,stereo_rotation,stereo_direction`. A fisheye camera's four
 # coefficients move unless given (`fisheye`, camnet.solve.free_rule): they are its lens.
@@ -52,8 +51,8 @@ class SoundnessLimits:
     """
 
     max_rms_px: float = 3.0
-    # A camera placed wrong fits its two-view tracks anyway and loses most of the others as outliers:
-    # on the surround rig 8-28% kept for cameras 0.5-1.7 m off, 80-99% for every camera placed right.
+    # A camera placed wrong fits its two-view tracks anyway and loses most of the others as outliers,
+    # where a camera placed right keeps most of its own (docs/benchmarks.md, "The surround rig, live").
     min_inlier_share: float = 0.5
     focal_range_rel: tuple[float, float] = FOCAL_RANGE_REL
 

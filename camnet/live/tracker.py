@@ -12,9 +12,9 @@ last good one is the live policy's (camnet.live.policy).
 A matcher that says which cameras' views it forgot (`camnet.bus.moved`) is
 heard: a camera found moved here is left out, by name, until the matcher's
 pool holds its views afresh (those since the move were judged against its
-old epipolar geometry, and the few kept fit a wrong pose: once 0.3 m off at
-a 15 mm sigma), then placed again from those alone; one the matcher found
-moved first is placed again from its views since.
+old epipolar geometry, and the few kept can fit a wrong pose well:
+docs/benchmarks.md, "A moved camera"), then placed again from those alone;
+one the matcher found moved first is placed again from its views since.
 """
 
 from __future__ import annotations
@@ -203,8 +203,8 @@ class Tracker:
                     for c, px in off.items()}
         for c in moved:
             rms_px = stats[c].rms_px if c in stats else None
-            # Its new views fit a wrong pose worse than its old ones fitted the old: once 0.51 m off at 0.52 px
-            # (0.23 before the move), with a 12 mm sigma.
+            # Placed wrong, its new views fit the pose worse than its old ones fitted the old, while its sigma
+            # can still look small: the RMS tells (docs/benchmarks.md, "Evidence behind the solver's thresholds").
             if c not in unplaced and rms_px is not None and before[c] and rms_px > MOVED_RMS_FACTOR * before[c]:
                 unplaced[c] = (f"moved, not placed again yet (its views since the move fit the pose solved at RMS "
                                f"{rms_px:.2f} px, over {MOVED_RMS_FACTOR:g} times its {before[c]:.2f} px before); "
@@ -215,7 +215,8 @@ class Tracker:
         """`obs` with the lens of each moved camera (K, dist) held as last calibrated, while it is placed again.
 
         A bump moves a camera, not its lens. Placed on its few new tracks with its focal length free, it could
-        trade distance for focal length (a dolly zoom): placed so, 194 mm off with f 700 -> 523 px.
+        trade distance for focal length (a dolly zoom; docs/benchmarks.md, "Evidence behind the solver's
+        thresholds").
         """
         calibrated = {c: camera for c, (camera, _) in self._pending.items() if c in self._reset}
         return replace(obs, cameras=tuple(
@@ -228,8 +229,8 @@ class Tracker:
         lens free; (that calibration, {}) where it is good and still places them on their new views, else
         (None, the moved cameras with why).
 
-        Held, a lens counts as known exactly and the sigmas are too small: live, mono_b placed again 5.8 mm off
-        at a reported 1.2 mm; a scale sigma of 0.3% where the solve after, its lens free, gave 1.4%.
+        Held, a lens counts as known exactly and the sigmas are too small (docs/benchmarks.md, "A moved
+        camera").
         """
         held = {c for c, (camera, _) in self._pending.items() if c in self._reset and camera.model
                 == obs.cameras[obs.index_of(c)].model} & {c.id for c in placed.calibration.cameras}
@@ -273,8 +274,9 @@ class Tracker:
                 unplaced |= unplaced_free
             if unplaced:
                 # A moved camera that its few new tracks cannot place yet must not send the rest cold (a cold
-                # solve placed it from those few, once 1.4 m off at 5 sigma), nor stand where its new views
-                # say it is not. The others are solved warm and it is named, until its new tracks place it.
+                # solve places it from those few, and can place it far off within a few sigmas), nor stand
+                # where its new views say it is not. The others are solved warm and it is named, until its new
+                # tracks place it (docs/benchmarks.md, "Evidence behind the solver's thresholds").
                 rest = solve_judged(obs, initial, options=self.config.options, check=check, reset=(),
                                     leave_out=unplaced)
                 if rest.status == Status.GOOD:

@@ -3,8 +3,9 @@
 The same numbers as numpy's reductions over the last axis (``np.sum(x * x,
 axis=1)``, ``np.linalg.norm(x, axis=1)``), bit for bit: those add the two or
 three products of a row in this order too. A reduction pays a per-row cost
-that a column-wise sum does not: for 10,000 rows 0.15 to 0.3 ms against
-0.03 ms, and a solve's report takes a dozen of them.
+that a column-wise sum does not, several times the sum's own on rows this
+short, and a solve's report takes a dozen of them (docs/benchmarks.md,
+"Evidence behind the solver's thresholds").
 """
 
 from __future__ import annotations

@@ -76,7 +76,8 @@ def _clip_near(points_cam: np.ndarray) -> np.ndarray:
 
 
 def _triple(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> float:
-    """(a x b) . c of 3-vectors, written out: np.cross took a third of a sim frame's rendering."""
+    """(a x b) . c of 3-vectors, written out: np.cross's overhead on single vectors costs a sim frame dearly
+    (docs/benchmarks.md, "Evidence behind the nodes' choices")."""
     return float((a[1] * b[2] - a[2] * b[1]) * c[0] + (a[2] * b[0] - a[0] * b[2]) * c[1]
                  + (a[0] * b[1] - a[1] * b[0]) * c[2])
 
@@ -236,8 +237,9 @@ class Renderer:
 
     With `noise_seed`, a frame's sensor noise is a window, at an offset drawn
     from that frame's `rng`, of one Gaussian field per camera seeded from it
-    (drawing a full frame of normal deviates took longer than the rest of the
-    frame); without it, every frame's noise is drawn afresh from `rng`.
+    (drawing a full frame of normal deviates costs more than the rest of the
+    frame: docs/benchmarks.md, "The live network"); without it, every frame's
+    noise is drawn afresh from `rng`.
     """
 
     def __init__(self, camera: Camera, *, noise_seed: object = None) -> None:
@@ -297,7 +299,8 @@ class Renderer:
 def add_noise(image: np.ndarray, sigma_dn: float, rng: np.random.Generator) -> np.ndarray:
     """`image` plus Gaussian noise of std `sigma_dn`, saturated to uint8."""
     noise = np.empty(image.shape, dtype=np.int16)
-    # cv2.randn is ~5x faster than numpy's normal at 1.3 Mpx; seed it from rng.
+    # cv2.randn is several times faster than numpy's normal on a whole frame (docs/benchmarks.md, "Evidence
+    # behind the nodes' choices"); seed it from rng.
     cv2.setRNGSeed(int(rng.integers(2**31)))
     cv2.randn(noise, 0, sigma_dn)
     return cv2.add(image.astype(np.int16), noise).clip(0, 255).astype(np.uint8)

@@ -55,8 +55,9 @@ log = logging.getLogger(__name__)
 
 _POINT_ITEM = np.dtype((np.void, 24))  # three float64: W's entries of one camera column and one point
 # Rows of observations whose Jacobians the normal equations form at a time: their temporaries (a few
-# hundred kB) are reused from the heap, where those of 10,000 rows at once (megabytes) were fresh memory
-# on every call, which the kernel maps and zeroes page by page (at M = 16, N = 1000, as long as the arithmetic).
+# hundred kB) are reused from the heap, where those of all rows at once (megabytes) are fresh memory on
+# every call, which the kernel maps and zeroes page by page at a cost of the arithmetic's order
+# (docs/benchmarks.md, "Evidence behind the solver's thresholds").
 BLOCK_ROWS = 2048
 
 

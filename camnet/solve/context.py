@@ -150,12 +150,13 @@ FISHEYE_START_CORNER_RAD = 1.2
 def with_guessed_fisheye_focal(obs: Observations, order: list[int], intr: np.ndarray) -> np.ndarray:
     """`intr` (M, 9) with a focal length guessed for each fisheye camera that has none, for `centred`.
 
-    Raw fisheye pixels are no pinhole image: the paper's start on them lands the
-    adjustment in a wrong valley (a live fisheye rig's focal lengths 12% off with
-    as good a fit). Made pinhole by an equidistant lens of the guessed focal
-    length (half the image diagonal over FISHEYE_START_CORNER_RAD), they start it
-    in the right one, even with the guess 25% off. The start estimates the focal
-    lengths itself: the guess only undistorts (`centred` uses it).
+    Raw fisheye pixels are no pinhole image: the paper's start on them can land
+    the adjustment in a wrong valley that fits as well. Made pinhole by an
+    equidistant lens of the guessed focal length (half the image diagonal over
+    FISHEYE_START_CORNER_RAD), they start it in the right one, even with a guess
+    a quarter off (docs/benchmarks.md, "Evidence behind the solver's
+    thresholds"). The start estimates the focal lengths itself: the guess only
+    undistorts (`centred` uses it).
     """
     guessed = intr.copy()
     for m, i in enumerate(order):

@@ -18,55 +18,52 @@ parallel pair) buys nothing and adds D = sigma_free^2 - sigma_held^2 to the
 scale's variance; holding a block whose true value is not biases the scale
 by some b. Freeing pays, in the scale's mean square error, only where b^2 >
 D. A block that barely moves the image can cost the scale dearly: a ring
-head's yaw (0.12 m baseline, 2 m away, 950 px) is determined to about 1 px,
-but one pixel is 1.75% of its disparity, and freed, it puts the scale's
-sigma up from 0.07% to 1.6-1.8%. So where freeing a stereo block more than
-doubles the scale's sigma (`COSTLY_INFLATION`: more than a determined
-block's price), it is freed only when the data ask for it (the score test)
-and the scale's shift with it free shows, beyond chance at `significance`,
-that b^2 > D: the shift in units of sqrt D is normal with unit variance and
-mean b / sqrt D, and its square must pass the noncentral chi-square quantile
-(1 dof, noncentrality 1; 16.7 at 1e-3 against the score test's 10.8). Where
-freeing costs the scale little (the pitch and roll, the baseline's
-direction: x1.0-1.4) the pixel rule above decides. The sigmas are those the
+head's yaw (0.12 m baseline, 2 m away, 950 px: a 57 px disparity) is
+determined to about 1 px, but one pixel is 1.75% of its disparity: freed,
+that pixel's sigma is the scale's. So where freeing a stereo block
+more than doubles the scale's sigma (`COSTLY_INFLATION`: more than a
+determined block's price), it is freed only when the data ask for it (the
+score test) and the scale's shift with it free shows, beyond chance at
+`significance`, that b^2 > D: the shift in units of sqrt D is normal with
+unit variance and mean b / sqrt D, and its square must pass the noncentral
+chi-square quantile (1 dof, noncentrality 1; 16.7 at 1e-3 against the score
+test's 10.8). Where freeing costs the scale little (the pitch and roll, the
+baseline's direction) the pixel rule above decides. The sigmas are those the
 report gives: with principal points nobody gave uncertain (their prior,
 `pp_prior_rel`), and the right camera's horizontal principal point is its
 yaw to first order, so where those are guessed, freeing the yaw costs the
-scale little more than the guess has (x1.04 on a six-camera rig whose
-principal points are up to 10 px off: held, the yaw takes none of their
-column offset's misfit, chi2 12.6, and the scale was 5.2% off, freed 0.3%).
-On `ring_K` (camnet.sim.families, seeds 0-39) the pixel rule freed the yaw
-on three seeds, twice at 0.97-0.99 px with no evidence (chi2 0.002-0.08) and
-once on a 3.7 sigma false alarm that ended 6.1% off at a reported 1.6%; this
-rule holds it on all 40. A toed-in head still has its yaw freed (0.5
-degrees, 8 px: 8 of its sigmas). The price is the threshold: a yaw is freed
-at 4.1 of its sigmas rather than 3.3 (about 0.25 degrees on the ring), and
-below it a toed-in head's scale is off by 1.75% per pixel of yaw under
-either rule: a parallel pair is the paper's assumption, and each stereo line
+scale little more than the guess has, and held, the yaw could not take up
+their column offset's misfit. A costly yaw that is merely determined, or
+that the score test alone asks for (a false alarm at `significance`), is
+held (docs/benchmarks.md, "Rigs unlike the paper's"). The price is the
+threshold: a toed-in head's yaw is freed from 4.1 of its sigmas (the root
+of 16.7) rather than 3.3 (of 10.8), and below that its scale is off by the
+yaw's share of the disparity under either rule: a parallel pair is the paper's assumption, and each stereo line
 of the report's free_rule says what freeing the block would cost the scale.
 The reported sigmas count a held rotation axis as known to the pair's
 tolerance (`PAIR_TOLERANCE_DEG`, uncertainty.held_at_tolerance), which
-covers such a toe-in (2.2% on the ring for 2.8% per 0.1 degree), and the
-report warns where the scale rests on the held yaw. A costly block whose
-tolerance costs the scale more than twice what freeing it does (the data
-know it several times better than the tolerance) is freed.
+covers such a toe-in (docs/benchmarks.md, "A stereo pair held parallel"),
+and the report warns where the scale rests on the held yaw. A costly block
+whose tolerance costs the scale more than twice what freeing it does (the
+data know it several times better than the tolerance) is freed.
 
-The stereo pair's blocks are tried before the lens blocks, although a 100
-degree lens held at k1 = k2 = 0 lends some of its misfit to the pair's yaw,
-which its score test then frees (chi2 450-580 on `wide` seeds 0-4). Trying
-k1 and k2 first, the stereo cameras' principal points were freed instead
-(the right camera's horizontal principal point is its yaw to first order):
-the median scale error on `wide` (seeds 0-19) was 0.29% against 0.12% in
-this order. So the rotation blocks the rule freed are tried again, from the
-ideal pair, once a camera block has been freed after them. Where the
-principal points are guessed, the yaw costs the scale nothing beyond the
-guess and is freed again (on `wide` as before), but where the pair's K is
-given the yaw, with the lens free, no longer asks (chi2 0-9 on seeds 0, 1,
-3-5), costs the scale x2.7-3, and is held again. What the lens's misfit also
-cost was observations: outliers are judged before this rule, and a wide
-lens's good observations far from the image centre lie off a lens held at
-zero. camnet.solve.pipeline therefore judges them again, after a robust
-solve with the free set, whenever the rule frees a distortion coefficient.
+The stereo pair's blocks are tried before the lens blocks, although a wide
+lens held at k1 = k2 = 0 lends some of its misfit to the pair's yaw, which
+its score test then frees. Tried the other way round, the lens first, the
+stereo cameras' principal points are freed instead (the right camera's
+horizontal principal point is its yaw to first order), which costs the
+scale more (docs/benchmarks.md, "Rigs unlike the paper's"). So the rotation
+blocks the rule freed are tried again, from the ideal pair, once a camera
+block has been freed after them. Where the principal points are guessed,
+the yaw costs the scale nothing beyond the guess and is freed again, but
+where the pair's K is given the yaw, with the lens free, no longer asks,
+costs the scale several times its held sigma, and is held again. A lens held
+at zero also costs observations: outliers are judged before this rule, and
+a wide lens's good observations far from the image centre lie off a lens
+held at zero. camnet.solve.pipeline therefore judges them again, after a
+robust solve with the free set, whenever the rule frees a distortion
+coefficient. The measurements behind each choice are in docs/benchmarks.md,
+"Evidence behind the solver's thresholds".
 
 The name `fisheye` frees the four coefficients k1..k4 of every fisheye
 camera (the blocks `k1`, `k2` alone free the first two of either model).
@@ -106,16 +103,17 @@ FREE_NAMES = ("f", "aspect", "pp", "k1", "k2", "fisheye", "stereo_rotation", "st
 CANDIDATES = ("stereo_pitch_roll", "stereo_direction", "stereo_yaw", "pp", "k1", "k2")
 
 # Freeing a stereo block that moves the scale's sigma by more than this needs the data to ask for it (module
-# docstring): the pitch, roll and baseline direction cost x1.0-1.4 on every family, the yaw x3-26 where
-# the principal points are given or free.
+# docstring). 2 parts the two kinds: the pitch, roll and baseline direction barely move the scale's sigma on any
+# family, a yaw where the principal points are given or free multiplies it (docs/benchmarks.md, "Evidence
+# behind the solver's thresholds").
 COSTLY_INFLATION = 2.0
 # 1 sigma, degrees, of each rotation axis of a stereo pair held as the ideal parallel pair, in the reported
 # uncertainty (`held_at_tolerance`; calibrate.Options.pair_tolerance_deg). A factory-rectified head (ZED, OAK-D,
 # RealSense) is parallel to 0.01-0.02 degrees, but camnet cannot tell rectified images from raw ones, whose
-# modules are aligned mechanically to a few tenths of a degree; what the rule cannot see decides: it frees a
-# ring head's yaw at 4 of the data's sigmas, about 0.25 degrees (module docstring), and a toe-in below that
-# must lie within 3 of the reported sigmas. 0.08 degrees does (ring_K toed in 0.2 degrees: 2.6 sigmas at most),
-# and puts ring_K's scale sigma from 0.08% to 2.3%; a head known to be better gives its own tolerance.
+# modules are aligned mechanically to a few tenths of a degree; what the rule cannot see decides: a toe-in too
+# small for it to free (below 4 of the yaw's sigmas, module docstring: about a quarter of a degree on a ring
+# head) must lie within 3 of the reported sigmas, and a tolerance of 0.08 degrees covers such toe-ins where
+# smaller ones do not (docs/benchmarks.md, "A stereo pair held parallel"); a head known to be better gives its own.
 PAIR_TOLERANCE_DEG = 0.08
 _SLOT = {name: i for i, name in enumerate(INTRINSIC_NAMES)}  # a camera's intrinsic columns
 _SLOTS = {"pp": (_SLOT["cx"], _SLOT["cy"]), "k1": (_SLOT["k1"],), "k2": (_SLOT["k2"],)}

@@ -21,9 +21,10 @@ from camnet.model.observations import Observations
 # An exact distance (sigma_m 0) is held by a row this stiff rather than by a parametrisation:
 # tying one camera's centre to another's would couple their blocks of the normal equations,
 # which are block diagonal in the cameras. 1 micrometre is a thousandth of what a factory
-# calibration or a tape knows, and far below what the pixels fix a centre to (0.1-1 mm): the
-# reported scale sigma is the same to 1e-4 for 1e-5 to 1e-7 m, while a row of 1e-8 m leaves
-# the normal equations too ill-conditioned for the adjustment to converge.
+# calibration or a tape knows, and far below what the pixels fix a centre to (0.1-1 mm), so the
+# reported sigmas do not depend on it, while a much stiffer row leaves the normal equations too
+# ill-conditioned for the adjustment to converge (docs/benchmarks.md, "Evidence behind the
+# solver's thresholds").
 EXACT_SIGMA_M = 1e-6
 # Pixels fitted to rounding (a simulation without noise) would give the distances no weight at all.
 MIN_SIGMA_PX = 0.01

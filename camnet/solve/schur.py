@@ -56,10 +56,11 @@ def eliminate_points(ne: NormalEquations) -> PointsEliminated:
     """The points of `ne` eliminated (see `PointsEliminated`).
 
     W V^-1 W^T a block of points at a time (`point_blocks`): formed whole,
-    W V^-1 (3 MB at M = 16, N = 1000) is fresh memory that the kernel maps
-    and zeroes page by page, which took half as long as the product. (As the
-    symmetric rank-k update of W L^-T, V = L L^T, it is 0.6 ms faster there,
-    but the sigmas of a free principal point's flat valley move by 1e-9.)
+    W V^-1 (megabytes) is fresh memory that the kernel maps and zeroes page
+    by page, at a cost of the product's order (docs/benchmarks.md, "Evidence
+    behind the solver's thresholds"). (Not as the symmetric rank-k update of
+    W L^-T, V = L L^T, which is a little faster but moves the sigmas of a
+    free principal point's flat valley: docs/benchmarks.md, "The engine".)
     """
     V_inv, determined = _inverses_and_determined(ne.V)
     P = len(ne.U)
@@ -166,8 +167,8 @@ def point_blocks(n_points: int, n_columns: int) -> list[tuple[int, int]]:
     """[start, stop) ranges of points whose share of a (n_columns, 3 N) product fits BLOCK_BYTES.
 
     Products of W (a few MB) formed whole are fresh memory on every call, which the
-    allocator maps and the kernel zeroes page by page: at M = 16, N = 1000 that took
-    longer than the arithmetic. Blocks of a few hundred kB are reused from the heap.
+    allocator maps and the kernel zeroes page by page, at a cost of the arithmetic's order.
+    Blocks of a few hundred kB are reused from the heap.
     """
     size = max(1, BLOCK_BYTES // (24 * max(n_columns, 1)))
     return [(a, min(a + size, n_points)) for a in range(0, n_points, size)] or [(0, 0)]
@@ -178,12 +179,12 @@ def point_quadratic_forms(WV: np.ndarray, A: np.ndarray, V_inv: np.ndarray | Non
 
     V_inv (N, 3, 3): given, `WV` is W and the forms are those of W V^-1 (V^-1
     the block diagonal of V_inv), as ``V_inv_n^T (W_n^T A W_n) V_inv_n``:
-    W V^-1 is never formed (at M = 16, N = 1000: 2.4 against 4.2 ms).
+    W V^-1 is never formed, which saves its fresh memory.
     Where A has a Cholesky factor A = L L^T, as ``Y_n^T Y_n`` with Y = L^T WV:
     a triangular product, half the work of A WV, and each point's six
-    distinct entries as sums over Y's columns (at Pc = 135, N = 1000: 1.6
-    against 3.1 ms). Else (a singular A) through A WV. A block of points at
-    a time (`point_blocks`).
+    distinct entries as sums over Y's columns. Else (a singular A) through
+    A WV. A block of points at a time (`point_blocks`). Timings:
+    docs/benchmarks.md, "Evidence behind the solver's thresholds".
     """
     if V_inv is not None:
         return V_inv.transpose(0, 2, 1) @ point_quadratic_forms(WV, A) @ V_inv
@@ -195,7 +196,7 @@ def point_quadratic_forms(WV: np.ndarray, A: np.ndarray, V_inv: np.ndarray | Non
         L = None
     for a, b in point_blocks(N, len(WV)):
         WV_b = WV[:, 3 * a : 3 * b]
-        if L is None:  # WV_n^T (A WV_n), one 3x3 per point: a batched matmul (plain einsum takes 6x as long)
+        if L is None:  # WV_n^T (A WV_n), one 3x3 per point: a batched matmul (plain einsum is several times slower)
             left, right = WV_b.reshape(-1, b - a, 3), (A @ WV_b).reshape(-1, b - a, 3)
             out[a:b] = left.transpose(1, 2, 0) @ right.transpose(1, 0, 2)
             continue

@@ -43,19 +43,14 @@ MAX_LINEAR_FOCAL_REL = 0.15  # a stereo focal length's relative sigma beyond whi
 # A freed principal point this far from where it was given (the image centre where nobody gave it), as a share
 # of the image's width or height, is no lens's (they sit a percent or so away): the data trade it with the
 # camera's rotation and focal length along a curved, nearly flat valley of the cost, where linear sigmas mean
-# nothing. Measured on the Middlebury temple ring with nothing known (pair 0012-0013): principal points freed
-# and moved 8-49% of the image from its centre at sigmas of 9-37 px; the same inliers adjusted from the
-# published cameras end 4.7% higher in cost with the pair's focal lengths 7-10% short instead of 10% long, and
-# the solve's own scale 10% off at a sigma of 1.8%.
+# nothing (docs/benchmarks.md, "Real images: the temple ring").
 MAX_PP_OFFSET_REL = 0.1
 MAX_DEPTH_BASELINES = 1000.0  # a scene farther than this many baselines has next to no disparity
 DISTANCE_SIGMAS = 3.0  # a known distance this many sigmas from where the scene puts it is reported
 # A start that left cameras out, then a solution of the rest that rejects many of their observations: the
-# start was wrong and the sigmas mean nothing. Seed 30 of tape_pair, its two cameras 45 degrees apart taken
-# for the paper's parallel pair: 3 cameras left out, 60% inliers at 1.37 px, the scale 87% off; the tape pair
-# ring0-ring3 (135 degrees apart) on seeds 11 and 15: one camera left out, 71% at 0.82 px and 70% at
-# 0.58 px, the scale +252% at a reported 0.58% and -94% at 7.4%. A sound solve of these rigs keeps 99%, and
-# every camera placed right in the live pools of real matches 80-99%; the RMS tells nothing apart.
+# start was wrong and the sigmas mean nothing. A sound solve keeps nearly all of its observations, and a camera
+# placed right in a live pool of real matches this share or more, while a wrong start's solution keeps well
+# under it; the RMS tells nothing apart (docs/benchmarks.md, "Rigs unlike the paper's").
 WRONG_START_INLIER_SHARE = 0.8
 
 
@@ -166,8 +161,8 @@ def _uncertainty(ids: list[str], problem, state, cov: Covariance, kept, warnings
         scale = None
     per_cam = camera_sigmas_by_id(ids, problem, state, cov)
     # Depth goes with the stereo cameras' focal lengths: known only to tens of percent, the
-    # solution is beyond where a linear sigma means anything (measured on KITTI with nothing
-    # known: focal lengths 67% off at 40% sigma, the depths 46% off at a linear 1.5%).
+    # solution is beyond where a linear sigma means anything (docs/benchmarks.md, "Evidence
+    # behind the solver's thresholds", MAX_LINEAR_FOCAL_REL).
     pair_focal_rel = max(per_cam[ids[m]].f_px / state.intr[m, 0] for m in (0, 1))
     far_pp = {m: rel for m in range(len(ids)) if (rel := _far_pp_rel(problem, state, m, pp_given[m], sizes[m]))}
     pair_loose_pp = [m for m in (0, 1) if m in far_pp]

@@ -8,9 +8,8 @@ figure, the sigma with only that cause removed (Uncertainty's
 leave what the scene alone fixes (`scale_rel_if_pp_and_pair_exact`). The
 two overlap (the right camera's horizontal principal point is its yaw to
 first order), so removing either alone may leave most of the variance
-while removing both leaves little: on `ring` (camnet.sim.families, seed 0)
-2.70%, 1.55% with the principal points exact, 2.67% with the pair exact,
-0.07% with both; on `ring_K`, whose head's K is given, 2.22%, 2.22%, 0.07%.
+while removing both leaves little (docs/benchmarks.md, "Rigs unlike the
+paper's": the four figures on `ring` and `ring_K`).
 
 The scene is the cause where what it alone leaves is at least half the
 sigma (a quarter of the variance); else the assumptions are, and each is

@@ -100,8 +100,7 @@ class Thresholds:
     inlier_share: tuple[float, float] = (0.8, 0.5)  # inliers / observations: good from, poor below
     # Median parallax below this: the depths are weakly determined (usable), and what the solve
     # estimated from them (the pair's relative pose, focal lengths) may be off by more than its
-    # sigma (poor). KITTI with the pair's pose estimated had 1.7 degrees, and -21% of scale at a
-    # 0.7% sigma; with the pose given, 1.2 degrees and 0.2% of scale.
+    # sigma (poor; docs/benchmarks.md, "Evidence behind the solver's thresholds").
     parallax_deg: float = 2.0
 
 
@@ -205,9 +204,9 @@ def _rotation_findings(cam_id: str, f_px: float, s: CameraSigmas, lever_m: float
         # A principal point and a rotation move the image alike: the sigma of each holds what the
         # other's may cost (a guess's or an estimate's), while the camera's rays, their sum, are what
         # the data fix. A rotation is relative to the left camera's, so both cameras' principal points
-        # enter it (and, round a ring, those of the cameras between: on tape_pair's far side the
-        # rotation sigma given the principal points was 0.1 degrees, 0.35-0.5 after this
-        # subtraction, 0.65-0.7 before; true errors 0.1-0.2).
+        # enter it (and, round a ring, those of the cameras between, which this leaves in: the
+        # subtraction brings the sigma towards the true errors, not down to them; docs/benchmarks.md,
+        # "Evidence behind the solver's thresholds").
         pp_deg = float(np.degrees(np.sqrt(2.0) * max(s.cx_px, s.cy_px) / f_px))
     data_deg = float(np.sqrt(max(rotation**2 - pp_deg**2, 0.0))) if np.isfinite(rotation) else rotation
     shift_px = f_px * np.radians(data_deg)

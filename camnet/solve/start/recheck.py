@@ -25,9 +25,9 @@ from camnet.model.resection import MIN_RESECTION_POINTS, pose_errors_px, refine_
 from camnet.model.triangulation import ray_points, triangulate_missing
 
 # A view stands out when its median reprojection error is above RECHECK_RATIO times the network's typical one
-# (the median over views of theirs), and RECHECK_EXCESS_PX above it. Before the final adjustment models distortion,
-# the outer views of a wide or fisheye rig reach 2.7 times the typical error; a view placed 220 mm and
-# 22 degrees off (the temple ring's templeSR0002, on points of undetermined depth) stood at 6.7 times.
+# (the median over views of theirs), and RECHECK_EXCESS_PX above it: above where the outer views of a wide or
+# fisheye rig stand before the final adjustment models distortion, below where a view placed far off on points
+# of undetermined depth stands (docs/benchmarks.md, "Real images: the temple ring").
 RECHECK_RATIO = 4.0
 RECHECK_EXCESS_PX = 0.5
 
