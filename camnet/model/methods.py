@@ -1,5 +1,6 @@
-"""The solver's named choices, apart from the model so that a command line can offer them
-without importing numpy (``camnet calibrate --help``)."""
+"""How a calibration is solved (`Method`) and the robust loss of its first adjustment (`Loss`): named apart
+from the model's arrays, so that a command line can offer them without importing numpy (``camnet calibrate
+--help``)."""
 
 from __future__ import annotations
 
