@@ -206,8 +206,12 @@ def test_point_blocks_invert_in_closed_form_as_the_pseudo_inverse_does():
     V[250:260] = 0.0
     reference = np.linalg.pinv(V, rcond=POINT_RCOND, hermitian=True)
     scale = np.maximum(np.abs(reference).max(axis=(1, 2), keepdims=True), 1e-300)
-    np.testing.assert_allclose(point_inverses(V) / scale, reference / scale, rtol=0, atol=1e-5)
     eig = np.linalg.eigvalsh(V)
+    # Two ways to invert a block agree to its condition number (over the eigenvalues kept) times the rounding.
+    kept = np.where(eig > POINT_RCOND * eig[:, -1:], eig, np.inf)
+    condition = np.where(np.isfinite(kept.min(axis=1)), eig[:, -1] / kept.min(axis=1), 1.0)
+    tolerance = np.maximum(1e-9, 100 * condition * np.finfo(float).eps)[:, None, None]
+    assert np.all(np.abs(point_inverses(V) - reference) / scale <= tolerance)
     full_rank = eig[:, 0] > POINT_RCOND * np.maximum(eig[:, -1], 1e-300)
     np.testing.assert_array_equal(points_determined(V), full_rank)
     assert full_rank[:150].all() and full_rank[260:].all() and not full_rank[150:260].any()

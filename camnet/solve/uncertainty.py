@@ -323,6 +323,10 @@ def inverse_spd(S: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         if not np.all(diag > 0):
             raise np.linalg.LinAlgError("a camera parameter has no effect on any observation")
         inv = scipy.linalg.cho_solve(scipy.linalg.cho_factor(scaled), np.eye(len(S)))
+        # Rounding may leave a Cholesky factor of a singular matrix; its inverse then has a diagonal entry of
+        # at least 1 / (P * least eigenvalue), and the eigenvalues must decide which directions are null.
+        if np.max(np.diag(inv)) * NULL_EIGENVALUE * len(S) ** 2 >= 1.0:
+            raise np.linalg.LinAlgError("singular but for rounding")
         null = np.zeros((len(S), 0))
     except np.linalg.LinAlgError:
         w, V = np.linalg.eigh(scaled)
