@@ -50,7 +50,8 @@ log = logging.getLogger(__name__)
 
 NODE_KIND = "calibrator"
 # An observations message is at most this large: MAX_TRACKS tracks of 16 cameras take about 12 MB.
-# A larger one is dropped unread (one of 23 MB kept the node busy for a minute at 1.1 GB).
+# A larger one is dropped unread: it would hold the node, and a gigabyte of memory, for a minute or more
+# (docs/benchmarks.md, "Evidence behind the nodes' choices").
 MAX_MESSAGE_BYTES = 32 * 2**20
 SUBSAMPLE_SEED = 0  # a larger set is solved on MAX_TRACKS of its tracks, the same ones every time
 WARNING_PERIOD_S = 30.0  # a solve that is not kept is warned about at most this often per outcome, else logged

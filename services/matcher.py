@@ -70,9 +70,10 @@ NO_SET_WARNING_S = 10.0  # frames arrive but no frame set forms for this long: s
 MIN_SILENCE_S = 1.0  # a camera silent this long (and longer than a set waits) is reported missing
 LOCKSTEP_FRAME_WAIT_S = 10.0  # a step's frames are on their way when it is announced
 # The view graph is renewed from the newest calibration at most this often: a static rig's overlaps barely
-# change, and parsing a calibration of 16 cameras and 5000 points and renewing its view graph took 50 ms,
-# about one per frame set. While it leaves a camera out, which is matched with every camera (a third of a
-# 16-camera set's CPU went to the first 20 sets on the view graph, with 4 then 9 cameras), at most every 2 s.
+# change, and parsing a large rig's calibration and renewing its view graph costs a good part of a frame set's
+# CPU, with a calibration about every set. While it leaves a camera out, which is matched with every camera
+# at several times a set's usual cost, at most every 2 s (docs/benchmarks.md, "Sixteen cameras across hosts",
+# "The matcher").
 VIEW_GRAPH_PERIOD_S, PARTIAL_VIEW_GRAPH_PERIOD_S = 10.0, 2.0
 
 

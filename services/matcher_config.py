@@ -29,13 +29,10 @@ class MatcherNodeConfig:
     max_features: int = 4000  # per image
     max_image_side_px: int | None = None  # detect on a downscaled copy above this size
     # Once the pool holds max_tracks, a frame set's new tracks only replace others: then detect on a copy
-    # downscaled to this size (if smaller than the above; None: never). On config/sim.yaml (1280x1024, 20
-    # frame sets 1 s apart, offline) the matcher's CPU per set once the pool was full was 0.58 s at 960 px,
-    # 0.35 s at 640 px, 0.68 s at full size; the largest focal error against the truth over the last 10
-    # solves 0.05%, 0.06% and 0.03% (median scale error 0.06-0.07% each; sigmas 1.1% and 1.3%). Live, 640
-    # px doubled the focal errors run after run (docs/benchmarks.md, "The live network"). On a quiet machine full size
-    # meets the latency (bench_live 90 s: median 0.63 s against 0.56 s at 960 px) with half the focal
-    # error (median largest 0.044% against 0.090%), so full size is the default; 960 is for a loaded host.
+    # downscaled to this size (if smaller than the above; None: never). A smaller copy saves CPU and costs
+    # focal accuracy (640 px doubles the focal errors); on a quiet machine full size meets the latency target
+    # with half the focal error of 960 px, so full size is the default; 960 is for a loaded host
+    # (docs/benchmarks.md, "The live network"; "Evidence behind the nodes' choices").
     full_pool_image_side_px: int | None = None
     normalise_contrast: bool = True  # stretch and equalise each image before detection
     stats_period_s: float = 1.0

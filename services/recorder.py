@@ -51,7 +51,9 @@ class ChunkCompression(enum.StrEnum):
     """How the file's chunks are compressed (mcap's names)."""
 
     LZ4 = "lz4"
-    ZSTD = "zstd"  # level 3 in mcap: 8x slower than lz4 for ~15% smaller files of noisy frames
+    # Level 3 in mcap: files of noisy frames smaller than lz4's, but too slow for a rig's frames on a small
+    # host (docs/benchmarks.md, "Bus, recording, Rerun"; "Evidence behind the nodes' choices").
+    ZSTD = "zstd"
     NONE = "none"
 
 

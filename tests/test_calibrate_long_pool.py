@@ -19,8 +19,8 @@ POOL = Path(__file__).parent / "data" / "surround-pool-10.json.gz"
 
 
 def test_a_long_pool_is_solved_from_its_newest_tracks_and_places_every_camera(tmp_path):
-    # Solved cold as a whole, this pool left ring4 out and put the rest wrong (scale -26% at a 1.1%
-    # sigma, a focal length 70% off, a centre 4 m off), its verdict "usable": wrong in silence.
+    # Solved cold as a whole, this pool leaves a camera out and puts the rest wrong, a quarter off in scale at
+    # a 1% sigma, its verdict "usable": wrong in silence (docs/benchmarks.md, "The surround rig, live").
     # From its newest 2500 tracks, and the whole pool warm from there, every camera is placed.
     src, out = tmp_path / "pool.json", tmp_path / "cal.json"
     src.write_bytes(gzip.decompress(POOL.read_bytes()))
@@ -42,9 +42,9 @@ def test_a_long_pool_is_solved_from_its_newest_tracks_and_places_every_camera(tm
 
 def test_a_long_pool_with_a_camera_placed_wrong_is_calibrated_without_it_or_refused(tmp_path):
     # 60% of ring6's observations 30 px off (false tracks beside true ones). Solved from the newest tracks,
-    # ring6 kept 40% of its observations as inliers: refused. Before, the file was then solved cold as a
-    # whole, unjudged (on this pool that solve is wrong: above); now the newest tracks are solved again
-    # without ring6, the whole pool warm from there, and the cameras the live policy refuses are named.
+    # ring6 keeps under half of its observations as inliers: refused. The file is then not solved cold as a
+    # whole, unjudged (on this pool that solve is wrong: above): the newest tracks are solved again without
+    # ring6, the whole pool warm from there, and the cameras the live policy refuses are named.
     doc = json.loads(gzip.decompress(POOL.read_bytes()))
     rng = np.random.default_rng(0)
     mine = [track for track in doc["tracks"] if "ring6" in track["observations"]]
@@ -60,7 +60,7 @@ def test_a_long_pool_with_a_camera_placed_wrong_is_calibrated_without_it_or_refu
         # Never wrong in silence: where the retries end on a solve the policy still refuses, the command
         # refuses it, says why, and writes nothing. On this pool the cold start's outcome turns on
         # differences of 1e-13 in the normal equations (summed in another order, it leaves ring6 out at the
-        # start and the retries end with every focal length 6 times too short, which was written before).
+        # start and the retries end with every focal length 6 times too short, which must not be written).
         assert "the calibration is refused:" in proc.stderr and "check the cameras named" in proc.stderr
         assert not out.exists()
         return

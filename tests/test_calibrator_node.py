@@ -115,7 +115,7 @@ def test_command_refuses_bad_flags_in_one_line(tmp_path):
 
 
 def test_solves_that_are_not_kept_warn_once_a_period_not_each_time(caplog):
-    """A rig whose every solve is refused: measured before, one warning per solve."""
+    """A rig whose every solve is refused: one warning a period, not one per solve."""
     import logging
 
     from camnet.live.policy import LiveConfig, SoundnessLimits

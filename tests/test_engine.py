@@ -97,7 +97,7 @@ def test_errors_lie_within_the_reported_uncertainty():
         total += 1
         within += abs(c.scale_rel) <= 3 * c.scale_sigma_rel
     assert total > 150
-    assert within / total >= 0.95, f"{within}/{total} within 3 sigma"  # measured: 99.6% over 30 seeds
+    assert within / total >= 0.95, f"{within}/{total} within 3 sigma"  # a normal error: 99.7%
 
 
 def test_reported_uncertainty_matches_the_cramer_rao_bound():
@@ -170,7 +170,7 @@ def test_warm_start_after_new_tracks_converges_to_the_same_solution():
     warm = calibrate(obs, initial=previous).calibration
     for a, b in zip(cold.cameras, warm.cameras, strict=True):
         sd = cold.uncertainty.cameras[a.id]
-        # Measured: 0.00-0.03 sigma over seeds 6-11 (the inlier sets differ by one observation at most).
+        # A few hundredths of a sigma apart: the inlier sets differ by an observation or so.
         assert abs(a.K[0, 0] - b.K[0, 0]) < 0.1 * sd.f_px + 1e-6
         assert np.linalg.norm(a.centre - b.centre) < 0.1 * np.linalg.norm(sd.centre_m) + 1e-9
     assert warm.report.start == "warm"
@@ -199,7 +199,7 @@ def test_reset_camera_is_placed_again_within_its_uncertainty(bumped):
         sd = result.calibration.uncertainty.cameras["mono_02"]
         assert np.linalg.norm(cam.centre - truth["mono_02"].centre) < 3 * np.linalg.norm(sd.centre_m)
         assert rotation_angle_deg(cam.R @ truth["mono_02"].R.T) < 3 * np.linalg.norm(sd.rotation_deg)
-    # The reset solve is the cold solve to a fraction of its uncertainty (measured: 0.14 sigma;
+    # The reset solve is the cold solve to a fraction of its uncertainty (about a tenth of a sigma:
     # the two keep a few different observations at the outlier threshold).
     for a, b in zip(cold.calibration.cameras, reset.calibration.cameras, strict=True):
         sd = cold.calibration.uncertainty.cameras[a.id]

@@ -59,7 +59,7 @@ def test_scale_and_focal_errors_lie_within_three_reported_sigmas(name):
     assert np.mean(focal_z <= 3) >= WITHIN, f"{name}: focal errors / sigma, worst {np.sort(focal_z)[-3:].tolist()}"
     if name == "ring_K":
         # On every seed: the free rule keeps the head's yaw held, which freed would put the scale's sigma up
-        # to 1.6-1.8% (it freed it on seeds 25, 28 and 30, and seed 25 ended 6.1% off).
+        # to 1.6-1.8% (seeds 25, 28 and 30 test the yaw's rule: docs/benchmarks.md, "Rigs unlike the paper's").
         assert (np.array(scale_rel) < RING_K_MAX_SCALE_REL).all(), (
             f"ring_K: scale errors % {np.round(100 * np.array(scale_rel), 3).tolist()}")
 
@@ -73,9 +73,9 @@ def test_a_tape_pair_that_passes_for_parallel_is_calibrated_from_the_other_start
 
 
 def test_a_start_that_keeps_few_observations_gives_way_to_the_other():
-    # Seed 2 of wide, its pair's K given (its distortion not): the paper's start, in a wrong basin, kept 72%
-    # of the observations at RMS 2.3 px and put the scale 21% off at a reported 1.0%. The essential matrix's
-    # start keeps 99% at 0.52 px, and has the lower truncated cost of every observation.
+    # Seed 2 of wide, its pair's K given (its distortion not): the paper's start lands in a wrong basin, where
+    # the adjustment keeps 72% of the observations at RMS 2.3 px with the scale 21% off at a reported 1.0%. The
+    # essential matrix's start keeps 99% at 0.52 px, and has the lower truncated cost of every observation.
     drawn = family("wide", seed=2)
     truth = {c.id: c for c in drawn.rig.cameras}
     obs = observe_family(drawn, noise_px=0.5, seed=2)

@@ -130,7 +130,8 @@ def test_receiver_counts_gaps_and_malformed(caplog):
 
 
 def test_pixels_beyond_the_header_are_refused_before_decoding():
-    """Measured before: six 249 KB PNGs of 16000 x 16000 took a matcher from 389 to 879 MB."""
+    """A small PNG can decode to hundreds of MB of pixels (docs/benchmarks.md, "Evidence behind the nodes'
+    choices"): the header's size is checked before the payload is decoded."""
     import cv2
 
     small = encode_frame(make_frame("mono8", camera_id="a", h=48, w=64), compression=Compression.PNG)

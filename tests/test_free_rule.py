@@ -35,9 +35,9 @@ def ring_K_solve(seed: int, head_yaw_deg: float = 0.0):
     return compare(cal, drawn.rig.cameras, drawn.rig.points), yaw
 
 
-# The seeds where the head's yaw was freed on its pixel sigma alone (28, 30: 0.97-0.99 px, no evidence) or on a
-# 3.7 sigma false alarm (25): freed, it puts the scale's sigma up from 0.07% to 1.6-1.8%, and seed 25 ended
-# 6.1% off at a reported 1.6%.
+# Seeds whose head's yaw the pixel rule alone frees (28, 30: determined to 0.97-0.99 px, no evidence) or whose
+# score test gives a 3.7 sigma false alarm (25): freed, the yaw puts the scale's sigma up from 0.07% to 1.6-1.8%
+# and lets a false alarm move the scale several percent (docs/benchmarks.md, "Rigs unlike the paper's").
 @pytest.mark.parametrize("seed", [25, 28, 30])
 def test_a_parallel_head_with_its_K_given_keeps_its_yaw_and_the_scale(seed):
     c, yaw = ring_K_solve(seed)
@@ -55,8 +55,8 @@ def test_a_toed_in_head_has_its_yaw_freed(seed):
 
 # The pair's K given (its distortion not): with the lens held at zero its misfit asks for the yaw (chi2 370-450).
 # Once the lens is free, the yaw no longer asks, but the data know it to 0.18-0.19 px (0.014 degrees), several
-# times better than the pair's tolerance (free_rule.PAIR_TOLERANCE_DEG): held, which sigma was 0.06% exactly
-# parallel, the tolerance puts the scale's sigma at 1.2-1.3%; free, 0.13%. It is kept free.
+# times better than the pair's tolerance (free_rule.PAIR_TOLERANCE_DEG): held, the tolerance puts the scale's
+# sigma at 1.2-1.3% (0.06% were the pair exactly parallel); free, 0.13%. It is kept free.
 @pytest.mark.parametrize("seed", [0, 3])
 def test_a_yaw_the_data_know_better_than_its_tolerance_is_kept_free_once_the_lens_is_free(seed):
     drawn = family("wide", seed=seed)

@@ -189,7 +189,7 @@ def test_live_network_tracks_match_the_ground_truth(network):
     assert np.mean(np.abs(uv[both, 0, 1] - uv[both, 1, 1]) <= 1.0) > 0.95
     assert np.mean(uv[both, 0, 0] > uv[both, 1, 0]) > 0.95
     # The converging cameras are a little less precise; their pair, seen only through
-    # chained tracks, holds a few gross errors (measured: 3-4% of pooled tracks off by > 3 px).
+    # chained tracks, holds a few gross errors (a few percent of pooled tracks off by > 3 px).
     for a, b, min_ok, min_not_gross in ((0, 2, 0.95, 0.97), (1, 2, 0.95, 0.97), (0, 3, 0.95, 0.97),
                                         (1, 3, 0.95, 0.97), (2, 3, 0.90, 0.93)):
         n, ok = fraction_on_epipolar_lines(uv, truth, a, b, ids, 1.5)

@@ -81,7 +81,7 @@ def test_a_calibration_narrows_the_pairs_and_exploration_finds_the_rest_again(ne
 
 def test_a_matcher_started_after_the_calibrator_asks_it_for_the_latest_calibration(network, tmp_path):  # noqa: F811
     # The calibrator resumed its calibration before the matcher started: nothing is published again until
-    # the next solve. Before, the restarted matcher matched all six pairs until then.
+    # the next solve, and the restarted matcher must not match all six pairs until then.
     rig = parse_rig(rig_document("vgquery"))
     net = network(rig, MatcherNodeConfig(publish_period_s=0.5, max_wait_s=0.3, explore_pairs=1), start=False)
     state = tmp_path / "calibration.json"
@@ -144,8 +144,9 @@ class _Sample:
 
 
 def test_the_view_graph_is_renewed_from_the_newest_calibration_at_most_once_a_period():
-    # A calibrator publishes about one calibration per frame set; parsing each (16 cameras, 5000 points) and
-    # renewing the view graph cost the matcher 50 ms a set. The first is taken at once, then one per period.
+    # A calibrator publishes about one calibration per frame set; parsing each and renewing the view graph
+    # costs the matcher a good part of a set (docs/benchmarks.md, "Sixteen cameras across hosts"). The first is
+    # taken at once, then one per period.
     rig = parse_rig(rig_document("vgperiod"))
     node = MatcherNode(None, rig)  # no session: nothing here touches the bus
     try:

@@ -60,9 +60,8 @@ def assert_same_tracks(a, b) -> None:
 
 
 def test_frame_sets_pooled_offline_are_the_tracks_the_matcher_node_pools(rig, frame_sets):
-    # The offline path (camnet match, datasets, benchmarks) ran a chain of its own: every image detected whole
-    # and every pair matched whole, frame set after frame set, while the node detected what changed and matched
-    # what was new. Now both run the one engine.
+    # The offline path (camnet match, datasets, benchmarks) and the node run the one engine: both detect what
+    # changed and match what is new, not every image and every pair whole offline.
     node = node_after(rig, frame_sets)
     offline = observations_from_frame_sets(({c: f.image for c, f in s.frames.items()} for s in frame_sets),
                                            cameras=[camera_info(rig, c, 640, 512) for c in CAMERAS],

@@ -200,7 +200,7 @@ def test_a_malformed_calibration_message_is_refused_in_one_line_naming_the_key(s
 
 @pytest.mark.parametrize("spoil, kind, _", OBSERVATIONS_SPOILED)
 def test_the_calibrator_counts_a_malformed_message_and_publishes_nothing(solved, spoil, kind, _):
-    """Before, a wrong-typed envelope was solved and its values copied into the calibration as they came."""
+    """A wrong-typed envelope is counted, not solved with its values copied into the calibration as they came."""
     node, publisher = CalibratorNode(None, "msgs"), Publisher()
     assert node.handle(_spoiled(encode_observations_message(solved[0]), spoil), publisher) is None
     assert node.malformed.counts == {kind: 1} and publisher.payloads == [] and node.tracker.solves == 0

@@ -61,8 +61,9 @@ def test_a_network_placed_right_is_left_as_it_is():
 
 @pytest.mark.parametrize("wrong", [4, 6])
 def test_a_view_at_its_neighbours_viewpoint_is_placed_again_at_its_own(wrong):
-    # The temple ring's templeSR0002 was resected at its neighbour's viewpoint, on points of undetermined depth,
-    # and kept there: the points placed with it agreed with it, the other views' did not.
+    # As the temple ring's templeSR0002 can be, resected at its neighbour's viewpoint on points of undetermined
+    # depth: the points placed with it agree with it, the other views' do not (docs/benchmarks.md, "Real
+    # images: the temple ring").
     _, R, C, rows, xy = ring()
     R_bad, C_bad = R.copy(), C.copy()
     R_bad[wrong], C_bad[wrong] = R[wrong - 1], C[wrong - 1]

@@ -362,7 +362,7 @@ def _replay(path: Path, rig: str, options: ReplayOptions, *, during=None):
     """Replay `path` to a listener on another peer; (listener, replay summary, during's result)."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     # The replayer publishes frames as drivers do (CongestionControl.DROP at a rate): on its patient
-    # session every frame arrives however loaded the machine (before: frames lost in 1 of 8 paced replays, load 16).
+    # session every frame arrives however loaded the machine (an impatient one loses frames under load).
     with open_session(BusOptions(listen=(endpoint,))) as sub_bus, \
             open_patient_session(BusOptions(connect=(endpoint,))) as pub_bus:
         listener = _Listener(sub_bus, rig)

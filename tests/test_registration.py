@@ -62,7 +62,8 @@ def test_a_camera_that_shares_nothing_is_left_out_by_name_and_the_rest_solved():
 
 def test_a_start_that_left_cameras_out_and_fits_the_rest_badly_is_refused():
     # The rule on a sound solve's report: ring4 left out, 99% inliers. Seed 30 of tape_pair, started as the
-    # paper's pair, left 3 cameras out and kept 60% at 1.37 px, its scale 87% off.
+    # paper's pair, leaves 3 cameras out and keeps 60% at 1.37 px, its scale far off (docs/benchmarks.md,
+    # "Rigs unlike the paper's").
     _, obs = family_observations("ring", 1)
     cal = calibrate(_isolated(obs, "ring4")).calibration
     report = cal.report
@@ -90,8 +91,8 @@ def test_the_paper_rig_starts_from_the_paper_solver_and_a_tape_pair_from_the_ess
 
 def test_a_camera_with_a_few_false_stereo_tracks_leaves_the_papers_start_to_the_others():
     # As on the surround rig, where cameras 135 degrees from the head share 6-16 false tracks (or only
-    # floor points) with it. Such a camera used to enter eq. 13 (here: placed on its 7 random pixels,
-    # at least 6 agreeing at 8 px), or, where its DLT failed, to drop the paper's start for the essential matrix's.
+    # floor points) with it. Such a camera must neither enter eq. 13 (here: placed on its 7 random pixels,
+    # at least 6 agreeing at 8 px) nor, where its DLT fails, drop the paper's start for the essential matrix's.
     obs = observe(make_rig(seed=2), noise_px=0.5, seed=2).observations
     seen = np.zeros((len(obs.track_ids), len(obs.cameras)), dtype=bool)
     seen[obs.track_index, obs.cam_index] = True
@@ -176,9 +177,10 @@ def test_the_live_calibrator_keeps_the_others_and_says_why_a_camera_is_missing()
 
 @pytest.mark.parametrize("seed", [0, 1, 11])
 def test_a_scale_pair_far_apart_is_solved_within_its_sigmas_or_refused_with_a_better_pair_named(seed):
-    # ring0 and ring3, 135 degrees apart, share 30-55 tracks: a weak pair to start from (seed 1 was refused; the
-    # start from the pair that shares the most tracks now places it, see tests/test_start_choice.py).
-    # Seed 11 left ring6 out, kept 71% of the rest's observations, and put the scale 252% off at 0.58%.
+    # ring0 and ring3, 135 degrees apart, share 30-55 tracks: a weak pair to start from (the start from the pair
+    # that shares the most tracks places seed 1, see tests/test_start_choice.py). Started from the scale pair,
+    # seed 11 leaves ring6 out and keeps 71% of the rest's observations, its scale far off at a small sigma
+    # (docs/benchmarks.md, "Rigs unlike the paper's").
     drawn = family("tape_pair", seed=seed)
     cams = {c.id: c for c in drawn.rig.cameras}
     distance_m = float(np.linalg.norm(cams["ring0"].centre - cams["ring3"].centre))

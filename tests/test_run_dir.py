@@ -103,8 +103,8 @@ def test_up_replays_a_recording_into_a_run_directory(tmp_path):
 
 
 def test_a_partial_calibrations_run_directory_and_final_table_name_the_camera_left_out(tmp_path):
-    # A live calibration without a camera that shares nothing yet: its observations still list it. Before,
-    # the report and the COLMAP export refused them ("camera 'mono_04' is not in the calibration").
+    # A live calibration without a camera that shares nothing yet: its observations still list it, and the
+    # report and the COLMAP export take them so, not refusing them ("camera 'mono_04' is not in the calibration").
     obs = observe(make_rig(n_cameras=5, n_points=300, seed=4), noise_px=0.3, seed=4).observations
     away = obs.camera_ids[4]
     obs = drop_before(obs, {away: int(obs.track_ids.max()) + 1})

@@ -297,7 +297,7 @@ def test_only_authorised_identities_reach_the_calibrator(secrets, foreign_secret
 
                 forged = observations_payload(seed=7)
                 forged_calibration = json.dumps({**json.loads(published), "solve": 99}).encode()
-                for _ in range(20):  # 20 of each over 5 s, as in the attack measured on an open rig
+                for _ in range(20):  # 20 of each over 5 s, as an attack on an open rig sends them
                     driver.put(keys.observations(RIG), forged, congestion_control=block)
                     driver.put(keys.calibration(RIG), forged_calibration, congestion_control=block)
                     observer.put(keys.observations(RIG), forged, congestion_control=block)
@@ -475,7 +475,7 @@ def test_a_camera_host_sends_its_features_through_the_access_control(secrets, tm
                 matcher.declare_subscriber(keys.all_frames(RIG), lambda s: seen["frames"].add(str(s.key_expr)))
                 matcher.declare_subscriber(keys.all_features(RIG), on_features)
                 # Progress, not a fixed delay: both cameras' features and frames arrive (or the driver ends).
-                # A camera's features can come before any of its frames does (seen once on a loaded machine).
+                # A camera's features can come before any of its frames does (on a loaded machine).
                 frames = {keys.frame(RIG, "left"), keys.frame(RIG, "mono_a")}
                 assert wait_for(lambda: (seen["features"] == {"left", "mono_a"} and seen["frames"] == frames)
                                 or driver.poll() is not None, 120), \

@@ -77,6 +77,6 @@ def test_a_warm_re_solve_reduces_its_cameras_once_per_step_and_once_at_the_end(m
     report = result.calibration.report
     assert report.start == StartKind.WARM and result.covariance is not None
     # Every step taken (near the solution, none is refused): one Schur step each, then one elimination each
-    # for its convergence test, the last of which the covariance takes. Before: two Schur steps per step
-    # (the second the convergence test's, reused by the next step), and the covariance's own elimination.
+    # for its convergence test, the last of which the covariance takes; not two Schur steps per step (the
+    # second the convergence test's) nor an elimination of the covariance's own.
     assert counts == {"schur steps": report.iterations, "eliminations": report.iterations}

@@ -30,8 +30,8 @@ def _cold_start(obs, pair: PairStart):
 
 def test_the_start_used_is_reported_and_one_asked_for_is_not_made_another_way():
     # Seed 6: the pair passes for parallel, but the paper's solver finds no plausible start (its left focal
-    # length out of range), and the automatic start falls back to the essential matrix. The retry asked the
-    # paper's start again and solved the same essential start twice.
+    # length out of range), and the automatic start falls back to the essential matrix. A retry that asks the
+    # paper's start again must not solve the same essential start twice.
     _, obs = far_pair(6)
     assert _cold_start(obs, PairStart.AUTO).pair == PairStart.ESSENTIAL
     with pytest.raises(NoStart, match="the paper's solver"):
@@ -40,8 +40,9 @@ def test_the_start_used_is_reported_and_one_asked_for_is_not_made_another_way():
 
 @pytest.mark.parametrize("seed", [6, 17])
 def test_a_scale_pair_far_apart_is_started_from_the_pair_that_shares_most_tracks(seed):
-    # Refused before: the pair's own essential matrix and the third view that fixes its focal lengths rest on
-    # its 40-50 shared tracks (focal lengths 2-8 times the truth), and the paper's start left cameras out.
+    # Refused from the pair itself: its own essential matrix and the third view that fixes its focal lengths
+    # rest on its 40-50 shared tracks (focal lengths 2-8 times the truth), and the paper's start leaves cameras
+    # out.
     drawn, obs = far_pair(seed)
     assert stronger_pair(obs) is not None and start_order(obs)[0] == PairStart.STRONGEST
     result = calibrate(obs)

@@ -65,7 +65,7 @@ def status(endpoint: str, rig: str) -> int:
 
 
 def test_a_rig_name_with_no_live_node_is_said_with_the_rigs_seen(two_rigs, capsys):
-    """Measured before: `--rig simm` printed 'rig simm: 0 live node(s)' and an empty table, exit 0."""
+    """Not 'rig simm: 0 live node(s)' with an empty table and exit 0, but the rigs seen and a failure."""
     assert status(two_rigs, "simm") == 1
     out, err = capsys.readouterr()
     assert "no live node for rig 'simm'; rigs seen: lab, sim" in err and "live node(s)" not in out
@@ -77,9 +77,8 @@ def test_a_rig_name_with_no_live_node_is_said_with_the_rigs_seen(two_rigs, capsy
 
 def test_a_node_whose_statistics_come_after_the_wait_is_waited_for(capsys):
     """A live node whose statistics reach `camnet status` only after its --wait-s (as on a loaded machine,
-    where a node's statistics arrived up to 8 s apart) is shown with them, not as "(no statistics yet)".
-
-    Measured before: that node's row said "(no statistics yet)" (and of a matcher, no camera was shown)."""
+    where a node's statistics can arrive seconds apart) is shown with them, not as "(no statistics yet)"
+    (and of a matcher, with its cameras)."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     activity = lambda: Activity(fps=12.5, frames=7, dropped=0)  # noqa: E731
     codes: list[int] = []
@@ -125,7 +124,7 @@ class SlowToClose:
 
 
 def test_a_session_slow_to_close_ends_cleanly(two_rigs, capsys, caplog, monkeypatch):
-    """Measured before: a ZError traceback after the table."""
+    """No ZError traceback after the table."""
     opened = bus_session.open_session
     monkeypatch.setattr(bus_session, "open_session", lambda options, **kw: SlowToClose(opened(options, **kw)))
     caplog.set_level(logging.WARNING, logger="camnet.bus.session")

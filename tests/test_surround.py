@@ -68,10 +68,9 @@ def test_a_pair_with_a_handful_of_inliers_contributes_nothing(tmp_path):
 
 def test_every_camera_of_the_rendered_ring_is_placed_within_its_sigmas(record_property):
     # Six rendered frame sets through the matcher's chain (SIFT, pairs, tracks, pool), solved as the live
-    # calibrator solves a pool with no calibration yet. Measured: every camera, scale -0.07% (sigma 0.9%),
-    # focal lengths within 0.03-0.5% (sigmas 0.24-0.68%), reprojection RMS 0.24 px. Before the paper's start
-    # left out cameras whose stereo tracks fix no camera, the same pool gave scale -88% and the
-    # camera opposite the head 158 degrees off, with every camera "calibrated" (RMS 0.42 px, sigma 2.3%).
+    # calibrator solves a pool with no calibration yet. A start that lets cameras whose stereo tracks fix no
+    # camera into the paper's start places this pool wrong with every camera "calibrated" at a small RMS and
+    # sigma (docs/benchmarks.md, "The surround rig, live").
     rig = load_rig(CONFIG / "surround.yaml")
     cameras = {c.id: create_camera(c, rig) for c in rig.cameras}
     infos = [CameraInfo(c.id, c.config.width, c.config.height) for c in rig.cameras]

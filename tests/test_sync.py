@@ -90,7 +90,8 @@ def test_buffers_are_bounded_and_overflow_is_counted():
 
 @pytest.mark.parametrize("fps", [1, 5, 10, 30, 60])
 def test_a_dead_camera_at_any_frame_rate_leaves_every_frame_set_partial_not_stalled(fps):
-    """Measured before: at 8 fps or more no partial set ever formed (the buffers held less than the wait)."""
+    """A dead camera leaves the others' frame sets partial at any frame rate, none stalled: at 8 fps or more,
+    buffers that hold less than the wait would form no partial set."""
     sync = synchronizer(max_wait_s=0.5)
     period_s, sets = 1.0 / fps, []
     frames = int(20 * fps)

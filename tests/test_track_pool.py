@@ -160,8 +160,8 @@ def _project(X: np.ndarray, rng, noise_px: float = 0.2) -> np.ndarray:
 
 def test_true_tracks_survive_an_f_first_fitted_to_a_plane():
     # The first frame sets see only the floor: every F through the floor's homography fits them, so the F
-    # the pool fits first may be pixels off the later, off-floor points (as ring3-ring4's first F was on the
-    # surround rig). Those are true: none may go.
+    # the pool fits first may be pixels off the later, off-floor points (docs/benchmarks.md, "The surround
+    # rig, live"). Those are true: none may go.
     rng = np.random.default_rng(5)
     pool = TrackPool(CAMS, STEREO, PoolConfig(max_tracks=10_000))
     for seq in range(8):
@@ -234,7 +234,7 @@ def test_a_forgotten_moved_camera_keeps_its_new_views():
 def test_a_camera_whose_new_views_break_its_pairs_geometry_alone_is_taken_for_moved():
     # Not told (the calibrator, seeing only the views the old F let through, would never find the move):
     # the first frame set of 100 tracks in which M alone is off its pairs' F makes the pool forget M's earlier
-    # views, and keep the new ones. Before, under 10% of M's new views were kept, and the move went unseen.
+    # views, and keep the new ones, not judge them against the old F, which keeps few and leaves the move unseen.
     pool, first, offered = _pool_across_a_move(forget=False)
     obs = pool.observations()
     new_m = (obs.cam_index == 2) & (obs.track_ids[obs.track_index] >= first)

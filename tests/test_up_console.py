@@ -24,8 +24,8 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 def test_two_calibrations_in_quick_succession_are_both_shown(zenoh_pair):
-    """Measured before: only the latest was kept, so a console that looked after the second arrived
-    never showed the first ('one console run skipped solve 1')."""
+    """Both are kept: a console that looks after the second arrived still shows the first (none is
+    skipped)."""
     a, b = zenoh_pair
     listener = LatestCalibration()
     subscriber = a.declare_subscriber(keys.calibration("upcon"), listener)
@@ -54,7 +54,7 @@ def test_solve_numbers_skipped_are_said_to_be_solves_not_kept():
 
 
 def test_up_and_a_standalone_calibrator_print_the_web_viewers_address(tmp_path):
-    """Measured before: `camnet up --rerun serve` left the address in logs/calibrator.log only."""
+    """The address is printed, not left in logs/calibrator.log only."""
     web_port, grpc_port = free_port(), free_port()
     up = subprocess.Popen(
         [sys.executable, "-m", "camnet.cli", "up", rig_file(tmp_path, 4), "--duration-s", "120", "--run-dir",
@@ -78,8 +78,8 @@ def test_up_and_a_standalone_calibrator_print_the_web_viewers_address(tmp_path):
 
 
 def test_up_passes_the_rerun_frame_period_to_the_calibrator(tmp_path):
-    """Measured before: `camnet up` had no --rerun-frame-period-s, so its calibrator always logged frames at the
-    10 s default. The calibrator's own parser reads what up builds for it."""
+    """`camnet up --rerun-frame-period-s` reaches its calibrator, which would otherwise log frames at the 10 s
+    default. The calibrator's own parser reads what up builds for it."""
     rig_path = rig_file(tmp_path, 4)
     rig = load_rig(rig_path)
     for flags, period_s in (([], FRAME_PERIOD_S), (["--rerun-frame-period-s", "0"], 0.0),

@@ -12,14 +12,14 @@ from tests.conftest import matched_publisher, wait_for
 
 
 def test_anything_but_a_calibration_is_counted_and_never_kept(zenoh_pair):
-    """Measured before: two bytes, {}, on the calibration key stopped camnet up and its six nodes."""
+    """Two bytes, {}, on the calibration key must not stop camnet up and its nodes."""
     a, b = zenoh_pair
     listener = LatestCalibration()
     subscriber = a.declare_subscriber(keys.calibration("uptest"), listener)
     try:
         publisher = matched_publisher(b, keys.calibration("uptest"))
         good = calibration_to_doc(calibrate(observe(make_rig(seed=1), seed=1).observations).calibration)
-        # The last: a calibration whose solve number is no number (before, shown as solve 'three').
+        # The last: a calibration whose solve number is no number (not to be shown as solve 'three').
         for junk in (b"{}", b"[" * 100_000, b"\xff\xfe", json.dumps({"format": "camnet.calibration/1"}).encode(),
                      json.dumps({**good, "solve": "three"}).encode()):
             publisher.put(junk)

@@ -105,7 +105,7 @@ def test_a_factory_head_has_no_verdict():
 
 def test_a_rotation_is_graded_by_the_image_shift_it_makes(dense):
     # 0.2 degrees moves a 400 px lens's image by 1.4 px (good) and a 1500 px lens's by 5.2 px (poor);
-    # graded in degrees both were usable.
+    # graded in degrees both would be usable.
     def rotation_findings(cal, f_px):
         cam = next(c for c in cal.cameras if c.id not in (cal.world_frame,))
         K = np.diag([f_px, f_px, 1.0]) + np.array([[0, 0, cam.K[0, 2]], [0, 0, cam.K[1, 2]], [0, 0, 0]])
@@ -122,8 +122,8 @@ def test_a_rotation_is_graded_by_the_image_shift_it_makes(dense):
 
 def test_a_far_ring_cameras_rotation_that_the_guessed_principal_points_explain_is_usable_and_asks_for_k():
     # tape_pair: 8 cameras on a ring, the pair 45 degrees apart. The far side's rotation sigma is
-    # 0.65-0.7 degrees, 0.1 with the principal points given; its true error 0.1-0.2. It was poor with
-    # "add texture" (the scene has plenty): the principal points are what pins it.
+    # 0.65-0.7 degrees, 0.1 with the principal points given; its true error 0.1-0.2. Graded poor, it would ask
+    # for texture, which the scene has plenty of: the principal points are what pins it.
     drawn = family("tape_pair", seed=0)
     cal = calibrate(observe_family(drawn, noise_px=0.5, seed=0)).calibration
     verdict = judge(cal)

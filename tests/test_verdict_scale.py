@@ -2,10 +2,10 @@
 
 The reported sigma counts both assumptions at their priors, and each is
 priced by the sigma with only it removed. On `ring_K` (the head's K given)
-the held yaw's tolerance is nearly all of it, and the verdict used to blame
+the held yaw's tolerance is nearly all of it, and the verdict must not blame
 the scene ("add frame sets with texture nearer the stereo pair"); on `ring`
-the principal-point figure had taken in the yaw's tolerance too, and the
-guessed principal points were no longer named.
+the principal-point figure must not take in the yaw's tolerance too, or the
+guessed principal points go unnamed.
 """
 
 
@@ -96,7 +96,7 @@ def test_a_scene_that_fixes_the_scale_weakly_still_asks_for_frame_sets():
 @pytest.mark.parametrize("tolerance_deg", [0.002, 0.08])
 def test_the_held_yaw_is_warned_of_where_the_verdict_names_it(tolerance_deg):
     # A head known to 0.002 degrees: the tolerance adds little to the 0.07% the scene leaves, so neither
-    # the verdict nor the warnings speak of it (the warning used to, since freeing the yaw would cost x25).
+    # the verdict nor the warnings speak of it, though freeing the yaw would cost x25.
     cal = solve("ring_K", seed=1, options=Options(pair_tolerance_deg=tolerance_deg))
     warned = bool([w for w in cal.warnings if HELD_YAW in w])
     assert warned == bool(scale_findings(cal)) == (tolerance_deg > 0.01), (cal.warnings, format_verdict(judge(cal)))
@@ -139,8 +139,8 @@ def test_with_one_assumption_the_rule_is_the_principal_points_old_one():
 
 def test_a_head_held_at_its_given_rotation_is_said_to_be_and_asks_for_a_tolerance_not_the_rotation():
     """A rig file gives the head's pose (toed in 0.3 degrees) and a tolerance: the live calibrator holds the pair
-    at that pose and, warm, prices it at the tolerance. Measured before: the held yaw's warning and the verdict
-    said the pair was held parallel ("counted parallel to 0.08 degrees") and asked for the rotation it was given."""
+    at that pose and, warm, prices it at the tolerance. The held yaw's warning and the verdict must not say the
+    pair is held parallel ("counted parallel to 0.08 degrees") nor ask for the rotation it was given."""
     drawn = family("ring_K", seed=0, head_yaw_deg=0.3)
     obs = observe_family(drawn, noise_px=0.5, seed=0)
     right = drawn.rig.cameras[1]

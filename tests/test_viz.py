@@ -256,8 +256,8 @@ def test_a_sink_that_cannot_open_is_a_clear_error():
 
 
 def test_the_solve_timeline_takes_the_calibrators_numbers(recording, solves):
-    """Measured before: Rerun numbered its own solves from 0 and skipped the failed ones, so its 'solve 0'
-    was the calibrator's (and camnet up's) solve 1, and the two drifted apart with every failure."""
+    """Rerun's timeline carries the calibrator's solve numbers: numbered on its own from 0, skipping the failed
+    solves, its 'solve 0' would be the calibrator's (and camnet up's) solve 1, drifting with every failure."""
     rec, path = recording
     rig, _, runs = solves
     viz.log_calibration(rec, runs[0][0], time_ns=T0_NS, solve_index=1)
@@ -313,8 +313,9 @@ def entity_rows(path: Path, entity: str) -> int:
 
 
 def test_a_served_recording_keeps_a_bounded_history_for_late_viewers(tmp_path):
-    """Measured before: Rerun's server kept up to 1 GiB for viewers that connect later, and a served
-    calibrator grew by about 0.5 MB a solve. A late viewer (`rerun URL --save`) of 48 MiB logged
+    """Rerun's server keeps up to 1 GiB for viewers that connect later by default, and a served calibrator
+    would grow by every solve into it (docs/benchmarks.md, "Sixteen cameras across hosts"). A late viewer
+    (`rerun URL --save`) of 48 MiB logged
     gets the newest part of it: at most `SERVE_MEMORY_LIMIT` (16 MiB), and more than half of that."""
     from tests.conftest import free_port, wait_for
 

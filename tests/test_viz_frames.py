@@ -56,7 +56,7 @@ def run_view(zenoh_pair, path, *, solves: int, moved_at: dict[int, str], late: s
 
 
 def test_frames_are_logged_every_period_not_every_solve(zenoh_pair, tmp_path):
-    # Before: every camera's frame at every solve, 8 images each over 8 solves.
+    # Not every camera's frame at every solve (8 images each over 8 solves).
     solves = 8  # 2 s apart: 14 s of capture time, against the default of a frame per 10 s
     cams, data = run_view(zenoh_pair, tmp_path / "run.rrd", solves=solves, moved_at={3: "mono_a"}, late="mono_b")
     # A camera's first frame, then the first 10 s after it; mono_a also when taken for moved (and its 10 s

@@ -35,8 +35,9 @@ def saved_size(path, solves: list[tuple[Calibration, Observations]], truth) -> i
 
 
 def test_a_saved_recording_grows_by_what_each_solve_logs(tmp_path):
-    # Before: 49-53 kB a solve of 4 cameras and 300 points whose data take 6-7 kB, each of a solve's 30-odd
-    # log calls (cameras, observations, one per series) written as a chunk of its own with its own schema.
+    # Written as it is logged, each of a solve's 30-odd log calls (cameras, observations, one per series) is
+    # a chunk of its own with its own schema, several times the data's size (docs/benchmarks.md, "Bus,
+    # recording, Rerun").
     rig = make_rig(n_cameras=4, n_points=700, seed=5)
     every = observe(rig, noise_px=0.3, seed=5).observations
     rng = np.random.default_rng(0)
@@ -49,6 +50,7 @@ def test_a_saved_recording_grows_by_what_each_solve_logs(tmp_path):
     all_ = saved_size(tmp_path / "all.rrd", solves, rig.cameras)
     per_solve = (all_ - one) / (len(solves) - 1)
     # What a solve's data take: each point (3 float32 and an RGBA colour), each observation (2 float32 and a
-    # colour), a few dozen scalars, the cameras' poses and pinholes. Now 8 kB against 21 kB (LZ4 within a chunk).
+    # colour), a few dozen scalars, the cameras' poses and pinholes. Batched, with LZ4 within a chunk, a solve
+    # takes less than that.
     data = np.mean([16 * len(cal.points) + 12 * len(obs.uv) for cal, obs in solves[1:]]) + 2000
     assert per_solve < data, f"{per_solve / 1e3:.1f} kB a solve whose data take {data / 1e3:.1f} kB"

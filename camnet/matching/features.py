@@ -55,9 +55,9 @@ class MatcherConfig:
     ransac_confidence: float = 0.999
     ransac_max_iters: int = 10_000
     # A pair with fewer RANSAC inliers contributes nothing. An F fitted to a
-    # handful of inliers among mostly false candidates is itself false: pairs
-    # with 9-18 inliers had 0-73% on the true epipolar lines (fountain-P11,
-    # the surround rig), pairs with 22 or more 78-100%.
+    # handful of inliers among mostly false candidates is itself false, and
+    # below about 20 inliers real and rendered pairs often have one
+    # (docs/benchmarks.md, "Evidence behind the nodes' choices").
     min_matches: int = 20
     use_stereo_prior: bool = True
     row_tolerance_px: float = 40.0
@@ -67,8 +67,8 @@ class MatcherConfig:
     prior_outside_margin: float = 1.1
     max_image_side_px: int | None = None  # detect on a downscaled copy above this size
     # Real rigs run short exposures: dark or flat images are normal and SIFT's
-    # contrast threshold loses most of their keypoints (130 instead of 4000 on a
-    # real ring). `normalise_contrast`: stretch, then CLAHE (see `normalise_contrast`).
+    # contrast threshold loses most of their keypoints (docs/benchmarks.md, "The
+    # matcher"). `normalise_contrast`: stretch, then CLAHE (see `normalise_contrast`).
     normalise_contrast: bool = True
     clahe_clip_limit: float = 2.0
     few_features: int = 200  # an image with fewer keypoints is reported, with the likely reason
@@ -243,8 +243,9 @@ def mutual_ratio_matches(
 def _bf_mutual_ratio(fa: Features, fb: Features, *, ratio: float, cross_check: bool) -> tuple[np.ndarray, np.ndarray]:
     """`mutual_ratio_matches` without a prior by OpenCV's brute force matcher.
 
-    Same result as the dense path; for binary descriptors it is about 3x
-    faster, as OpenCV counts bits directly instead of multiplying unpacked bits.
+    Same result as the dense path; for binary descriptors it is faster, as
+    OpenCV counts bits directly instead of multiplying unpacked bits
+    (docs/benchmarks.md, "Evidence behind the nodes' choices").
     """
     norm = cv2.NORM_HAMMING if fa.detector is Detector.ORB else cv2.NORM_L2
     matcher = cv2.BFMatcher(norm)

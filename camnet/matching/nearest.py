@@ -32,7 +32,7 @@ class Operands:
     ``rows[i] @ columns[j]`` is the distance between descriptors i and j (squared L2, or Hamming of bits).
     Each form is made when first asked for: a pair needs its first camera's rows and its second's
     columns, and a product's operands and matrix held at once beyond glibc's trim threshold are handed
-    back and faulted in again at every pair (measured: 918 page faults and twice the time of a pair).
+    back and faulted in again at every pair, which costs as much as the pair (docs/benchmarks.md, "The matcher").
     """
 
     def __init__(self, vectors: np.ndarray) -> None:

@@ -8,10 +8,10 @@ floor at grazing angles from cameras far apart, repeated texture, a pair
 whose few inliers gave a false F. In a pool they accumulate: a true static
 point re-detected in a later frame set is merged into its pooled track,
 while a false match is a new track each time, and false tracks often lie
-where true ones are sparse, in the grid cells that eviction spares. On the
-surround rig (config/surround.yaml) 3% of a frame set's tracks are false
-(off the truth by more than 1 px) and, without this check, 20% of the pool's
-after 36 frame sets (of its tracks seen by 3+ cameras, 62% in its older half).
+where true ones are sparse, in the grid cells that eviction spares: without
+this check a long pool is many times falser than the frame sets it took in,
+and falsest in its oldest tracks (docs/benchmarks.md, "The surround rig,
+live"; "Evidence behind the nodes' choices").
 
 The rig is static, so one F holds for a pair over every frame set. Fitted
 robustly to everything the pool holds of a pair, over many frame sets, it is
@@ -19,13 +19,13 @@ the F of the true points, which agree across frame sets while false ones
 scatter. A view off that F is false. Three things keep true views:
 
 - An F fitted to the tracks of one frame set (the first the pool saw of a
-  pair) holds where those tracks lie and can be pixels off elsewhere: on
-  the surround rig, true tracks of later frame sets lay a median 1.4-3.8 px
-  off ring3-ring4's first F. So where more than `SUSPECT_SHARE` of a pair's
-  new tracks lie off its F, the F is refitted to the whole pool before any
-  of them is judged.
-- Pairs at grazing angles localize their points worse (a median 0.3 px off
-  the true F, against 0.1 px for most pairs): each pair's limit is
+  pair) holds where those tracks lie and can be pixels off elsewhere, where
+  true tracks of later frame sets lie (docs/benchmarks.md, "The surround
+  rig, live"). So where more than `SUSPECT_SHARE` of a pair's new tracks lie
+  off its F, the F is refitted to the whole pool before any of them is
+  judged.
+- Pairs at grazing angles localize their points worse than most pairs
+  (docs/benchmarks.md, "The surround rig, live"): each pair's limit is
   `SPREAD` times its own residual sigma, at least the configured one.
 - Only the view to blame goes: the camera in every pair of the track that
   is off (a false view in a track a-b-c is off in a-c and b-c, not a-b);
@@ -47,8 +47,8 @@ SUSPECT_MIN = 5
 SPREAD = 4.0
 # A pair's F judges nothing until the pair's tracks come from this many frame sets.
 MIN_FRAME_SETS = 3
-# Pairs refitted in turn per call, at most: a fixed cost per frame set whatever the cameras (on 16 cameras,
-# 1/8 of the pairs was 9 refits a set, 11 ms of the pool's 49; on 4 cameras it is 1).
+# Pairs refitted in turn per call, at most: a fixed cost per frame set whatever the cameras, where a share of
+# the pairs grows with their square (docs/benchmarks.md, "Evidence behind the nodes' choices").
 MAX_REFITS_IN_TURN = 2
 
 
@@ -112,9 +112,9 @@ def views_to_blame(track: np.ndarray, a: np.ndarray, b: np.ndarray, shape: tuple
 class PairGeometry:
     """Each camera pair's F, fitted to a pool's tracks, and the views off it. Not thread-safe.
 
-    Fitting every pair after every frame set costs about 1 ms a pair (36 ms
-    for a ring of nine): too much beside the matcher's 0.24 s a frame set of
-    sixteen cameras. A pair's F does not change while the rig is static, so
+    Fitting every pair after every frame set costs too much beside the rest
+    of the matcher's work on the set (docs/benchmarks.md, "Evidence behind
+    the nodes' choices"). A pair's F does not change while the rig is static, so
     each call refits `1 / refit_every` of the pairs in turn (at most
     `MAX_REFITS_IN_TURN`), a pair without
     an F when its tracks have grown by half since it was last tried, and a

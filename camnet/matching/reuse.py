@@ -160,10 +160,10 @@ class IncrementalMatcher:
         stereo = self.stereo
         use_prior = stereo is not None and stereo.parallel and self.config.use_stereo_prior
         out = []
-        # The distance products of a pair are a few thousand rows: BLAS threads halve no wall time on them
-        # but double the CPU (measured: 23 against 11.5 ms a product), spinning beside the other nodes.
-        # The pairs asked for, in the order of the cameras (the node asks one pair per call: walking every
-        # pair of 16 cameras for it was a millisecond a frame set).
+        # The distance products of a pair are a few thousand rows: BLAS threads save no wall time on them
+        # but double the CPU, spinning beside the other nodes (docs/benchmarks.md, "The matcher").
+        # The pairs asked for, in the order of the cameras: the node asks one pair per call, which must not walk
+        # every pair of a large rig (docs/benchmarks.md, "Evidence behind the nodes' choices").
         index = {camera_id: k for k, camera_id in enumerate(ids)}
         todo = ([(i, j) for i in range(len(ids)) for j in range(i + 1, len(ids))] if pairs is None else
                 sorted({tuple(sorted(index[c] for c in pair)) for pair in pairs if pair <= index.keys()}))

@@ -4,10 +4,10 @@ A camera's feature stage marks as reused the keypoints it copied from its
 keyframe (`camnet.matching.edge`), but a new keyframe, every
 `keyframe_period` frames, detects the whole image again: the same static
 background, at the same pixels give or take the sensor noise. Matching its
-pairs whole again (about 25 ms a pair of 2000 keypoints against 2000) only
-finds the background the pool holds already; on 16 cameras with 4 partners
-each that was about 3 whole matches a frame set, two thirds of the
-matching.
+pairs whole again, at a dozen times the cost of matching what changed, only
+finds the background the pool holds already, and keyframes' whole matches
+then make most of a frame set's matching (docs/benchmarks.md, "Sixteen
+cameras across hosts"; "Evidence behind the nodes' choices").
 
 So the matcher remembers each camera's previous keypoints. At a keyframe, a
 keypoint within `RADIUS_PX` of one of them, with a descriptor within
@@ -35,8 +35,9 @@ RADIUS_PX = 1.0
 # Of SIFT's descriptors (whole numbers, norm about 512): the same static point re-detected under new noise is
 # some tens apart, a different point at the same pixel (the moving object in front of the background) hundreds.
 MAX_DESCRIPTOR_DISTANCE = 120.0
-# A keyframe with at least this share of its keypoints seen before shows the same scene from the same place: on
-# config/hosts16.yaml about 40% are (the rest lie where the scene moved, or are noise), a camera moved none.
+# A keyframe with at least this share of its keypoints seen before shows the same scene from the same place: a
+# static camera's keyframe has well over this share seen (the rest lie where the scene moved, or are noise), a
+# moved camera's none (docs/benchmarks.md, "Sixteen cameras across hosts").
 CONTINUE_SHARE = 0.15
 
 
@@ -81,8 +82,8 @@ class SeenBefore:
     def mark(self, camera: CameraFeatures) -> CameraFeatures:
         """`camera` with its keypoints seen before first (`reused` of them) and `keyframe_seq` its epoch.
 
-        Between keyframes the stage's own reused keypoints are the seen ones (testing its new keypoints
-        too found 8% of them seen on config/hosts16.yaml, for 0.75 ms a camera: more than it saved)."""
+        Between keyframes the stage's own reused keypoints are the seen ones: testing its new keypoints too
+        finds few of them seen, at about the cost it saves (docs/benchmarks.md, "Sixteen cameras across hosts")."""
         features = camera.features
         previous = self._previous.get(camera.camera_id)
         self._previous[camera.camera_id] = _Previous(camera.keyframe_seq, camera.keyframe_seq, features.uv,

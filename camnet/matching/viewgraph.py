@@ -42,13 +42,11 @@ class ViewGraphConfig:
 
     min_overlap: float = 0.05  # of either camera's frustum the other sees
     max_axis_angle_deg: float = 75.0  # optical axes further apart: features do not match across
-    # Partners per camera by the geometry (at most neighbours * M / 2 pairs). On the 16 cameras of
-    # config/hosts16.yaml 4 make 29 pairs, 3 make 23, 2 make 16-17: on a ring, each camera and its two
-    # neighbours, whose tracks chain into tracks of 3+ cameras through the middle one. Since keyframes match
-    # what changed (camnet.matching.seen), 2 pool as many tracks seen by 3+ cameras as 3 and 4, for a fifth less
-    # CPU a set of 16 cameras (5 pairs of 6 at 4). Calibrations solved from recorded streams' pools
-    # (benchmarks/bench_matcher_stream.py --solve-every) and live runs differ from 3's by less than the spread
-    # between runs, whose scale errors stay well inside the sigma reported (docs/benchmarks.md, "The matcher").
+    # Partners per camera by the geometry (at most neighbours * M / 2 pairs). 2 are, on a ring, each camera's
+    # two neighbours, whose tracks chain into tracks of 3+ cameras through the middle one. Since keyframes match
+    # what changed (camnet.matching.seen), 2 pool as many tracks seen by 3+ cameras as 3 and 4, for less CPU a
+    # set, and calibrations from their pools differ from 3's by less than the spread between runs, well inside
+    # the sigma reported (docs/benchmarks.md, "The matcher"; benchmarks/bench_matcher_stream.py --solve-every).
     neighbours: int = 2
     # Other pairs per frame set, in rotation. An explored pair without an F is probed on a quarter of one
     # camera's keypoints first (camnet.matching.reuse), and matched whole only where that finds one.
