@@ -29,8 +29,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_bus_arguments(parser)
 
 
-# Measured on a 2-core machine at load 20-60: a node's statistics, published every 1.0-1.1 s, reached
-# a subscriber up to 8 s apart, and the calibrator's up to 3 s apart while it solved.
+# On a loaded machine a node's statistics, published every second, can arrive seconds apart: wait long enough
+# for a live node not to look silent (docs/benchmarks.md, "Evidence behind the nodes' choices").
 LATE_STATS_S = 10.0
 
 

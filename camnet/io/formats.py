@@ -85,8 +85,8 @@ def _parse_stereo(stereo_raw: Any, index: dict[str, int], any_distance: bool) ->
     return Stereo(left, right, baseline, sigma_m=stereo_sigma_m)
 
 
-# Tracks one solve takes. The adjustment's time and memory grow with the tracks: 20k tracks
-# of 16 cameras solve in tens of seconds; 100k took a minute and a gigabyte, 10^6 did not end.
+# Tracks one solve takes: the adjustment's time and memory grow with the tracks, and beyond this a solve of
+# 16 cameras takes minutes and gigabytes (docs/benchmarks.md, "Evidence behind the nodes' choices").
 MAX_TRACKS = 20_000
 
 

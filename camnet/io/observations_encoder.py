@@ -1,8 +1,8 @@
 """The observations message of a growing track pool as JSON bytes, each track encoded once.
 
 A live pool is published after every frame set that changed it, and encoding
-the whole document (a full pool of 5000 tracks) took tens of milliseconds of
-the matcher's time per set. From one publication to the next most tracks are
+the whole document of a full pool costs the matcher tens of milliseconds a set
+(docs/benchmarks.md, "Evidence behind the nodes' choices"). From one publication to the next most tracks are
 unchanged: a pooled track keeps its id and pixels until it is evicted, except
 that seeing it again may add cameras to it. So `ObservationsEncoder` keeps
 each track's JSON text with the pixels it was made from, encodes only the
