@@ -79,7 +79,7 @@ def _parse_stereo(stereo_raw: Any, index: dict[str, int], any_distance: bool) ->
     baseline = v.number(v.require(stereo_raw, "baseline_m", "stereo"), "stereo.baseline_m")
     if baseline <= 0:
         raise v.fail("stereo.baseline_m", f"must be positive, got {baseline:g}")
-    v.plausible_distance(baseline, "stereo.baseline_m", any_distance=any_distance)
+    v.plausible_distance(baseline, "stereo.baseline_m", keep=v.KEEP_BY_FLAG, any_distance=any_distance)
     sigma = stereo_raw.get("sigma_m")
     stereo_sigma_m = 0.0 if sigma is None else v.number(sigma, "stereo.sigma_m", minimum=0.0)
     return Stereo(left, right, baseline, sigma_m=stereo_sigma_m)
@@ -110,7 +110,7 @@ def parse_observations(doc: Any, *, any_distance: bool = False, max_tracks: int 
 
     stereo = _parse_stereo(v.require(doc, "stereo", ""), index, any_distance)
     baselines = v.baselines(doc.get("baselines", []), "baselines", index, (stereo.left, stereo.right),
-                            any_distance=any_distance)
+                            keep=v.KEEP_BY_FLAG, any_distance=any_distance)
 
     tracks_raw = v.require(doc, "tracks", "")
     if not isinstance(tracks_raw, list):

@@ -377,14 +377,14 @@ def _parse_rig(data: Any, source: str, base_dir: Path | None) -> Rig:
         if left == right:
             raise InputError(f"{st.field('right')}: must differ from stereo.left")
         baseline_m = v.plausible_distance(st.number("baseline_m", positive=True), st.field("baseline_m"),
-                                          any_distance=any_distance)
+                                          keep=v.KEEP_IN_RIG_FILE, any_distance=any_distance)
         pair = Stereo(left=left, right=right, baseline_m=baseline_m,
                       sigma_m=st.number("sigma_m", 0.0, minimum=0.0), parallel=st.boolean("parallel", False),
                       tolerance_deg=st.number("tolerance_deg", None, minimum=0.0))
         stereo = _stereo_pose(st, pair, cameras)
     pair_ids = None if stereo is None else (stereo.left, stereo.right)
     baselines = v.baselines(top.raw("baselines", []), "baselines", seen, pair_ids, strict=True,
-                            any_distance=any_distance)
+                            keep=v.KEEP_IN_RIG_FILE, any_distance=any_distance)
     scene = _scene(top.section("scene", SCENE_KEYS, required=False))
     sync = _sync(top.section("sync", SYNC_KEYS)) if top.raw("sync", None) is not None else None
     return Rig(name=name, cameras=cameras, stereo=stereo, scene=scene, source=source, sync=sync, baselines=baselines)

@@ -261,23 +261,28 @@ BASELINE_KEYS = ("cameras", "baseline_m", "sigma_m")
 # other units (125 for 125 mm): the solve would put every point that many times too far.
 PLAUSIBLE_DISTANCE_M = (0.005, 50.0)
 ANY_DISTANCE_FLAG = "accept_any_distance"
+# How to keep such a distance on purpose, by where it was read. A rig file says so itself, so that every
+# node reading it agrees (`camnet up`, `camnet match` and the nodes take no flag for it); an observations
+# file is kept by the command that solves it.
+KEEP_IN_RIG_FILE = f"write `{ANY_DISTANCE_FLAG}: true` at the top level of the rig file"
+KEEP_BY_FLAG = "give --accept-any-distance"
 
 
-def plausible_distance(distance_m: float, path: str, *, any_distance: bool = False) -> float:
-    """`distance_m`, refused with the range and the unit when it is no distance between cameras."""
+def plausible_distance(distance_m: float, path: str, *, keep: str, any_distance: bool = False) -> float:
+    """`distance_m`, refused with the range and the unit when it is no distance between cameras; the
+    error ends with `keep`, how to keep it all the same (KEEP_IN_RIG_FILE, KEEP_BY_FLAG)."""
     low, high = PLAUSIBLE_DISTANCE_M
     if any_distance or low <= distance_m <= high:
         return distance_m
     hint = (f"{distance_m:g} mm = {distance_m / 1000:g}" if distance_m > high
             else f"{distance_m:g} km = {distance_m * 1000:g}")
     raise fail(path, f"{distance_m:g} m is not a distance between cameras (expected {low:g} to {high:g} m); "
-               f"distances are given in metres ({hint}); to keep it, give `{ANY_DISTANCE_FLAG}: true` in the rig "
-               "file or --accept-any-distance")
+               f"distances are given in metres ({hint}); to keep it, {keep}")
 
 
 def baselines(
-    value: Any, path: str, camera_ids: Collection[str], stereo: tuple[str, str] | None, *, strict: bool = False,
-    any_distance: bool = False,
+    value: Any, path: str, camera_ids: Collection[str], stereo: tuple[str, str] | None, *, keep: str,
+    strict: bool = False, any_distance: bool = False,
 ) -> tuple[Baseline, ...]:
     """Known distances between camera centres: a list of ``{cameras: [a, b], baseline_m, sigma_m}``.
 
@@ -285,7 +290,7 @@ def baselines(
     cameras they may name; stereo: the stereo pair (left, right), whose
     distance is given by the stereo section; strict: refuse unknown keys (rig
     files) instead of ignoring them (JSON documents); any_distance: accept
-    distances outside PLAUSIBLE_DISTANCE_M.
+    distances outside PLAUSIBLE_DISTANCE_M; keep: how to (`plausible_distance`).
     """
     given = {frozenset(stereo): "stereo.baseline_m"} if stereo is not None else {}
     out = []
@@ -309,7 +314,8 @@ def baselines(
                        f"{given[frozenset((a, b))]}; give it once")
         given[frozenset((a, b))] = here
         distance_m = plausible_distance(number(require(entry, "baseline_m", here), f"{here}.baseline_m",
-                                               positive=True), f"{here}.baseline_m", any_distance=any_distance)
+                                               positive=True), f"{here}.baseline_m", keep=keep,
+                                        any_distance=any_distance)
         sigma = entry.get("sigma_m")
         sigma_m = 0.0 if sigma is None else number(sigma, f"{here}.sigma_m", minimum=0.0)
         out.append(Baseline(a, b, distance_m, sigma_m))
