@@ -92,6 +92,10 @@ def _mutations(doc: dict):
         mutate(lambda d: [t["observations"].pop(k, None) for t in d["tracks"][3:] for k in ("mono_a", "mono_b")]),
         "need at least 6",
     )
+    yield ("numeric camera id", mutate(lambda d: d["cameras"][0].update(id=6)),
+           'cameras[0].id: ids are strings, got the number 6; quote it: "id": "6"')
+    yield ("numeric stereo id", mutate(lambda d: d["stereo"].update(right=7)),
+           'stereo.right: ids are strings, got the number 7; quote it: "right": "7"')
     yield "duplicate camera", mutate(lambda d: d["cameras"].append(dict(d["cameras"][0]))), "duplicate camera id"
     yield "nested 100k deep", "[" * 100_000 + "]" * 100_000, "nested too deeply"
     yield "not UTF-8", json.dumps(doc).encode()[:40] + b"\xff\xfe" + json.dumps(doc).encode()[40:], "not UTF-8"
@@ -101,7 +105,7 @@ def _mutations(doc: dict):
     yield "5000-digit integer", json.dumps(doc).replace('"id": 0,', '"id": ' + "9" * 5000 + ",", 1), "not usable JSON"
 
 
-MUTATIONS = 18
+MUTATIONS = 20
 
 
 def test_every_mutation_is_run(good_doc):

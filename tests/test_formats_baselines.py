@@ -61,7 +61,7 @@ def test_null_sigma_is_exact(doc):
         ("baselines", {"cameras": ["mono_a"]}, "baselines: expected a list"),
         ("cameras", ["mono_a"], "baselines[1].cameras: expected [a, b], two camera ids"),
         ("cameras", ["mono_a", "x"], "baselines[1].cameras: unknown camera 'x'"),
-        ("cameras", ["mono_a", 3], "baselines[1].cameras[1]: expected a non-empty string"),
+        ("cameras", ["mono_a", 3], 'baselines[1].cameras[1]: ids are strings, got the number 3; quote it: "3"'),
         ("cameras", ["mono_b", "mono_b"], "baselines[1].cameras: the same camera 'mono_b' twice"),
         ("cameras", ["right", "left"], "baselines[1].cameras: the distance of 'right' and 'left' is already given "
                                        "by stereo.baseline_m"),

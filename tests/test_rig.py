@@ -112,6 +112,74 @@ def test_error_names_the_file(tmp_path):
         load_rig(path)
 
 
+NUMERIC_IDS = """\
+rig: desk
+stereo: {left: 0006, right: "0007", baseline_m: 0.12}
+baselines:
+  - {cameras: ["0007", 0010], baseline_m: 0.5}  # YAML 1.1: octal, the number 8
+cameras:
+  - id: 0006
+  - id: "0007"
+  - id: "0010"
+"""
+
+
+@pytest.mark.parametrize(
+    ("fix", "message"),
+    [
+        ((), 'cameras[0].id: ids are strings, but YAML reads the unquoted 0006 as the number 6, losing how it was '
+             'written; quote it: id: "0006"'),
+        ((("- id: 0006", '- id: "0006"'),),
+         'stereo.left: ids are strings, but YAML reads the unquoted 0006 as the number 6, losing how it was written; '
+         'quote it: left: "0006"'),
+        ((("- id: 0006", '- id: "0006"'), ("left: 0006", 'left: "0006"')),
+         'baselines[0].cameras[1]: ids are strings, but YAML reads the unquoted 0010 as the number 8, losing how it '
+         'was written; quote it: "0010"'),
+        ((("- id: 0006", '- id: "0006"'), ("left: 0006", "left: on")),
+         'stereo.left: ids are strings, but YAML reads the unquoted on as true, losing how it was written; '
+         'quote it: left: "on"'),
+        ((("- id: 0006", '- id: "0006"'), ("left: 0006", 'left: "0006"'), ("rig: desk", "rig: 2024")),
+         'rig: ids are strings, but YAML reads the unquoted 2024 as the number 2024; quote it: rig: "2024"'),
+    ],
+    ids=["camera", "stereo", "baselines", "boolean", "rig"],
+)
+def test_an_unquoted_numeric_id_is_shown_as_written_and_quoted(tmp_path, fix, message):
+    path = tmp_path / "rig.yaml"
+    text = NUMERIC_IDS
+    for old, new in fix:
+        text = text.replace(old, new)
+    path.write_text(text)
+    with pytest.raises(InputError) as refusal:
+        load_rig(path)
+    assert str(refusal.value) == f"{path}: {message}"
+    for old, new in (("- id: 0006", '- id: "0006"'), ("left: 0006", 'left: "0006"'), ("0010]", '"0010"]')):
+        text = text.replace(old, new)
+    path.write_text(text.replace("left: on", 'left: "0006"').replace("rig: 2024", "rig: desk"))
+    rig = load_rig(path)  # quoted as the message says, every id is the one written
+    assert [c.id for c in rig.cameras] == ["0006", "0007", "0010"] and rig.stereo.left == "0006"
+    assert (rig.baselines[0].a, rig.baselines[0].b) == ("0007", "0010")
+
+
+def test_a_numeric_id_without_its_yaml_text_says_the_spelling_is_lost():
+    with pytest.raises(InputError, match=r'stereo\.left: ids are strings, but YAML read this one as the number 6, and '
+                       r'how it was written is lost \(an unquoted 0006 is the number 6, its leading zeros dropped\); '
+                       r'quote it as written, e\.g\. left: "0006"'):
+        parse_rig({**base(), "stereo": {"left": 6, "right": "b", "baseline_m": 0.1}})
+
+
+def test_camnet_match_names_a_numeric_id_in_one_line(tmp_path):
+    import subprocess
+    import sys
+
+    path = tmp_path / "rig.yaml"
+    path.write_text(NUMERIC_IDS)
+    result = subprocess.run([sys.executable, "-m", "camnet", "match", "0006.png", "0007.png", "0010.png", "--rig",
+                             str(path), "-o", str(tmp_path / "obs.json")], capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2 and not (tmp_path / "obs.json").exists()
+    assert result.stderr == (f"camnet match: error: {path}: cameras[0].id: ids are strings, but YAML reads the "
+                             'unquoted 0006 as the number 6, losing how it was written; quote it: id: "0006"\n')
+
+
 def with_head(d: dict, **stereo) -> None:
     K = [[50.0, 0.0, 31.5], [0.0, 50.0, 23.5], [0.0, 0.0, 1.0]]
     for cam in d["cameras"][:2]:

@@ -50,7 +50,7 @@ def load_json(path: str | Path) -> Any:
 
 
 def _parse_camera(value: Any, path: str) -> CameraInfo:
-    cam_id = v.string(v.require(value, "id", path), f"{path}.id")
+    cam_id = v.JSON_IDS.read(v.require(value, "id", path), f"{path}.id")
     width = v.image_side(v.require(value, "width", path), f"{path}.width")
     height = v.image_side(v.require(value, "height", path), f"{path}.height")
     K = v.intrinsic_matrix(value["K"], f"{path}.K") if "K" in value else None
@@ -69,8 +69,8 @@ def _parse_camera(value: Any, path: str) -> CameraInfo:
 
 def _parse_stereo(stereo_raw: Any, index: dict[str, int], any_distance: bool) -> Stereo:
     """The `stereo` section; `index`: the camera ids."""
-    left = v.string(v.require(stereo_raw, "left", "stereo"), "stereo.left")
-    right = v.string(v.require(stereo_raw, "right", "stereo"), "stereo.right")
+    left = v.JSON_IDS.read(v.require(stereo_raw, "left", "stereo"), "stereo.left")
+    right = v.JSON_IDS.read(v.require(stereo_raw, "right", "stereo"), "stereo.right")
     for key, cam_id in (("left", left), ("right", right)):
         if cam_id not in index:
             raise v.fail(f"stereo.{key}", f"unknown camera id {cam_id!r}")
@@ -293,7 +293,7 @@ def _parse_camera_pose(c: Any, path: str) -> Camera:
     t = v.vector(v.require(c, "t", path), f"{path}.t", size=3)
     model = v.lens_model(c["model"], f"{path}.model") if "model" in c else LensModel.PINHOLE
     return Camera(
-        id=v.string(v.require(c, "id", path), f"{path}.id"),
+        id=v.JSON_IDS.read(v.require(c, "id", path), f"{path}.id"),
         width=v.image_side(v.require(c, "width", path), f"{path}.width"),
         height=v.image_side(v.require(c, "height", path), f"{path}.height"),
         K=v.intrinsic_matrix(v.require(c, "K", path), f"{path}.K"),

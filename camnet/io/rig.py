@@ -11,6 +11,7 @@ config/README.md.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -291,15 +292,12 @@ DRIVERS = tuple(_DRIVER_PARSERS)  # the camera drivers, one config section each 
 _SECTION_KEYS = {"sim": SIM_KEYS, "aravis": ARAVIS_KEYS, "v4l2": V4L2_KEYS}
 
 
-def _camera(data: Any, path: str, base_dir: Path | None) -> CameraEntry:
+def _camera(data: Any, path: str, base_dir: Path | None, ids: v.Ids) -> CameraEntry:
     driver = data.get("driver") if isinstance(data, dict) else None
     if driver is not None and driver not in DRIVERS:
         raise InputError(f"{path}.driver: unknown driver {driver!r} (expected {', '.join(DRIVERS)})")
-    s = Section(data, path, CAMERA_KEYS + ((driver,) if driver else ()), base_dir=base_dir)
-    camera_id = s.raw("id", required=True)
-    if not isinstance(camera_id, str):
-        raise InputError(f"{s.field('id')}: expected a string, got {camera_id!r}")
-    validate_id(camera_id, what=s.field("id"))
+    s = Section(data, path, CAMERA_KEYS + ((driver,) if driver else ()), base_dir=base_dir, ids=ids)
+    camera_id = validate_id(s.identifier("id"), what=s.field("id"))
     model = LensModel(s.string("model", LensModel.PINHOLE.value, choices=tuple(LensModel)))
     config = None
     if driver is not None:
@@ -337,29 +335,29 @@ def _scene(s: Section) -> SceneConfig:
     return scene
 
 
-def parse_rig(data: Any, *, source: str = "<memory>", base_dir: Path | None = None) -> Rig:
+def parse_rig(data: Any, *, source: str = "<memory>", base_dir: Path | None = None,
+              spellings: Mapping[str, str] | None = None) -> Rig:
     """The Rig described by `data` (the YAML document as Python objects).
 
     A relative path in it (a v4l2 source or timestamps file) is taken relative
     to `base_dir` (the rig file's directory); None keeps it as given.
+    `spellings`: the text of the unquoted scalars by path (`yaml_spellings`),
+    so that an id YAML read as a number is shown as written.
     """
     try:
-        return _parse_rig(data, source, base_dir)
+        return _parse_rig(data, source, base_dir, v.Ids(yaml=True, spellings=spellings or {}))
     except InputError as exc:
         raise InputError(f"{source}: {exc}") from None
 
 
-def _parse_rig(data: Any, source: str, base_dir: Path | None) -> Rig:
-    top = Section(data, "", TOP_KEYS)
+def _parse_rig(data: Any, source: str, base_dir: Path | None, ids: v.Ids) -> Rig:
+    top = Section(data, "", TOP_KEYS, ids=ids)
     any_distance = top.boolean(v.ANY_DISTANCE_FLAG, False)
-    name = top.raw("rig", required=True)
-    if not isinstance(name, str):
-        raise InputError(f"rig: expected a string, got {name!r}")
-    validate_id(name, what="rig")
+    name = validate_id(top.identifier("rig"), what="rig")
     raw_cameras = top.raw("cameras", required=True)
     if not isinstance(raw_cameras, list) or not raw_cameras:
         raise InputError(f"cameras: expected a non-empty list, got {raw_cameras!r}")
-    cameras = tuple(_camera(c, f"cameras[{i}]", base_dir) for i, c in enumerate(raw_cameras))
+    cameras = tuple(_camera(c, f"cameras[{i}]", base_dir, ids) for i, c in enumerate(raw_cameras))
     seen: dict[str, int] = {}
     for i, cam in enumerate(cameras):
         if cam.id in seen:
@@ -369,7 +367,7 @@ def _parse_rig(data: Any, source: str, base_dir: Path | None) -> Rig:
     stereo = None
     if top.raw("stereo", None) is not None:
         st = top.section("stereo", STEREO_KEYS)
-        left, right = st.string("left"), st.string("right")
+        left, right = st.identifier("left"), st.identifier("right")
         for key, cid in (("left", left), ("right", right)):
             if cid not in seen:
                 raise InputError(f"{st.field(key)}: no camera {cid!r} in cameras "
@@ -384,7 +382,7 @@ def _parse_rig(data: Any, source: str, base_dir: Path | None) -> Rig:
         stereo = _stereo_pose(st, pair, cameras)
     pair_ids = None if stereo is None else (stereo.left, stereo.right)
     baselines = v.baselines(top.raw("baselines", []), "baselines", seen, pair_ids, strict=True,
-                            keep=v.KEEP_IN_RIG_FILE, any_distance=any_distance)
+                            keep=v.KEEP_IN_RIG_FILE, any_distance=any_distance, ids=ids)
     scene = _scene(top.section("scene", SCENE_KEYS, required=False))
     sync = _sync(top.section("sync", SYNC_KEYS)) if top.raw("sync", None) is not None else None
     return Rig(name=name, cameras=cameras, stereo=stereo, scene=scene, source=source, sync=sync, baselines=baselines)
@@ -424,11 +422,32 @@ def load_rig(path: str | Path) -> Rig:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise InputError(f"{path}: cannot read rig file: {exc.strerror}") from exc
+    loader = yaml.SafeLoader(text)  # yaml.safe_load's steps, keeping the nodes for their spellings
     try:
-        data = yaml.safe_load(text)
+        node = loader.get_single_node()
+        data = loader.construct_document(node) if node is not None else None
     except yaml.YAMLError as exc:
         raise InputError(f"{path}: not valid YAML: {exc}") from exc
-    return parse_rig(data, source=str(path), base_dir=path.parent)
+    finally:
+        loader.dispose()
+    return parse_rig(data, source=str(path), base_dir=path.parent, spellings=yaml_spellings(node))
+
+
+def yaml_spellings(node, path: str = "") -> dict[str, str]:
+    """The text of every unquoted scalar that YAML did not read as a string (6 from ``0006``, true from
+    ``on``), by its path in the document as the rig's errors name it (``cameras[0].id``)."""
+    import yaml
+
+    out: dict[str, str] = {}
+    if isinstance(node, yaml.MappingNode):
+        for key, value in node.value:
+            out.update(yaml_spellings(value, f"{path}.{key.value}" if path else str(key.value)))
+    elif isinstance(node, yaml.SequenceNode):
+        for i, item in enumerate(node.value):
+            out.update(yaml_spellings(item, f"{path}[{i}]"))
+    elif isinstance(node, yaml.ScalarNode) and node.style is None and node.tag != "tag:yaml.org,2002:str":
+        out[path] = node.value
+    return out
 
 
 def camera_info(rig: Rig, camera_id: str, width: int, height: int) -> CameraInfo:

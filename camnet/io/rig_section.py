@@ -20,16 +20,20 @@ from camnet.errors import InputError
 from camnet.io import validate as v
 from camnet.model.camera import LensModel
 
+YAML_IDS = v.Ids(yaml=True)
+
 
 class Section:
     """A mapping at `path` whose keys are all among `known`.
 
     A key that is absent or null takes `default` (required when none is given).
     `base_dir`: the directory a relative path in it is relative to (the rig
-    file's), None to keep paths as given.
+    file's), None to keep paths as given. `ids`: how its ids are read (YAML's
+    syntax, with the rig file's spellings where known).
     """
 
-    def __init__(self, data: Any, path: str, known: tuple[str, ...], *, base_dir: Path | None = None) -> None:
+    def __init__(self, data: Any, path: str, known: tuple[str, ...], *, base_dir: Path | None = None,
+                 ids: v.Ids = YAML_IDS) -> None:
         if not isinstance(data, dict):
             raise InputError(f"{path or 'rig file'}: expected a mapping, got {v.kind(data)}")
         unknown = [key for key in data if key not in known]
@@ -40,6 +44,7 @@ class Section:
         self.path = path
         self.known = known
         self.base_dir = base_dir
+        self.ids = ids
 
     def field(self, key: str) -> str:
         return f"{self.path}.{key}" if self.path else key
@@ -55,7 +60,7 @@ class Section:
 
     def section(self, key: str, known: tuple[str, ...], *, required: bool = True) -> Section:
         value = self.raw(key, {} if not required else ..., required=required)
-        return Section(value, self.field(key), known, base_dir=self.base_dir)
+        return Section(value, self.field(key), known, base_dir=self.base_dir, ids=self.ids)
 
     def _read(self, key: str, default: Any, check, *args, **kwargs) -> Any:
         value = self.raw(key, default)
@@ -83,6 +88,10 @@ class Section:
             return value
         base = glob.escape(str(self.base_dir)) if pattern else str(self.base_dir)
         return str(Path(base) / value)
+
+    def identifier(self, key: str) -> str:
+        """A required id (a camera's, the rig's): a non-empty string; a number is refused saying to quote it."""
+        return self.ids.read(self.raw(key, required=True), self.field(key))
 
     def boolean(self, key: str, default: bool) -> bool:
         return v.boolean(self.raw(key, default), self.field(key))

@@ -10,7 +10,8 @@ from __future__ import annotations
 import difflib
 import json
 import math
-from collections.abc import Collection
+from collections.abc import Collection, Mapping
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -133,6 +134,46 @@ def string(value: Any, path: str, *, choices: tuple[str, ...] = ()) -> str:
     if choices and value not in choices:
         raise fail(path, f"unknown value {value!r} (expected {', '.join(choices)})")
     return value
+
+
+@dataclass(frozen=True)
+class Ids:
+    """Reads ids (of cameras, of a rig) from a document of one syntax: JSON, or YAML with `yaml`.
+
+    A number or a boolean where an id belongs is refused saying to quote it,
+    in that syntax. YAML reads an unquoted ``0006`` as the number 6 and
+    ``on`` as true, and the spelling is gone from the value: `spellings`
+    (the text of each unquoted scalar by its path, where the YAML text is
+    at hand) lets the message show it as written.
+    """
+
+    yaml: bool = False
+    spellings: Mapping[str, str] = field(default_factory=dict)
+
+    def read(self, value: Any, path: str) -> str:
+        """`value`, a non-empty string; else the error naming `path` and, for a number, how to quote it."""
+        if isinstance(value, str) and value:
+            return value
+        if not isinstance(value, bool | int | float):
+            raise fail(path, f"expected an id (a non-empty string), got {show(value)}")
+        key = path.rsplit(".", 1)[-1]
+        quoted = (lambda text: f'"{text}"') if "[" in key else (  # an item of a list: the item alone
+            (lambda text: f'{key}: "{text}"') if self.yaml else (lambda text: f'"{key}": "{text}"'))
+        read_as = ("true" if value else "false") if isinstance(value, bool) else f"the number {value!r}"
+        if not self.yaml:
+            raise fail(path, f"ids are strings, got {read_as}; quote it: {quoted(value)}")
+        spelling = self.spellings.get(path)
+        if spelling is not None:
+            lost = ", losing how it was written" if spelling != str(value).lower() else ""
+            raise fail(path, f"ids are strings, but YAML reads the unquoted {spelling} as {read_as}{lost}; quote it: "
+                       f"{quoted(spelling)}")
+        example = ("on", "an unquoted yes, no, on or off is a boolean") if isinstance(value, bool) else (
+            "0006", "an unquoted 0006 is the number 6, its leading zeros dropped")
+        raise fail(path, f"ids are strings, but YAML read this one as {read_as}, and how it was written is lost "
+                   f"({example[1]}); quote it as written, e.g. {quoted(example[0])}")
+
+
+JSON_IDS = Ids()
 
 
 def boolean(value: Any, path: str) -> bool:
@@ -282,7 +323,7 @@ def plausible_distance(distance_m: float, path: str, *, keep: str, any_distance:
 
 def baselines(
     value: Any, path: str, camera_ids: Collection[str], stereo: tuple[str, str] | None, *, keep: str,
-    strict: bool = False, any_distance: bool = False,
+    strict: bool = False, any_distance: bool = False, ids: Ids = JSON_IDS,
 ) -> tuple[Baseline, ...]:
     """Known distances between camera centres: a list of ``{cameras: [a, b], baseline_m, sigma_m}``.
 
@@ -290,7 +331,8 @@ def baselines(
     cameras they may name; stereo: the stereo pair (left, right), whose
     distance is given by the stereo section; strict: refuse unknown keys (rig
     files) instead of ignoring them (JSON documents); any_distance: accept
-    distances outside PLAUSIBLE_DISTANCE_M; keep: how to (`plausible_distance`).
+    distances outside PLAUSIBLE_DISTANCE_M; keep: how to (`plausible_distance`);
+    ids: how the document's syntax reads camera ids.
     """
     given = {frozenset(stereo): "stereo.baseline_m"} if stereo is not None else {}
     out = []
@@ -303,7 +345,7 @@ def baselines(
         cameras = require(entry, "cameras", here)
         if not isinstance(cameras, list) or len(cameras) != 2:
             raise fail(f"{here}.cameras", f"expected [a, b], two camera ids, got {show(cameras)}")
-        a, b = (string(c, f"{here}.cameras[{j}]") for j, c in enumerate(cameras))
+        a, b = (ids.read(c, f"{here}.cameras[{j}]") for j, c in enumerate(cameras))
         for cam_id in (a, b):
             if cam_id not in camera_ids:
                 raise fail(f"{here}.cameras", f"unknown camera {cam_id!r}")
