@@ -92,6 +92,16 @@ def test_bad_distances_get_one_line_naming_the_path(doc, where, value, message):
     assert "\n" not in str(err.value)
 
 
+def test_an_integer_beyond_any_float_is_refused_as_no_number(doc):
+    bad = copy.deepcopy(doc)
+    bad["tracks"][0]["observations"]["left"] = [10**400, 1]
+    with pytest.raises(InputError, match=r"^tracks\[0\]\.observations\.left\[0\]: expected a finite number"):
+        parse_observations(bad)
+    doc["baselines"][1]["baseline_m"] = 10**400
+    with pytest.raises(InputError, match=r"^baselines\[1\]\.baseline_m: expected a finite number"):
+        parse_observations(doc, any_distance=True)
+
+
 def test_a_missing_distance_is_named(doc):
     del doc["baselines"][0]["baseline_m"]
     with pytest.raises(InputError, match=r"^baselines\[0\]\.baseline_m: missing$"):

@@ -1,6 +1,7 @@
 """Known distances in the wrong unit are refused with the range and the unit; a deliberate giant is kept."""
 
 import json
+import re
 import sys
 from pathlib import Path
 
@@ -53,6 +54,21 @@ def test_a_rig_file_in_millimetres_is_refused_unless_it_says_so():
     with pytest.raises(InputError, match=r"stereo.baseline_m: 537.2 m is not a distance.*accept_any_distance"):
         parse_rig(rig)
     assert parse_rig({**rig, "accept_any_distance": True}).stereo.baseline_m == 537.2
+
+
+@pytest.mark.parametrize("distance_m", [1e-12, 1e200])
+def test_a_distance_no_solve_can_take_is_refused_even_kept_on_purpose(doc, distance_m):
+    """Kept on purpose, a distance still has to be one the solve's floats can take."""
+    doc = json.loads(json.dumps(doc))
+    doc["stereo"]["baseline_m"] = distance_m
+    expected = (f"stereo.baseline_m: {distance_m:g} m is no distance between cameras that camnet can solve with "
+                "(1e-06 to 1e+06 m, even kept on purpose)")
+    with pytest.raises(InputError, match=re.escape(expected)):
+        parse_observations(doc, any_distance=True)
+    rig = {"rig": "units", "stereo": {"left": "a", "right": "b", "baseline_m": distance_m},
+           "cameras": [{"id": "a"}, {"id": "b"}], "accept_any_distance": True}
+    with pytest.raises(InputError, match=r"stereo.baseline_m: .* even kept on purpose"):
+        parse_rig(rig)
 
 
 def test_calibrate_refuses_in_one_line_and_accepts_on_request(tmp_path, doc):

@@ -154,7 +154,10 @@ def _track_arrays(tracks_raw: list, cameras: tuple[CameraInfo, ...], index: dict
     if ({type(x) for pixel in uv for x in pixel} - {float, int} or len(set(track_ids)) != len(track_ids)
             or any(abs(t) > v.MAX_INTEGER for t in track_ids)):
         return None
-    uv_px = np.asarray(uv, dtype=float).reshape(-1, 2)
+    try:
+        uv_px = np.asarray(uv, dtype=float).reshape(-1, 2)
+    except OverflowError:  # an integer beyond a float's range
+        return None
     cam = np.asarray(cam_index, dtype=np.int64)
     size = np.array([(c.width, c.height) for c in cameras], dtype=float)[cam]
     margin = v.PIXEL_MARGIN_REL * size

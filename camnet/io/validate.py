@@ -97,14 +97,22 @@ def non_empty_list(value: Any, path: str) -> list:
 
 
 def number(value: Any, path: str, *, positive: bool = False, minimum: float | None = None) -> float:
-    """A finite number (not a boolean)."""
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+    """A finite number (not a boolean): an integer beyond a float's range is none."""
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(_float(value)):
         raise fail(path, f"expected a finite number, got {show(value)}")
     if positive and value <= 0:
         raise fail(path, f"must be positive, got {value!r}")
     if minimum is not None and value < minimum:
         raise fail(path, f"must be at least {minimum}, got {value!r}")
     return float(value)
+
+
+def _float(value: int | float) -> float:
+    """`value` as a float; infinity for an integer too large for one (float() raises there)."""
+    try:
+        return float(value)
+    except OverflowError:
+        return math.inf
 
 
 def optional_number(value: Any, path: str) -> float | None:
@@ -301,6 +309,9 @@ BASELINE_KEYS = ("cameras", "baseline_m", "sigma_m")
 # (about 1 cm) to a hall's (tens of metres). Outside, the number is almost surely in
 # other units (125 for 125 mm): the solve would put every point that many times too far.
 PLAUSIBLE_DISTANCE_M = (0.005, 50.0)
+# Beyond these even a distance kept on purpose is refused: the solve's squares and products of lengths
+# would leave the floats' range, and no rig spans them.
+SOLVABLE_DISTANCE_M = (1e-6, 1e6)
 ANY_DISTANCE_FLAG = "accept_any_distance"
 # How to keep such a distance on purpose, by where it was read. A rig file says so itself, so that every
 # node reading it agrees (`camnet up`, `camnet match` and the nodes take no flag for it); an observations
@@ -312,6 +323,10 @@ KEEP_BY_FLAG = "give --accept-any-distance"
 def plausible_distance(distance_m: float, path: str, *, keep: str, any_distance: bool = False) -> float:
     """`distance_m`, refused with the range and the unit when it is no distance between cameras; the
     error ends with `keep`, how to keep it all the same (KEEP_IN_RIG_FILE, KEEP_BY_FLAG)."""
+    low, high = SOLVABLE_DISTANCE_M
+    if not low <= distance_m <= high:
+        raise fail(path, f"{distance_m:g} m is no distance between cameras that camnet can solve with "
+                   f"({low:g} to {high:g} m, even kept on purpose)")
     low, high = PLAUSIBLE_DISTANCE_M
     if any_distance or low <= distance_m <= high:
         return distance_m
