@@ -130,9 +130,13 @@ OBSERVATIONS = observations_to_doc(observe(make_rig(n_points=20, seed=1), seed=1
 @FUZZ
 @given(payload=st.one_of(RANDOM_BYTES, near_valid(OBSERVATIONS)))
 def test_the_calibrator_survives_any_observations_message(calibrator, payload):
+    """Bad input is refused (counted as malformed, or solved to a failed outcome that says why), never met
+    by an exception: the node's guard counts what raises instead of stopping the node, so nothing may be
+    counted there."""
     node, publisher = calibrator
     node._on_observations(sample(payload, keys.observations("fuzz")))
     node.handle(node.mailbox.take(timeout_s=1.0)[0], publisher)
+    assert node.failures.counts == {}, f"the guard swallowed: {node.failures.counts}"
 
 
 def test_the_calibrator_still_calibrates_after_the_fuzz(calibrator):
@@ -140,6 +144,7 @@ def test_the_calibrator_still_calibrates_after_the_fuzz(calibrator):
     good = observations_to_doc(observe(make_rig(n_points=150, seed=2), seed=2).observations)
     outcome = node.handle(json.dumps(good).encode(), publisher)
     assert outcome is not None and outcome.status == "good", outcome
+    assert node.failures.counts == {}, f"the guard swallowed: {node.failures.counts}"
 
 
 # ------------------------------------------------------------------ the matcher
@@ -207,6 +212,7 @@ def test_the_matcher_survives_any_calibration(matcher, payload, attachment):
     matcher.calibration.on_sample(sample(payload, keys.calibration("fuzz"), attachment))
     matcher._take_calibration()
     assert all(isinstance(camera_id, str) for camera_id in matcher.calibration.take_moved())
+    assert matcher.failures.counts == {}, f"the guard swallowed: {matcher.failures.counts}"
 
 
 @FUZZ
