@@ -19,11 +19,14 @@ import pytest
 
 from camnet.errors import InputError
 from camnet.io.formats import calibration_to_doc, observations_to_doc, parse_calibration
-from camnet.io.report import SECTIONS, bounding_box, frustum_xz, render_report
+from camnet.io.report import SECTIONS, render_report
+from camnet.io.report_plots import bounding_box, frustum_xz
+from camnet.model.accuracy import compare_cameras
 from camnet.model.camera import CameraInfo
 from camnet.sim.simulate import make_rig, observe
 from camnet.solve import Options, calibrate
 from camnet.solve.report.reprojection import reprojection_residuals
+from camnet.solve.report.verdict import judge
 
 # matplotlib's tab10 colours of cameras 0..3 (BGR, as cv2 reads the screenshot).
 CAMERA_BGR = [(0xB4, 0x77, 0x1F), (0x0E, 0x7F, 0xFF), (0x2C, 0xA0, 0x2C), (0x28, 0x27, 0xD6)]
@@ -98,27 +101,79 @@ def test_html_holds_every_section_and_the_numbers(solved):
     cal, obs = solved
     page = render_report(cal, obs)
     for key, title in SECTIONS.items():
-        assert f'<section id="{key}"><h2>{title}</h2>' in page
+        assert (f'<section id="{key}"><h2>{title}</h2>' in page) == (key != "truth")  # no truth given
     assert page.count("<svg") == 5  # per-point errors, histograms, uncertainty, bounding box, layout
     assert not re.search(r'(src|href)="(?!#)|<link|<script|@import', page)  # self-contained: nothing to fetch
     for cam in cal.cameras:
         assert f"<td>{cam.id}</td>" in page
-        assert f"<td>{cam.K[0, 0]:.1f}</td>" in page
-        assert f"<td>{cal.uncertainty.cameras[cam.id].f_px:.2f}</td>" in page
+        assert f'<td class="num">{cam.K[0, 0]:.1f}</td>' in page
+        assert f'<td class="num">{cal.uncertainty.cameras[cam.id].f_px:.2f}</td>' in page
         kept = np.isin(obs.track_ids[obs.track_index], cal.point_ids)
         assert f"{cam.id}: {int(np.sum(kept & (obs.cam_index == obs.index_of(cam.id))))} observations" in page
     sx, sy, sz = 1e3 * np.subtract(*np.percentile(cal.points, [99, 1], axis=0))  # the cloud's body
     assert f"{sx:.1f} mm x {sy:.1f} mm x {sz:.1f} mm" in page
     for size in 1e3 * np.ptp(cal.points, axis=0):  # and every point's extent beside it
-        assert f"<td>{size:.1f}</td>" in page
-    assert f"<td>{cal.rms_reprojection_px:.3f}</td>" in page
-    assert f"<td>{100 * cal.uncertainty.scale_rel.value:.4f}</td>" in page
+        assert f'<td class="num">{size:.1f}</td>' in page
+    assert f'<td class="num">{cal.rms_reprojection_px:.3f}</td>' in page
+    assert f'<td class="num">{100 * cal.uncertainty.scale_rel.value:.4f}</td>' in page
     assert "a test warning &lt;with markup&gt;" in page
 
     without = render_report(cal)
     assert without.count("<svg") == 3 and without.count("--observations OBS.json") == 2
     bare = replace(cal, report=None)
     assert "holds no uncertainty" in render_report(bare) and '<p class="note">None.</p>' in render_report(bare)
+
+
+def test_the_verdict_is_a_banner_first_and_the_convergence_plain_words(solved):
+    cal, obs = solved
+    page = render_report(cal, obs)
+    body = page[page.index("</h1>") + len("</h1>"):].lstrip()
+    level = judge(cal).level.value
+    assert body.startswith(f'<div id="banner" class="banner banner-{level}"><p><span class="level">Verdict: {level}.'
+                           "</span> "), body[:300]
+    banner = body[:body.index("</div>")]
+    assert "<section" not in banner and page.index("</div>") < page.index("<section")
+    assert "<p>The solve converged: another step would lower the cost by less than 1e-06 of it.</p>" in banner
+    for jargon in ("ftol", "Gauss-Newton"):
+        assert jargon not in page
+    stopped = replace(cal, report=replace(cal.report, converged=False, reason="reached the iteration limit"))
+    assert "<p>The solve did not converge: reached the iteration limit.</p>" in render_report(stopped)
+    bare = render_report(replace(cal, report=None))
+    assert '<div id="banner" class="banner banner-none"><p>Nothing was solved: no verdict.</p>' in bare
+
+
+def test_a_simulated_rigs_report_holds_its_errors_against_the_truth(solved):
+    cal, obs = solved
+    truth = list(make_rig(seed=2).cameras)  # the rig the fixture solved, in the left camera's frame
+    page = render_report(cal, obs, truth=truth)
+    c = compare_cameras(cal, truth)
+    section = page[page.index('<section id="truth">'):]
+    section = section[:section.index("</section>")]
+    for e in c.cameras:
+        assert (f'<tr><td>{e.id}</td><td class="num">{100 * e.focal_rel:.3f}</td><td class="num">'
+                f'{100 * e.focal_sigma_rel:.3f}</td><td class="num">{e.centre_mm:.2f}</td>') in section
+    assert f"The scale is off by <b>{100 * c.scale_rel:+.4f}%</b>" in section
+    banner = page[page.index('<div id="banner"'):page.index("</div>")]
+    assert f"Against the simulation's ground truth: the scale is off by {100 * c.scale_rel:+.3f}%" in banner
+    assert f"camera centres by at most {max(e.centre_mm for e in c.cameras):.1f} mm" in banner
+    other = [replace(cam, id=f"other_{cam.id}") for cam in truth]
+    with pytest.raises(InputError, match="the ground truth has no camera left, mono_a, mono_b, right of the calib"):
+        render_report(cal, truth=other)
+
+
+def test_text_cells_are_left_aligned_and_numbers_right_aligned(solved):
+    cal, obs = solved
+    page = render_report(cal, obs, truth=list(make_rig(seed=2).cameras))
+    cells = re.findall(r'<td( class="num")?>(.*?)</td>', page)
+    ids = {cam.id for cam in cal.cameras}
+    assert {text for num, text in cells if text in ids and not num} == ids  # camera ids: text, whatever they read
+    assert not [text for num, text in cells if text in ids and num]
+    number = re.compile(r"[-+]?\d+(\.\d+)?")
+    for num, text in cells:
+        if number.fullmatch(text):  # a number alone in its cell
+            assert num, f"the number {text} is not right-aligned"
+        elif re.fullmatch(r"[a-z][a-z ,'()]*", text) and text not in ("given", "n/a", "not determined"):
+            assert not num, f"the text {text!r} is right-aligned"
 
 
 def test_further_keys_are_checked(solved):
@@ -175,8 +230,13 @@ def test_report_command_bad_input_is_one_line_and_writes_nothing(tmp_path, repor
     doc["uncertainty"]["cameras"]["mono_a"]["centre_m"] = [0.1, 0.2]
     short = tmp_path / "short.json"
     short.write_text(json.dumps(doc))
+    doc = json.loads((report_files / "cal.json").read_text())
+    doc["cameras"] = doc["cameras"][:3]  # the truth of a rig without mono_b
+    other = tmp_path / "other.json"
+    other.write_text(json.dumps(doc))
     out = tmp_path / "report.html"
     for args, message in [
+        ([str(report_files / "cal.json"), "--truth", str(other)], "the ground truth has no camera mono_b of the "),
         ([str(broken)], "cameras[1].R: not a rotation matrix"),
         ([str(report_files / "cal.json"), "--observations", str(ghost)], "camera 'ghost' is not in the calibration"),
         ([str(tmp_path / "absent.json")], "cannot read"),
@@ -185,7 +245,7 @@ def test_report_command_bad_input_is_one_line_and_writes_nothing(tmp_path, repor
         proc = run_camnet("report", *args, "-o", str(out))
         assert proc.returncode == 2, proc.stderr
         assert proc.stderr.count("\n") == 1 and message in proc.stderr, proc.stderr
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["broken.json", "ghost.json", "short.json"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["broken.json", "ghost.json", "other.json", "short.json"]
 
 
 def screenshot(html_path, png_path, profile_dir, *, timeout_s: float = 120.0) -> None:
@@ -237,3 +297,41 @@ def test_screenshot_in_headless_chromium_shows_the_plots(report_files, tmp_path)
         assert near.sum() > 500, f"camera {m}'s plot colour is missing from the screenshot"
     text = (report_files / "report.html").read_text()
     assert re.search(r'<section id="layout">.*<svg', text, re.S)
+
+
+def rendered_alignment(page: str, directory, *, timeout_s: float = 120.0) -> list[tuple[str, str]]:
+    """(text, CSS text-align as Chromium computes it) of every table cell of `page`, rendered headless."""
+    html_path = directory / "aligned.html"
+    script = ("<script>for (const cell of document.querySelectorAll('td')) "
+              "cell.setAttribute('data-align', getComputedStyle(cell).textAlign);</script>")
+    html_path.write_text(page.replace("</body>", script + "</body>"))
+    args = [shutil.which("chromium"), "--headless", "--no-sandbox", "--disable-gpu", "--no-first-run",
+            "--disable-background-networking", "--disable-component-update", "--disable-sync",
+            f"--user-data-dir={directory / 'profile'}", "--dump-dom", f"file://{html_path}"]
+    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, start_new_session=True)
+    try:
+        dom, _ = proc.communicate(timeout=timeout_s)
+        assert proc.returncode == 0
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+    cells = re.findall(r'<td[^>]*data-align="([a-z-]+)"[^>]*>(.*?)</td>', dom.decode())
+    return [(re.sub(r"<[^>]+>", "", text), align) for align, text in cells]
+
+
+@pytest.mark.skipif(
+    shutil.which("chromium") is None, reason="chromium is not installed (Debian: apt-get install chromium)"
+)
+def test_chromium_shows_text_left_and_numbers_right(solved, tmp_path):
+    cal, obs = solved
+    cells = rendered_alignment(render_report(cal, obs, truth=list(make_rig(seed=2).cameras)), tmp_path)
+    assert len(cells) > 100
+    ids = {cam.id for cam in cal.cameras}
+    number = re.compile(r"[-+]?\d+(\.\d+)?( / \d+)?")
+    findings = {f.what for _, f in judge(cal).all_findings()}
+    for text, align in cells:
+        if text in ids or text in findings or text in ("good", "usable", "poor", "rig", "cameras", "X"):
+            assert align == "left", (text, align)
+        elif number.fullmatch(text):
+            assert align == "right", (text, align)

@@ -11,7 +11,8 @@ import cv2
 import numpy as np
 import pytest
 
-from camnet.io.report import bounding_box_figure, layout_figure, render_report, robust_box
+from camnet.io.report import render_report
+from camnet.io.report_plots import bounding_box_figure, layout_figure, robust_box
 from camnet.sim.families import family
 from camnet.sim.simulate import make_rig, observe
 from camnet.solve import Options, calibrate

@@ -6,6 +6,7 @@ import re
 from dataclasses import replace
 
 import cv2
+import numpy as np
 import pytest
 
 from camnet.commands.up import RunFollower, _finish
@@ -68,6 +69,38 @@ def test_the_run_directory_holds_the_results_and_the_last_lines_name_them(tmp_pa
     for name in names:
         assert name in text
     assert f"open {run_dir / 'report.html'}" in text and "camnet export" in text and "camnet calibrate" in text
+
+
+def test_a_simulated_run_keeps_its_truth_and_its_report_shows_what_the_console_does(tmp_path, live_like):
+    import subprocess
+    import sys
+
+    from camnet.model.accuracy import compare_cameras
+
+    rig, cal_message, obs_message = live_like
+    truth = list(rig.cameras)  # the simulation's cameras, in the left camera's frame as Rig.simulated_truth gives
+    follower = RunFollower(argparse.Namespace(), truth=truth)
+    follower.observations.add(obs_message)
+    run_dir = tmp_path / "run"
+    text = _finish(argparse.Namespace(output=None), run_dir, cal_message, follower, truth=truth)
+    assert "truth.json" in text and "against the simulation's ground truth:" in text
+    kept = parse_calibration(json.loads((run_dir / "truth.json").read_text())).cameras
+    for cam, true in zip(kept, truth, strict=True):
+        assert cam.id == true.id and np.allclose(cam.K, true.K) and np.allclose(cam.R, true.R)
+        assert np.allclose(cam.t, true.t)
+    c = compare_cameras(cal_message.calibration, truth)
+    again = tmp_path / "again.html"
+    proc = subprocess.run([sys.executable, "-m", "camnet", "report", str(run_dir / "calibration.json"), "--truth",
+                           str(run_dir / "truth.json"), "-o", str(again)], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    for html in ((run_dir / "report.html").read_text(), again.read_text()):
+        for e in c.cameras:  # the console's numbers (format_comparison), per camera
+            line = next(line for line in text.splitlines() if line.startswith(f"{e.id} ") and "%" not in line
+                        and len(line.split()) == 6)
+            focal, _, centre, _, rotation = line.split()[1:]
+            assert (f'<td>{e.id}</td><td class="num">{focal}</td>' in html
+                    and f'<td class="num">{float(rotation):.4f}</td>' in html), (line, e)
+        assert f"the scale is off by {100 * c.scale_rel:+.3f}%" in html
 
 
 def test_the_final_lines_are_readable_units_with_sigmas_and_the_verdict(live_like):

@@ -345,7 +345,7 @@ def _finish(args: argparse.Namespace, run_dir: Path, message: CalibrationMessage
     from camnet.io.run_dir import write_results
 
     observations = follower.observations.source_of(message)
-    written = write_results(run_dir, message, observations)
+    written = write_results(run_dir, message, observations, truth)
     if args.output:
         write_json_atomic(args.output, calibration_message_to_doc(message))
         written.append(Path(args.output))
@@ -364,7 +364,8 @@ def _finish(args: argparse.Namespace, run_dir: Path, message: CalibrationMessage
 _DESCRIBE = {
     "calibration.json": "the last calibration (camnet.calibration/1)",
     "observations.json": "the pooled observations it was solved from (camnet.observations/1)",
-    "report.html": "errors, uncertainty, layout, verdict",
+    "truth.json": "the simulation's ground truth (camnet report --truth)",
+    "report.html": "verdict, errors against the truth, uncertainty, layout",
     "calibration.yaml": "OpenCV FileStorage",
     "colmap": "COLMAP text model",
     "points.ply": "the points with their sigmas",

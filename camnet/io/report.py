@@ -1,32 +1,50 @@
 """A calibration as one self-contained HTML page.
 
-Sections: a summary, the solver's warnings, a table per camera, the
+At the top a banner: the verdict, whether the solve converged, and (for a
+simulated rig) how far it is from the ground truth. Sections: a summary,
+the verdict's findings, the comparison with the ground truth (when it is
+known), the solver's warnings, a table per camera, the
 reprojection error of every point in every camera (the paper's Fig. 5) and
 the residual histograms (both need the observations), the uncertainty of
 each parameter, the point cloud's bounding box in millimetres (the paper's
-Sec. IV) and the cameras seen from above. Plots are inline SVG drawn with
-matplotlib (imported only here, without pyplot, so no global backend is set).
+Sec. IV) and the cameras seen from above. The plots are
+camnet.io.report_plots'.
 """
 
 from __future__ import annotations
 
 import html
-import io
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from camnet.model.calibration import Calibration, CameraSigmas, Uncertainty
+from camnet.errors import InputError
+from camnet.io.report_plots import (
+    ROBUST_PERCENTILES,
+    BoundingBox,
+    bounding_box,
+    outside,
+    plot_bounding_box,
+    plot_layout,
+    plot_limits,
+    plot_per_point_errors,
+    plot_residual_histograms,
+    plot_uncertainty,
+    robust_box,
+)
+from camnet.model.accuracy import Comparison, compare_cameras
+from camnet.model.calibration import Calibration, CameraSigmas, SolveReport, Uncertainty
+from camnet.model.camera import Camera
 from camnet.model.observations import Observations
 from camnet.solve.report.reprojection import Residuals, outlier_limit_px, reprojection_residuals
-from camnet.solve.report.verdict import judge
+from camnet.solve.report.verdict import Level, Verdict, judge
 
 SECTIONS = {
     "summary": "Summary",
     "verdict": "Verdict",
+    "truth": "Against the simulation's ground truth",  # only with the ground truth
     "warnings": "Warnings and notes",
     "cameras": "Cameras",
     "reprojection": "Reprojection error per point",
@@ -40,289 +58,24 @@ CSS = """
 body { font-family: sans-serif; margin: 24px; color: #222; max-width: 1200px; }
 h1 { font-size: 22px; } h2 { font-size: 18px; border-bottom: 1px solid #ccc; padding-bottom: 4px; }
 table { border-collapse: collapse; font-size: 13px; margin: 8px 0; }
-td, th { border: 1px solid #ccc; padding: 3px 8px; text-align: right; }
-th { background: #f0f0f0; } td:first-child, th:first-child { text-align: left; }
+td, th { border: 1px solid #ccc; padding: 3px 8px; text-align: left; vertical-align: top; }
+th { background: #f0f0f0; } td.num, th.num { text-align: right; font-variant-numeric: tabular-nums; }
 svg { max-width: 100%; height: auto; }
 .note { color: #666; } .warning { color: #a40000; }
 .good { color: #1a7f37; } .usable { color: #9a6700; } .poor { color: #a40000; font-weight: bold; }
+.banner { border: 2px solid; border-radius: 6px; padding: 4px 16px; margin: 12px 0 20px; color: #222; }
+.banner p { margin: 8px 0; } .banner .level { font-size: 18px; font-weight: bold; }
+.banner-good { border-color: #1a7f37; background: #eef8f0; }
+.banner-usable { border-color: #9a6700; background: #fff8e5; }
+.banner-poor { border-color: #a40000; background: #fdecec; }
+.banner-none { border-color: #999; background: #f4f4f4; }
 """
-
-
-@dataclass(frozen=True)
-class BoundingBox:
-    """Axis-aligned box of a point cloud in the world frame (the left stereo camera's), metres."""
-
-    min_m: np.ndarray  # (3,)
-    max_m: np.ndarray  # (3,)
-
-    @property
-    def size_mm(self) -> np.ndarray:
-        """Extent along X, Y, Z in millimetres (the paper's "98mm x 168mm x 75mm")."""
-        return 1e3 * (self.max_m - self.min_m)
-
-
-def bounding_box(points_m: np.ndarray) -> BoundingBox | None:
-    """The cloud's axis-aligned bounding box; None for no points."""
-    points_m = np.asarray(points_m, dtype=float).reshape(-1, 3)
-    if not len(points_m):
-        return None
-    return BoundingBox(points_m.min(axis=0), points_m.max(axis=0))
-
-
-ROBUST_PERCENTILES = (1.0, 99.0)
-
-
-def robust_box(points_m: np.ndarray) -> BoundingBox | None:
-    """The box of the 1st to 99th percentile along each axis: a few far points (no parallax, a false
-    match) do not stretch it. None for no points."""
-    points_m = np.asarray(points_m, dtype=float).reshape(-1, 3)
-    if not len(points_m):
-        return None
-    lo, hi = np.percentile(points_m, ROBUST_PERCENTILES, axis=0)
-    return BoundingBox(lo, hi)
-
-
-def outside(points_m: np.ndarray, box: BoundingBox) -> np.ndarray:
-    """(N,) bool: the points outside `box` on any axis."""
-    return np.any((points_m < box.min_m) | (points_m > box.max_m), axis=1)
-
-
-def plot_limits(lo: np.ndarray, hi: np.ndarray, margin: float = 0.08) -> tuple[np.ndarray, np.ndarray]:
-    """Axis limits around [lo, hi] with a margin, so that points clipped to the edge stay visible."""
-    pad = margin * np.maximum(hi - lo, 1e-6)
-    return lo - pad, hi + pad
-
-
-def _clipped(ax, x: np.ndarray, y: np.ndarray, lim_x, lim_y, *, colour: str, label: str) -> None:
-    """Points inside the limits as dots; those beyond drawn on the edge as red triangles, counted."""
-    cx, cy = np.clip(x, *lim_x), np.clip(y, *lim_y)
-    far = (cx != x) | (cy != y)
-    ax.plot(cx[~far], cy[~far], ".", color=colour, markersize=3, label=label)
-    if far.any():
-        ax.plot(cx[far], cy[far], "^", color="C3", markersize=5, label=f"{int(far.sum())} beyond, at the edge")
-
-
-def camera_colour(m: int) -> str:
-    """The colour of camera `m` in every plot (matplotlib's tab10 cycle)."""
-    return f"C{m % 10}"
-
-
-def _svg(fig) -> str:
-    import matplotlib
-
-    buf = io.StringIO()
-    # A fixed salt and no metadata (date, creator) keep the page the same for the same calibration;
-    # text stays text (searchable, small) rather than glyph outlines.
-    with matplotlib.rc_context({"svg.hashsalt": "camnet", "svg.fonttype": "none"}):
-        fig.savefig(buf, format="svg", metadata=dict.fromkeys(("Date", "Creator", "Format", "Type")))
-    text = buf.getvalue()
-    return text[text.index("<svg") :]
-
-
-def _figure(n_panels: int, *, columns: int, panel_in: tuple[float, float]):
-    from matplotlib.figure import Figure
-
-    rows = max(1, math.ceil(n_panels / columns))
-    cols = min(columns, max(1, n_panels))
-    fig = Figure(figsize=(panel_in[0] * cols, panel_in[1] * rows), layout="constrained")
-    axes = fig.subplots(rows, cols, squeeze=False).ravel()
-    for ax in axes[n_panels:]:
-        ax.set_visible(False)
-    return fig, axes
-
-
-def plot_per_point_errors(cal: Calibration, res: Residuals, limit_px: float) -> str:
-    """The paper's Fig. 5: per camera, the reprojection error (px) of each point against its track id.
-
-    The axis stops at twice the outlier limit (dashed); errors beyond it are
-    drawn as triangles on the top edge, so that outliers do not flatten the rest.
-    """
-    fig, axes = _figure(len(cal.cameras), columns=2, panel_in=(5.8, 2.6))
-    error = res.error_px
-    inside = error[error <= limit_px]
-    top = max(2.0 * limit_px if math.isfinite(limit_px) else 0.0, 1.1 * float(np.max(inside, initial=0.0)), 1e-3)
-    for m, (cam, ax) in enumerate(zip(cal.cameras, axes, strict=False)):
-        mine = res.cam_index == m
-        track, e = cal.point_ids[res.point_index[mine]], error[mine]
-        beyond = ~(e <= top)
-        ax.vlines(track, 0.0, np.minimum(e, top), color=camera_colour(m), linewidth=1.0)
-        ax.plot(track[~beyond], e[~beyond], "o", color=camera_colour(m), markersize=2.5)
-        ax.plot(track[beyond], np.full(beyond.sum(), 0.96 * top), "^", color="C3", markersize=6)
-        if math.isfinite(limit_px):
-            ax.axhline(limit_px, color="0.4", linestyle="--", linewidth=0.8)
-        ax.set_title(f"{cam.id}: {int(mine.sum())} observations, {int(beyond.sum())} off scale", fontsize=10)
-        ax.set_xlabel("point (track id)")
-        ax.set_ylabel("error (px)")
-        ax.set_ylim(0.0, top)
-        ax.grid(alpha=0.3)
-    return _svg(fig)
-
-
-def plot_residual_histograms(cal: Calibration, res: Residuals, limit_px: float, sigma_px: float | None) -> str:
-    """Per camera, histograms of the u and v residuals (px) within +-limit_px (outliers pile up at the
-    edges), with the normal density of sigma_px for comparison."""
-    fig, axes = _figure(len(cal.cameras), columns=4, panel_in=(2.9, 2.4))
-    if not math.isfinite(limit_px):
-        finite = np.abs(res.residual_px[np.all(np.isfinite(res.residual_px), axis=1)])
-        limit_px = float(np.max(finite, initial=1.0))
-    bins = np.linspace(-limit_px, limit_px, 31)
-    for m, (cam, ax) in enumerate(zip(cal.cameras, axes, strict=False)):
-        r = np.clip(res.residual_px[res.cam_index == m], -limit_px, limit_px)
-        ax.hist(r[:, 0], bins=bins, color=camera_colour(m), alpha=0.75, label="u")
-        ax.hist(r[:, 1], bins=bins, histtype="step", color="k", label="v")
-        if sigma_px and len(r):
-            x = np.linspace(-limit_px, limit_px, 200)
-            density = np.exp(-0.5 * (x / sigma_px) ** 2) / (sigma_px * math.sqrt(2 * math.pi))
-            ax.plot(x, len(r) * (bins[1] - bins[0]) * density, "--", color="0.4", label=f"N(0, {sigma_px:.2f})")
-        ax.set_title(cam.id, fontsize=10)
-        ax.set_xlabel("residual (px)")
-        ax.legend(fontsize=7)
-    return _svg(fig)
-
-
-def plot_uncertainty(cal: Calibration, per_camera: Mapping[str, CameraSigmas]) -> str:
-    """Per camera, 1-sigma of the intrinsics (px), the centre (mm) and the rotation (deg); held: 'given'."""
-    panels = [
-        ("intrinsics (px)", ["f", "cx", "cy"], lambda u: [u.f_px, u.cx_px, u.cy_px]),
-        ("centre (mm)", ["x", "y", "z"], lambda u: [1e3 * v for v in u.centre_m]),
-        ("rotation (deg)", ["x", "y", "z"], lambda u: list(u.rotation_deg)),
-    ]
-    fig, axes = _figure(len(panels), columns=3, panel_in=(3.9, 2.9))
-    width = 0.8 / max(1, len(cal.cameras))
-    for ax, (title, labels, values) in zip(axes, panels, strict=True):
-        for m, cam in enumerate(cal.cameras):
-            if cam.id not in per_camera:
-                continue
-            heights = np.array(values(per_camera[cam.id]), dtype=float)
-            x = np.arange(len(labels)) + (m + 0.5) * width - 0.4
-            ax.bar(x, np.where(np.isfinite(heights), heights, 0.0), width=width, color=camera_colour(m), label=cam.id)
-            for xi, h in zip(x, heights, strict=True):
-                if h == 0.0 or not np.isfinite(h):  # held: no bar of height 0 that reads as "known exactly"
-                    ax.annotate("given" if h == 0.0 else "n/d", (xi, 0.0), textcoords="offset points",
-                                xytext=(0, 2), rotation=90, ha="center", va="bottom", fontsize=7,
-                                color=camera_colour(m))
-        ax.set_xticks(np.arange(len(labels)), labels)
-        ax.set_title(f"1 sigma: {title}", fontsize=10)
-        ax.grid(axis="y", alpha=0.3)
-    axes[0].legend(fontsize=7)
-    return _svg(fig)
-
-
-def plot_bounding_box(cal: Calibration, box: BoundingBox) -> str:
-    """The cloud seen from the front (X-Y) and the side (Z-Y), in mm, with its robust box (`box`); the
-    axes end near the box, and points beyond are drawn on the edge."""
-    return _svg(bounding_box_figure(cal, box))
-
-
-def bounding_box_figure(cal: Calibration, box: BoundingBox):
-    """The figure of `plot_bounding_box`."""
-    from matplotlib.patches import Rectangle
-
-    fig, axes = _figure(2, columns=2, panel_in=(4.6, 4.2))
-    P = 1e3 * cal.points
-    lo, hi = 1e3 * box.min_m, 1e3 * box.max_m
-    lim_lo, lim_hi = plot_limits(lo, hi)
-    for ax, (i, j), name in zip(axes, [(0, 1), (2, 1)], ["front (X-Y)", "side (Z-Y)"], strict=True):
-        ax.add_patch(Rectangle((lo[i], lo[j]), hi[i] - lo[i], hi[j] - lo[j], fill=False, color="C3", linewidth=1.5))
-        _clipped(ax, P[:, i], P[:, j], (lim_lo[i], lim_hi[i]), (lim_lo[j], lim_hi[j]), colour="0.2", label="points")
-        ax.set_xlim(lim_lo[i], lim_hi[i])
-        ax.set_ylim(lim_hi[j], lim_lo[j])  # camera y points down
-        ax.set_aspect("equal", adjustable="box")
-        ax.set_xlabel(f"{'XYZ'[i]} (mm)")
-        ax.set_ylabel(f"{'XYZ'[j]} (mm, down)")
-        ax.set_title(f"{name}: {hi[i] - lo[i]:.1f} x {hi[j] - lo[j]:.1f} mm", fontsize=10)
-        ax.legend(fontsize=7, loc="upper right")
-    return fig
-
-
-def frustum_xz(cam, depth_m: float) -> np.ndarray:
-    """World (x, z) of the camera centre and its horizontal field of view's edges at `depth_m`.
-
-    Rays through the left and right image borders (u = -0.5 and width - 0.5
-    at the principal point's row), undistorted, go from the camera frame
-    to the world by ``X = R.T @ (x_cam - t)``. Returns (3, 2): centre, left
-    edge, right edge.
-    """
-
-    cy = cam.K[1, 2]
-    border = np.array([[[-0.5, cy]], [[cam.width - 0.5, cy]]])
-    xn = cam.normalised(border.reshape(-1, 2))
-    rays = np.hstack([xn, np.ones((2, 1))]) * depth_m
-    world = (rays - cam.t) @ cam.R
-    return np.vstack([cam.centre, world])[:, [0, 2]]
-
-
-def layout_limits(cal: Calibration) -> tuple[np.ndarray, np.ndarray]:
-    """(lo, hi) in world (x, z), metres, of the view from above: the cameras and the robust box of the points."""
-    centres = np.array([cam.centre for cam in cal.cameras])[:, [0, 2]]
-    box = robust_box(cal.points)
-    span = centres if box is None else np.vstack([centres, box.min_m[[0, 2]], box.max_m[[0, 2]]])
-    lo, hi = span.min(axis=0), span.max(axis=0)
-    side = max(float(np.max(hi - lo)), 1e-3)
-    mid = (lo + hi) / 2  # square, so that the equal aspect keeps these limits
-    return plot_limits(mid - side / 2, mid + side / 2)
-
-
-LABEL_STEP_PT = 11.0  # a label's height, in points: labels closer than this in both directions are moved
-
-
-def label_offsets_pt(anchors_pt: np.ndarray, widths_pt: np.ndarray) -> np.ndarray:
-    """(M, 2) offsets in points for labels at anchors (M, 2) (display points), none of them overlapping.
-
-    Each label sits right of and below its anchor; one that would overlap a label
-    already placed moves a line up or down, alternately and ever farther, until it does not.
-    """
-    placed: list[tuple[float, float, float]] = []  # x, y, width of each placed label's corner
-    offsets = []
-    for (x, y), width in zip(anchors_pt, widths_pt, strict=True):
-        for k in range(len(anchors_pt) * 2 + 1):  # below, above, two below, two above, ...
-            dy = -LABEL_STEP_PT * (1 + (k + 1) // 2) if k % 2 == 0 else LABEL_STEP_PT * ((k + 1) // 2) - 3.0
-            if not any(abs(y + dy - py) < LABEL_STEP_PT and x < px + pw and px < x + width for px, py, pw in placed):
-                break
-        placed.append((x, y + dy, width))
-        offsets.append((4.0, dy))
-    return np.array(offsets).reshape(-1, 2)
-
-
-def plot_layout(cal: Calibration) -> str:
-    """Cameras (frusta) and points in the world X-Z plane, seen from above (X right, Z forward).
-
-    The view ends near the cameras and the robust box of the points; points beyond are drawn on its
-    edge. Camera labels are moved apart where they would overlap.
-    """
-    return _svg(layout_figure(cal))
-
-
-def layout_figure(cal: Calibration):
-    """The figure of `plot_layout`."""
-    fig, axes = _figure(1, columns=1, panel_in=(7.0, 6.0))
-    ax = axes[0]
-    lo, hi = layout_limits(cal)
-    depth = 0.25 * float(np.max(hi - lo)) / 1.16  # a quarter of the view (the limits carry an 8% margin)
-    if len(cal.points):
-        _clipped(ax, cal.points[:, 0], cal.points[:, 2], (lo[0], hi[0]), (lo[1], hi[1]), colour="0.4",
-                 label="points")
-    for m, cam in enumerate(cal.cameras):
-        c, left, right = frustum_xz(cam, depth)
-        ax.fill([c[0], left[0], right[0]], [c[1], left[1], right[1]], color=camera_colour(m), alpha=0.25)
-        ax.plot([left[0], c[0], right[0]], [left[1], c[1], right[1]], color=camera_colour(m), linewidth=1.5)
-    ax.set_xlim(lo[0], hi[0])
-    ax.set_ylim(lo[1], hi[1])
-    ax.set_aspect("equal", adjustable="box")
-    fig.draw_without_rendering()  # the constrained layout's final axes, so that the anchors are where they end up
-    # Anchors in points of the figure: data to pixels, then 72 points to the inch.
-    centres = np.array([cam.centre[[0, 2]] for cam in cal.cameras])
-    anchors = ax.transData.transform(centres) * 72.0 / fig.dpi
-    widths = np.array([6.0 * len(cam.id) + 4.0 for cam in cal.cameras])  # 9 pt text: about 6 pt a character
-    for m, (cam, offset) in enumerate(zip(cal.cameras, label_offsets_pt(anchors, widths), strict=True)):
-        ax.annotate(cam.id, centres[m], textcoords="offset points", xytext=offset, fontsize=9,
-                    color=camera_colour(m))
-    ax.set_xlabel("X (m)")
-    ax.set_ylabel("Z (m)")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, loc="upper right")
-    ax.set_title(f"world frame: camera {cal.world_frame}", fontsize=10)
-    return fig
+# What each level of the verdict asks of the user (its Level).
+LEVEL_ADVICE = {
+    Level.GOOD: "Use it.",
+    Level.USABLE: "Use it, knowing the limits its findings name.",
+    Level.POOR: "Do not rely on it: do what its findings say and solve again.",
+}
 
 
 # ---------------------------------------------------------------- tables
@@ -347,36 +100,87 @@ def _sigma(x: float, digits: int) -> str:
     return "not determined" if not math.isfinite(x) else f"{x:.{digits}f}"
 
 
-def _table(header: list[str], rows: list[list[str]]) -> str:
-    head = "".join(f"<th>{_esc(h)}</th>" for h in header)
-    body = "".join("<tr>" + "".join(f"<td>{c}</td>" for c in row) + "</tr>" for row in rows)
+def _table(header: list[str], rows: list[list[str]], *, text_columns: tuple[int, ...] = (0,)) -> str:
+    """A table whose `text_columns` are text (left-aligned) and whose other columns are numbers (right-aligned)."""
+    def cell(tag: str, i: int, content: str) -> str:
+        return f"<{tag}>{content}</{tag}>" if i in text_columns else f'<{tag} class="num">{content}</{tag}>'
+
+    head = "".join(cell("th", i, _esc(h)) for i, h in enumerate(header))
+    body = "".join("<tr>" + "".join(cell("td", i, c) for i, c in enumerate(row)) + "</tr>" for row in rows)
     return f"<table><tr>{head}</tr>{body}</table>"
+
+
+def convergence_sentence(report: SolveReport | None) -> str:
+    """Whether the solve converged, and why it stopped, as a sentence."""
+    if report is None:
+        return "The calibration holds no solve report: whether its solve converged is not known."
+    return f"The solve {'converged' if report.converged else 'did not converge'}: {report.reason}."
+
+
+def _banner(verdict: Verdict | None, report: SolveReport | None, comparison: Comparison | None) -> str:
+    """The verdict with what it asks of the user, whether the solve converged, and its error against the truth."""
+    if verdict is None:
+        head, level = "Nothing was solved: no verdict.", "none"
+    else:
+        level = verdict.level.value
+        findings = len(verdict.all_findings())
+        more = f' <a href="#verdict">{findings} finding{"s" * (findings != 1)} below.</a>' if findings else ""
+        head = f'<span class="level">Verdict: {level}.</span> {LEVEL_ADVICE[verdict.level]}{more}'
+    lines = [head, _esc(convergence_sentence(report))]
+    if comparison is not None:
+        lines.append(f"Against the simulation's ground truth: the scale is off by {100 * comparison.scale_rel:+.3f}% "
+                     f"(1 sigma {100 * comparison.scale_sigma_rel:.3f}%), focal lengths by at most "
+                     f"{100 * max(abs(e.focal_rel) for e in comparison.cameras):.2f}%, camera centres by at most "
+                     f'{max(e.centre_mm for e in comparison.cameras):.1f} mm (<a href="#truth">per camera below</a>).')
+    return f'<div id="banner" class="banner banner-{level}">' + "".join(f"<p>{line}</p>" for line in lines) + "</div>"
+
+
+def _truth_html(c: Comparison) -> str:
+    def sigma(x: float, digits: int) -> str:
+        return "n/a" if math.isnan(x) else _sigma(x, digits)  # NaN: the calibration reports none
+
+    rows = [[_esc(e.id), _fmt(100 * e.focal_rel, 3), sigma(100 * e.focal_sigma_rel, 3), _fmt(e.centre_mm, 2),
+             sigma(e.centre_sigma_mm, 2), _fmt(e.rotation_deg, 4)] for e in c.cameras]
+    header = ["camera", "focal length error (%)", "1 sigma (%)", "centre error (mm)", "1 sigma (mm)",
+              "rotation error (deg)"]
+    return (f"<p>The scale is off by <b>{100 * c.scale_rel:+.4f}%</b> (its reported 1 sigma: "
+            f"{100 * c.scale_sigma_rel:.4f}%); the camera centres' shape, after the best similarity onto the true "
+            f"ones, is off by {c.shape_rms_mm:.3f} mm RMS. Errors are the calibration's minus the truth's, in the "
+            "left stereo camera's frame.</p>" + _table(header, rows))
+
+
+def truth_comparison(cal: Calibration, truth: list[Camera]) -> Comparison:
+    """`cal` against the ground truth of its cameras (a simulated rig's); InputError when the truth lacks one."""
+    missing = sorted({c.id for c in cal.cameras} - {c.id for c in truth})
+    if missing:
+        raise InputError(f"the ground truth has no camera {', '.join(missing)} of the calibration; is it the truth "
+                         "of another rig?")
+    return compare_cameras(cal, truth)
 
 
 def _summary(cal: Calibration, res: Residuals | None) -> str:
     report, uncertainty = cal.report, cal.uncertainty
     scale_rel = uncertainty.scale_rel.value if uncertainty is not None else None
     if report is None:
-        converged, counts, parallax = "n/a (no reason given)", "n/a / n/a", None
+        counts, parallax = "n/a / n/a", None
     else:
-        converged = f"{_esc(report.converged)} ({_esc(report.reason)})"
         counts, parallax = f"{report.observations} / {report.inliers}", report.median_parallax_deg
+    method = report.method.value if report is not None else "unknown"
+    about = (f"<p>World frame: camera {_esc(cal.world_frame)}'s (x right, y down, z forward; metres). Method: "
+             f"{_esc(method)}.</p>")
     rows = [
-        ["world frame", _esc(cal.world_frame)],
-        ["method", _esc(report.method.value if report is not None else "unknown")],
         ["cameras", str(len(cal.cameras))],
         ["points", str(len(cal.points))],
         ["reprojection RMS (px)", _fmt(cal.rms_reprojection_px, 3)],
         ["pixel noise sigma (px)", _fmt(uncertainty.sigma_px if uncertainty is not None else None, 3)],
         ["scale uncertainty (1 sigma, %)", _fmt(100 * scale_rel, 4) if scale_rel is not None else "n/a"],
         *_scale_if_exact_rows(uncertainty),
-        ["converged", converged],
         ["observations / inliers", counts],
         ["median parallax (deg)", _fmt(parallax, 2)],
     ]
     if res is not None:
         rows.append(["observations of dropped tracks", str(res.dropped_observations)])
-    return _table(["quantity", "value"], rows)
+    return about + _table(["quantity", "value"], rows)
 
 
 def _scale_if_exact_rows(uncertainty: Uncertainty | None) -> list[list[str]]:
@@ -448,8 +252,7 @@ def _bounding_box_text(points_m: np.ndarray, box: BoundingBox) -> str:
     )
 
 
-def _verdict_html(cal: Calibration) -> str:
-    verdict = judge(cal)
+def _verdict_html(verdict: Verdict | None) -> str:
     if verdict is None:
         return '<p class="note">Nothing was solved: no verdict.</p>'
     lv = verdict.level.value
@@ -459,23 +262,29 @@ def _verdict_html(cal: Calibration) -> str:
         level = f'<span class="{f.level.value}">{f.level.value}</span>'
         rows.append([_esc(camera if camera is not None else "rig"), level, _esc(f.what), _esc(f.cause), _esc(f.todo)])
     levels = [[_esc(c.camera), f'<span class="{c.level.value}">{c.level.value}</span>'] for c in verdict.cameras]
-    findings = _table(["where", "level", "what", "likely cause", "to do"], rows) if rows else ""
-    return head + _table(["camera", "verdict"], levels) + findings
+    findings = _table(["where", "level", "what", "likely cause", "to do"], rows, text_columns=(0, 1, 2, 3, 4)) \
+        if rows else ""
+    return head + _table(["camera", "verdict"], levels, text_columns=(0, 1)) + findings
 
 
 # ---------------------------------------------------------------- the page
 
 
-def render_report(cal: Calibration, obs: Observations | None = None, *, title: str = "camnet calibration") -> str:
-    """The whole HTML page of `cal`; with `obs`, also the per-point errors and histograms."""
+def render_report(cal: Calibration, obs: Observations | None = None, *, title: str = "camnet calibration",
+                  truth: list[Camera] | None = None) -> str:
+    """The whole HTML page of `cal`; with `obs`, also the per-point errors and histograms; with `truth` (a
+    simulated rig's cameras, in the calibration's world frame), also its errors against them."""
     uncertainty = cal.uncertainty
     res = reprojection_residuals(cal, obs) if obs is not None else None
+    comparison = truth_comparison(cal, truth) if truth else None
+    verdict = judge(cal)
     limit_px = outlier_limit_px(cal)
     box = robust_box(cal.points)
     needs_observations = f'<p class="note">{NEEDS_OBSERVATIONS}</p>'
     body = {
         "summary": _summary(cal, res),
-        "verdict": _verdict_html(cal),
+        "verdict": _verdict_html(verdict),
+        "truth": _truth_html(comparison) if comparison is not None else None,
         "warnings": "".join(f'<p class="warning">warning: {_esc(w)}</p>' for w in cal.warnings)
         + "".join(f'<p class="note">note: {_esc(n)}</p>' for n in (cal.report.notes if cal.report else ()))
         or '<p class="note">None.</p>',
@@ -492,8 +301,10 @@ def render_report(cal: Calibration, obs: Observations | None = None, *, title: s
         else '<p class="note">The calibration holds no points.</p>',
         "layout": plot_layout(cal),
     }
-    sections = "".join(f'<section id="{key}"><h2>{SECTIONS[key]}</h2>{body[key]}</section>\n' for key in SECTIONS)
+    sections = "".join(f'<section id="{key}"><h2>{SECTIONS[key]}</h2>{body[key]}</section>\n' for key in SECTIONS
+                       if body[key] is not None)
+    banner = _banner(verdict, cal.report, comparison)
     return (
         f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"><title>{_esc(title)}</title>'
-        f"<style>{CSS}</style></head>\n<body><h1>{_esc(title)}</h1>\n{sections}</body></html>\n"
+        f"<style>{CSS}</style></head>\n<body><h1>{_esc(title)}</h1>\n{banner}\n{sections}</body></html>\n"
     )

@@ -473,7 +473,7 @@ def solve(
             gauss_newton_step, remaining, small = gauss_newton_test(ne, ftol, eliminated=eliminated, within=within)
             log.debug("LM: cost %.9g (-%.3g), lambda %.2g, Gauss-Newton gain %.3g", ne.cost, decrease, lam, remaining)
             if small:
-                reason, converged = "a Gauss-Newton step would lower the cost by less than ftol (relative)", True
+                reason, converged = f"another step would lower the cost by less than {ftol:g} of it", True
                 break
         else:
             lam, nu = lam * nu, 2.0 * nu
