@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import glob
 import logging
+import os
 import re
 import time
 from dataclasses import dataclass
@@ -49,19 +50,39 @@ def create(entry: CameraEntry, rig: Rig) -> V4l2Camera:
 
 
 def source_problem(camera_id: str, config: V4l2Config) -> str | None:
-    """What makes `config.source` unusable before anything opens it (an absent device or file, a glob
-    matching nothing), in one line naming the camera and what to do; None when it may be opened."""
+    """What makes `config.source` unusable before anything opens it (an absent device, file or folder of
+    images, a glob matching nothing, an absent timestamps file), in one line naming the camera, the path
+    and what to do; None when it may be opened."""
     source = config.source
     if is_image_pattern(source):
         if not glob.glob(source):
-            return f"camera {camera_id!r}: no image matches {source!r} (paths are relative to the rig file)"
+            return _sequence_problem(camera_id, source)
     elif source.isdigit() or source.startswith("/dev/"):
         device = f"/dev/video{source}" if source.isdigit() else source
         if not Path(device).exists():
             return f"camera {camera_id!r}: no device {device} on this host (camnet cameras lists the devices found)"
     elif not Path(source).is_file():
         return f"camera {camera_id!r}: no file {source!r} (paths are relative to the rig file)"
+    if config.timestamps is not None and not Path(config.timestamps).is_file():
+        return (f"camera {camera_id!r}: no timestamps file {config.timestamps} (paths are relative to the rig "
+                "file); put the recording's timestamps there, or leave 'timestamps' out to pace it by 'fps'")
     return None
+
+
+def _sequence_problem(camera_id: str, pattern: str) -> str:
+    """Why the image glob `pattern` matches nothing: its folder is absent, or holds no such image."""
+    folder, name = os.path.split(pattern)
+    shown = _unescaped(folder)
+    if not glob.glob(folder):
+        return (f"camera {camera_id!r}: no folder {shown} for its images (paths are relative to the rig file); "
+                "put the camera's images there, or set its v4l2 source to where they are")
+    return (f"camera {camera_id!r}: no image in {shown} matches {_unescaped(name)!r}; put the camera's images "
+            "there, or correct the pattern of its v4l2 source")
+
+
+def _unescaped(pattern: str) -> str:
+    """A path as written, from a glob pattern whose literal part glob.escape wrote (``[[]`` for ``[``)."""
+    return re.sub(r"\[([*?[])\]", r"\1", pattern)
 
 
 def parse_timestamps(text: str, *, source: str) -> np.ndarray:
@@ -187,7 +208,7 @@ class V4l2Camera:
         if is_image_pattern(source):
             self._files = tuple(sorted(glob.glob(source)))
             if not self._files:
-                raise DeviceError(f"camera {self.camera_id!r}: no image matches {source!r}")
+                raise DeviceError(_sequence_problem(self.camera_id, source))
             self._fps = self.config.fps or _DEFAULT_FILE_FPS
             if self.config.timestamps is not None:
                 self._open_stamps()

@@ -64,7 +64,9 @@ def test_video_file(tmp_path):
 
 
 def test_missing_source_is_named(tmp_path):
-    with pytest.raises(DeviceError, match="'nope'.*no image matches"):
+    with pytest.raises(DeviceError, match=f"'nope': no image in {tmp_path} matches '\\*.png'"):
         V4l2Camera("nope", config(str(tmp_path / "*.png"))).__enter__()
+    with pytest.raises(DeviceError, match=f"'nope': no folder {tmp_path / 'absent'} for its images"):
+        V4l2Camera("nope", config(str(tmp_path / "absent" / "*.png"))).__enter__()
     with pytest.raises(DeviceError, match="neither a device"):
         V4l2Camera("nope", config(str(tmp_path / "missing.avi"))).__enter__()
