@@ -365,7 +365,7 @@ _DESCRIBE = {
     "calibration.json": "the last calibration (camnet.calibration/1)",
     "observations.json": "the pooled observations it was solved from (camnet.observations/1)",
     "truth.json": "the simulation's ground truth (camnet report --truth)",
-    "report.html": "verdict, errors against the truth, uncertainty, layout",
+    "report.html": "verdict, errors (against the truth when simulated), uncertainty, layout",
     "calibration.yaml": "OpenCV FileStorage",
     "colmap": "COLMAP text model",
     "points.ply": "the points with their sigmas",
