@@ -76,7 +76,8 @@ def _checked_rig(args: argparse.Namespace):
     rig_path = Path(args.rig_file) if args.rig_file else default_rig()
     rig = load_rig(rig_path)
     if rig.stereo is None:
-        raise InputError(f"{rig_path}: the rig has no stereo pair; camnet needs one with a known baseline")
+        raise InputError(f"{rig_path}: the rig has no stereo pair; camnet needs one with a known baseline (add a "
+                         "'stereo:' section with left, right and baseline_m)")
     for i, entry in enumerate(rig.cameras):
         if entry.driver is None and not args.replay:
             raise InputError(f"{rig_path}: cameras[{i}] ({entry.id}) has no driver; camnet up runs one per camera "
