@@ -96,7 +96,7 @@ def test_the_matchers_bytes_are_the_contracts_document_then_its_envelope(matcher
     assert len(obs.track_ids) > 100 and message.frame_sets == 3
     # The bytes as the formats contract writes them, and the envelope after, key by key as it always was.
     stamps = message.latency_ns
-    doc = {**observations_to_doc(obs), "rig": "msgs", "pool_id": node._pool_id, "frame_sets": 3,
+    doc = {**observations_to_doc(obs), "rig": "msgs", "pool_id": node.engine.pool_id, "frame_sets": 3,
            "latest_capture_ns": node.latest_capture_ns,
            "latency_ns": {"taken": stamps.taken_ns, "detected": stamps.detected_ns, "matched": stamps.matched_ns,
                           "pooled": stamps.pooled_ns}, "published_ns": message.published_ns}
