@@ -171,7 +171,9 @@ def observe(
     cam_index, track_index, uv = cam_index[order], track_index[order], uv[order]
 
     outlier = np.zeros(len(uv), dtype=bool)
-    bad_tracks = rng.choice(n_points, size=int(round(outlier_fraction * n_points)), replace=False)
+    seen_tracks = np.unique(track_index)  # a point no camera sees has no observation to spoil
+    n_bad = min(int(round(outlier_fraction * n_points)), len(seen_tracks))
+    bad_tracks = rng.choice(seen_tracks, size=n_bad, replace=False)
     for trk in bad_tracks:
         k = rng.choice(np.flatnonzero(track_index == trk))
         cam = rig.cameras[cam_index[k]]
