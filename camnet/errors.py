@@ -16,3 +16,14 @@ class InputError(CamnetError):
 
 class SolveError(CamnetError):
     """The calibration could not be computed from the data given."""
+
+
+def in_words(names, *, noun: str = "", last: str = "and") -> str:
+    """Names as a message writes them: "a", "a and b", "a, b and c" (in the order given; "none" for none;
+    `last` the word before the last name: "or" for a choice), after `noun` where one is given, plural
+    ("cameras a and b") for more than one name."""
+    names = [str(n) for n in names]
+    listed = "none" if not names else names[0] if len(names) == 1 else f"{', '.join(names[:-1])} {last} {names[-1]}"
+    if not noun:
+        return listed
+    return f"{noun}{'s' if len(names) > 1 else ''} {listed}"

@@ -70,7 +70,7 @@ def test_a_start_that_left_cameras_out_and_fits_the_rest_badly_is_refused():
     refuse_wrong_start(report, cal.rms_reprojection_px)  # left out, but the rest fit: a calibration
     refuse_wrong_start(replace(report, inliers=int(0.85 * report.observations)), 1.37)  # false matches
     torn = replace(report, inliers=int(0.6 * report.observations))
-    with pytest.raises(SolveError, match=r"cameras \['ring4'\] could not be placed, .* keeps only 60% .*1.37 px"):
+    with pytest.raises(SolveError, match=r"camera ring4 could not be placed, .* keeps only 60% .*1.37 px"):
         refuse_wrong_start(torn, 1.37)
     refuse_wrong_start(replace(torn, cameras_left_out={}), 1.37)  # every camera placed: its verdict says the rest
 
@@ -172,7 +172,7 @@ def test_the_live_calibrator_keeps_the_others_and_says_why_a_camera_is_missing()
     assert cal.report.cameras_left_out["ring4"].startswith("it shares only 0 tracks")
     unexplained = replace(cal, report=replace(cal.report, cameras_left_out={}))
     assert judge(unexplained, obs, LiveConfig(max_scale_rel=1.0)) == (
-        "cameras ['ring4'] not calibrated, and the solve does not say why")
+        "camera ring4 not calibrated, and the solve does not say why")
 
 
 @pytest.mark.parametrize("seed", [0, 1, 11])

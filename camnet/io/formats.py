@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from camnet.errors import InputError
+from camnet.errors import InputError, in_words
 from camnet.io import validate as v
 from camnet.io.solve_report import parse_report, report_to_doc, verdict_to_doc
 from camnet.model.calibration import Calibration
@@ -58,10 +58,11 @@ def _parse_camera(value: Any, path: str) -> CameraInfo:
     dist = v.lens_dist(value["dist"], model, f"{path}.dist") if "dist" in value else None
     fixed_raw = value.get("fixed", [])
     if not isinstance(fixed_raw, list):
-        raise v.fail(f"{path}.fixed", f"expected a list drawn from {list(FIXABLE)}")
+        raise v.fail(f"{path}.fixed", f"expected a list drawn from {in_words(FIXABLE)}")
     for i, name in enumerate(fixed_raw):
         if name not in FIXABLE:
-            raise v.fail(f"{path}.fixed[{i}]", f"unknown {json.dumps(name)[:30]}; expected one of {list(FIXABLE)}")
+            raise v.fail(f"{path}.fixed[{i}]",
+                         f"unknown {json.dumps(name)[:30]}; expected {in_words(FIXABLE, last='or')}")
         if value.get(name) is None:
             raise v.fail(f"{path}.fixed[{i}]", f"{name} is fixed but not given")
     return CameraInfo(cam_id, width, height, K, dist, frozenset(fixed_raw), model)

@@ -14,7 +14,7 @@ from collections.abc import Callable, Collection, Mapping
 from dataclasses import dataclass, field, replace
 from enum import StrEnum
 
-from camnet.errors import CamnetError
+from camnet.errors import CamnetError, in_words
 from camnet.live.moved_cameras import without_cameras
 from camnet.model.calibration import Calibration
 from camnet.model.observations import Observations
@@ -77,7 +77,7 @@ def solve_judged(obs: Observations, start: Calibration | None, *, options: Optio
         again, refusal = _attempt(obs, start, options=options, check=check, reset=reset, left_out=left_out)
         if again.status == Status.FAILED:
             # The refused solve is the last one that solved: a caller may still show it, with why not.
-            return replace(judged, reason=f"{judged.reason}; without {sorted(refused)}: {again.reason}")
+            return replace(judged, reason=f"{judged.reason}; without {in_words(sorted(refused))}: {again.reason}")
         judged = again
     return judged
 
@@ -94,8 +94,7 @@ def _attempt(obs: Observations, start: Calibration | None, *, options: Options, 
         return Judged(Status.FAILED, f"solve failed: the adjustment did not converge: {result.reason}"), Refusal()
     cal = result.calibration
     if left_out:
-        report = with_cameras_left_out(cal.report, left_out)
-        cal = replace(cal, report=replace(report, cameras_left_out={**cal.report.cameras_left_out, **left_out}))
+        cal = replace(cal, report=with_cameras_left_out(cal.report, left_out))
     refusal = check(cal, obs)
     status = Status.REJECTED if refusal.reason else Status.GOOD
     return Judged(status, refusal.reason, cal), refusal

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from camnet.errors import in_words
 from camnet.live.judged_solve import Refusal
 from camnet.live.moved_cameras import MoveRule
 from camnet.live.newest_first import START_TRACKS
@@ -112,13 +113,14 @@ def judge_cameras(cal: Calibration, obs: Observations, limits: SoundnessLimits) 
     few = misplaced(cal, obs, limits)
     if few:
         kept = ", ".join(f"{c} {100 * s:.0f}%" for c, s in few.items())
-        return (f"cameras {sorted(few)} keep too few of their observations as inliers ({kept}, less than "
-                f"{100 * limits.min_inlier_share:.0f}%): placed wrong, or their tracks are")
+        keep, their = ("keeps", "its") if len(few) == 1 else ("keep", "their")
+        return (f"{in_words(sorted(few), noun='camera')} {keep} too few of {their} observations as inliers ({kept}, "
+                f"less than {100 * limits.min_inlier_share:.0f}%): placed wrong, or {their} tracks are")
     # A camera the solve could not place (it shares too little yet, or no pose agrees) is named with its
     # reason in the report and the calibration of the others stands; one missing without a reason does not.
     unexplained = set(obs.camera_ids) - {c.id for c in cal.cameras} - set(cal.report.cameras_left_out)
     if unexplained:
-        return f"cameras {sorted(unexplained)} not calibrated, and the solve does not say why"
+        return f"{in_words(sorted(unexplained), noun='camera')} not calibrated, and the solve does not say why"
     return ""
 
 

@@ -44,7 +44,8 @@ class Camera:
     def __post_init__(self) -> None:
         if self.model == LensModel.FISHEYE and len(self.dist) != FISHEYE_DIST_SIZE:
             if np.any(self.dist):
-                raise ValueError(f"camera {self.id!r}: a fisheye's dist is [k1, k2, k3, k4], got {list(self.dist)}")
+                raise ValueError(f"camera {self.id!r}: a fisheye's dist is [k1, k2, k3, k4], got "
+                                 f"{', '.join(f'{d:g}' for d in self.dist)}")
             object.__setattr__(self, "dist", np.zeros(FISHEYE_DIST_SIZE))  # the default: no distortion
 
     @property

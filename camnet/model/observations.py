@@ -6,7 +6,7 @@ the centre of the top-left pixel; lengths in metres.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -76,3 +76,16 @@ class Observations:
     def fisheye(self, order: list[int]) -> np.ndarray:
         """(len(order),) bool: whether camera ``cameras[order[m]]`` has the fisheye lens model."""
         return np.array([self.cameras[i].model == LensModel.FISHEYE for i in order], dtype=bool)
+
+    def only_cameras(self, keep: np.ndarray) -> Observations:
+        """These observations of only the cameras where `keep` (bool, one per camera) is true: the others'
+        observations and known distances go, every track stays (the stereo pair must be kept)."""
+        keep = np.asarray(keep, dtype=bool)
+        new_index = np.cumsum(keep) - 1
+        rows = keep[self.cam_index]
+        cameras = tuple(c for c, k in zip(self.cameras, keep, strict=True) if k)
+        ids = {c.id for c in cameras}
+        return replace(
+            self, cameras=cameras, baselines=tuple(b for b in self.baselines if {b.a, b.b} <= ids),
+            cam_index=new_index[self.cam_index[rows]], track_index=self.track_index[rows], uv=self.uv[rows],
+        )

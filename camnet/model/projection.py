@@ -148,6 +148,8 @@ def normalised(uv: np.ndarray, *, K: np.ndarray, dist: np.ndarray | None, fishey
     import cv2
 
     pts = np.asarray(uv, dtype=np.float64).reshape(-1, 1, 2)
+    if not len(pts):  # OpenCV answers no points with None
+        return np.empty((0, 2))
     if not fisheye:
         return cv2.undistortPoints(pts, K, full_dist(dist)).reshape(-1, 2)
     criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12)  # wide angles need more than the default

@@ -26,6 +26,8 @@ FOCAL_STEPS = 16  # 27% apart: a refinement finishes from the nearest
 # depth 25-30 where the depth spans a tenth of the distance), plus a floor for exact data.
 ROTATION_RATIO = 5.0
 ROTATION_FLOOR_PX = 0.1
+# Rows closer together than this share of their distance from the principal point are one row to a line's fit.
+ROW_SPAN_REL = 1e-9
 
 
 @dataclass(frozen=True)
@@ -128,13 +130,21 @@ def row_and_epipolar_errors(xy1: np.ndarray, xy2: np.ndarray, *, threshold_px: f
     ``y2 = k y1 + c`` (eq. 4, with an offset for principal points that
     differ), fitted robustly; epipolar_px: the median distance from their
     epipolar lines under the RANSAC fundamental matrix, over its inliers.
+    Matches with a non-finite pixel are ignored; both are infinite where
+    fewer than two rows remain to fit, and epipolar_px where no fundamental
+    matrix is found.
     """
     import cv2
 
+    finite = np.all(np.isfinite(xy1), axis=1) & np.all(np.isfinite(xy2), axis=1)
+    xy1, xy2 = xy1[finite], xy2[finite]
     y1, y2 = xy1[:, 1], xy2[:, 1]
+    if not _spans_rows(y1):  # no line through one row: nothing says the rows match
+        return np.inf, np.inf
     keep = np.ones(len(y1), dtype=bool)
     for _ in range(3):  # refit on the rows that agree: mismatches would drag a plain fit
-        k, c = np.polyfit(y1[keep], y2[keep], 1)
+        if _spans_rows(y1[keep]):  # else the last line stands
+            k, c = np.polyfit(y1[keep], y2[keep], 1)
         off = np.abs(y2 - (k * y1 + c))
         keep = off <= max(3.0 * np.median(off), 1.0)
     found = fundamental(xy1, xy2, threshold_px=threshold_px)
@@ -144,6 +154,11 @@ def row_and_epipolar_errors(xy1: np.ndarray, xy2: np.ndarray, *, threshold_px: f
     lines = cv2.computeCorrespondEpilines(xy1[inliers].reshape(-1, 1, 2), 1, F).reshape(-1, 3)
     epipolar = np.abs(np.sum(lines[:, :2] * xy2[inliers], axis=1) + lines[:, 2])
     return float(np.median(off)), float(np.median(epipolar))
+
+
+def _spans_rows(y: np.ndarray) -> bool:
+    """Whether pixel rows `y` span enough to fit a line through them (a fit on one row is singular)."""
+    return len(y) >= 2 and float(np.ptp(y)) > ROW_SPAN_REL * (1.0 + float(np.max(np.abs(y))))
 
 
 def homography_explains(xy1: np.ndarray, xy2: np.ndarray, *, threshold_px: float) -> bool:

@@ -33,7 +33,7 @@ class SolveContext:
     order: tuple[int, ...]  # problem camera m is observations camera order[m]: the stereo pair first
     intr: np.ndarray  # (M, 9) the given intrinsics; f NaN and the image centre where not given
     xy: np.ndarray  # (n, 2) centred pixels of every observation
-    rows: np.ndarray  # (T, cameras) observation row of each track per observations camera, -1 where none
+    rows: np.ndarray  # (T, cameras) observation row of each track per observations camera, -1 where none or xy NaN
 
     def __post_init__(self) -> None:
         for array in (self.intr, self.xy, self.rows):
@@ -44,12 +44,14 @@ class SolveContext:
         """The context of `obs`, with intrinsics `intr` (M, 9) in problem order, or those its cameras give."""
         order = camera_order(obs)
         intr = initial_intrinsics(obs, order) if intr is None else np.array(intr, dtype=float)
-        return SolveContext(obs, tuple(order), intr, centred(obs, order, intr), observation_rows(obs))
+        xy = centred(obs, order, intr)
+        return SolveContext(obs, tuple(order), intr, xy, observation_rows(obs, xy))
 
     def with_intrinsics(self, intr: np.ndarray) -> SolveContext:
         """The same observations with intrinsics `intr` (M, 9): their pixels centred anew."""
         intr = np.array(intr, dtype=float)
-        return SolveContext(self.obs, self.order, intr, centred(self.obs, list(self.order), intr), self.rows)
+        xy = centred(self.obs, list(self.order), intr)
+        return SolveContext(self.obs, self.order, intr, xy, observation_rows(self.obs, xy))
 
     @property
     def n_cameras(self) -> int:
@@ -102,10 +104,13 @@ def camera_order(obs: Observations) -> list[int]:
     return [left, right] + [i for i in range(len(obs.cameras)) if i not in (left, right)]
 
 
-def observation_rows(obs: Observations) -> np.ndarray:
-    """(T, cameras) row of the observation of each track by each camera; -1 where none."""
+def observation_rows(obs: Observations, xy: np.ndarray | None = None) -> np.ndarray:
+    """(T, cameras) row of the observation of each track by each camera; -1 where none, or where its centred
+    pixel `xy` (n, 2), if given, is not finite (a fisheye's pixel beyond the model's 90 degrees gives no ray to
+    start from; the adjustment, which projects, still takes it)."""
     rows = np.full((len(obs.track_ids), len(obs.cameras)), -1)
-    rows[obs.track_index, obs.cam_index] = np.arange(len(obs.uv))
+    usable = np.ones(len(obs.uv), dtype=bool) if xy is None else np.all(np.isfinite(xy), axis=1)
+    rows[obs.track_index[usable], obs.cam_index[usable]] = np.flatnonzero(usable)
     return rows
 
 

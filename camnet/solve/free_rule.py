@@ -79,7 +79,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from camnet.errors import SolveError
+from camnet.errors import SolveError, in_words
 from camnet.model.calibration import FreeSet
 from camnet.model.camera import CameraInfo, LensModel
 from camnet.model.projection import FISHEYE_DIST_SIZE, FISHEYE_INTRINSIC_NAMES, INTRINSIC_NAMES, N_INTRINSICS
@@ -129,7 +129,8 @@ def free_names(free: str | frozenset[str]) -> frozenset[str]:
         return frozenset({"f", "fisheye"})
     unknown = set(free) - set(FREE_NAMES)
     if unknown:
-        raise SolveError(f"free: unknown parameter(s) {sorted(unknown)}; expected some of {FREE_NAMES}")
+        raise SolveError(f"free: unknown {in_words(sorted(unknown), noun='parameter')}; expected some of "
+                         f"{in_words(FREE_NAMES)}")
     return frozenset(free)
 
 

@@ -45,7 +45,7 @@ from dataclasses import replace
 import numpy as np
 
 from camnet import blas
-from camnet.errors import SolveError
+from camnet.errors import SolveError, in_words
 from camnet.model import rowwise
 from camnet.model.calibration import Calibration, StartKind
 from camnet.model.camera import Camera
@@ -88,6 +88,7 @@ from camnet.solve.start.cold import (
     only_placed,
     pair_advice,
     with_cameras_left_out,
+    without_unobserved,
 )
 from camnet.solve.start.state import Start
 from camnet.solve.start.warm import warm_start
@@ -152,19 +153,30 @@ def calibrate(
     cameras determine, before the joint adjustment. Resetting a stereo
     camera moves the frame and the scale of every point, so it falls back
     to a cold solve. Ignored without `initial`.
+    A camera with no observation is left out, named in the report with why.
     """
+    check_solvable(obs)  # before any start reads the pair's matches
+    obs, unobserved = without_unobserved(obs)
+    if unobserved:  # nothing of theirs to reset
+        reset_cameras = [c for c in ([reset_cameras] if isinstance(reset_cameras, str) else reset_cameras)
+                         if c not in unobserved]
     try:
         # The dense products here have a few hundred rows: BLAS threads gain little on
         # them, and on a machine shared with drivers and the matcher they stall each other.
         with blas.one_thread():
             if initial is None and options.method == Method.REFINED:  # where one start goes wrong, the other
-                return solve_from_any_start(
+                result = solve_from_any_start(
                     obs, lambda pair: _calibrate(obs, options, None, reset_cameras, pair),
                     outlier_sigmas=options.outlier_sigmas, min_outlier_px=options.min_outlier_px)
-            return _calibrate(obs, options, initial, reset_cameras)
+            else:
+                result = _calibrate(obs, options, initial, reset_cameras)
     except np.linalg.LinAlgError:
         raise SolveError(f"the observations do not determine the calibration (singular equations){pair_advice(obs)}"
                          ) from None
+    if not unobserved:
+        return result
+    report = with_cameras_left_out(result.calibration.report, unobserved)
+    return replace(result, calibration=replace(result.calibration, report=report))
 
 
 def _calibrate(
@@ -172,7 +184,7 @@ def _calibrate(
     pair: PairStart = PairStart.AUTO,
 ) -> Result:
     if options.method not in tuple(Method):
-        raise SolveError(f"method: unknown {options.method!r}; expected one of {tuple(m.value for m in Method)}")
+        raise SolveError(f"method: unknown {options.method}; expected {in_words([m.value for m in Method], last='or')}")
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     check_solvable(obs)
@@ -383,8 +395,9 @@ def _check_camera_inliers(ctx: SolveContext, problem: Problem) -> None:
     if per_camera.min() < MIN_CAMERA_INLIERS:
         weak = [ctx.camera(m).id for m in np.flatnonzero(per_camera < MIN_CAMERA_INLIERS)]
         raise SolveError(
-            f"cameras {weak}: fewer than {MIN_CAMERA_INLIERS} of their observations agree with the "
-            "solution; the tracks look wrong or the camera moved (re-solve with it reset)"
+            f"{in_words(weak, noun='camera')}: fewer than {MIN_CAMERA_INLIERS} of "
+            f"{'its' if len(weak) == 1 else 'their'} observations agree with the solution; the tracks look wrong or "
+            "the camera moved (re-solve with it reset)"
         )
 
 
@@ -395,7 +408,8 @@ def _reset_indices(ctx: SolveContext, reset_cameras: Collection[str]) -> set[int
     ids = [ctx.camera(m).id for m in range(ctx.n_cameras)]
     unknown = sorted(set(reset_cameras) - set(ids))
     if unknown:
-        raise SolveError(f"reset_cameras: unknown camera(s) {unknown}; the observations have {ids}")
+        raise SolveError(f"reset_cameras: unknown {in_words(unknown, noun='camera')}; the observations have "
+                         f"{in_words(ids)}")
     return {ids.index(c) for c in reset_cameras}
 
 
@@ -457,7 +471,7 @@ def _result(
     report = with_cameras_left_out(report, left_out or {})
     try:
         refuse_undetermined(report)
-        refuse_wrong_start(report, rms)
+        refuse_wrong_start(report, rms, pair_K_given=not ctx.guessed_K[:2].any())
     except SolveError as exc:
         raise SolveError(f"{exc}{pair_advice(obs)}") from None
     calibration = Calibration(

@@ -32,6 +32,7 @@ from camnet.solve.schur import (
 # no observation fixes: well-posed but weak directions sit many orders of magnitude above it.
 NULL_EIGENVALUE = 1e-13
 NULL_COMPONENT = 1e-6  # a unit vector with this much of its square in the null space is undetermined
+EXTENT_REL = 1e-9  # a cloud whose RMS spread is below this share of its coordinates is one point: it has no scale
 
 
 @dataclass(frozen=True)
@@ -343,11 +344,18 @@ def scale_gradient(points: np.ndarray, weights: np.ndarray | None = None) -> np.
     estimate has, to first order, the scale ``1 + sum(w_j c_j . e_j) /
     sum(w_j |c_j|^2)`` (c_j the true points centred on their weighted mean,
     e_j the errors, w_j the weights, default equal); rotation and
-    translation errors do not enter it.
+    translation errors do not enter it. NaN where the points that weigh
+    span no more than rounding (`EXTENT_REL` of their coordinates): a
+    single point has no scale.
     """
     w = np.ones(len(points)) if weights is None else weights
+    if not w.sum() > 0:  # no point weighs: there is no scale to measure
+        return np.full_like(points, np.nan)
     c = points - (w @ points) / w.sum()
-    return w[:, None] * c / np.sum(w[:, None] * c * c)
+    spread = np.sum(w[:, None] * c * c)
+    if not np.sqrt(spread / w.sum()) > EXTENT_REL * np.max(np.abs(points)):  # the points that weigh coincide
+        return np.full_like(points, np.nan)
+    return w[:, None] * c / spread
 
 
 def scale_weights(cov: Covariance, points: np.ndarray, kept: np.ndarray | None = None) -> np.ndarray:

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from camnet.errors import SolveError
+from camnet.errors import SolveError, in_words
 from camnet.model import rowwise
 from camnet.model.calibration import (
     CameraStats,
@@ -143,14 +143,14 @@ def reported_points(
 
 
 def _uncertainty(ids: list[str], problem, state, cov: Covariance, kept, warnings: list[str],
-                 notes: list[str], normal, pair_pose_given: bool, pp_given: np.ndarray, sizes: np.ndarray
-                 ) -> Uncertainty:
+                 notes: list[str], normal, pair_pose_given: bool, pp_given: np.ndarray, sizes: np.ndarray,
+                 pp_guessed: np.ndarray) -> Uncertainty:
     """The solution's uncertainty; appends the warnings and notes it gives rise to.
 
     normal: the solve's unweighted normal equations at `state` in cov's layout (or None);
     pair_pose_given: the pair's held rotation axes are held at a given pose, not the parallel pair's;
     pp_given, sizes (M, 2): each camera's given principal point (the image centre where none was) and image
-    size, pixels.
+    size, pixels; pp_guessed (M,): no principal point was given (it started at the image centre).
     """
     weights = scale_weights(cov, state.X, kept)
     exact_columns = _exact_columns(problem, cov)
@@ -181,16 +181,17 @@ def _uncertainty(ids: list[str], problem, state, cov: Covariance, kept, warnings
             warnings.append(f"camera {cam_id}: focal length poorly determined (sigma {per_cam[cam_id].f_px:.0f} px)")
         if m in far_pp and not unknown:
             warnings.append(
-                f"camera {cam_id}: its principal point, freed, moved {100 * far_pp[m]:.0f}% of the image from where "
-                "it was given (no lens's is that far off): it trades with the focal length and rotation, which may "
-                "be wrong by several of their sigmas; give its K"
+                f"camera {cam_id}: its principal point, freed, moved {100 * far_pp[m]:.0f}% of the image from "
+                f"{_pp_start([pp_guessed[m]], 'it was')} (no lens's is that far off): it trades with the focal length "
+                "and rotation, which may be wrong by several of their sigmas; give its K"
             )
     scale_if_pp, scale_if_pair, scale_if_both = _scale_if_exact(exact_columns, sigmas, scale)
     unknown_scale = UNDETERMINED_SCALE
     if nonlinear and pair_loose_pp:
         unknown_scale = (f"the stereo cameras' principal points, freed, moved up to "
-                         f"{100 * max(far_pp[m] for m in pair_loose_pp):.0f}% of the image from where they were given, "
-                         "trading with their focal lengths beyond where a linear sigma holds; give their K")
+                         f"{100 * max(far_pp[m] for m in pair_loose_pp):.0f}% of the image from "
+                         f"{_pp_start(pp_guessed[pair_loose_pp], 'they were')}, trading with their focal lengths "
+                         "beyond where a linear sigma holds; give their K")
         warnings.append(f"the scale is not determined: {unknown_scale}")
     elif nonlinear:
         unknown_scale = (f"the stereo cameras' focal lengths are known to {100 * pair_focal_rel:.0f}% only (1 sigma); "
@@ -222,6 +223,14 @@ def _uncertainty(ids: list[str], problem, state, cov: Covariance, kept, warnings
         _scale_message(scale_cause(uncertainty), bool(problem.n_cameras >= 2 and not problem.rot_free[1, 1]),
                        warnings, notes, given=pair_pose_given)
     return uncertainty
+
+
+def _pp_start(guessed, were: str) -> str:
+    """Where principal points started, as a message says it: "the image centre" where none was given, "where
+    {were} given" where all were; `guessed`: whether each was not given."""
+    if all(guessed):
+        return "the image centre"
+    return f"where {were} given" if not any(guessed) else "where given (the image centre where not)"
 
 
 def _far_pp_rel(problem, state, m: int, given_px: np.ndarray, size_px: np.ndarray) -> float:
@@ -380,10 +389,11 @@ def solve_report(
                                        problem.intr_free[:, 4], observed)
     notes: list[str] = []
     sizes = np.array([(obs.cameras[i].width, obs.cameras[i].height) for i in order], dtype=float)
+    pp_guessed = np.array([obs.cameras[i].K is None for i in order])
     pp_given = np.array([sizes[k] / 2 if obs.cameras[i].K is None else obs.cameras[i].K[:2, 2]
                          for k, i in enumerate(order)])
     uncertainty = None if cov is None else _uncertainty(ids, problem, state, cov, kept, warnings, notes, info.normal,
-                                                        pair_pose_given, pp_given, sizes)
+                                                        pair_pose_given, pp_given, sizes, pp_guessed)
     # The held column offset is priced into the scale's sigma when the principal points entered as
     # a guess with its prior: then a caveat (a note), else the sigma cannot show it (a warning).
     priced = uncertainty is not None and uncertainty.scale_rel_if_pp_exact.value is not None
@@ -420,29 +430,30 @@ def refuse_undetermined(report: SolveReport) -> None:
     """
     u = report.uncertainty
     if u is not None and u.scale_rel.reason == UNDETERMINED_SCALE:
-        cameras = [w.split(":")[0].removeprefix("camera ") for w in report.warnings if "not determined by" in w]
-        also = f" (nor cameras {cameras})" if cameras else ""
+        cameras = [cam_id for cam_id, sigmas in u.cameras.items() if undetermined_names(sigmas)]
+        also = f" (nor {in_words(cameras, noun='camera')})" if cameras else ""
         raise SolveError(f"the observations do not determine the scale{also}: too few points agree with one "
                          "solution; check the tracks and that the cameras see a common scene")
 
 
-def refuse_wrong_start(report: SolveReport, rms_px: float) -> None:
+def refuse_wrong_start(report: SolveReport, rms_px: float, *, pair_K_given: bool = False) -> None:
     """Refuse a solution whose start left cameras out and which then rejects many of the rest's observations.
 
     rms_px: the calibration's reprojection RMS over its inliers, for the
     message. Either alone is no proof (a camera that sees nothing the others
     see is left out of a sound solve; false matches are rejected from one),
     both together are: the cameras placed disagree with the geometry the
-    start gave them.
+    start gave them. pair_K_given: the observations give both stereo
+    cameras' K, so the message does not ask for it.
     """
     if not report.cameras_left_out or not report.observations:
         return
     share = report.inliers / report.observations
     if share >= WRONG_START_INLIER_SHARE:
         return
+    give_K = "" if pair_K_given else "give the stereo pair's K or "
     raise SolveError(
-        f"start: cameras {sorted(report.cameras_left_out)} could not be placed, and the solution of the others keeps "
-        f"only {100 * share:.0f}% of their observations (RMS {rms_px:.2f} px): the start went wrong, so this is no "
-        "calibration; give the stereo pair's K or choose a pair that sees more of the scene together, and check the "
-        "matches"
+        f"start: {in_words(sorted(report.cameras_left_out), noun='camera')} could not be placed, and the solution of "
+        f"the others keeps only {100 * share:.0f}% of their observations (RMS {rms_px:.2f} px): the start went wrong, "
+        f"so this is no calibration; {give_K}choose a pair that sees more of the scene together, and check the matches"
     )

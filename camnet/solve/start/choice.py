@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from camnet.errors import SolveError
+from camnet.errors import SolveError, in_words
 from camnet.model.calibration import Calibration
 from camnet.model.observations import Observations
 from camnet.model.resection import MIN_INLIER_SHARE, MIN_RESECTION_POINTS
@@ -152,7 +152,7 @@ def _why(obs: Observations, first: Result | None, refusal: SolveError | None) ->
     if first is None:
         return f"is refused ({refusal})"
     return (f"is unsound ({_inlier_share(first):.0%} of the observations kept; cameras sharing tracks left out: "
-            f"{shared_left_out(obs, first.calibration)})")
+            f"{in_words(shared_left_out(obs, first.calibration))})")
 
 
 def _least_cost(obs: Observations, kept: list[tuple[PairStart, Result]], outlier_sigmas: float,

@@ -22,7 +22,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from camnet.errors import SolveError
+from camnet.errors import SolveError, in_words
 from camnet.model.calibration import SolveReport
 from camnet.model.observations import Observations, Stereo
 from camnet.model.resection import MIN_RESECTION_POINTS, resect
@@ -56,6 +56,29 @@ WEAK_PAIR_RATIO = 3.0  # a failed solve names a pair that shares this many times
 
 class NoStart(SolveError):
     """The start asked for cannot be made from these observations (nothing was solved from it)."""
+
+
+def without_unobserved(obs: Observations) -> tuple[Observations, dict[str, str]]:
+    """(observations, {camera id: why}): `obs` without the cameras that have no observation, each named
+    with why it is left out; refused where fewer than MIN_CAMERAS cameras would be left.
+
+    Such a camera cannot be placed, whatever is known of it. The stereo
+    pair's cameras stay: `check_solvable` refuses a pair that shares nothing.
+    """
+    seen = np.zeros(len(obs.cameras), dtype=bool)
+    seen[obs.cam_index] = True
+    seen[[obs.index_of(obs.stereo.left), obs.index_of(obs.stereo.right)]] = True
+    if seen.all():
+        return obs, {}
+    unseen = [obs.cameras[i].id for i in np.flatnonzero(~seen)]
+    if seen.sum() < MIN_CAMERAS:
+        raise SolveError(
+            f"cameras: {in_words(unseen)} {'has' if len(unseen) == 1 else 'have'} no observations, which leaves "
+            f"{int(seen.sum())}; a metric solve needs at least {MIN_CAMERAS} (eq. 15): give every camera a view of "
+            "what the others see"
+        )
+    why = "it has no observations (no track reaches it): give it a view of what the other cameras see"
+    return obs.only_cameras(seen), dict.fromkeys(unseen, why)
 
 
 def check_solvable(obs: Observations) -> None:
@@ -123,9 +146,10 @@ def is_parallel(rows_px: float, epipolar_px: float) -> bool:
     """Whether a pair is the paper's parallel pair, from `two_view.row_and_epipolar_errors`.
 
     The essential matrix cannot tell: with a short baseline, or a small
-    object, its rotation and translation trade off.
+    object, its rotation and translation trade off. Matches that fix no
+    rows (infinite rows_px) make no parallel pair.
     """
-    return rows_px <= PARALLEL_ROWS_RATIO * epipolar_px + PARALLEL_ROWS_FLOOR_PX
+    return bool(np.isfinite(rows_px) and rows_px <= PARALLEL_ROWS_RATIO * epipolar_px + PARALLEL_ROWS_FLOOR_PX)
 
 
 def pair_looks_parallel(obs: Observations) -> bool:
@@ -208,17 +232,20 @@ def _essential_by_third_view(ctx: SolveContext) -> Start:
             f, R, C, X, registered = start.working()
             f[third], R[third], C[third], registered[third] = got.f_px, got.R, got.C, True
             placed.append((got.msac_px2, start.placed(f, R, C, X, registered)))
+    disagrees = SolveError(
+        f"cameras: {obs.cameras[order[third]].id} does not agree with the stereo pair ({obs.stereo.left}, "
+        f"{obs.stereo.right}) at any focal length, so the pair's are not determined; check the pair's matches"
+    )
     if not placed:
-        raise SolveError(
-            f"cameras: {obs.cameras[order[third]].id} does not agree with the stereo pair ({obs.stereo.left}, "
-            f"{obs.stereo.right}) at any focal length, so the pair's are not determined; check the pair's matches"
-        )
+        raise disagrees
     # Few shared tracks fit a wrong focal length nearly as well: the three views, adjusted, decide.
     best = (np.inf, None)
     for _, start in sorted(placed, key=lambda p: p[0])[:SEED_TRIALS]:
         cost, start = seed_adjustment(ctx, start)
-        if cost < best[0]:
+        if cost < best[0]:  # a NaN cost (an adjustment that failed) is none
             best = (cost, start)
+    if best[1] is None:
+        raise disagrees
     log.info("the pair's focal lengths from a third view: %.0f, %.0f px (%.2f px^2)", *best[1].f[:2], best[0])
     return best[1]
 
@@ -334,22 +361,16 @@ def only_placed(ctx: SolveContext, start: Start) -> tuple[SolveContext, Start]:
     intrinsics the context had."""
     obs, order = ctx.obs, ctx.order
     keep = np.flatnonzero(start.registered)
-    kept = np.isin(np.arange(len(obs.cameras)), [order[m] for m in keep])
-    new_index = np.cumsum(kept) - 1
-    rows = kept[obs.cam_index]
-    cameras = tuple(c for c, k in zip(obs.cameras, kept, strict=True) if k)
-    ids = {c.id for c in cameras}
-    obs = replace(
-        obs, cameras=cameras, baselines=tuple(b for b in obs.baselines if {b.a, b.b} <= ids),
-        cam_index=new_index[obs.cam_index[rows]], track_index=obs.track_index[rows], uv=obs.uv[rows],
-    )
+    obs = obs.only_cameras(np.isin(np.arange(len(obs.cameras)), [order[m] for m in keep]))
     start = start.placed(start.f[keep], start.R[keep], start.C[keep], start.X, start.registered[keep])
     return SolveContext.of(obs, ctx.intr[keep]), start
 
 
 def with_cameras_left_out(report: SolveReport, left_out: dict[str, str]) -> SolveReport:
-    """`report` naming the cameras left out, each also in a warning: the user must see them."""
+    """`report` naming the cameras left out (besides those it names), each also in a warning: the user must
+    see them."""
     if not left_out:
         return report
     warned = tuple(f"camera {cam_id} left out: {why}" for cam_id, why in left_out.items())
-    return replace(report, cameras_left_out=dict(left_out), warnings=report.warnings + warned)
+    return replace(report, cameras_left_out={**report.cameras_left_out, **left_out},
+                   warnings=report.warnings + warned)
