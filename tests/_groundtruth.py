@@ -14,6 +14,9 @@ DATA_ROOT = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 KITTI_ROOT = DATA_ROOT / "kitti_raw_2011_09_26_extract_3cam"
 TEMPLE_ROOT = DATA_ROOT / "middlebury_temple_sparse_ring"
 STRECHA_ROOT = DATA_ROOT / "strecha_fountain_p11"
+CASTLE_ROOT = DATA_ROOT / "strecha_castle_p19"
+WEBCAMS4_ROOT = DATA_ROOT / "webcams4_person_board"
+FISHEYE_ROOT = DATA_ROOT / "fisheye220_rig4"
 
 
 def require(path: Path) -> Path:

@@ -10,7 +10,7 @@ All poses ``x_cam = R @ X + t`` in the left stereo camera's frame, metres.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -71,7 +71,7 @@ def in_frame_of(cameras: dict[str, Camera], left_id: str) -> dict[str, Camera]:
     for cam_id, cam in cameras.items():
         # X = R_l^T (x_left - t_l), so x_cam = R R_l^T x_left + (t - R R_l^T t_l).
         R = cam.R @ left.R.T
-        out[cam_id] = Camera(cam.id, cam.width, cam.height, K=cam.K, dist=cam.dist, R=R, t=cam.t - R @ left.t)
+        out[cam_id] = replace(cam, R=R, t=cam.t - R @ left.t)
     return out
 
 
