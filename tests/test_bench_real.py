@@ -5,10 +5,7 @@ No shared data is read."""
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -22,17 +19,7 @@ from camnet.model.camera import LensModel
 from camnet.model.projection import rotation_exp
 from camnet.sim.simulate import make_rig, observe
 from camnet.solve import Options, calibrate
-
-BENCH = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_real.py"
-
-
-def load_bench():
-    """benchmarks/ is no package: the script loaded as a module."""
-    spec = importlib.util.spec_from_file_location("bench_real", BENCH)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # its dataclasses look their module up while it is being executed
-    spec.loader.exec_module(module)
-    return module
+from tests._bench_real import load_bench
 
 
 def in_another_frame(cameras, R_world: np.ndarray, shift_m: np.ndarray) -> dict:

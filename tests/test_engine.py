@@ -8,7 +8,7 @@ import pytest
 from camnet.errors import SolveError
 from camnet.model.accuracy import compare, rotation_angle_deg
 from camnet.model.projection import project_with_jacobians, rotation_exp
-from camnet.sim.bounds import truth_state
+from camnet.sim.bounds import cramer_rao, truth_state
 from camnet.sim.simulate import make_rig, move_camera, observe
 from camnet.solve import Options, calibrate
 from camnet.solve.uncertainty import covariance, scale_sigma
@@ -109,6 +109,18 @@ def test_reported_uncertainty_matches_the_cramer_rao_bound():
     crb = scale_sigma(covariance(result.problem, truth_state(rig, result), sigma_px=0.5), rig.points)
     reported = result.calibration.uncertainty.scale_rel.value
     assert 0.5 < reported / crb < 2.0
+
+
+def test_the_focal_bound_matches_the_curvatures_sigma_camera_by_camera():
+    rig = make_rig(seed=4)
+    options = Options(free=frozenset({"f"}), pp_prior_rel=0, pair_tolerance_deg=0, halves=False)
+    result = calibrate(observe(rig, noise_px=0.5, seed=4).observations, options)
+
+    bound = cramer_rao(rig, result, 0.5).focal_rel
+
+    for cam in result.calibration.cameras:
+        reported = result.calibration.uncertainty.cameras[cam.id].f_px / cam.K[0, 0]
+        assert 0.5 < reported / bound[cam.id] < 2.0, (cam.id, reported, bound[cam.id])
 
 
 def test_outliers_are_rejected_and_do_not_bias_the_solution():

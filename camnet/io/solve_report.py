@@ -18,6 +18,7 @@ from camnet.model.calibration import (
     CameraSigmas,
     CameraStats,
     FreeSet,
+    HalvesCheck,
     PointsLeftOut,
     Sigma,
     SolveReport,
@@ -66,6 +67,8 @@ def report_to_doc(report: SolveReport) -> dict:
         diagnostics["start"] = report.start.value
     if report.pair_pose_given:  # written where true only: documents from before it read back as they were
         diagnostics["pair_pose_given"] = True
+    if report.halves is not None:
+        diagnostics["halves"] = _halves_to_doc(report.halves)
     doc: dict[str, Any] = {
         "method": report.method.value,
         "diagnostics": diagnostics,
@@ -118,6 +121,15 @@ def _uncertainty_to_doc(u: Uncertainty) -> dict:
     return out
 
 
+def _halves_to_doc(h: HalvesCheck) -> dict:
+    out: dict[str, Any] = {"splits": h.splits, "half_differences": dict(h.half_differences),
+                           "in_sigmas": {k: _finite(x) for k, x in h.in_sigmas.items()}, "widened": list(h.widened),
+                           "sigma_factor": h.sigma_factor}
+    if h.reason:
+        out["reason"] = h.reason
+    return out
+
+
 def _finite(x: float) -> float | None:
     """A sigma as written: null where the observations do not determine it (infinite)."""
     return float(x) if np.isfinite(x) else None
@@ -158,7 +170,22 @@ def parse_report(doc: dict) -> SolveReport | None:
         uncertainty=_parse_uncertainty(doc["uncertainty"], "uncertainty") if "uncertainty" in doc else None,
         cameras_left_out=get("cameras_left_out", _parse_left_out, {}),
         pair_pose_given=get("pair_pose_given", v.boolean, False),
+        halves=get("halves", _parse_halves),
     )
+
+
+def _parse_halves(value: Any, path: str) -> HalvesCheck:
+    value = v.mapping(value, path)
+    numbers = {}
+    for key in ("half_differences", "in_sigmas"):
+        inner = v.mapping(value.get(key, {}), f"{path}.{key}")
+        # A null in_sigmas is a difference no sigma covers (written for infinity).
+        numbers[key] = {k: np.inf if x is None and key == "in_sigmas" else v.number(x, f"{path}.{key}.{k}")
+                        for k, x in inner.items()}
+    return HalvesCheck(v.integer(v.require(value, "splits", path), f"{path}.splits"), numbers["half_differences"],
+                       numbers["in_sigmas"], tuple(v.strings(value.get("widened", []), f"{path}.widened")),
+                       v.number(value.get("sigma_factor", 1.0), f"{path}.sigma_factor", positive=True),
+                       str(value.get("reason", "")))
 
 
 def _parse_camera_stats(value: Any, path: str) -> dict[str, CameraStats]:

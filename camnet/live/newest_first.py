@@ -58,7 +58,8 @@ def solve_newest_first(obs: Observations, options: Options, check: Check, *, sta
         obs = without_cameras(obs, leave_out)  # before the newest tracks are chosen: those that keep 2 views
     solve = partial(solve_judged, options=options, check=check, leave_out=leave_out)
     if len(obs.track_ids) >= 2 * start_tracks:
-        seed = solve(newest_tracks(obs, start_tracks), start)
+        # Only a start: the second opinion is the whole pool's to ask.
+        seed = solve(newest_tracks(obs, start_tracks), start, options=replace(options, halves=False))
         if seed.status == Status.GOOD:
             whole = solve(obs, seed.calibration)
             if whole.status == Status.GOOD:

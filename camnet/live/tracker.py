@@ -37,12 +37,17 @@ from camnet.live.moved_cameras import (
 )
 from camnet.live.newest_first import solve_newest_first
 from camnet.live.policy import LiveConfig, policy_check
-from camnet.model.calibration import Calibration
+from camnet.model.calibration import Calibration, HalvesCheck
 from camnet.model.camera import Camera
 from camnet.model.observations import Observations
+from camnet.solve import Options, calibrate
+from camnet.solve.halves import with_check_carried, with_halves_check
 
 log = logging.getLogger(__name__)
 
+# A second opinion is asked afresh once this share of the pool is newer than the last one saw: in between, the
+# last one's half-differences are carried (a check costs two cold solves of half the pool).
+HALVES_TURNOVER = 0.5
 MOVED_RMS_FACTOR = 2.0  # a moved camera placed again fits its new views within this times its RMS before
 NOT_FORGOTTEN_YET = ("moved, not placed again yet (the matcher has not pooled its views afresh: those since the move "
                      "were judged against its old geometry, and the few kept may fit a wrong pose); its new tracks "
@@ -88,6 +93,14 @@ class Tracker:
     _forgotten: dict[str, int] | None = None
     # Moved cameras (found here) whose views the matcher has not forgotten since: left out, not placed again.
     _awaiting: set[str] = field(default_factory=set)
+    # The last second opinion (camnet.solve.halves) and the newest track id it saw.
+    _halves: HalvesCheck | None = None
+    _halves_max_id: int = -1
+
+    @property
+    def _options(self) -> Options:
+        """The options of every solve here: the second opinion is asked once a good solve stands (`_second_opinion`)."""
+        return replace(self.config.options, halves=False)
 
     def update(self, obs: Observations, *, source: object = None,
                forgotten: Mapping[str, int] | None = None) -> Outcome:
@@ -109,6 +122,8 @@ class Tracker:
         outcome = replace(outcome, told=told, solve_s=time.perf_counter() - t0)
         self.counts[outcome.status] += 1
         if outcome.status == Status.GOOD:
+            outcome = replace(outcome, calibration=self._second_opinion(solve_obs, outcome.calibration),
+                              solve_s=time.perf_counter() - t0)
             self.good = outcome.calibration
             # A moved camera left out stays to be placed again (by the checked warm path, with its lens).
             placed = {c.id for c in self.good.cameras}
@@ -116,6 +131,19 @@ class Tracker:
             self._reset = set(self._pending)
             self._points_valid = True
         return outcome
+
+    def _second_opinion(self, obs: Observations, cal: Calibration) -> Calibration:
+        """`cal` with the halves check: asked afresh where at least HALVES_TURNOVER of the pool is newer than the
+        last check saw (the first time, and after a move), else the last check's widening carried over."""
+        if not self.config.options.halves:
+            return cal
+        turnover = float(np.mean(obs.track_ids > self._halves_max_id)) if len(obs.track_ids) else 0.0
+        if self._halves is not None and turnover < HALVES_TURNOVER:
+            return with_check_carried(cal, self._halves)
+        cold = self._options
+        cal = with_halves_check(obs, cal, lambda half: calibrate(half, cold).calibration)
+        self._halves, self._halves_max_id = cal.report.halves, int(obs.track_ids.max())
+        return cal
 
     def _told(self, obs: Observations, forgotten: Mapping[str, int] | None) -> tuple[str, ...]:
         """The cameras the matcher forgot since its last message: each is placed again from the tracks it pooled
@@ -236,7 +264,7 @@ class Tracker:
                 == obs.cameras[obs.index_of(c)].model} & {c.id for c in placed.calibration.cameras}
         if not held:
             return placed.calibration, {}
-        free = solve_judged(obs, placed.calibration, options=self.config.options,
+        free = solve_judged(obs, placed.calibration, options=self._options,
                             check=partial(policy_check, config=self.config), leave_out=waiting)
         unplaced = self._moved_unplaced(obs, free)
         if free.status == Status.GOOD and not set(unplaced) - set(waiting):
@@ -264,7 +292,7 @@ class Tracker:
         check = partial(policy_check, config=self.config)
         waiting = {c: NOT_FORGOTTEN_YET for c in sorted(self._awaiting) if c in obs.camera_ids}
         if initial is not None:
-            warm = solve_judged(self._lens_held(obs), initial, options=self.config.options, check=check,
+            warm = solve_judged(self._lens_held(obs), initial, options=self._options, check=check,
                                 reset=self._reset, leave_out=waiting)
             unplaced = {**self._moved_unplaced(obs, warm), **waiting}
             if warm.status == Status.GOOD and not set(unplaced) - set(waiting):
@@ -277,13 +305,13 @@ class Tracker:
                 # solve places it from those few, and can place it far off within a few sigmas), nor stand
                 # where its new views say it is not. The others are solved warm and it is named, until its new
                 # tracks place it (docs/benchmarks.md, "Evidence behind the solver's thresholds").
-                rest = solve_judged(obs, initial, options=self.config.options, check=check, reset=(),
+                rest = solve_judged(obs, initial, options=self._options, check=check, reset=(),
                                     leave_out=unplaced)
                 if rest.status == Status.GOOD:
                     return Outcome(Status.GOOD, "", rest.calibration, moved, warm=True)
         # Not good warm (a camera taken for moved that fails, say): the pool is solved cold, a long one
         # on its newest tracks first.
-        judged = solve_newest_first(obs, self.config.options, check, start=cold,
+        judged = solve_newest_first(obs, self._options, check, start=cold,
                                     start_tracks=self.config.cold_start_tracks, leave_out=waiting)
         if judged.status == Status.GOOD:
             return Outcome(Status.GOOD, "", judged.calibration, moved, warm=cold is not None)

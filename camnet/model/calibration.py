@@ -112,6 +112,27 @@ class PointsLeftOut:
 
 
 @dataclass(frozen=True)
+class HalvesCheck:
+    """A second opinion: the scene split in two halves across its point cloud, each half solved alone, and the
+    halves compared (camnet.solve.halves).
+
+    splits: how many splits were solved and compared (0: none could be, `reason` says why);
+    half_differences: per parameter, half the largest difference between two halves over the splits: "scale"
+    (relative), "f CAM" (relative), "rotation CAM" (degrees), "centre CAM" (metres); in_sigmas: that difference
+    over the sigma the two halves' own uncertainties give it; widened: the parameters the halves disagreed on
+    beyond their sigmas, whose reported sigma was widened to the half-difference; sigma_factor: what every reported
+    sigma was multiplied by, where the halves differ more than their sigmas allow over all parameters (1: not).
+    """
+
+    splits: int
+    half_differences: Mapping[str, float] = field(default_factory=dict)
+    in_sigmas: Mapping[str, float] = field(default_factory=dict)
+    widened: tuple[str, ...] = ()
+    sigma_factor: float = 1.0
+    reason: str = ""
+
+
+@dataclass(frozen=True)
 class SolveReport:
     """How a calibration was solved and how well it is determined (docs/calibration-keys.md).
 
@@ -146,6 +167,7 @@ class SolveReport:
     # the calibration a warm start began from: camnet.solve.report.scale_cause.held_at_given_pose), not the
     # parallel pair.
     pair_pose_given: bool = False
+    halves: HalvesCheck | None = None  # None: not checked (a solve asked not to, or a document from before)
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,4 @@
-"""Cramér-Rao bounds of a solve on a simulated rig: its scale and shape at the ground truth.
+"""Cramér-Rao bounds of a solve on a simulated rig: its scale, shape and focal lengths at the ground truth.
 
 The bound of a solve is the covariance of `camnet.solve.uncertainty` taken
 at the true parameters, with the true pixel noise, for the problem the solve
@@ -11,7 +11,8 @@ camera's own lens model. Lengths in metres; the scale relative (0.001 =
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -20,6 +21,7 @@ from camnet.model.projection import N_INTRINSICS, intrinsics_from_K
 from camnet.sim.simulate import SimRig
 from camnet.solve import Result
 from camnet.solve.bundle import State
+from camnet.solve.report.camera_sigmas import camera_sigmas_by_id
 from camnet.solve.uncertainty import Covariance, covariance, scale_sigma, scale_weights, shape_rms_bound_m
 
 
@@ -27,6 +29,7 @@ from camnet.solve.uncertainty import Covariance, covariance, scale_sigma, scale_
 class Bounds:
     scale_rel: float  # 1 sigma of the similarity scale, relative
     shape_m: float  # expected RMS point error after similarity alignment, metres
+    focal_rel: Mapping[str, float] = field(default_factory=dict)  # camera id -> 1 sigma of f, relative (0 held)
 
 
 def truth_state(rig: SimRig, result: Result) -> State:
@@ -59,7 +62,7 @@ def _points_only(cov: Covariance, kept: np.ndarray) -> Covariance:
 def cramer_rao(rig: SimRig, result: Result, noise_px: float) -> Bounds:
     """The bounds of `result`'s scale and shape, over the points its calibration reports.
 
-    The scale is weighted as the calibration weighs its points (its reported
+    Focal lengths per camera, relative. The scale is weighted as the calibration weighs its points (its reported
     point weights; the truth's `scale_weights` where it has none), so the
     bound is that of the scale `camnet.model.accuracy.compare` measures.
     """
@@ -74,4 +77,8 @@ def cramer_rao(rig: SimRig, result: Result, noise_px: float) -> Bounds:
         weights = np.zeros(len(X))
         weights[kept] = reported
     scale = scale_sigma(cov, X, weights)
-    return Bounds(scale, shape_rms_bound_m(_points_only(cov, kept), X[kept]))
+    truth = truth_state(rig, result)
+    ids = [rig.cameras[i].id for i in result.order]
+    focal = {cam_id: s.f_px / truth.intr[m, 0]
+             for m, (cam_id, s) in enumerate(camera_sigmas_by_id(ids, result.problem, truth, cov).items())}
+    return Bounds(scale, shape_rms_bound_m(_points_only(cov, kept), X[kept]), focal)

@@ -26,3 +26,6 @@ class Options:
     # None: free_rule.PAIR_TOLERANCE_DEG (it says why), or 0 from a start no solve made (a pose given as known).
     pair_tolerance_deg: float | None = None
     seed: int = 0
+    # Solve the scene's two halves apart and widen the sigmas of what they disagree on (camnet.solve.halves):
+    # the second opinion that the curvature at one minimum cannot give.
+    halves: bool = True

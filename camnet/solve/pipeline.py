@@ -63,6 +63,7 @@ from camnet.solve.free_rule import (
     held_yaw_warning,
     restore_free,
 )
+from camnet.solve.halves import with_halves_check
 from camnet.solve.known_distances import known_distances
 from camnet.solve.options import Options
 from camnet.solve.report.assemble import (
@@ -173,6 +174,11 @@ def calibrate(
     except np.linalg.LinAlgError:
         raise SolveError(f"the observations do not determine the calibration (singular equations){pair_advice(obs)}"
                          ) from None
+    if options.halves:
+        # Each half from a cold start: warm from the whole, it keeps the whole's outliers and basin and agrees.
+        alone = replace(options, halves=False)
+        cal = with_halves_check(obs, result.calibration, lambda half: calibrate(half, alone).calibration)
+        result = replace(result, calibration=cal)
     if not unobserved:
         return result
     report = with_cameras_left_out(result.calibration.report, unobserved)

@@ -353,7 +353,8 @@ def scale_gradient(points: np.ndarray, weights: np.ndarray | None = None) -> np.
         return np.full_like(points, np.nan)
     c = points - (w @ points) / w.sum()
     spread = np.sum(w[:, None] * c * c)
-    if not np.sqrt(spread / w.sum()) > EXTENT_REL * np.max(np.abs(points)):  # the points that weigh coincide
+    reach = np.sqrt(np.sum(w[:, None] * points * points) / w.sum())  # a far point of no weight sets no yardstick
+    if not np.sqrt(spread / w.sum()) > EXTENT_REL * reach:  # the points that weigh coincide
         return np.full_like(points, np.nan)
     return w[:, None] * c / spread
 

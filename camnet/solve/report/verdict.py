@@ -15,7 +15,7 @@ thing to do about it.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from enum import StrEnum
 
 import numpy as np
@@ -168,7 +168,24 @@ def _camera_findings(cam_id: str, f_px: float, report: SolveReport, lever_m: flo
         # Not known exactly: held at a guess (its sigma the guess's prior) or estimated.
         pp_loose = sigmas.cx_px > 0 or sigmas.cy_px > 0
         out += _sigma_findings(cam_id, f_px, sigmas, lever_m, pp_loose, t)
-    return out
+    disputed = set(report.halves.widened) if report.halves is not None else set()
+    return [_disputed(f, cam_id) if _measure(f) and f"{_measure(f)} {cam_id}" in disputed else f for f in out]
+
+
+def _measure(finding: Finding) -> str:
+    """The parameter a sigma finding is about, as camnet.solve.report.halves names it ("f", "rotation", "centre")."""
+    for prefix, name in (("focal length", "f"), ("rotation", "rotation"), ("centre", "centre")):
+        if finding.what.startswith(prefix):
+            return name
+    return ""
+
+
+def _disputed(finding: Finding, cam_id: str) -> Finding:
+    """A sigma finding whose sigma the scene's halves widened: that, not the curvature, is its cause."""
+    return replace(finding, cause="the two halves of the scene, solved apart, disagree on it: the model does not fit "
+                   "every part of the scene alike (a lens the model lacks, false matches in one part, or a second "
+                   "solution as good)", action=Action.GIVE_K,
+                   todo=f"give camera {cam_id}'s K and dist, or add frame sets that show more of the scene")
 
 
 def _sigma_findings(cam_id: str, f_px: float, s: CameraSigmas, lever_m: float, pp_loose: bool,
@@ -248,7 +265,20 @@ def _rig_findings(cal: Calibration, report: SolveReport, t: Thresholds) -> list[
                                "add distinct texture to the scene"))
     out += _scale_findings(report, t)
     out += _parallax_findings(report, t)
+    out += _halves_findings(report)
     return out
+
+
+def _halves_findings(report: SolveReport) -> list[Finding]:
+    """Good means a second opinion agrees: where the scene's halves could not be solved apart, there is none, and
+    nothing vouches for the sigmas (a few tracks fit a wrong solution as well as the right one)."""
+    halves = report.halves
+    if halves is None or halves.splits:
+        return []
+    return [Finding(Level.POOR, f"no second opinion: {halves.reason}",
+                    "too few tracks for each half of the scene to place every camera, so nothing checks the sigmas "
+                    "beyond the curvature at this one solution", Action.ADD_FRAME_SET,
+                    "add frame sets, or texture every camera sees more of")]
 
 
 def _scale_findings(report: SolveReport, t: Thresholds) -> list[Finding]:

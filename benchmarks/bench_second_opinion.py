@@ -1,0 +1,101 @@
+#!/usr/bin/env python3
+"""What the second opinion (camnet.solve.halves) costs and what it changes, on simulated rigs whose truth is known.
+
+First the cost: a cold solve of 12 cameras and 1000 tracks, with and
+without the halves check, the ratio of the median times in one run. Then,
+per family of camnet.sim.families (and the hard ones), the same seeded
+observations solved both ways: how many solves have their scale and every
+focal length within 3 reported sigmas of the truth, how much the check
+widened the sigmas (the median ratio of the scale's), how often it named
+a disagreement, and the verdicts it changed. Where the model is exact the
+check should widen little and change no verdict; on the real scenes it is
+the part that speaks (benchmarks/bench_real.py).
+
+    python benchmarks/bench_second_opinion.py [--seeds 10] [--families ring,wide] [--cost-seeds 5]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+import numpy as np
+
+from camnet.errors import CamnetError
+from camnet.model.accuracy import compare
+from camnet.sim.families import FAMILIES, HARD_FAMILIES, family, observe_family
+from camnet.sim.simulate import make_rig, observe
+from camnet.solve import Options, calibrate
+from camnet.solve.report.verdict import judge
+
+NOISE_PX = 0.5
+
+
+def cost_row(seeds: int) -> str:
+    """Median cold-solve seconds of 12 cameras and 1000 tracks without and with the check, and their ratio."""
+    times: dict[bool, list[float]] = {False: [], True: []}
+    for seed in range(seeds):
+        obs = observe(make_rig(n_cameras=12, n_points=1000, seed=seed), noise_px=NOISE_PX, seed=seed).observations
+        for halves in (False, True):  # side by side, so that a busy spell slows both
+            t0 = time.perf_counter()
+            calibrate(obs, Options(halves=halves))
+            times[halves].append(time.perf_counter() - t0)
+        print(f"  cost seed {seed}: {times[False][-1]:.1f} s, {times[True][-1]:.1f} s", file=sys.stderr, flush=True)
+    plain, checked = np.median(times[False]), np.median(times[True])
+    return (f"| 12 cameras, 1000 tracks, {seeds} seeds | {plain:.2f} | {checked:.2f} | {checked / plain:.2f} |")
+
+
+def within(cal, drawn) -> bool:
+    """Scale and every focal length not given within 3 reported sigmas of the truth."""
+    with np.errstate(all="ignore"):
+        c = compare(cal, drawn.rig.cameras, drawn.rig.points)
+    z = [abs(c.scale_rel) / c.scale_sigma_rel if c.scale_sigma_rel > 0 else np.inf]
+    z += [abs(e.focal_rel) / e.focal_sigma_rel if e.focal_sigma_rel > 0 else np.inf
+          for e in c.cameras if e.id not in drawn.given]
+    return bool(np.nan_to_num(max(z), nan=np.inf) <= 3.0)
+
+
+def family_row(name: str, seeds: int) -> str:
+    solved, inside, changed, named, ratios = {False: 0, True: 0}, {False: 0, True: 0}, 0, 0, []
+    for seed in range(seeds):
+        drawn = family(name, seed=seed)
+        obs = observe_family(drawn, noise_px=NOISE_PX, seed=seed)
+        cals = {}
+        for halves in (False, True):
+            try:
+                cals[halves] = calibrate(obs, Options(halves=halves)).calibration
+            except CamnetError:
+                continue
+            solved[halves] += 1
+            inside[halves] += within(cals[halves], drawn)
+        if len(cals) == 2:
+            plain, checked = (cals[h].report.uncertainty.scale_rel.value for h in (False, True))
+            if plain and checked:
+                ratios.append(checked / plain)
+            changed += judge(cals[False]).level != judge(cals[True]).level
+            named += bool(cals[True].report.halves and cals[True].report.halves.widened)
+        print(f"  {name} seed {seed}: {len(cals)} solved", file=sys.stderr, flush=True)
+    ratio = f"{np.median(ratios):.2f}" if ratios else "-"
+    return (f"| {name} | {solved[False]} / {solved[True]} | {inside[False]} / {inside[True]} | {ratio} | "
+            f"{named} | {changed} |")
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--seeds", type=int, default=10)
+    parser.add_argument("--cost-seeds", type=int, default=5)
+    parser.add_argument("--families", default=",".join((*FAMILIES, *HARD_FAMILIES)))
+    args = parser.parse_args()
+    print("| cold solve | without the check, s | with it, s | ratio |\n|---|---|---|---|")
+    print(cost_row(args.cost_seeds), flush=True)
+    print("\n| family | solved without / with | scale and focal lengths within 3 sigma, without / with | "
+          "median scale sigma ratio, with / without | disagreements named | verdicts changed |")
+    print("|---|---|---|---|---|---|")
+    for name in args.families.split(","):
+        print(family_row(name, args.seeds), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

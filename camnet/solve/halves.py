@@ -1,0 +1,125 @@
+"""A second opinion the curvature cannot give: the scene solved again in two halves, and the halves compared.
+
+The covariance at a minimum says nothing of another minimum as good, nor
+of a model that fits one part of the scene and not another. So the tracks
+of a solved calibration are split in two, across the widest axis of its
+point cloud (then across the second, then at random where a spatial split
+would leave a camera with too little to be placed), each half is solved
+alone from a cold start (from the whole's, a half keeps its outliers and
+its basin, and agrees), and every parameter the halves disagree on beyond
+their own sigmas gets its reported sigma widened to their half-difference
+(camnet.solve.report.halves), said in a warning.
+
+Split tracks by position: points in metres, in the calibration's world frame.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import replace
+
+import numpy as np
+
+from camnet.errors import SolveError
+from camnet.model.calibration import Calibration, HalvesCheck
+from camnet.model.observations import Observations
+from camnet.solve.report.halves import Difference, differences, disagreement_warning, widened, widest
+
+log = logging.getLogger(__name__)
+
+SPLITS = 1  # splits compared (two halves each): the first that keeps every camera in both halves
+MIN_HALF_OBSERVATIONS = 30  # each camera keeps this many observations in each half, or the split is not made
+SPLIT_SEED = 0  # the random split is the same on every run of the same observations
+
+
+def track_sides(obs: Observations, cal: Calibration) -> Iterator[tuple[str, np.ndarray]]:
+    """(name, side) of each split to try, in order: side (T,) int per track row of `obs`, 0 or 1, -1 for a track
+    the calibration dropped (in neither half). Across the cloud's widest axis, its second, then at random."""
+    row_of = {int(t): i for i, t in enumerate(obs.track_ids)}
+    rows = np.array([row_of.get(int(p), -1) for p in cal.point_ids], dtype=int)
+    points = cal.points[rows >= 0]
+    rows = rows[rows >= 0]
+    if len(rows) < 2:
+        return
+    centred = points - np.median(points, axis=0)
+    _, _, axes = np.linalg.svd(centred, full_matrices=False)
+    for name, along in (("across the widest axis", centred @ axes[0]), ("across the second axis", centred @ axes[1]),
+                        ("at random", np.random.default_rng(SPLIT_SEED).standard_normal(len(rows)))):
+        side = np.full(len(obs.track_ids), -1)
+        side[rows] = (along > np.median(along)).astype(int)
+        yield name, side
+
+
+def _half(obs: Observations, keep: np.ndarray) -> Observations:
+    """`obs` with only the track rows where `keep` (T,) is true."""
+    rows = keep[obs.track_index]
+    return replace(obs, cam_index=obs.cam_index[rows], track_index=obs.track_index[rows], uv=obs.uv[rows])
+
+
+def _covers(obs: Observations, side: np.ndarray, cameras: list[str]) -> bool:
+    """Whether every camera of `cameras` keeps MIN_HALF_OBSERVATIONS observations in each half."""
+    for h in (0, 1):
+        counts = np.bincount(obs.cam_index[side[obs.track_index] == h], minlength=len(obs.cameras))
+        if any(counts[obs.index_of(c)] < MIN_HALF_OBSERVATIONS for c in cameras):
+            return False
+    return True
+
+
+def with_halves_check(obs: Observations, cal: Calibration,
+                      solve: Callable[[Observations], Calibration]) -> Calibration:
+    """`cal` with its report's `halves` check, and its sigmas widened where the halves disagree.
+
+    solve: solves observations with the whole's options from a cold start, with no halves check of its own; raises
+    SolveError where it cannot. A half that cannot be solved ends its split, which is not compared.
+    """
+    report = cal.report
+    if report is None or report.uncertainty is None:
+        return cal
+    t0 = time.perf_counter()
+    cameras = [c.id for c in cal.cameras]
+    compared: list[dict[str, Difference]] = []
+    why = "no split keeps every camera's view in both halves"
+    for name, side in track_sides(obs, cal):
+        if len(compared) == SPLITS:
+            break
+        if not _covers(obs, side, cameras):
+            continue
+        try:
+            a, b = solve(_half(obs, side == 0)), solve(_half(obs, side == 1))
+        except SolveError as exc:
+            why = f"a half {name} could not be solved alone: {str(exc).split(' (')[0]}"  # its first clause
+            log.info("halves check: %s", why)
+            continue
+        compared.append(differences(a, b))
+    report = replace(report, timings_s={**report.timings_s, "halves": time.perf_counter() - t0})
+    if not compared:
+        return replace(cal, report=replace(report, halves=HalvesCheck(0, reason=why)))
+    diffs = widest(compared)
+    return _widened_by(replace(cal, report=report), diffs, len(compared))
+
+
+def with_check_carried(cal: Calibration, check: HalvesCheck) -> Calibration:
+    """`cal` widened by an earlier halves `check` of the same rig (the live calibrator asks for a second opinion
+    only once the pool has turned over: in between, the last one's half-differences still hold)."""
+    report = cal.report
+    if report is None or report.uncertainty is None:
+        return cal
+    if not check.splits:
+        return replace(cal, report=replace(report, halves=check))
+    # Each difference's sigma back from its half and its ratio (infinite where the ratio was 0: none needed).
+    diffs = {name: Difference(half, half / check.in_sigmas[name] if check.in_sigmas.get(name) else np.inf)
+             for name, half in check.half_differences.items()}
+    return _widened_by(cal, diffs, check.splits)
+
+
+def _widened_by(cal: Calibration, diffs: dict[str, Difference], splits: int) -> Calibration:
+    """`cal` with its sigmas widened to the halves' `diffs`, the check in its report, any disagreement warned."""
+    report = cal.report
+    uncertainty, raised, factor = widened(report.uncertainty, cal, diffs)
+    check = HalvesCheck(splits, {k: d.half for k, d in diffs.items()}, {k: d.in_sigmas for k, d in diffs.items()},
+                        raised, factor)
+    said = raised or factor > 1.0
+    warnings = report.warnings + ((disagreement_warning(diffs, raised, factor),) if said else ())
+    return replace(cal, report=replace(report, uncertainty=uncertainty, halves=check, warnings=warnings))
