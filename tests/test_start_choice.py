@@ -1,4 +1,4 @@
-"""Which start a cold solve used, and the retry from a start not yet used (camnet.solve.start.choice)."""
+"""Which start a cold solve used, and the starts it runs (camnet.solve.start.choice)."""
 
 from dataclasses import replace
 
