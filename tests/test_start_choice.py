@@ -1,4 +1,4 @@
-"""Which start a cold solve used, and the retry from a start not yet used (camnet.solve.start.choice)."""
+"""Which start a cold solve used, and the starts it runs (camnet.solve.start.choice)."""
 
 from dataclasses import replace
 
@@ -12,7 +12,7 @@ from camnet.sim.simulate import observe
 from camnet.solve import calibrate
 from camnet.solve.context import SolveContext
 from camnet.solve.start.choice import start_order
-from camnet.solve.start.cold import NoStart, PairStart, cold_start, stronger_pair
+from camnet.solve.start.cold import NoStart, PairStart, cold_start, stronger_pair, strongest_pair
 
 
 def far_pair(seed: int):
@@ -54,9 +54,21 @@ def test_a_scale_pair_far_apart_is_started_from_the_pair_that_shares_most_tracks
     assert all(abs(e.focal_rel) < 3 * e.focal_sigma_rel for e in c.cameras)
 
 
-def test_a_scale_pair_that_shares_most_tracks_is_started_as_before():
+def test_a_scale_pair_that_shares_most_tracks_is_started_from_its_own_start_only():
+    # ring0 and ring7 share the most tracks: the strongest pair's start would repeat the pair's own.
+    drawn, obs = far_pair(6)
+    cams = {c.id: c for c in drawn.rig.cameras}
+    distance_m = float(np.linalg.norm(cams["ring0"].centre - cams["ring7"].centre))
+    strongest = replace(obs, stereo=Stereo("ring0", "ring7", distance_m))
+    assert strongest_pair(strongest) is None and start_order(strongest) == [PairStart.ESSENTIAL]
+    with pytest.raises(NoStart, match="the stereo pair is the pair of cameras that shares the most tracks"):
+        _cold_start(strongest, PairStart.STRONGEST)
+
+
+def test_a_neighbouring_scale_pair_is_also_solved_from_the_pair_that_shares_most_tracks():
+    # ring0 and ring1 share fewer tracks than ring0 and ring7, though not WEAK_PAIR_RATIO times fewer: the
+    # strongest pair's start runs after the pair's own, not first.
     _, obs = far_pair(6)
     neighbours = replace(obs, stereo=Stereo("ring0", "ring1", 1.5))
-    assert stronger_pair(neighbours) is None and PairStart.STRONGEST not in start_order(neighbours)
-    with pytest.raises(NoStart, match="no pair of cameras shares"):
-        _cold_start(neighbours, PairStart.STRONGEST)
+    assert stronger_pair(neighbours) is None and strongest_pair(neighbours) is not None
+    assert start_order(neighbours)[-1] == PairStart.STRONGEST and len(start_order(neighbours)) == 2

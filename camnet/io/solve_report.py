@@ -20,6 +20,8 @@ from camnet.model.calibration import (
     FreeSet,
     HalvesCheck,
     PointsLeftOut,
+    Rival,
+    RivalDifference,
     Sigma,
     SolveReport,
     StartKind,
@@ -30,6 +32,8 @@ from camnet.solve.report.verdict import Verdict
 
 # Timings are written to the microsecond: finer digits are noise.
 TIMING_DIGITS = 6
+# What a rival solution may differ in (camnet.model.calibration.RivalDifference).
+DIFFERENCE_PARAMETERS = ("scale", "f_px", "rotation_deg")
 # Why a sigma that a document gives as null is unknown.
 NULL_SIGMA = "null in the document"
 
@@ -69,6 +73,8 @@ def report_to_doc(report: SolveReport) -> dict:
         diagnostics["pair_pose_given"] = True
     if report.halves is not None:
         diagnostics["halves"] = _halves_to_doc(report.halves)
+    if report.rivals:  # written where found only, as pair_pose_given
+        diagnostics["rivals"] = [_rival_to_doc(r) for r in report.rivals]
     doc: dict[str, Any] = {
         "method": report.method.value,
         "diagnostics": diagnostics,
@@ -77,6 +83,17 @@ def report_to_doc(report: SolveReport) -> dict:
     if report.uncertainty is not None:
         doc["uncertainty"] = _uncertainty_to_doc(report.uncertainty)
     return doc
+
+
+def _rival_to_doc(r: Rival) -> dict:
+    return {
+        "start": r.start,
+        "cost_px2": r.cost_px2,
+        "kept_cost_px2": r.kept_cost_px2,
+        "cost_noise_px2": r.cost_noise_px2,
+        "differences": [{"parameter": d.parameter, "camera": d.camera, "kept": d.kept, "rival": d.rival,
+                         "kept_sigma": d.kept_sigma} for d in r.differences],
+    }
 
 
 def verdict_to_doc(verdict: Verdict) -> dict:
@@ -171,6 +188,32 @@ def parse_report(doc: dict) -> SolveReport | None:
         cameras_left_out=get("cameras_left_out", _parse_left_out, {}),
         pair_pose_given=get("pair_pose_given", v.boolean, False),
         halves=get("halves", _parse_halves),
+        rivals=get("rivals", _parse_rivals, ()),
+    )
+
+
+def _parse_rivals(value: Any, path: str) -> tuple[Rival, ...]:
+    out = []
+    for i, item in enumerate(v.array(value, path)):
+        here = f"{path}[{i}]"
+        r = v.mapping(item, here)
+        differences = v.array(v.require(r, "differences", here), f"{here}.differences")
+        out.append(Rival(
+            start=v.string(v.require(r, "start", here), f"{here}.start"),
+            **{key: v.number(v.require(r, key, here), f"{here}.{key}")
+               for key in ("cost_px2", "kept_cost_px2", "cost_noise_px2")},
+            differences=tuple(_parse_difference(d, f"{here}.differences[{k}]") for k, d in enumerate(differences)),
+        ))
+    return tuple(out)
+
+
+def _parse_difference(value: Any, path: str) -> RivalDifference:
+    d = v.mapping(value, path)
+    camera = d.get("camera")
+    return RivalDifference(
+        parameter=v.string(v.require(d, "parameter", path), f"{path}.parameter", choices=DIFFERENCE_PARAMETERS),
+        camera=None if camera is None else v.string(camera, f"{path}.camera"),
+        **{key: v.number(v.require(d, key, path), f"{path}.{key}") for key in ("kept", "rival", "kept_sigma")},
     )
 
 

@@ -133,6 +133,43 @@ class HalvesCheck:
 
 
 @dataclass(frozen=True)
+class RivalDifference:
+    """One parameter in which a rival solution differs from the kept one by more than RIVAL_SIGMAS (three) of the kept
+    solution's 1 sigma (as solved, before it was widened to cover both).
+
+    parameter: "scale" (the network's, relative: `kept` 1, `rival` the
+    rival's scale over the kept one's), "f_px" (a camera's focal length,
+    pixels) or "rotation_deg" (a camera's rotation: `kept` 0, `rival` the
+    angle from the kept rotation to the rival's, degrees); camera: its id,
+    None for the scale.
+    """
+
+    parameter: str
+    camera: str | None
+    kept: float
+    rival: float
+    kept_sigma: float
+
+
+@dataclass(frozen=True)
+class Rival:
+    """A converged, sound solution from another start whose cost the noise could have made equal to the kept
+    one's, yet which differs in `differences` (camnet.solve.report.rivals).
+
+    start: how that solve started (camnet.solve.start.state.PairStart's
+    value); cost_px2, kept_cost_px2: the truncated quadratic (MSAC) cost
+    of every observation under it and under the kept solution, px^2;
+    cost_noise_px2: the cost difference the noise can make.
+    """
+
+    start: str
+    cost_px2: float
+    kept_cost_px2: float
+    cost_noise_px2: float
+    differences: tuple[RivalDifference, ...]
+
+
+@dataclass(frozen=True)
 class SolveReport:
     """How a calibration was solved and how well it is determined (docs/calibration-keys.md).
 
@@ -168,6 +205,8 @@ class SolveReport:
     # parallel pair.
     pair_pose_given: bool = False
     halves: HalvesCheck | None = None  # None: not checked (a solve asked not to, or a document from before)
+    # Solutions from other starts that the data cannot tell from the kept one; the sigmas are widened to cover them.
+    rivals: tuple[Rival, ...] = ()
 
 
 @dataclass(frozen=True)

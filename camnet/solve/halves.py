@@ -25,7 +25,7 @@ import numpy as np
 from camnet.errors import SolveError
 from camnet.model.calibration import Calibration, HalvesCheck
 from camnet.model.observations import Observations
-from camnet.solve.report.halves import Difference, differences, disagreement_warning, widened, widest
+from camnet.solve.report.halves import HalfDifference, differences, disagreement_warning, widened, widest
 
 log = logging.getLogger(__name__)
 
@@ -79,7 +79,7 @@ def with_halves_check(obs: Observations, cal: Calibration,
         return cal
     t0 = time.perf_counter()
     cameras = [c.id for c in cal.cameras]
-    compared: list[dict[str, Difference]] = []
+    compared: list[dict[str, HalfDifference]] = []
     why = "no split keeps every camera's view in both halves"
     for name, side in track_sides(obs, cal):
         if len(compared) == SPLITS:
@@ -109,12 +109,12 @@ def with_check_carried(cal: Calibration, check: HalvesCheck) -> Calibration:
     if not check.splits:
         return replace(cal, report=replace(report, halves=check))
     # Each difference's sigma back from its half and its ratio (infinite where the ratio was 0: none needed).
-    diffs = {name: Difference(half, half / check.in_sigmas[name] if check.in_sigmas.get(name) else np.inf)
+    diffs = {name: HalfDifference(half, half / check.in_sigmas[name] if check.in_sigmas.get(name) else np.inf)
              for name, half in check.half_differences.items()}
     return _widened_by(cal, diffs, check.splits)
 
 
-def _widened_by(cal: Calibration, diffs: dict[str, Difference], splits: int) -> Calibration:
+def _widened_by(cal: Calibration, diffs: dict[str, HalfDifference], splits: int) -> Calibration:
     """`cal` with its sigmas widened to the halves' `diffs`, the check in its report, any disagreement warned."""
     report = cal.report
     uncertainty, raised, factor = widened(report.uncertainty, cal, diffs)

@@ -10,10 +10,11 @@ Methods:
   out and named in the report), then a bundle adjustment that keeps the
   stereo pair rigid with its baseline ``baseline_m`` (and every further
   known distance), with a robust loss, outlier rejection and the
-  free-intrinsics rule below. A solve that is refused, or keeps few of its
-  observations, or leaves out a camera that shares many tracks, is run
-  again from each start not yet tried, and the one of least truncated
-  cost kept (camnet.solve.start.choice).
+  free-intrinsics rule below. Every cold solve runs from the scale pair's
+  start and from the two cameras that share the most tracks (the pair's
+  other start where none is sound), keeps the one of least truncated cost,
+  and names a rival that fits nearly as well yet differs, its sigmas
+  widened to cover it (camnet.solve.start.choice).
 - ``unconstrained``: the same adjustment with the right camera free in 3-D and
   no known distance, as structure from motion: the scale is left to the optimiser.
 
@@ -165,7 +166,7 @@ def calibrate(
         # The dense products here have a few hundred rows: BLAS threads gain little on
         # them, and on a machine shared with drivers and the matcher they stall each other.
         with blas.one_thread():
-            if initial is None and options.method == Method.REFINED:  # where one start goes wrong, the other
+            if initial is None and options.method == Method.REFINED:  # one start may find another minimum
                 result = solve_from_any_start(
                     obs, lambda pair: _calibrate(obs, options, None, reset_cameras, pair),
                     outlier_sigmas=options.outlier_sigmas, min_outlier_px=options.min_outlier_px)

@@ -31,7 +31,7 @@ MIN_FACTOR_PARAMETERS = 6  # fewer parameters say too little of the sigmas as a 
 
 
 @dataclass(frozen=True)
-class Difference:
+class HalfDifference:
     """Half the difference of one parameter between two solutions, and the sigma of that half-difference from
     their own sigmas (NaN where either has none)."""
 
@@ -50,28 +50,28 @@ class Difference:
         return self.in_sigmas > DISAGREE_SIGMAS
 
 
-def differences(a: Calibration, b: Calibration) -> dict[str, Difference]:
+def differences(a: Calibration, b: Calibration) -> dict[str, HalfDifference]:
     """Per parameter ("scale", "f CAM", "rotation CAM", "centre CAM"), how `a` and `b` differ: over the cameras
     both hold, the left camera's pose (the frame) aside."""
     ua, ub = a.report.uncertainty if a.report else None, b.report.uncertainty if b.report else None
     cams_b = {c.id: c for c in b.cameras}
     common = [(ca, cams_b[ca.id]) for ca in a.cameras if ca.id in cams_b]
-    out: dict[str, Difference] = {}
+    out: dict[str, HalfDifference] = {}
     if len(common) >= MIN_SCALE_CAMERAS:
         d = scale_error(np.array([ca.centre for ca, _ in common]), np.array([cb.centre for _, cb in common]))
-        out["scale"] = Difference(abs(d) / 2, _half_sigma(_scale(ua), _scale(ub)))
+        out["scale"] = HalfDifference(abs(d) / 2, _half_sigma(_scale(ua), _scale(ub)))
     for ca, cb in common:
         sa, sb = _camera(ua, ca.id), _camera(ub, cb.id)
         fa, fb = float(ca.K[0, 0]), float(cb.K[0, 0])
-        out[f"f {ca.id}"] = Difference(abs(fa - fb) / (fa + fb),
+        out[f"f {ca.id}"] = HalfDifference(abs(fa - fb) / (fa + fb),
                                        _half_sigma(sa.f_px / fa if sa else np.nan, sb.f_px / fb if sb else np.nan))
         if ca.id == a.world_frame:
             continue
-        out[f"rotation {ca.id}"] = Difference(
+        out[f"rotation {ca.id}"] = HalfDifference(
             rotation_angle_deg(ca.R @ cb.R.T) / 2,
             _half_sigma(np.linalg.norm(sa.rotation_deg) if sa else np.nan,
                         np.linalg.norm(sb.rotation_deg) if sb else np.nan))
-        out[f"centre {ca.id}"] = Difference(
+        out[f"centre {ca.id}"] = HalfDifference(
             float(np.linalg.norm(ca.centre - cb.centre)) / 2,
             _half_sigma(np.linalg.norm(sa.centre_m) if sa else np.nan, np.linalg.norm(sb.centre_m) if sb else np.nan))
     return out
@@ -90,9 +90,9 @@ def _camera(u: Uncertainty | None, cam_id: str) -> CameraSigmas | None:
     return u.cameras.get(cam_id) if u is not None else None
 
 
-def widest(per_split: list[dict[str, Difference]]) -> dict[str, Difference]:
+def widest(per_split: list[dict[str, HalfDifference]]) -> dict[str, HalfDifference]:
     """Per parameter, the split whose halves differ most in their sigmas (then most)."""
-    out: dict[str, Difference] = {}
+    out: dict[str, HalfDifference] = {}
     for diffs in per_split:
         for name, d in diffs.items():
             if name not in out or (d.in_sigmas, d.half) > (out[name].in_sigmas, out[name].half):
@@ -100,7 +100,7 @@ def widest(per_split: list[dict[str, Difference]]) -> dict[str, Difference]:
     return out
 
 
-def sigma_factor(diffs: dict[str, Difference]) -> float:
+def sigma_factor(diffs: dict[str, HalfDifference]) -> float:
     """The root mean square of the half-differences in their sigmas, over the parameters the halves estimate;
     1 where it is below INFLATE_FROM or too few parameters give it.
 
@@ -115,7 +115,7 @@ def sigma_factor(diffs: dict[str, Difference]) -> float:
     return k if k > INFLATE_FROM else 1.0
 
 
-def widened(u: Uncertainty, cal: Calibration, diffs: dict[str, Difference]
+def widened(u: Uncertainty, cal: Calibration, diffs: dict[str, HalfDifference]
             ) -> tuple[Uncertainty, tuple[str, ...], float]:
     """(`u` widened, the parameters the halves disagree on beyond their sigmas, the factor every sigma took).
 
@@ -178,7 +178,7 @@ def _axes_at_least(axes: tuple[float, float, float], norm: float) -> tuple[float
     return tuple(float(x) * norm / now for x in axes)
 
 
-def disagreement_warning(diffs: dict[str, Difference], names: tuple[str, ...], factor: float) -> str:
+def disagreement_warning(diffs: dict[str, HalfDifference], names: tuple[str, ...], factor: float) -> str:
     """The warning of sigmas widened: by what factor, which parameters beyond it and by how much, what would
     decide."""
     shown = []

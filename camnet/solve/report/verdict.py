@@ -20,7 +20,9 @@ from enum import StrEnum
 
 import numpy as np
 
+from camnet.errors import in_words
 from camnet.model.calibration import Calibration, CameraSigmas, SolveReport
+from camnet.solve.report.rivals import TO_DECIDE, named_parameter
 from camnet.solve.report.scale_cause import GIVE_STEREO_K, pair_rotation_todo, scale_cause
 
 
@@ -266,6 +268,7 @@ def _rig_findings(cal: Calibration, report: SolveReport, t: Thresholds) -> list[
     out += _scale_findings(report, t)
     out += _parallax_findings(report, t)
     out += _halves_findings(report)
+    out += _rival_findings(report)
     return out
 
 
@@ -279,6 +282,19 @@ def _halves_findings(report: SolveReport) -> list[Finding]:
                     "too few tracks for each half of the scene to place every camera, so nothing checks the sigmas "
                     "beyond the curvature at this one solution", Action.ADD_FRAME_SET,
                     "add frame sets, or texture every camera sees more of")]
+
+
+def _rival_findings(report: SolveReport) -> list[Finding]:
+    """A solution from another start that the data cannot tell from this one (camnet.solve.report.rivals): at
+    best usable, whatever the sigmas, which are widened to cover both."""
+    if not report.rivals:
+        return []
+    differing = in_words(sorted({named_parameter(d) for r in report.rivals for d in r.differences},
+                                key=lambda name: (name != "the scale", name)))
+    n = len(report.rivals)
+    return [Finding(Level.USABLE, f"{n} competing solution{'s' if n > 1 else ''} of nearly equal cost, differing in "
+                    f"{differing}", "the observations fit two minima nearly equally well: which one is right "
+                    "they do not say", Action.ADD_FRAME_SET, f"{TO_DECIDE}, and solve again")]
 
 
 def _scale_findings(report: SolveReport, t: Thresholds) -> list[Finding]:

@@ -113,24 +113,34 @@ def pair_advice(obs: Observations) -> str:
 
 
 def stronger_pair(obs: Observations) -> tuple[int, int, int, int] | None:
-    """(a, b, tracks a and b share, tracks the stereo pair shares) where the two observations cameras a, b
-    that share the most tracks share WEAK_PAIR_RATIO times the stereo pair's; else None.
+    """`strongest_pair` where its two cameras share WEAK_PAIR_RATIO times the stereo pair's tracks; else None."""
+    return _strongest(obs, WEAK_PAIR_RATIO)
+
+
+def strongest_pair(obs: Observations) -> tuple[int, int, int, int] | None:
+    """(a, b, tracks a and b share, tracks the stereo pair shares) for the two observations cameras a, b that
+    share the most tracks; None where they are the stereo pair.
 
     Two cameras at one viewpoint (a homography explains their matches,
     `two_view.homography_explains`) share the most tracks of all, and fix
     no relative pose: they are passed over, for the next pair.
     """
+    return _strongest(obs, 0.0)
+
+
+def _strongest(obs: Observations, ratio: float) -> tuple[int, int, int, int] | None:
+    """`strongest_pair`, None where it shares fewer than `ratio` times the stereo pair's tracks."""
     seen = np.zeros((len(obs.track_ids), len(obs.cameras)), dtype=bool)
     seen[obs.track_index, obs.cam_index] = True
     shared = seen.T.astype(int) @ seen  # (cameras, cameras) tracks each two share
     left, right = obs.index_of(obs.stereo.left), obs.index_of(obs.stereo.right)
-    enough = WEAK_PAIR_RATIO * shared[left, right]
+    enough = ratio * shared[left, right]
     rows = np.full(seen.shape, -1)
     rows[obs.track_index, obs.cam_index] = np.arange(len(obs.uv))
     a_of, b_of = np.triu_indices(len(obs.cameras), k=1)
     for k in np.argsort(-shared[a_of, b_of], kind="stable"):
         a, b = int(a_of[k]), int(b_of[k])
-        if shared[a, b] < enough:
+        if shared[a, b] < enough or {a, b} == {left, right}:
             return None
         both = seen[:, a] & seen[:, b]
         uv_a, uv_b = obs.uv[rows[both, a]], obs.uv[rows[both, b]]
@@ -272,7 +282,7 @@ def _paper_pair(ctx: SolveContext, seed, max_tracks) -> Start | str:
 
 
 def _from_stronger_pair(ctx: SolveContext) -> Start:
-    """The start from the two cameras that share the most tracks (`stronger_pair`), every camera placed through
+    """The start from the two cameras that share the most tracks (`strongest_pair`), every camera placed through
     the graph from them, then put in the scale pair's frame and scaled to its distance.
 
     A scale pair far apart sees few tracks together: their essential matrix,
@@ -280,10 +290,10 @@ def _from_stronger_pair(ctx: SolveContext) -> Start:
     where a pair that sees much together fixes its own well.
     """
     obs, order = ctx.obs, ctx.order
-    obs, order = ctx.obs, ctx.order
-    found = stronger_pair(obs)
+    found = strongest_pair(obs)
     if found is None:
-        raise NoStart(f"no pair of cameras shares {WEAK_PAIR_RATIO:g} times the stereo pair's tracks")
+        raise NoStart("the stereo pair is the pair of cameras that shares the most tracks: its own starts are the "
+                      "strongest pair's")
     a, b = obs.cameras[found[0]].id, obs.cameras[found[1]].id
     log.info("starting from %s and %s, which share %d tracks (the stereo pair %d)", a, b, found[2], found[3])
     seed_obs = replace(obs, stereo=Stereo(a, b, 1.0))  # a unit distance until the scale pair's is known

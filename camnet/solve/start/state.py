@@ -26,7 +26,7 @@ class PairStart(Enum):
     PAPER = "paper"  # the paper's solver
     ESSENTIAL = "essential"  # the pair's essential matrix, its focal lengths from a third view
     # The two cameras that share the most tracks, placed by their essential matrix; every camera through the
-    # view graph from them; then the scale pair's frame and distance (a scale pair that sees little together).
+    # view graph from them; then the scale pair's frame and distance (where they are not the scale pair).
     STRONGEST = "strongest pair"
 
 
