@@ -221,7 +221,7 @@ class CalibratorNode:
             forgotten = None
             self.malformed.count("attachment", "ignoring an observations attachment (%s); is the matcher of "
                                  "another camnet version?", exc)
-        outcome = self._solve(obs, source=message.pool_id, forgotten=forgotten)
+        outcome = self._solve(obs, source=message.pool_id, forgotten=forgotten, frame_sets=message.frame_sets)
         if outcome is None:
             self.tracker.counts["failed"] += 1
             return message, None

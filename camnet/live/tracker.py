@@ -4,7 +4,11 @@ No I/O and no bus: the calibrator node feeds observations in and publishes
 what comes out. Each observations message (the matcher's pooled tracks) is
 solved warm from the last good calibration; a moved camera (see
 `camnet.live.moved_cameras`) is detected on the tracks that arrived since, its
-older observations are dropped and its pose solved afresh; if a stereo
+older observations are dropped and its pose solved afresh. Only evidence a
+static rig cannot produce declares a move (`MoveRule`): its views off its pose
+while its neighbours' stay on theirs, explained by one new placement, over
+several frame sets; until then it is a suspicion, and the camera keeps its
+pose, its evidence, and the matcher its views. If a stereo
 camera, or most of the rig, moved, the metric frame itself is gone and the
 solve starts over from the new tracks alone. Whether a solve may replace the
 last good one is the live policy's (camnet.live.policy).
@@ -25,16 +29,11 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from functools import partial
 
+import cv2
 import numpy as np
 
 from camnet.live.judged_solve import Judged, Status, solve_judged
-from camnet.live.moved_cameras import (
-    drop_before,
-    first_moved_track,
-    moved_cameras,
-    off_their_pose,
-    track_errors,
-)
+from camnet.live.moved_cameras import MoveEvidence, drop_before, move_evidence, off_their_pose
 from camnet.live.newest_first import solve_newest_first
 from camnet.live.policy import LiveConfig, policy_check
 from camnet.model.calibration import Calibration, HalvesCheck
@@ -48,6 +47,8 @@ log = logging.getLogger(__name__)
 # A second opinion is asked afresh once this share of the pool is newer than the last one saw: in between, the
 # last one's half-differences are carried (a check costs two cold solves of half the pool).
 HALVES_TURNOVER = 0.5
+# A suspected move's newest views, off its pose or on, count where there are this many (the fewest a pose needs).
+NEWEST_MIN_VIEWS = 6
 MOVED_RMS_FACTOR = 2.0  # a moved camera placed again fits its new views within this times its RMS before
 NOT_FORGOTTEN_YET = ("moved, not placed again yet (the matcher has not pooled its views afresh: those since the move "
                      "were judged against its old geometry, and the few kept may fit a wrong pose); its new tracks "
@@ -96,16 +97,23 @@ class Tracker:
     # The last second opinion (camnet.solve.halves) and the newest track id it saw.
     _halves: HalvesCheck | None = None
     _halves_max_id: int = -1
+    # Per camera, how many suspected moves were not confirmed (`_not_confirmed`).
+    not_confirmed: dict[str, int] = field(default_factory=dict)
+    # Suspected moves (`_persisted`): per camera, the first track id of its views off its pose, and how many frame
+    # sets' newest views have said so.
+    _suspects: dict[str, tuple[int, int]] = field(default_factory=dict)
+    _frame_sets: int | None = None  # the count of frame sets pooled, as the last observations said
 
     @property
     def _options(self) -> Options:
         """The options of every solve here: the second opinion is asked once a good solve stands (`_second_opinion`)."""
         return replace(self.config.options, halves=False)
 
-    def update(self, obs: Observations, *, source: object = None,
-               forgotten: Mapping[str, int] | None = None) -> Outcome:
+    def update(self, obs: Observations, *, source: object = None, forgotten: Mapping[str, int] | None = None,
+               frame_sets: int | None = None) -> Outcome:
         """Solve `obs` (from matcher session `source`; `forgotten`: the matcher's first track id pooled since
-        it forgot each camera's views, None where it does not say) warm from the last good calibration."""
+        it forgot each camera's views, None where it does not say; `frame_sets`: how many frame sets its pool
+        holds, None where it does not say) warm from the last good calibration."""
         t0 = time.perf_counter()
         self.solves += 1
         max_id = int(obs.track_ids.max()) if len(obs.track_ids) else -1
@@ -114,9 +122,12 @@ class Tracker:
                 log.info("observations from a new matcher session: old points and cut-offs dropped")
             self._source, self._cutoffs, self._last_max_id = source, {}, -1
             self._points_valid, self._forgotten, self._awaiting = False, None, set()
+            self._suspects, self._frame_sets = {}, None
         told = self._told(obs, forgotten)
-        moved = tuple(sorted({*self._detect_moves(obs, awaits=forgotten is not None), *told}))
+        moved = tuple(sorted({*self._detect_moves(obs, awaits=forgotten is not None, frame_sets=frame_sets),
+                              *told}))
         self._last_max_id = max(self._last_max_id, max_id)
+        self._frame_sets = frame_sets
         solve_obs = drop_before(obs, self._cutoffs) if self._cutoffs else obs
         outcome = self._solve(solve_obs, moved)
         outcome = replace(outcome, told=told, solve_s=time.perf_counter() - t0)
@@ -170,24 +181,36 @@ class Tracker:
                         "them from the tracks it pooled since", told)
         return tuple(sorted(told))
 
-    def _detect_moves(self, obs: Observations, *, awaits: bool = False) -> tuple[str, ...]:
-        """The cameras the tracks since the last solve find moved; with `awaits`, one not the stereo pair's
-        is left out until the matcher says it forgot its views (`_told`)."""
+    def _detect_moves(self, obs: Observations, *, awaits: bool = False,
+                      frame_sets: int | None = None) -> tuple[str, ...]:
+        """The cameras the tracks since the last solve (and those since a suspected move began) find moved
+        (`MoveRule`, over `frame_sets`: `_persisted`); with `awaits`, one not the stereo pair's is left out until
+        the matcher says it forgot its views (`_told`)."""
         if self.good is None or not self._points_valid:
             return ()
         rows = np.flatnonzero(obs.track_ids > self._last_max_id)
         if not len(rows):
             return ()
-        try:
-            errors = track_errors(self.good, obs, rows)
-        except (KeyError, ValueError) as exc:
-            log.warning("cannot check for moved cameras: %s", exc)
-            return ()
         stats = self.good.report.cameras if self.good.report is not None else {}
         reference = {cam_id: camera.rms_px for cam_id, camera in stats.items()}
         rule = self.config.move_rule
-        moved = [c for c in moved_cameras({c: err for c, (_, err) in errors.items()}, reference, rule)
-                 if c not in self._reset]
+        first_new = int(obs.track_ids[rows].min())
+        since = {c: first for c, (first, _) in self._suspects.items()}
+        judged = np.flatnonzero(obs.track_ids >= min([first_new, *since.values()]))
+        try:
+            evidence = move_evidence(self.good, obs, judged, reference, rule, since=since, newest_from=first_new)
+        except (KeyError, ValueError, cv2.error) as exc:
+            log.warning("cannot check for moved cameras: %s", exc)
+            return ()
+        moved = []
+        for cam_id, e in sorted(evidence.items()):
+            if cam_id in self._reset:
+                continue
+            newest_on = e.newest_views >= NEWEST_MIN_VIEWS and not e.newest_off_px > e.limit_px
+            if cam_id in self._suspects and newest_on or not e.moved and (e.off_pose or cam_id in self._suspects):
+                self._not_confirmed(cam_id, e)
+            elif e.moved and self._persisted(cam_id, e, frame_sets):
+                moved.append(cam_id)
         if not moved:
             return ()
         first_new = int(obs.track_ids[rows].min())
@@ -203,11 +226,42 @@ class Tracker:
             for cam_id in moved:
                 self._pending[cam_id] = (calibrated[cam_id], reference.get(cam_id))
                 # Not `first_new`: the tracks pooled since the last solve may begin before the move.
-                self._cutoffs[cam_id] = first_moved_track(*errors[cam_id], rule.limit_px(reference.get(cam_id)))
+                self._cutoffs[cam_id] = evidence[cam_id].first_track_id
             self._reset |= set(moved)
             if awaits:
                 self._awaiting |= set(moved)
+        for cam_id in moved:
+            self._suspects.pop(cam_id, None)
         return tuple(moved)
+
+    def _persisted(self, cam_id: str, evidence: MoveEvidence, frame_sets: int | None) -> bool:
+        """Whether a camera whose views say it moved (`MoveEvidence.moved`) has said so in the newest views of
+        as many frame sets as `MoveRule.frame_sets` asks: a suspicion begins where it has not yet. Observations
+        that do not say how many frame sets they pool are judged on one message."""
+        if frame_sets is None:
+            return True
+        added = max(frame_sets - self._frame_sets, 1) if self._frame_sets is not None else 1
+        if cam_id not in self._suspects:
+            self._suspects[cam_id] = (evidence.first_track_id, 0)
+            log.info("camera %s suspected moved: its views lie a median %.1f px off its pose; a move once they "
+                     "do over %d frame sets", cam_id, evidence.off_pose_px, self.config.move_rule.frame_sets)
+        first, seen = self._suspects[cam_id]
+        if evidence.newest_views >= NEWEST_MIN_VIEWS:  # the newest frame sets' views are off it too
+            seen += added
+        self._suspects[cam_id] = (first, seen)
+        return seen >= self.config.move_rule.frame_sets
+
+    def _not_confirmed(self, cam_id: str, evidence: MoveEvidence) -> None:
+        """A camera off its pose where no one new placement explains its views, or one suspected whose views lie
+        on its pose again: no move. Its pose and evidence stay, and the matcher keeps its views."""
+        self._suspects.pop(cam_id, None)
+        self.not_confirmed[cam_id] = self.not_confirmed.get(cam_id, 0) + 1
+        if evidence.off_pose:
+            log.info("camera %s suspected moved, not confirmed: its views lie a median %.1f px off its pose, and "
+                     "%.1f px off the one new placement that fits them best", cam_id, evidence.off_pose_px,
+                     evidence.replaced_px)
+        else:
+            log.info("camera %s suspected moved, not confirmed: its views lie on its pose again", cam_id)
 
     def _moved_unplaced(self, obs: Observations, warm: Judged) -> dict[str, str]:
         """The moved cameras the warm solve that places them again did not place, each with why: all of
@@ -225,7 +279,9 @@ class Tracker:
         before = {c: self._pending[c][1] if c in self._pending else None for c in moved}
         limits = {c: rule.limit_px(before[c]) for c in moved}
         off = off_their_pose(warm.calibration, obs, {c: self._cutoffs[c] for c in moved if c in self._cutoffs},
-                             limits, min_observations=rule.min_observations)
+                             limits, min_observations=rule.min_observations,
+                             neighbour_limits_px={c: rule.neighbour_share * rule.limit_px(s.rms_px)
+                                                  for c, s in stats.items()})
         unplaced = {c: f"moved, not placed again yet (its views since the move lie a median {px:.1f} px off the "
                     f"pose solved for it, more than {limits[c]:.1f}); its new tracks will place it"
                     for c, px in off.items()}
