@@ -17,7 +17,7 @@ from camnet.live.tracker import Status, Tracker
 from camnet.model.calibration import Calibration
 from camnet.model.camera import CameraInfo
 from camnet.model.observations import Observations
-from camnet.sim.simulate import OBJECT_CENTRE, OBJECT_SIZE, SimRig, make_rig
+from camnet.sim.simulate import OBJECT_CENTRE, OBJECT_SIZE, SimRig, make_rig, observe
 from tests.test_live import moved, pooled
 
 # Each camera's capture time (s) relative to the left camera's within a frame set: free-running, not triggered.
@@ -134,3 +134,30 @@ def test_views_off_a_pose_that_no_one_placement_explains_are_not_a_move():
                                  reference)
         assert [c for c, e in evidence.items() if e.off_pose] == ["mono_b"], evidence
         assert evidence["mono_b"].moved == is_move, evidence["mono_b"]
+
+
+def _turn_deg(a: np.ndarray, b: np.ndarray) -> float:
+    """The angle (degrees) between rotations `a` and `b`."""
+    return float(np.degrees(np.arccos(np.clip((np.trace(a @ b.T) - 1) / 2, -1.0, 1.0))))
+
+
+def test_a_move_that_places_nothing_better_keeps_the_last_good_calibrations_evidence():
+    # The right stereo camera turned 1 degree: the metric frame goes with it, and the rig is solved afresh from
+    # the tracks since. From 15 of them no solve stands (the scale is uncertain): the move is not adopted and the
+    # last good calibration's evidence stays, rather than the pool being cut to those 15 for good.
+    before = make_rig(n_points=300, seed=3)
+    turned = replace(before, cameras=[before.cameras[0], moved(before.cameras[1], [0.0, 0.0, 0.0], 1.0),
+                                      *before.cameras[2:]])
+    tracker = Tracker(LiveConfig())
+    first = observe(before, seed=5).observations
+    assert tracker.update(first).status == Status.GOOD
+    few = observe(replace(turned, points=make_rig(n_points=15, seed=4).points), seed=6).observations
+    out = tracker.update(pooled(first, few))
+    assert out.status == Status.GOOD and out.moved == (), out.reason
+    assert tracker.not_confirmed == {"right": 1} and len(out.calibration.points) == 315
+    # With tracks enough, the new placement stands, and is adopted.
+    more = observe(replace(turned, points=make_rig(n_points=300, seed=9).points), seed=7).observations
+    out = tracker.update(pooled(first, few, more))
+    assert out.status == Status.GOOD and out.moved == ("right",), out.reason
+    right = {c.id: c for c in out.calibration.cameras}["right"]
+    assert _turn_deg(right.R, turned.cameras[1].R) < 0.5 * _turn_deg(right.R, before.cameras[1].R)

@@ -124,12 +124,23 @@ class Tracker:
             self._points_valid, self._forgotten, self._awaiting = False, None, set()
             self._suspects, self._frame_sets = {}, None
         told = self._told(obs, forgotten)
-        moved = tuple(sorted({*self._detect_moves(obs, awaits=forgotten is not None, frame_sets=frame_sets),
-                              *told}))
+        before_moves = self._move_state()
+        found = self._detect_moves(obs, awaits=forgotten is not None, frame_sets=frame_sets)
+        moved = tuple(sorted({*found, *told}))
         self._last_max_id = max(self._last_max_id, max_id)
         self._frame_sets = frame_sets
         solve_obs = drop_before(obs, self._cutoffs) if self._cutoffs else obs
         outcome = self._solve(solve_obs, moved)
+        if found and outcome.status != Status.GOOD:
+            # The moves found here placed nothing better than the last good calibration: its evidence stays.
+            log.warning("camera(s) %s taken for moved, but no solve without their views before stands (%s): "
+                        "their evidence kept", list(found), outcome.reason)
+            self._cutoffs, self._reset, self._pending, self._awaiting = before_moves
+            for cam_id in found:
+                self.not_confirmed[cam_id] = self.not_confirmed.get(cam_id, 0) + 1
+            moved = told
+            solve_obs = drop_before(obs, self._cutoffs) if self._cutoffs else obs
+            outcome = self._solve(solve_obs, moved)
         outcome = replace(outcome, told=told, solve_s=time.perf_counter() - t0)
         self.counts[outcome.status] += 1
         if outcome.status == Status.GOOD:
@@ -155,6 +166,10 @@ class Tracker:
         cal = with_halves_check(obs, cal, lambda half: calibrate(half, cold).calibration)
         self._halves, self._halves_max_id = cal.report.halves, int(obs.track_ids.max())
         return cal
+
+    def _move_state(self) -> tuple[dict[str, int], set[str], dict[str, tuple[Camera, float | None]], set[str]]:
+        """Copies of what a move found changes: the cut-offs, the cameras reset, pending and awaited."""
+        return dict(self._cutoffs), set(self._reset), dict(self._pending), set(self._awaiting)
 
     def _told(self, obs: Observations, forgotten: Mapping[str, int] | None) -> tuple[str, ...]:
         """The cameras the matcher forgot since its last message: each is placed again from the tracks it pooled
