@@ -167,3 +167,23 @@ def test_a_move_that_places_nothing_better_keeps_the_last_good_calibrations_evid
     assert out.status == Status.GOOD and out.moved == ("right",), out.reason
     right = {c.id: c for c in out.calibration.cameras}["right"]
     assert _turn_deg(right.R, turned.cameras[1].R) < 0.5 * _turn_deg(right.R, before.cameras[1].R)
+
+
+def test_a_stereo_camera_turned_in_a_static_rig_watching_a_moving_person_recalibrates_the_rig_afresh():
+    # The metric frame goes with it: once its views have said so over MoveRule.frame_sets frame sets, the rig is
+    # solved afresh from the tracks since the first of them (all three frame sets', not the last one's alone).
+    phase_s = np.array([0.0, 0.004, -0.012, 0.002])
+    rig, rng = make_rig(n_points=300, seed=1), np.random.default_rng(1)
+    turned = replace(rig, cameras=[rig.cameras[0], moved(rig.cameras[1], [0.0, 0.0, 0.0], 1.0), *rig.cameras[2:]])
+    tracker = Tracker(LiveConfig())
+    parts = [frame_set(rig, rig.points, np.zeros(3), phase_s, rng)]
+    assert tracker.update(pooled(*parts), frame_sets=1).status == Status.GOOD
+    declared = []
+    for frame_sets in range(2, 12):
+        parts += person_walks(rig if frame_sets < 6 else turned, rng, phase_s)
+        outcome = tracker.update(pooled(*parts), frame_sets=frame_sets)
+        assert outcome.status == Status.GOOD, (frame_sets, outcome.reason)
+        declared += [(frame_sets, c, len(outcome.calibration.points)) for c in outcome.moved]
+    assert declared == [(6 + MoveRule().frame_sets - 1, "right", 50 * MoveRule().frame_sets)], declared
+    right = {c.id: c for c in tracker.good.cameras}["right"]
+    assert _turn_deg(right.R, turned.cameras[1].R) < 0.5 * _turn_deg(right.R, rig.cameras[1].R)

@@ -228,12 +228,13 @@ class Tracker:
                 moved.append(cam_id)
         if not moved:
             return ()
-        first_new = int(obs.track_ids[rows].min())
         stereo = {obs.stereo.left, obs.stereo.right}
         if stereo & set(moved) or 2 * len(moved) > len(obs.cameras):
             log.warning("cameras %s moved, the stereo pair among them or most of the rig: "
                         "calibrating afresh from the new tracks", moved)
-            self._cutoffs = {cam_id: first_new for cam_id in obs.camera_ids}
+            # From where the first of them left its pose: a suspected move's tracks since are of the new rig.
+            since = min(evidence[cam_id].first_track_id for cam_id in moved)
+            self._cutoffs = {cam_id: since for cam_id in obs.camera_ids}
             self._reset, self._pending = set(obs.camera_ids), {}
         else:
             log.warning("camera(s) %s moved: re-calibrating them from the new tracks", moved)
