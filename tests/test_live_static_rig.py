@@ -94,24 +94,35 @@ def test_a_static_rig_watching_a_moving_person_is_never_taken_for_moved(zenoh_pa
     assert errors[-1] <= min(errors) + sigma and errors[-1] <= 3 * sigma, ([round(100 * e, 2) for e in errors], sigma)
 
 
-def test_a_camera_moved_in_a_static_rig_watching_a_moving_person_is_placed_again():
-    # Moved 4 cm and turned 2 degrees: its views lie off its pose in every frame set from then on, and one new
-    # placement explains them all. Declared once they have over MoveRule.frame_sets frame sets, placed there.
-    # (Captured within 2 ms of the left camera: one whose views of the person lie as far off as mono_a's can
-    # keep too few inliers to be placed from its views since the move alone.)
-    phase_s = np.array([0.0, 0.004, -0.012, 0.002])
-    rig, rng = make_rig(n_points=300, seed=1), np.random.default_rng(1)
-    bumped = replace(rig, cameras=[*rig.cameras[:3], moved(rig.cameras[3], [0.0, -0.04, 0.0], 2.0)])
+# A rig whose camera moves: every camera but the third captured within 4 ms of the left one. (One whose views of
+# the person lie as far off as mono_a's can keep too few inliers to be placed from its views since a move alone.)
+NEAR_SYNC_S = np.array([0.0, 0.004, -0.012, 0.002])
+MOVED_AT = 6  # the frame set from which it has moved
+
+
+def moves_declared(rig: SimRig, after: SimRig, rng: np.random.Generator) -> tuple[Tracker, list[tuple[int, str, int]]]:
+    """A tracker fed `rig` watching the moving person, one message per frame set, the rig `after` from frame set
+    MOVED_AT on, 11 frame sets in all; with (frame set, camera, points of its calibration) of each move declared.
+    Every solve must be good."""
     tracker = Tracker(LiveConfig())
-    parts = [frame_set(rig, rig.points, np.zeros(3), phase_s, rng)]
+    parts = [frame_set(rig, rig.points, np.zeros(3), NEAR_SYNC_S, rng)]
     assert tracker.update(pooled(*parts), frame_sets=1).status == Status.GOOD
     declared = []
     for frame_sets in range(2, 12):
-        parts += person_walks(rig if frame_sets < 6 else bumped, rng, phase_s)
+        parts += person_walks(rig if frame_sets < MOVED_AT else after, rng, NEAR_SYNC_S)
         outcome = tracker.update(pooled(*parts), frame_sets=frame_sets)
         assert outcome.status == Status.GOOD, (frame_sets, outcome.reason)
-        declared += [(frame_sets, c) for c in outcome.moved]
-    assert declared == [(6 + MoveRule().frame_sets - 1, "mono_b")], declared
+        declared += [(frame_sets, c, len(outcome.calibration.points)) for c in outcome.moved]
+    return tracker, declared
+
+
+def test_a_camera_moved_in_a_static_rig_watching_a_moving_person_is_placed_again():
+    # Moved 4 cm and turned 2 degrees: its views lie off its pose in every frame set from then on, and one new
+    # placement explains them all. Declared once they have over MoveRule.frame_sets frame sets, placed there.
+    rig, rng = make_rig(n_points=300, seed=1), np.random.default_rng(1)
+    bumped = replace(rig, cameras=[*rig.cameras[:3], moved(rig.cameras[3], [0.0, -0.04, 0.0], 2.0)])
+    tracker, declared = moves_declared(rig, bumped, rng)
+    assert [(k, c) for k, c, _ in declared] == [(MOVED_AT + MoveRule().frame_sets - 1, "mono_b")], declared
     cam = {c.id: c for c in tracker.good.cameras}["mono_b"]
     error_m = float(np.linalg.norm(cam.centre - bumped.cameras[3].centre))
     assert error_m < 4 * np.linalg.norm(tracker.good.uncertainty.cameras["mono_b"].centre_m), error_m
@@ -172,18 +183,9 @@ def test_a_move_that_places_nothing_better_keeps_the_last_good_calibrations_evid
 def test_a_stereo_camera_turned_in_a_static_rig_watching_a_moving_person_recalibrates_the_rig_afresh():
     # The metric frame goes with it: once its views have said so over MoveRule.frame_sets frame sets, the rig is
     # solved afresh from the tracks since the first of them (all three frame sets', not the last one's alone).
-    phase_s = np.array([0.0, 0.004, -0.012, 0.002])
     rig, rng = make_rig(n_points=300, seed=1), np.random.default_rng(1)
     turned = replace(rig, cameras=[rig.cameras[0], moved(rig.cameras[1], [0.0, 0.0, 0.0], 1.0), *rig.cameras[2:]])
-    tracker = Tracker(LiveConfig())
-    parts = [frame_set(rig, rig.points, np.zeros(3), phase_s, rng)]
-    assert tracker.update(pooled(*parts), frame_sets=1).status == Status.GOOD
-    declared = []
-    for frame_sets in range(2, 12):
-        parts += person_walks(rig if frame_sets < 6 else turned, rng, phase_s)
-        outcome = tracker.update(pooled(*parts), frame_sets=frame_sets)
-        assert outcome.status == Status.GOOD, (frame_sets, outcome.reason)
-        declared += [(frame_sets, c, len(outcome.calibration.points)) for c in outcome.moved]
-    assert declared == [(6 + MoveRule().frame_sets - 1, "right", 50 * MoveRule().frame_sets)], declared
+    tracker, declared = moves_declared(rig, turned, rng)
+    assert declared == [(MOVED_AT + MoveRule().frame_sets - 1, "right", 50 * MoveRule().frame_sets)], declared
     right = {c.id: c for c in tracker.good.cameras}["right"]
     assert _turn_deg(right.R, turned.cameras[1].R) < 0.5 * _turn_deg(right.R, rig.cameras[1].R)
