@@ -22,7 +22,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from camnet.errors import SolveError
+from camnet.errors import SolveError, in_words
 from camnet.model.calibration import Calibration, HalvesCheck
 from camnet.model.observations import Observations
 from camnet.solve.report.halves import HalfDifference, differences, disagreement_warning, widened, widest
@@ -90,6 +90,11 @@ def with_halves_check(obs: Observations, cal: Calibration,
             a, b = solve(_half(obs, side == 0)), solve(_half(obs, side == 1))
         except SolveError as exc:
             why = f"a half {name} could not be solved alone: {str(exc).split(' (')[0]}"  # its first clause
+            log.info("halves check: %s", why)
+            continue
+        unplaced = sorted(set(cameras) - ({c.id for c in a.cameras} & {c.id for c in b.cameras}))
+        if unplaced:  # a camera one half left out would have no second opinion
+            why = f"a half {name} left out {in_words(unplaced, noun='camera')}"
             log.info("halves check: %s", why)
             continue
         compared.append(differences(a, b))
