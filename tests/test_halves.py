@@ -173,7 +173,7 @@ def test_the_check_is_written_and_read_back(solved):
 def test_the_live_calibrator_asks_again_once_half_its_pool_is_new_and_carries_the_last_answer_between():
     rig = make_rig(n_points=300, seed=1)
     first = observe(rig, seed=1).observations
-    tracker = Tracker(LiveConfig())
+    tracker = Tracker(LiveConfig(halves_interval_s=0.0))  # live, a minute apart at least
 
     asked = tracker.update(first).calibration.report.halves
     # A few new tracks: the last answer is carried, not asked again.

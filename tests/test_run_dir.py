@@ -147,9 +147,9 @@ def test_a_partial_calibrations_run_directory_and_final_table_name_the_camera_le
     follower = RunFollower(argparse.Namespace(), truth=None)
     follower.observations.add(ObservationsMessage(obs, frame_sets=7, latest_capture_ns=1))
     text = _finish(argparse.Namespace(output=None), tmp_path / "run", cal_message, follower, truth=None)
-    assert re.search(rf"^{away}\s+not calibrated: it shares only 0 tracks", text, flags=re.MULTILINE), text
+    assert re.search(rf"^{away}\s+not calibrated: it has no observations", text, flags=re.MULTILINE), text
     assert "Needs the observations" not in (tmp_path / "run" / "report.html").read_text()
     images = (tmp_path / "run" / "colmap" / "images.txt").read_text()
     assert away not in images and "mono_a" in images
     line = progress_line(summarise(1.0, cal_message, truth=None))
-    assert f"missing: {away} (it shares only 0 tracks" in line, line
+    assert f"missing: {away} (it has no observations" in line, line

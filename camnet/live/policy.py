@@ -64,6 +64,9 @@ class LiveConfig:
     `max_scale_rel` (1 sigma)."""
 
     options: Options = Options(free=LIVE_FREE)
+    # The second opinion (camnet.solve.halves, two cold solves) is asked again at most this often, seconds:
+    # between, the calibrations go on with the last one's widening.
+    halves_interval_s: float = 60.0
     move_rule: MoveRule = MoveRule()
     limits: SoundnessLimits = SoundnessLimits()
     max_scale_rel: float = 0.05

@@ -47,6 +47,9 @@ log = logging.getLogger(__name__)
 # A second opinion is asked afresh once this share of the pool is newer than the last one saw: in between, the
 # last one's half-differences are carried (a check costs two cold solves of half the pool).
 HALVES_TURNOVER = 0.5
+# Each half of a live check keeps at most this many tracks: a check of a long pool holds up the calibrations
+# no longer than a cold solve of this size.
+HALVES_MAX_TRACKS = 600
 # A suspected move's newest views, off its pose or on, count where there are this many (the fewest a pose needs).
 NEWEST_MIN_VIEWS = 6
 MOVED_RMS_FACTOR = 2.0  # a moved camera placed again fits its new views within this times its RMS before
@@ -97,6 +100,7 @@ class Tracker:
     # The last second opinion (camnet.solve.halves) and the newest track id it saw.
     _halves: HalvesCheck | None = None
     _halves_max_id: int = -1
+    _halves_at_s: float = -np.inf
     # Per camera, how many suspected moves were not confirmed (`_not_confirmed`).
     not_confirmed: dict[str, int] = field(default_factory=dict)
     # Suspected moves (`_persisted`): per camera, the first track id of its views off its pose, and how many frame
@@ -156,15 +160,19 @@ class Tracker:
 
     def _second_opinion(self, obs: Observations, cal: Calibration) -> Calibration:
         """`cal` with the halves check: asked afresh where at least HALVES_TURNOVER of the pool is newer than the
-        last check saw (the first time, and after a move), else the last check's widening carried over."""
+        last check saw (the first time, and after a move) and `halves_interval_s` have passed since, else the last
+        check's widening carried over."""
         if not self.config.options.halves:
             return cal
         turnover = float(np.mean(obs.track_ids > self._halves_max_id)) if len(obs.track_ids) else 0.0
-        if self._halves is not None and turnover < HALVES_TURNOVER:
+        recent = time.monotonic() - self._halves_at_s < self.config.halves_interval_s
+        if self._halves is not None and (turnover < HALVES_TURNOVER or recent):
             return with_check_carried(cal, self._halves)
         cold = self._options
-        cal = with_halves_check(obs, cal, lambda half: calibrate(half, cold).calibration)
+        cal = with_halves_check(obs, cal, lambda half: calibrate(half, cold).calibration,
+                                max_half_tracks=HALVES_MAX_TRACKS)
         self._halves, self._halves_max_id = cal.report.halves, int(obs.track_ids.max())
+        self._halves_at_s = time.monotonic()
         return cal
 
     def _move_state(self) -> tuple[dict[str, int], set[str], dict[str, tuple[Camera, float | None]], set[str]]:

@@ -52,6 +52,15 @@ def track_sides(obs: Observations, cal: Calibration) -> Iterator[tuple[str, np.n
         yield name, side
 
 
+def _thinned(side: np.ndarray, most: int) -> np.ndarray:
+    """`side` with each half cut to at most `most` tracks, every k-th kept (the others set to -1, in neither)."""
+    out = np.full_like(side, -1)
+    for h in (0, 1):
+        rows = np.flatnonzero(side == h)
+        out[rows[:: max(1, int(np.ceil(len(rows) / most)))]] = h
+    return out
+
+
 def _half(obs: Observations, keep: np.ndarray) -> Observations:
     """`obs` with only the track rows where `keep` (T,) is true."""
     rows = keep[obs.track_index]
@@ -67,12 +76,14 @@ def _covers(obs: Observations, side: np.ndarray, cameras: list[str]) -> bool:
     return True
 
 
-def with_halves_check(obs: Observations, cal: Calibration,
-                      solve: Callable[[Observations], Calibration]) -> Calibration:
+def with_halves_check(obs: Observations, cal: Calibration, solve: Callable[[Observations], Calibration], *,
+                      max_half_tracks: int | None = None) -> Calibration:
     """`cal` with its report's `halves` check, and its sigmas widened where the halves disagree.
 
     solve: solves observations with the whole's options from a cold start, with no halves check of its own; raises
     SolveError where it cannot. A half that cannot be solved ends its split, which is not compared.
+    max_half_tracks: each half keeps at most this many of its tracks, drawn evenly (None: all), so that a live
+    calibrator's check of a long pool costs two cold solves of a bounded size.
     """
     report = cal.report
     if report is None or report.uncertainty is None:
@@ -84,6 +95,8 @@ def with_halves_check(obs: Observations, cal: Calibration,
     for name, side in track_sides(obs, cal):
         if len(compared) == SPLITS:
             break
+        if max_half_tracks is not None:
+            side = _thinned(side, max_half_tracks)
         if not _covers(obs, side, cameras):
             continue
         try:
