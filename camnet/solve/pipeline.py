@@ -34,6 +34,10 @@ parameters; when every camera still fits its observations only the new
 tracks get a robust fit before the least-squares adjustment
 (the report's ``start`` says which path ran). ``reset_cameras`` places
 bumped cameras again (see `calibrate`).
+
+Every solve then asks a second opinion (``Options.halves``,
+camnet.solve.halves): its scene's two halves solved apart from cold starts,
+and the sigmas widened to what they disagree on.
 """
 
 from __future__ import annotations
