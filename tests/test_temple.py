@@ -21,6 +21,7 @@ from camnet.matching.pipeline import observations_from_frame_sets, with_known_in
 from camnet.model.camera import CameraInfo
 from camnet.model.observations import Stereo
 from camnet.solve import calibrate
+from camnet.solve.report.verdict import Level, judge
 from tests._groundtruth import TEMPLE_ROOT, require
 
 VIEWS = [f"templeSR{k:04d}" for k in range(1, 17)]
@@ -102,3 +103,21 @@ def test_the_ring_with_two_views_from_one_viewpoint_calibrates_near_the_publishe
         assert c.focal_sigma_rel > 0, c.id
         assert abs(c.focal_rel) <= min(FOCAL_BOUND_REL, FOCAL_BOUND_SIGMAS * c.focal_sigma_rel), (c.id, c.focal_rel,
                                                                                                  c.focal_sigma_rel)
+
+
+def test_with_the_pairs_K_every_camera_beyond_its_sigmas_is_rated_poor(ring):
+    obs, published = ring
+    obs = with_known_intrinsics(obs, {v: published[v] for v in (LEFT, RIGHT)}, given=("K",))
+
+    calibration = calibrate(obs).calibration
+
+    levels = {c.camera: c.level for c in judge(calibration).cameras}
+    vs = compare(calibration, obs, published, depth_range_m=(0.3, 1.0))
+    beyond = [c.id for c in vs.cameras if abs(c.focal_rel) > 3 * c.focal_sigma_rel
+              or c.rotation_deg > 3 * c.rotation_sigma_deg]
+    # The freed principal points of this narrow ring trade with the poses: some camera ends beyond its sigmas,
+    # and each such one is rated poor for the principal point that moved where no lens's lies.
+    assert beyond
+    for cam_id in beyond:
+        assert levels[cam_id] == Level.POOR, (cam_id, levels[cam_id])
+        assert cam_id in calibration.report.far_principal_points, cam_id

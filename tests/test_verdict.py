@@ -139,3 +139,20 @@ def test_a_far_ring_cameras_rotation_that_the_guessed_principal_points_explain_i
     given = replace(given, cameras=tuple(replace(c, K=truth[c.id]) for c in given.cameras))
     told = judge(calibrate(given).calibration)
     assert not [f for c in told.cameras for f in c.findings if "rotation" in f.what], format_verdict(told)
+
+
+def test_a_principal_point_moved_where_no_lens_has_it_rates_that_camera_poor_and_reads_back(dense):
+    cam_id = dense.cameras[2].id
+    far = replace(dense, report=replace(dense.report, far_principal_points={cam_id: 0.25}))
+
+    verdict = judge(far)
+
+    levels = {c.camera: c.level for c in verdict.cameras}
+    assert levels.pop(cam_id) == Level.POOR and set(levels.values()) == {Level.GOOD}, format_verdict(verdict)
+    assert verdict.level == Level.POOR
+    finding = next(f for c in verdict.cameras if c.camera == cam_id for f in c.findings)
+    assert finding.action == Action.GIVE_K and "25% of the image" in finding.what, finding
+    doc = calibration_to_doc(far)
+    assert doc["diagnostics"]["far_principal_points"] == {cam_id: 0.25}
+    assert parse_calibration(doc).report.far_principal_points == {cam_id: 0.25}
+    assert "far_principal_points" not in calibration_to_doc(dense)["diagnostics"]

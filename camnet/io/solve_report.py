@@ -75,6 +75,8 @@ def report_to_doc(report: SolveReport) -> dict:
         diagnostics["halves"] = _halves_to_doc(report.halves)
     if report.rivals:  # written where found only, as pair_pose_given
         diagnostics["rivals"] = [_rival_to_doc(r) for r in report.rivals]
+    if report.far_principal_points:  # written where found only, as pair_pose_given
+        diagnostics["far_principal_points"] = dict(report.far_principal_points)
     doc: dict[str, Any] = {
         "method": report.method.value,
         "diagnostics": diagnostics,
@@ -189,7 +191,12 @@ def parse_report(doc: dict) -> SolveReport | None:
         pair_pose_given=get("pair_pose_given", v.boolean, False),
         halves=get("halves", _parse_halves),
         rivals=get("rivals", _parse_rivals, ()),
+        far_principal_points=get("far_principal_points", _parse_shares, {}),
     )
+
+
+def _parse_shares(value: Any, path: str) -> dict[str, float]:
+    return {cam_id: v.number(share, f"{path}.{cam_id}") for cam_id, share in v.mapping(value, path).items()}
 
 
 def _parse_rivals(value: Any, path: str) -> tuple[Rival, ...]:

@@ -207,6 +207,9 @@ class SolveReport:
     halves: HalvesCheck | None = None  # None: not checked (a solve asked not to, or a document from before)
     # Solutions from other starts that the data cannot tell from the kept one; the sigmas are widened to cover them.
     rivals: tuple[Rival, ...] = ()
+    # Camera id -> how far its freed principal point moved from where it was given (the image centre where it was
+    # not), as a share of the image's width or height, where that is farther than any lens's.
+    far_principal_points: Mapping[str, float] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)

@@ -143,14 +143,14 @@ def reported_points(
 
 
 def _uncertainty(ids: list[str], problem, state, cov: Covariance, kept, warnings: list[str],
-                 notes: list[str], normal, pair_pose_given: bool, pp_given: np.ndarray, sizes: np.ndarray,
+                 notes: list[str], normal, pair_pose_given: bool, far_pp: dict[int, float],
                  pp_guessed: np.ndarray) -> Uncertainty:
     """The solution's uncertainty; appends the warnings and notes it gives rise to.
 
     normal: the solve's unweighted normal equations at `state` in cov's layout (or None);
     pair_pose_given: the pair's held rotation axes are held at a given pose, not the parallel pair's;
-    pp_given, sizes (M, 2): each camera's given principal point (the image centre where none was) and image
-    size, pixels; pp_guessed (M,): no principal point was given (it started at the image centre).
+    far_pp: problem camera -> how far its freed principal point moved (_far_pp_rel), where beyond
+    MAX_PP_OFFSET_REL; pp_guessed (M,): no principal point was given (it started at the image centre).
     """
     weights = scale_weights(cov, state.X, kept)
     exact_columns = _exact_columns(problem, cov)
@@ -164,7 +164,6 @@ def _uncertainty(ids: list[str], problem, state, cov: Covariance, kept, warnings
     # solution is beyond where a linear sigma means anything (docs/benchmarks.md, "Evidence
     # behind the solver's thresholds", MAX_LINEAR_FOCAL_REL).
     pair_focal_rel = max(per_cam[ids[m]].f_px / state.intr[m, 0] for m in (0, 1))
-    far_pp = {m: rel for m in range(len(ids)) if (rel := _far_pp_rel(problem, state, m, pp_given[m], sizes[m]))}
     pair_loose_pp = [m for m in (0, 1) if m in far_pp]
     nonlinear = scale is not None and (pair_focal_rel > MAX_LINEAR_FOCAL_REL or bool(pair_loose_pp))
     if nonlinear:
@@ -392,8 +391,9 @@ def solve_report(
     pp_guessed = np.array([obs.cameras[i].K is None for i in order])
     pp_given = np.array([sizes[k] / 2 if obs.cameras[i].K is None else obs.cameras[i].K[:2, 2]
                          for k, i in enumerate(order)])
+    far_pp = {m: rel for m in range(len(ids)) if (rel := _far_pp_rel(problem, state, m, pp_given[m], sizes[m]))}
     uncertainty = None if cov is None else _uncertainty(ids, problem, state, cov, kept, warnings, notes, info.normal,
-                                                        pair_pose_given, pp_given, sizes, pp_guessed)
+                                                        pair_pose_given, far_pp, pp_guessed)
     # The held column offset is priced into the scale's sigma when the principal points entered as
     # a guess with its prior: then a caveat (a note), else the sigma cannot show it (a warning).
     priced = uncertainty is not None and uncertainty.scale_rel_if_pp_exact.value is not None
@@ -417,6 +417,7 @@ def solve_report(
         notes=tuple(notes),
         # Said where an axis is held only: where every one moved, nothing rests on a pose given.
         pair_pose_given=bool(pair_pose_given and problem.n_cameras >= 2 and not problem.rot_free[1].all()),
+        far_principal_points={ids[m]: rel for m, rel in far_pp.items()},
     )
 
 

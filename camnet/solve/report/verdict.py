@@ -165,6 +165,13 @@ def _camera_findings(cam_id: str, f_px: float, report: SolveReport, lever_m: flo
                     "its images fit worse than the others': a lens distortion the model does not have, "
                     "a frame out of sync, or false matches", Action.GIVE_K,
                     f"give camera {cam_id}'s K and dist, and check its sync"))
+    far = report.far_principal_points.get(cam_id)
+    if far is not None:
+        # Its sigmas are the curvature of a valley no lens lies in: they do not bound its error.
+        out.append(Finding(
+            Level.POOR, f"principal point moved {100 * far:.0f}% of the image from where it started",
+            "no lens's is that far off: the data trade it with the focal length and rotation, which may be wrong "
+            "by several of their sigmas", Action.GIVE_K, f"give camera {cam_id}'s K"))
     sigmas = report.uncertainty.cameras.get(cam_id) if report.uncertainty is not None else None
     if sigmas is not None:
         # Not known exactly: held at a guess (its sigma the guess's prior) or estimated.
