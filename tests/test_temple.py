@@ -20,7 +20,7 @@ from camnet.datasets.temple import image_path, read_cameras
 from camnet.matching.pipeline import observations_from_frame_sets, with_known_intrinsics
 from camnet.model.camera import CameraInfo
 from camnet.model.observations import Stereo
-from camnet.solve import calibrate
+from camnet.solve import Options, calibrate
 from camnet.solve.report.verdict import Level, judge
 from tests._groundtruth import TEMPLE_ROOT, require
 
@@ -39,6 +39,9 @@ SCALE_BOUND_REL = 0.06
 # common scale error is most of it) and of its rotation; 4 leaves a margin. A view resected at its neighbour's
 # viewpoint sits tens of sigmas off (docs/benchmarks.md, "Real images: the temple ring").
 POSE_BOUND_SIGMAS = 4.0
+# What these tests hold is the solve's own finding (no linear scale sigma; a moved principal point rated poor), not
+# the second opinion's widening: they ask none, at a third of the time.
+ALONE = Options(halves=False)
 
 
 @pytest.fixture(scope="module")
@@ -76,7 +79,7 @@ def test_with_the_published_K_every_view_kept_is_within_its_sigmas_of_its_publis
 def test_the_ring_with_two_views_from_one_viewpoint_calibrates_near_the_published_cameras(ring, record_property):
     obs, published = ring
 
-    result = calibrate(obs)
+    result = calibrate(obs, ALONE)
 
     assert result.converged, result.reason
     report = result.calibration.report
@@ -109,7 +112,7 @@ def test_with_the_pairs_K_every_camera_beyond_its_sigmas_is_rated_poor(ring):
     obs, published = ring
     obs = with_known_intrinsics(obs, {v: published[v] for v in (LEFT, RIGHT)}, given=("K",))
 
-    calibration = calibrate(obs).calibration
+    calibration = calibrate(obs, ALONE).calibration
 
     levels = {c.camera: c.level for c in judge(calibration).cameras}
     vs = compare(calibration, obs, published, depth_range_m=(0.3, 1.0))

@@ -13,12 +13,14 @@ from typing import Any
 
 import numpy as np
 
+from camnet.errors import InputError
 from camnet.io import validate as v
 from camnet.model.calibration import (
     CameraSigmas,
     CameraStats,
     FreeSet,
     HalvesCheck,
+    PairPoseCheck,
     PointsLeftOut,
     Rival,
     RivalDifference,
@@ -77,6 +79,10 @@ def report_to_doc(report: SolveReport) -> dict:
         diagnostics["rivals"] = [_rival_to_doc(r) for r in report.rivals]
     if report.far_principal_points:  # written where found only, as pair_pose_given
         diagnostics["far_principal_points"] = dict(report.far_principal_points)
+    if report.pair_checks is not None:
+        diagnostics["pair_checks"] = [
+            {"cameras": [c.first, c.second], "rotation_deg": c.rotation_deg, "direction_deg": c.direction_deg,
+             "in_sigmas": c.in_sigmas, "shared": c.shared, "inliers": c.inliers} for c in report.pair_checks]
     doc: dict[str, Any] = {
         "method": report.method.value,
         "diagnostics": diagnostics,
@@ -192,7 +198,27 @@ def parse_report(doc: dict) -> SolveReport | None:
         halves=get("halves", _parse_halves),
         rivals=get("rivals", _parse_rivals, ()),
         far_principal_points=get("far_principal_points", _parse_shares, {}),
+        pair_checks=get("pair_checks", _parse_pair_checks),
     )
+
+
+def _items(value: Any, path: str):
+    """(object, its path) of each item of the array `value` at `path`; each must be an object."""
+    for i, item in enumerate(v.array(value, path)):
+        yield v.mapping(item, f"{path}[{i}]"), f"{path}[{i}]"
+
+
+def _parse_pair_checks(value: Any, path: str) -> tuple[PairPoseCheck, ...]:
+    out = []
+    for c, here in _items(value, path):
+        cameras = v.strings(v.require(c, "cameras", here), f"{here}.cameras")
+        if len(cameras) != 2:
+            raise InputError(f"{here}.cameras: expected two camera ids, got {len(cameras)}")
+        out.append(PairPoseCheck(
+            cameras[0], cameras[1], *(v.number(v.require(c, k, here), f"{here}.{k}")
+                                      for k in ("rotation_deg", "direction_deg", "in_sigmas")),
+            *(v.integer(v.require(c, k, here), f"{here}.{k}") for k in ("shared", "inliers"))))
+    return tuple(out)
 
 
 def _parse_shares(value: Any, path: str) -> dict[str, float]:
@@ -201,9 +227,7 @@ def _parse_shares(value: Any, path: str) -> dict[str, float]:
 
 def _parse_rivals(value: Any, path: str) -> tuple[Rival, ...]:
     out = []
-    for i, item in enumerate(v.array(value, path)):
-        here = f"{path}[{i}]"
-        r = v.mapping(item, here)
+    for r, here in _items(value, path):
         differences = v.array(v.require(r, "differences", here), f"{here}.differences")
         out.append(Rival(
             start=v.string(v.require(r, "start", here), f"{here}.start"),

@@ -36,11 +36,12 @@ from camnet.live.judged_solve import Judged, Status, solve_judged
 from camnet.live.moved_cameras import MoveEvidence, drop_before, move_evidence, off_their_pose
 from camnet.live.newest_first import solve_newest_first
 from camnet.live.policy import LiveConfig, policy_check
-from camnet.model.calibration import Calibration, HalvesCheck
+from camnet.model.calibration import Calibration, HalvesCheck, PairPoseCheck
 from camnet.model.camera import Camera
 from camnet.model.observations import Observations
 from camnet.solve import Options, calibrate
 from camnet.solve.halves import with_check_carried, with_halves_check
+from camnet.solve.pair_check import with_pair_check, with_pairs_carried
 
 log = logging.getLogger(__name__)
 
@@ -101,6 +102,7 @@ class Tracker:
     _halves: HalvesCheck | None = None
     _halves_max_id: int = -1
     _halves_at_s: float = -np.inf
+    _pairs: tuple[PairPoseCheck, ...] = ()  # the pair checks made with the last second opinion
     # Per camera, how many suspected moves were not confirmed (`_not_confirmed`).
     not_confirmed: dict[str, int] = field(default_factory=dict)
     # Suspected moves (`_persisted`): per camera, the first track id of its views off its pose, and how many frame
@@ -159,19 +161,21 @@ class Tracker:
         return outcome
 
     def _second_opinion(self, obs: Observations, cal: Calibration) -> Calibration:
-        """`cal` with the halves check: asked afresh where at least HALVES_TURNOVER of the pool is newer than the
-        last check saw (the first time, and after a move) and `halves_interval_s` have passed since, else the last
-        check's widening carried over."""
+        """`cal` with the halves check and the pair check (camnet.solve.pair_check): asked afresh where at least
+        HALVES_TURNOVER of the pool is newer than the last check saw (the first time, and after a move) and
+        `halves_interval_s` have passed since, else the last checks carried over."""
         if not self.config.options.halves:
             return cal
         turnover = float(np.mean(obs.track_ids > self._halves_max_id)) if len(obs.track_ids) else 0.0
         recent = time.monotonic() - self._halves_at_s < self.config.halves_interval_s
         if self._halves is not None and (turnover < HALVES_TURNOVER or recent):
-            return with_check_carried(cal, self._halves)
+            return with_pairs_carried(with_check_carried(cal, self._halves), self._pairs)
         cold = self._options
         cal = with_halves_check(obs, cal, lambda half: calibrate(half, cold).calibration,
                                 max_half_tracks=HALVES_MAX_TRACKS)
+        cal = with_pair_check(obs, cal)
         self._halves, self._halves_max_id = cal.report.halves, int(obs.track_ids.max())
+        self._pairs = cal.report.pair_checks
         self._halves_at_s = time.monotonic()
         return cal
 

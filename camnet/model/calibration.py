@@ -112,6 +112,26 @@ class PointsLeftOut:
 
 
 @dataclass(frozen=True)
+class PairPoseCheck:
+    """The solved relative pose of cameras `first`, `second` against their own two-view geometry
+    (camnet.model.pair_pose_check).
+
+    rotation_deg: the angle between the solved relative rotation and the two-view one; direction_deg: the angle
+    between the solved baseline direction and the two-view one; in_sigmas: the solved pose's excess cost over the
+    two views' best fit (squared Sampson distances, over their inliers), its square root in units of the
+    distances' own sigma (about sqrt(5) for a pose that agrees); shared: observations used; inliers: kept by RANSAC.
+    """
+
+    first: str
+    second: str
+    rotation_deg: float
+    direction_deg: float
+    in_sigmas: float
+    shared: int
+    inliers: int
+
+
+@dataclass(frozen=True)
 class HalvesCheck:
     """A second opinion: the scene split in two halves across its point cloud, each half solved alone, and the
     halves compared (camnet.solve.halves).
@@ -210,6 +230,8 @@ class SolveReport:
     # Camera id -> how far its freed principal point moved from where it was given (the image centre where it was
     # not), as a share of the image's width or height, where that is farther than any lens's.
     far_principal_points: Mapping[str, float] = field(default_factory=dict)
+    # Each camera against the two-view geometry with its neighbours (None: not checked).
+    pair_checks: tuple[PairPoseCheck, ...] | None = None
 
 
 @dataclass(frozen=True)

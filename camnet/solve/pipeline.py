@@ -71,6 +71,7 @@ from camnet.solve.free_rule import (
 from camnet.solve.halves import with_halves_check
 from camnet.solve.known_distances import known_distances
 from camnet.solve.options import Options
+from camnet.solve.pair_check import with_pair_check
 from camnet.solve.report.assemble import (
     refuse_undetermined,
     refuse_wrong_start,
@@ -183,7 +184,7 @@ def calibrate(
         # Each half from a cold start: warm from the whole, it keeps the whole's outliers and basin and agrees.
         alone = replace(options, halves=False)
         cal = with_halves_check(obs, result.calibration, lambda half: calibrate(half, alone).calibration)
-        result = replace(result, calibration=cal)
+        result = replace(result, calibration=with_pair_check(obs, cal))
     if not unobserved:
         return result
     report = with_cameras_left_out(result.calibration.report, unobserved)

@@ -22,6 +22,7 @@ import numpy as np
 
 from camnet.errors import in_words
 from camnet.model.calibration import Calibration, CameraSigmas, SolveReport
+from camnet.solve.report.pair_poses import describe, judge_pairs
 from camnet.solve.report.rivals import TO_DECIDE, named_parameter
 from camnet.solve.report.scale_cause import GIVE_STEREO_K, pair_rotation_todo, scale_cause
 
@@ -177,8 +178,30 @@ def _camera_findings(cam_id: str, f_px: float, report: SolveReport, lever_m: flo
         # Not known exactly: held at a guess (its sigma the guess's prior) or estimated.
         pp_loose = sigmas.cx_px > 0 or sigmas.cy_px > 0
         out += _sigma_findings(cam_id, f_px, sigmas, lever_m, pp_loose, t)
+    out += _pair_findings(cam_id, report)
     disputed = set(report.halves.widened) if report.halves is not None else set()
     return [_disputed(f, cam_id) if _measure(f) and f"{_measure(f)} {cam_id}" in disputed else f for f in out]
+
+
+def _pair_findings(cam_id: str, report: SolveReport) -> list[Finding]:
+    """A camera whose pose disagrees with most of its neighbours' two views is poor; one of a disagreeing pair
+    neither of whose cameras is to blame is usable."""
+    if not report.pair_checks:
+        return []
+    pairs = judge_pairs(report.pair_checks)
+    if cam_id in pairs.named:
+        mine = pairs.named[cam_id]
+        return [Finding(Level.POOR, f"pose disagrees with its own two views with {len(mine)} of its neighbours "
+                        f"({describe(mine)})", "it settled in a wrong place that the other cameras' tracks still "
+                        "fit, or its lens is not the one solved", Action.ADD_FRAME_SET,
+                        f"add a frame set, or give camera {cam_id}'s K")]
+    mine = tuple(c for c in pairs.unexplained if cam_id in (c.first, c.second))
+    if mine:
+        others = in_words([c.second if c.first == cam_id else c.first for c in mine], noun="camera")
+        return [Finding(Level.USABLE, f"relative pose with {others} disagrees with their own two views "
+                        f"({describe(mine)})", "one of the two is placed wrong", Action.ADD_FRAME_SET,
+                        f"add a frame set, or give camera {cam_id}'s K")]
+    return []
 
 
 def _measure(finding: Finding) -> str:
