@@ -52,6 +52,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-o", "--output", metavar="CALIBRATION.json", help="also write the final calibration here")
     parser.add_argument("--record", metavar="SESSION.mcap",
                         help="also run the recorder: everything the rig publishes goes into this MCAP file")
+    parser.add_argument("--no-restart", action="store_true",
+                        help="end the run when any node exits (default: a node that exits is restarted, after 1 s "
+                             "doubling to 10 s, at most 5 times a minute)")
     parser.add_argument("--progress-jsonl", metavar="FILE",
                         help="also write one JSON line per calibration (what the progress lines show)")
     add_rerun_arguments(parser)
@@ -234,7 +237,7 @@ class SolveNumbering:
         first = 1 if self.last is None or solve <= self.last else self.last + 1
         self.last = solve
         if resumed:
-            return "  (resumed: the last run's calibration)"
+            return "  (resumed: the calibrator's state file)"
         if solve <= first:
             return ""
         skipped = f"solve {first}" if solve - first == 1 else f"solves {first}-{solve - 1}"
@@ -309,19 +312,21 @@ def run(args: argparse.Namespace) -> int:
         stop = stack.enter_context(stop_on_signals(threading.Event()))
         progress_file = stack.enter_context(open(args.progress_jsonl, "w")) if args.progress_jsonl else None
         session = stack.enter_context(joined(options_from_args(args)))
-        launch = stack.enter_context(Launch(run_dir / "logs"))
+        launch = stack.enter_context(Launch(run_dir / "logs", restart=not args.no_restart,
+                                            say=lambda line: print(f"camnet up: {line}", flush=True)))
         subscribers = [session.declare_subscriber(keys.calibration(rig.name), follower.on_calibration),
                        session.declare_subscriber(keys.observations(rig.name), follower.on_observations)]
         start_network(launch, spec)
         for line in rerun_lines(args.rerun):
             print(line, flush=True)
         if args.replay:
-            launch.start("replay", ["replay", str(args.replay), "--rig", rig.name, *spec.bus])
+            launch.start("replay", ["replay", str(args.replay), "--rig", rig.name, *spec.bus], restart=False)
         follower.follow(launch, stop, time.monotonic(), run_dir, progress_file)
         if stop.is_set():
             print("interrupted", flush=True)
         for subscriber in subscribers:
             subscriber.undeclare()
+        restarts = launch.restart_counts()
     message = follower.reached or follower.on_calibration.latest
     if message is None and stop.is_set():
         return 130
@@ -332,12 +337,20 @@ def run(args: argparse.Namespace) -> int:
                           f"in {run_dir / 'logs'}")
     if message is None:
         raise CamnetError(f"no calibration in {args.duration_s:.0f} s; the nodes' logs are in {run_dir / 'logs'}")
-    print(_finish(args, run_dir, message, follower, truth))
+    print(_finish(args, run_dir, message, follower, truth, restarts))
     return 0
 
 
+def restarts_line(restarts: dict[str, int]) -> str:
+    """The final summary's line on the nodes restarted: which, and how often."""
+    if not restarts:
+        return "nodes restarted: none"
+    return "nodes restarted: " + ", ".join(f"{name} ({n} {'time' if n == 1 else 'times'})"
+                                           for name, n in restarts.items())
+
+
 def _finish(args: argparse.Namespace, run_dir: Path, message: CalibrationMessage, follower: RunFollower,
-            truth) -> str:
+            truth, restarts: dict[str, int]) -> str:
     """Write the run directory's results of calibration `message`; the final lines: the calibration, the
     files, the next commands."""
     from camnet.commands.up_console import final_report
@@ -350,7 +363,7 @@ def _finish(args: argparse.Namespace, run_dir: Path, message: CalibrationMessage
     if args.output:
         write_json_atomic(args.output, calibration_message_to_doc(message))
         written.append(Path(args.output))
-    lines = [final_report(message.calibration, truth), "", f"files in {run_dir}:"]
+    lines = [final_report(message.calibration, truth), "", restarts_line(restarts), "", f"files in {run_dir}:"]
     lines += [f"  {p.name + ('/' if p.is_dir() else ''):<20} {_DESCRIBE.get(p.name, '')}".rstrip() for p in written]
     if observations is None:
         lines.append("  (the observations behind the last calibration were not received: no observations.json)")

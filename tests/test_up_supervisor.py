@@ -1,0 +1,110 @@
+"""`camnet up` as a supervisor: a node killed with SIGKILL is restarted, and the run ends with its calibration.
+
+Real processes on a loopback port of the test's own; the waits are on progress (calibrations, the nodes'
+logs), not on fixed times.
+"""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+from camnet.io.formats import parse_calibration
+from camnet.io.rig import load_rig
+from camnet.model.accuracy import compare_cameras, scale_sigma_rel
+from tests.conftest import free_port, logs_written, stop_process, wait_for
+from tests.test_network import rig_file
+
+WAIT_S = 120  # with no progress at all (no calibration, no line logged), a wait has failed
+# The nodes killed in turn, and a pattern of their command lines (`pgrep -f`) among camnet up's children.
+KILLED = (("driver-mono_a", r"camnet\.cli -v driver sim .*--camera mono_a( |$)"),
+          ("matcher", r"camnet\.cli -v matcher "),
+          ("calibrator", r"camnet\.cli -v calibrator "))
+
+
+class Output:
+    """The lines a process prints, read as they come (a full pipe would stall it)."""
+
+    def __init__(self, stream) -> None:
+        self.lines: list[str] = []
+        self._thread = threading.Thread(target=self._read, args=(stream,), daemon=True)
+        self._thread.start()
+
+    def _read(self, stream) -> None:
+        for line in stream:
+            self.lines.append(line.rstrip("\n"))
+
+    def text(self) -> str:
+        return "\n".join(self.lines)
+
+    def join(self) -> None:
+        self._thread.join(timeout=30)
+
+
+def child_pid(parent: int, pattern: str) -> int:
+    """The pid of the one child of `parent` whose command line matches `pattern`."""
+    found = subprocess.run(["pgrep", "-P", str(parent), "-f", pattern], capture_output=True, text=True)
+    pids = [int(p) for p in found.stdout.split()]
+    assert len(pids) == 1, (pattern, found.stdout, found.stderr)
+    return pids[0]
+
+
+def solves(progress: Path) -> list[dict]:
+    """The calibrations camnet up has shown so far (its --progress-jsonl)."""
+    try:
+        return [json.loads(line) for line in progress.read_text().splitlines() if line.endswith("}")]
+    except FileNotFoundError:
+        return []
+
+
+def test_up_restarts_a_killed_driver_matcher_and_calibrator_and_ends_with_a_calibration_to_scale(tmp_path):
+    rig_path = rig_file(tmp_path, 4)
+    run_dir, progress = tmp_path / "run", tmp_path / "progress.jsonl"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "camnet.cli", "up", rig_path, "--forever", "--run-dir", str(run_dir),
+         "--progress-jsonl", str(progress), "--listen", f"tcp/127.0.0.1:{free_port()}"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    stdout, stderr = Output(proc.stdout), Output(proc.stderr)
+
+    def moving() -> tuple[int, int]:
+        return len(solves(progress)), logs_written(run_dir)
+
+    def failed(what: str) -> str:
+        logs = "\n".join(p.read_text()[-1500:] for p in run_dir.rglob("*.log"))
+        return f"{what}\n{stdout.text()}\n{stderr.text()}\n{logs}"
+
+    try:
+        for name, pattern in KILLED:
+            before = solves(progress)
+            last = max((s["solve"] for s in before), default=0)
+            # A new solve (after a calibrator's restart, its resumed calibration is not one) since the last kill.
+            assert wait_for(lambda last=last: any(s["solve"] > last for s in solves(progress)), WAIT_S,
+                            progress=moving), failed(f"no calibration before killing {name}")
+            os.kill(child_pid(proc.pid, pattern), signal.SIGKILL)
+            told = f"{name} was killed by signal 9 (SIGKILL); restarting it in 1 s, restart 1"
+            wait_for(lambda told=told: told in stdout.text() or proc.poll() is not None, WAIT_S)
+            assert told in stdout.text(), failed(f"{name}'s restart was not told")
+        # The matcher restarted after the driver: what it pools of mono_a comes from the driver's restart.
+        last = max(s["solve"] for s in solves(progress))
+        assert wait_for(lambda: any(s["solve"] > last for s in solves(progress)), WAIT_S, progress=moving), \
+            failed("no calibration after the calibrator's restart")
+    finally:
+        stop_process(proc, first_signal=signal.SIGINT)
+        stdout.join()
+        stderr.join()
+    assert proc.returncode == 0, failed("camnet up did not end well")
+    assert "nodes restarted: driver-mono_a (1 time), matcher (1 time), calibrator (1 time)" in stdout.text(), \
+        failed("the summary does not name the restarts")
+    for name, _ in KILLED:
+        log = (run_dir / "logs" / f"{name}.log").read_text()
+        assert f"supervisor: {name} was killed by signal 9 (SIGKILL); restarting it in 1 s, restart 1" in log
+    calibrator_log = (run_dir / "logs" / "calibrator.log").read_text()
+    assert f"resumed from {run_dir / 'calibration.json'}" in calibrator_log, calibrator_log[-3000:]
+    cal = parse_calibration(json.loads((run_dir / "calibration.json").read_text()))
+    truth = load_rig(rig_path).simulated_truth()
+    assert len(cal.cameras) == 4, failed("a camera (the restarted driver's?) is missing from the final calibration")
+    scale_error = compare_cameras(cal, truth).scale_rel
+    assert abs(scale_error) < 3 * scale_sigma_rel(cal), failed(f"scale off by {scale_error:+.3%}")
