@@ -26,6 +26,7 @@ from camnet.bus import heap, keys, latency, lockstep
 from camnet.bus.moved import moved_attachment, parse_forgotten_attachment
 from camnet.bus.node import Presence, Tally, guarded, stop_on_signals
 from camnet.bus.session import declare_liveliness
+from camnet.bus.source import SourcedPublisher
 from camnet.bus.stats import Activity, RateMeter
 from camnet.errors import InputError
 from camnet.io.formats import MAX_TRACKS, write_json_atomic
@@ -277,7 +278,8 @@ class CalibratorNode:
     def run(self) -> None:
         """Serve until `stop` is set (or SIGTERM, Ctrl-C)."""
         rig = self.rig_name
-        publisher = self.session.declare_publisher(keys.calibration(rig))
+        # Its samples state their source, so that a supervisor tells them from any other publisher's.
+        publisher = SourcedPublisher(self.session.declare_publisher(keys.calibration(rig)))
         self._resume(publisher)
         queryable = self.session.declare_queryable(keys.calibration(rig),
                                                    guarded(self._on_query, self.failures, "answering a query"))

@@ -106,7 +106,8 @@ def test_a_damaged_state_file_is_kept_aside(zenoh_pair, tmp_path):
 
 def test_command_refuses_bad_flags_in_one_line(tmp_path):
     for flags, fragment in ((["--rig", "a*b"], "--rig"), (["--rig", "r", "--max-rms-px", "0"], "--max-rms-px"),
-                            (["--rig", str(tmp_path / "missing.yaml")], "missing.yaml")):
+                            (["--rig", str(tmp_path / "missing.yaml")], "missing.yaml"),
+                            (["--rig", "r", "--session-id", "not-hex"], "--session-id")):
         proc = subprocess.run([sys.executable, "-m", "camnet.cli", "calibrator", *flags],
                               capture_output=True, text=True, timeout=60)
         assert proc.returncode == 2, proc.stderr

@@ -19,6 +19,7 @@ from tests.conftest import free_port, logs_written, stop_process, wait_for
 from tests.test_network import rig_file
 
 WAIT_S = 120  # with no progress at all (no calibration, no line logged), a wait has failed
+LIMIT_S = 300  # nor does a wait go on past this, progress or not
 # The nodes killed in turn, and a pattern of their command lines (`pgrep -f`) among camnet up's children.
 KILLED = (("driver-mono_a", r"camnet\.cli -v driver sim .*--camera mono_a( |$)"),
           ("matcher", r"camnet\.cli -v matcher "),
@@ -82,14 +83,15 @@ def test_up_restarts_a_killed_driver_matcher_and_calibrator_and_ends_with_a_cali
             last = max((s["solve"] for s in before), default=0)
             # A new solve (after a calibrator's restart, its resumed calibration is not one) since the last kill.
             assert wait_for(lambda last=last: any(s["solve"] > last for s in solves(progress)), WAIT_S,
-                            progress=moving), failed(f"no calibration before killing {name}")
+                            progress=moving, limit_s=LIMIT_S), failed(f"no calibration before killing {name}")
             os.kill(child_pid(proc.pid, pattern), signal.SIGKILL)
             told = f"{name} was killed by signal 9 (SIGKILL); restarting it in 1 s, restart 1"
             wait_for(lambda told=told: told in stdout.text() or proc.poll() is not None, WAIT_S)
             assert told in stdout.text(), failed(f"{name}'s restart was not told")
         # The matcher restarted after the driver: what it pools of mono_a comes from the driver's restart.
         last = max(s["solve"] for s in solves(progress))
-        assert wait_for(lambda: any(s["solve"] > last for s in solves(progress)), WAIT_S, progress=moving), \
+        assert wait_for(lambda: any(s["solve"] > last for s in solves(progress)), WAIT_S, progress=moving,
+                        limit_s=LIMIT_S), \
             failed("no calibration after the calibrator's restart")
     finally:
         stop_process(proc, first_signal=signal.SIGINT)
@@ -108,3 +110,62 @@ def test_up_restarts_a_killed_driver_matcher_and_calibrator_and_ends_with_a_cali
     assert len(cal.cameras) == 4, failed("a camera (the restarted driver's?) is missing from the final calibration")
     scale_error = compare_cameras(cal, truth).scale_rel
     assert abs(scale_error) < 3 * scale_sigma_rel(cal), failed(f"scale off by {scale_error:+.3%}")
+
+
+def forge(doc: dict, factor: float) -> bytes:
+    """A well-formed calibration message of the rig: `doc`'s, every length times `factor`, claiming a solve
+    and frame sets the calibrator has not reached."""
+    forged = {**doc, "solve": 1231, "frame_sets": 999_999, "status": "good"}
+    forged["cameras"] = [{**cam, "t": [factor * x for x in cam["t"]]} for cam in doc["cameras"]]
+    forged["points"] = [{**p, "xyz": [factor * x for x in p["xyz"]]} for p in doc["points"]]
+    return json.dumps(forged).encode()
+
+
+def test_up_ignores_calibrations_of_another_publisher_and_ends_with_its_calibrators_own(tmp_path):
+    from camnet.bus import keys
+    from camnet.bus.session import BusOptions, open_session
+    from camnet.io.messages import decode_calibration_message
+
+    rig_path = rig_file(tmp_path, 4)
+    rig = load_rig(rig_path)
+    truth = rig.simulated_truth()
+    run_dir, out, endpoint = tmp_path / "run", tmp_path / "out.json", f"tcp/127.0.0.1:{free_port()}"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "camnet.cli", "up", rig_path, "--until-frame-sets", "8", "--duration-s", "300",
+         "--run-dir", str(run_dir), "-o", str(out), "--listen", endpoint],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    stdout, stderr = Output(proc.stdout), Output(proc.stderr)
+    forged: list[bytes] = []
+    with open_session(BusOptions(connect=(endpoint,))) as peer:
+        publisher = peer.declare_publisher(keys.calibration(rig.name))
+        try:
+            # From the calibrator's first calibration to the run's end: a copy 6% too large, four times a second.
+            state = run_dir / "calibration.json"
+            wait_for(lambda: state.exists() or proc.poll() is not None, WAIT_S,
+                     progress=lambda: logs_written(run_dir), limit_s=LIMIT_S)
+            if state.exists():
+                forged.append(forge(json.loads(state.read_text()), 1.06))
+            while forged and proc.poll() is None:
+                publisher.put(forged[0])
+                forged.append(forged[0])
+                wait_for(lambda: proc.poll() is not None, 0.25)
+        finally:
+            stop_process(proc, first_signal=signal.SIGINT)
+            stdout.join()
+            stderr.join()
+    assert proc.returncode == 0, f"{stdout.text()}\n{stderr.text()}"
+    published = len(forged) - 1
+    assert published >= 2, stdout.text()
+    # The forgery is a calibration, and a wrong one.
+    assert abs(compare_cameras(decode_calibration_message(forged[0]).calibration, truth).scale_rel - 0.06) < 0.01
+    assert " solve 1231 " not in stdout.text(), stdout.text()
+    ignored = [line for line in stdout.lines if line.startswith("calibrations from another publisher")]
+    assert len(ignored) == 1, stdout.text()
+    count = int(ignored[0].split(": ")[1].split(",")[0])
+    assert 1 <= count <= published, (ignored, published)
+    for path in (out, run_dir / "calibration.json"):
+        doc = json.loads(path.read_text())
+        assert doc["solve"] != 1231 and doc["frame_sets"] >= 8, path
+        cal = parse_calibration(doc)
+        scale_error = compare_cameras(cal, truth).scale_rel
+        assert abs(scale_error) < 3 * scale_sigma_rel(cal), f"{path}: scale off by {scale_error:+.3%}"
