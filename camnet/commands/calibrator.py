@@ -73,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
     from camnet.commands.calibrate import parse_free
     from camnet.errors import InputError
     from camnet.live.policy import LiveConfig, SoundnessLimits
-    from camnet.services.calibrator import CalibratorConfig, CalibratorNode, RerunView
+    from camnet.services.calibrator import CalibratorConfig, CalibratorNode, RerunView, untrusted_state
     from camnet.solve import Options
     from camnet.viz import close_recording, open_recording
     from camnet.viz_sinks import sinks_from_args
@@ -91,6 +91,8 @@ def run(args: argparse.Namespace) -> int:
     if not args.no_state:
         state = Path(args.state) if args.state else default_state_path(name)
         state.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
+        if (problem := untrusted_state(state)) is not None:  # said before joining the bus
+            raise InputError(f"--state {problem}")
     free, stereo_pose = parse_free(args.free), None
     if rig is not None and rig.stereo is not None and rig.stereo.R is not None:
         stereo_pose = (rig.stereo.R, rig.stereo.t)
