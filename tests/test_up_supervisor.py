@@ -169,3 +169,30 @@ def test_up_ignores_calibrations_of_another_publisher_and_ends_with_its_calibrat
         cal = parse_calibration(doc)
         scale_error = compare_cameras(cal, truth).scale_rel
         assert abs(scale_error) < 3 * scale_sigma_rel(cal), f"{path}: scale off by {scale_error:+.3%}"
+
+
+def test_a_node_that_keeps_exiting_ends_the_run_past_the_restarts_a_minute_allows(tmp_path, monkeypatch):
+    """Restarted with back-off until the limit a minute, then the run ends naming it and its own error."""
+    import pytest
+
+    from camnet.bus import launch as launch_module
+    from camnet.errors import CamnetError
+
+    # Shortened, so that the test takes seconds: a node that fails at once counts as one that came up, and
+    # the limit is two restarts.
+    monkeypatch.setattr(launch_module, "STARTUP_S", 0.0)
+    monkeypatch.setattr(launch_module, "RESTART_DELAY_S", 0.05)
+    monkeypatch.setattr(launch_module, "RESTARTS_PER_MINUTE", 2)
+    told: list[str] = []
+    with launch_module.Launch(tmp_path, restart=True, say=told.append) as launch:
+        launch.start("calibrator", ["calibrator", "--rig", "not*a*rig"])
+        with pytest.raises(CamnetError) as raised:
+            assert wait_for(lambda: launch.check() and False, 120)
+    limit = launch_module.RESTARTS_PER_MINUTE
+    assert launch.restart_counts() == {"calibrator": limit}
+    # The back-off: doubling from the first delay.
+    assert [line.rsplit("; ", 1)[1] for line in told] == [f"restarting it in {0.05 * 2 ** i:g} s, restart {i + 1}"
+                                                          for i in range(limit)]
+    assert str(raised.value).startswith("node calibrator exited with status 2: --rig: ")
+    assert f"after {limit} restarts within a minute" in str(raised.value).splitlines()[0]
+    assert (tmp_path / "calibrator.log").read_text().count("supervisor: calibrator exited with status 2") == limit

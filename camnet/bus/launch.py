@@ -139,7 +139,7 @@ class Launch:
         recent = len(self._recent_restarts(child.name))
         delay_s = min(MAX_RESTART_DELAY_S, RESTART_DELAY_S * 2 ** recent)
         self.restarts.setdefault(child.name, []).append(time.monotonic())
-        line = (f"{child.why()}; restarting it in {delay_s:.0f} s, restart {len(self.restarts[child.name])}")
+        line = f"{child.why()}; restarting it in {delay_s:g} s, restart {len(self.restarts[child.name])}"
         self.say(line)
         try:
             with open(child.log_path, "a") as out:
