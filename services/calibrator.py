@@ -26,6 +26,7 @@ from camnet.bus import heap, keys, latency, lockstep
 from camnet.bus.moved import moved_attachment, parse_forgotten_attachment
 from camnet.bus.node import Presence, Tally, guarded, stop_on_signals
 from camnet.bus.session import declare_liveliness
+from camnet.bus.source import SourcedPublisher
 from camnet.bus.stats import Activity, RateMeter
 from camnet.errors import InputError
 from camnet.io.formats import MAX_TRACKS, write_json_atomic
@@ -94,11 +95,42 @@ class LatestMessage:
             return payload, self._received_ns, self._attachment
 
 
+def untrusted_state(path: Path) -> str | None:
+    """Why the state file `path` may hold a calibration someone else wrote (one line, with the fix), or None:
+    it is owned by another user than the one running the calibrator, or others than its owner may write it."""
+    import os
+    import pwd
+    import stat
+
+    def user(uid: int) -> str:
+        try:
+            return pwd.getpwuid(uid).pw_name
+        except KeyError:
+            return f"uid {uid}"
+
+    try:
+        status = path.stat()
+    except OSError:
+        return None  # absent: nothing to resume
+    me = os.geteuid()
+    if status.st_uid != me:
+        return (f"{path}: owned by {user(status.st_uid)}, not by {user(me)} who runs the calibrator, so it is not "
+                f"resumed; remove it, or make it {user(me)}'s: chown {user(me)} {path}")
+    writable = [who for who, bit in (("its group", stat.S_IWGRP), ("others", stat.S_IWOTH)) if status.st_mode & bit]
+    if writable:
+        return (f"{path}: writable by {' and '.join(writable)}, so anyone may have written it and it is not "
+                f"resumed; make it its owner's alone: chmod go-w {path}")
+    return None
+
+
 def load_state(path: Path | None, rig: Rig | None = None) -> CalibrationMessage | None:
     """The persisted calibration message, or None. A damaged file, or one of another rig than `rig`, is kept
-    aside, never overwritten."""
+    aside, never overwritten; one another user owns or may write is refused (InputError)."""
     if path is None or not path.exists():
         return None
+    problem = untrusted_state(path)
+    if problem is not None:
+        raise InputError(problem)
     try:
         message = load_calibration_message(path)
     except InputError as exc:
@@ -277,7 +309,8 @@ class CalibratorNode:
     def run(self) -> None:
         """Serve until `stop` is set (or SIGTERM, Ctrl-C)."""
         rig = self.rig_name
-        publisher = self.session.declare_publisher(keys.calibration(rig))
+        # Its samples state their source, so that a supervisor tells them from any other publisher's.
+        publisher = SourcedPublisher(self.session.declare_publisher(keys.calibration(rig)))
         self._resume(publisher)
         queryable = self.session.declare_queryable(keys.calibration(rig),
                                                    guarded(self._on_query, self.failures, "answering a query"))

@@ -1,6 +1,7 @@
 """The calibrator node on real Zenoh peers (loopback, scouting off)."""
 
 import json
+import os
 import subprocess
 import sys
 
@@ -10,10 +11,11 @@ from camnet.services.calibrator import CalibratorConfig, CalibratorNode, load_st
 
 from camnet.bus import keys
 from camnet.bus.lockstep import Ack
+from camnet.errors import InputError
 from camnet.io.formats import observations_to_doc, parse_calibration
 from camnet.sim.simulate import make_rig, observe
 from camnet.solve.report.verdict import judge
-from tests.conftest import matched_publisher, running_node, wait_for
+from tests.conftest import free_port, matched_publisher, running_node, wait_for
 
 RIG = "calnode"
 
@@ -104,9 +106,38 @@ def test_a_damaged_state_file_is_kept_aside(zenoh_pair, tmp_path):
     assert len(aside) == 1 and aside[0].read_text().startswith('{"format"')
 
 
+@pytest.mark.parametrize(("mode", "who"), [(0o664, "its group"), (0o646, "others"), (0o666, "its group and others")])
+def test_a_state_file_others_may_write_is_refused_naming_the_fix(tmp_path, mode, who):
+    state = tmp_path / "calibration.json"
+    state.write_text('{"format": "camnet.calibration/1"}')
+    state.chmod(mode)
+    with pytest.raises(InputError, match=f"chmod go-w {state}"):
+        load_state(state)
+    proc = subprocess.run([sys.executable, "-m", "camnet.cli", "calibrator", "--rig", RIG, "--state", str(state),
+                           "--connect", f"tcp/127.0.0.1:{free_port()}"], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.strip() == (f"camnet calibrator: error: --state {state}: writable by {who}, so anyone may have "
+                                   f"written it and it is not resumed; make it its owner's alone: chmod go-w {state}")
+    # Refused as it is: neither moved aside nor replaced.
+    assert [p.name for p in tmp_path.iterdir()] == ["calibration.json"]
+    assert state.read_text() == '{"format": "camnet.calibration/1"}' and state.stat().st_mode & 0o777 == mode
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="giving a file to another user takes root")
+def test_a_state_file_of_another_user_is_refused(tmp_path):
+    state = tmp_path / "calibration.json"
+    state.write_text('{"format": "camnet.calibration/1"}')
+    os.chown(state, 54321, -1)
+    with pytest.raises(InputError, match=f"{state}: owned by uid 54321, not by .* who runs the calibrator, so it is "
+                                         f"not resumed; remove it, or make it .*'s: chown .* {state}"):
+        load_state(state)
+    assert state.exists()
+
+
 def test_command_refuses_bad_flags_in_one_line(tmp_path):
     for flags, fragment in ((["--rig", "a*b"], "--rig"), (["--rig", "r", "--max-rms-px", "0"], "--max-rms-px"),
-                            (["--rig", str(tmp_path / "missing.yaml")], "missing.yaml")):
+                            (["--rig", str(tmp_path / "missing.yaml")], "missing.yaml"),
+                            (["--rig", "r", "--session-id", "not-hex"], "--session-id")):
         proc = subprocess.run([sys.executable, "-m", "camnet.cli", "calibrator", *flags],
                               capture_output=True, text=True, timeout=60)
         assert proc.returncode == 2, proc.stderr

@@ -85,7 +85,9 @@ def test_up_names_every_camera_its_drivers_could_not_open_and_keeps_opencv_quiet
     rig = v4l2_rig(tmp_path, {"a": "a.mp4", "b": "b.mp4", "good": "frames/*.png"})
     elsewhere = tmp_path / "elsewhere"  # the rig's paths are relative to the rig file
     elsewhere.mkdir()
-    proc = camnet("up", str(rig), "--duration-s", "60", "--run-dir", str(tmp_path / "run"), *own_bus(), cwd=elsewhere)
+    # --no-restart: the run ends at the first exit, as a rig whose cameras cannot open must.
+    proc = camnet("up", str(rig), "--duration-s", "60", "--run-dir", str(tmp_path / "run"), "--no-restart",
+                  *own_bus(), cwd=elsewhere)
     assert proc.returncode == 2, proc.stdout + proc.stderr
     error = proc.stderr[proc.stderr.index("camnet up: error:"):]
     assert error.startswith("camnet up: error: 2 of "), proc.stderr

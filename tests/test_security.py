@@ -222,6 +222,29 @@ def test_router_settings_demand_certificates_and_listen_on_tls_only(secrets):
     assert node["mode"] == "client" and node["connect/endpoints"] == ["tls/localhost:7447"]
 
 
+def test_the_router_listens_on_the_port_secure_init_gave(tmp_path):
+    """`secure init --port P` tells the nodes to dial P: the router started with no --listen is there."""
+    if shutil.which("openssl") is None:
+        pytest.skip("camnet secure init needs the openssl CLI")
+    port, directory = free_port(), tmp_path / "secrets"
+    done = camnet("secure", "init", str(directory), "--rig", RIG, "--port", str(port))
+    assert done.returncode == 0, done.stderr
+    log_path = tmp_path / "router.log"
+    with open(log_path, "wb") as log:
+        process = subprocess.Popen([sys.executable, "-m", "camnet.cli", "router", "--secure", str(directory)],
+                                   cwd=ROOT, stdout=log, stderr=subprocess.STDOUT)
+    try:
+        assert wait_for(lambda: "listening on" in log_path.read_text() or process.poll() is not None, 120), \
+            "router did not start"
+        assert f"listening on tls/[::]:{port};" in log_path.read_text(), log_path.read_text()
+        # A node that dials where the secure directory says gets in.
+        session = intruder(directory, "driver", f"tls/localhost:{port}", {})
+        assert not isinstance(session, Exception), f"{session}\n{log_path.read_text()}"
+        session.close()
+    finally:
+        stop(process)
+
+
 # --- access control on loopback -----------------------------------------------------------
 
 

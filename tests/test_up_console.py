@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 from camnet.bus import keys
+from camnet.bus.source import new_session_id
 from camnet.cli import build_parser
 from camnet.commands.calibrator import FRAME_PERIOD_S
 from camnet.commands.up import LatestCalibration, SolveNumbering, _network_spec
@@ -85,9 +86,11 @@ def test_up_passes_the_rerun_frame_period_to_the_calibrator(tmp_path):
     for flags, period_s in (([], FRAME_PERIOD_S), (["--rerun-frame-period-s", "0"], 0.0),
                             (["--rerun-frame-period-s", "2.5"], 2.5)):
         args = build_parser(only="up").parse_args(["up", rig_path, "--rerun", "save=x.rrd", *flags])
-        spec = _network_spec(args, Path(rig_path), rig, tmp_path / "run")
+        session_id = new_session_id()
+        spec = _network_spec(args, Path(rig_path), rig, tmp_path / "run", session_id)
         calibrator = build_parser(only="calibrator").parse_args(["calibrator", "--rig", rig_path, *spec.calibrator])
         assert calibrator.rerun_frame_period_s == period_s and calibrator.rerun == ["save=x.rrd"], spec.calibrator
+        assert calibrator.session_id == session_id, spec.calibrator
 
 
 def test_up_refuses_a_negative_rerun_frame_period_in_one_line_before_starting_nodes(tmp_path):

@@ -1,8 +1,10 @@
-"""Starting camnet nodes as child processes on one machine, and always stopping them.
+"""Starting camnet nodes as child processes on one machine, supervising them, and always stopping them.
 
 Each node is `python -m camnet.cli <command> ...` with its log in its own
 file. `Launch` is a context manager: leaving it (normally, on an error or on
 Ctrl-C) stops every child with SIGTERM, then SIGKILL after a grace period.
+With `restart`, `check` restarts a node that exits, after a back-off, up to
+`RESTARTS_PER_MINUTE` times a minute; without, any exit ends the run.
 `start_network` starts the nodes of one rig (`NetworkSpec`) in it.
 """
 
@@ -14,6 +16,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,6 +27,9 @@ log = logging.getLogger(__name__)
 
 
 STARTUP_S = 5.0  # a node that fails this soon after its start is failing to start, as its siblings may be
+RESTART_DELAY_S = 1.0  # a node's first restart waits this long, each further one within a minute twice as long
+MAX_RESTART_DELAY_S = 10.0
+RESTARTS_PER_MINUTE = 5  # a node that exits more often is broken, not unlucky: the run ends
 
 
 @dataclass
@@ -33,6 +39,10 @@ class Child:
     log_path: Path
     process: subprocess.Popen
     started_mono_s: float = 0.0
+    command: tuple[str, ...] = ()  # what `Launch.start` was given, to start it again
+    verbose: bool = True
+    restart: bool = True  # restarted when it exits, under a Launch that restarts
+    restarted: bool = False  # a restart itself: it came up once, so a quick exit is no failure to start
 
     def log_tail(self, lines: int = 15) -> str:
         try:
@@ -42,9 +52,20 @@ class Child:
 
     def why(self) -> str:
         """One line: how it ended, and its own error line (`camnet ...: error: ...`) when it printed one."""
-        ended = f"{self.name} exited with status {self.process.returncode}"
+        ended = f"{self.name} {exit_words(self.process.returncode)}"
         errors = [line for line in self.log_tail(40).splitlines() if line.startswith("camnet ") and ": error: " in line]
         return f"{ended}: {errors[-1].split(': error: ', 1)[1]}" if errors else ended
+
+
+def exit_words(returncode: int) -> str:
+    """How a process ended, in words: 'exited with status 2', 'was killed by signal 9 (SIGKILL)'."""
+    if returncode >= 0:
+        return f"exited with status {returncode}"
+    try:
+        name = f" ({signal.Signals(-returncode).name})"
+    except ValueError:
+        name = ""
+    return f"was killed by signal {-returncode}{name}"
 
 
 def bus_flags(options: BusOptions) -> list[str]:
@@ -68,10 +89,16 @@ def bus_flags(options: BusOptions) -> list[str]:
 
 
 class Launch:
-    def __init__(self, log_dir: Path, *, grace_s: float = 10.0) -> None:
+    def __init__(self, log_dir: Path, *, grace_s: float = 10.0, restart: bool = False,
+                 say: Callable[[str], None] | None = None) -> None:
+        """`say`: where a restart is told besides the node's log (default: this module's log)."""
         self.log_dir = Path(log_dir)
         self.grace_s = grace_s
+        self.restart = restart
+        self.say = say or (lambda line: log.warning("%s", line))
         self.children: list[Child] = []
+        self.restarts: dict[str, list[float]] = {}  # node name -> when each of its restarts was decided
+        self._due: list[tuple[float, Child]] = []  # exited children to start again, and when
 
     def __enter__(self) -> Launch:
         return self
@@ -79,28 +106,73 @@ class Launch:
     def __exit__(self, *exc_info: object) -> None:
         self.stop_all()
 
-    def start(self, name: str, command: list[str], *, verbose: bool = True) -> Child:
+    def start(self, name: str, command: list[str], *, verbose: bool = True, restart: bool = True) -> Child:
+        """Start node `name`; with `restart` (and a Launch that restarts), it is started again when it exits."""
         argv = [sys.executable, "-m", "camnet.cli", *(["-v"] if verbose else []), *command]
         log_path = self.log_dir / f"{name}.log"
         with open(log_path, "ab") as out:
             process = subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                                        start_new_session=True)
-        child = Child(name, argv, log_path, process, time.monotonic())
+        child = Child(name, argv, log_path, process, time.monotonic(), tuple(command), verbose, restart)
         self.children.append(child)
         log.info("started %s (pid %d): %s", name, process.pid, " ".join(command))
         return child
+
+    def restart_counts(self) -> dict[str, int]:
+        """How often each restarted node was restarted, in the order of their first restart."""
+        return {name: len(times) for name, times in self.restarts.items()}
+
+    def _restartable(self, child: Child) -> bool:
+        """Whether `child`, ended, is to be started again: it came up (a node failing at its start, as a
+        camera that is not there, fails again), and its restarts this minute are within the limit."""
+        if not (self.restart and child.restart):
+            return False
+        if not child.restarted and time.monotonic() - child.started_mono_s < STARTUP_S:
+            return False
+        return len(self._recent_restarts(child.name)) < RESTARTS_PER_MINUTE
+
+    def _recent_restarts(self, name: str) -> list[float]:
+        now_s = time.monotonic()
+        return [t for t in self.restarts.get(name, []) if now_s - t < 60.0]
+
+    def _schedule_restart(self, child: Child) -> None:
+        recent = len(self._recent_restarts(child.name))
+        delay_s = min(MAX_RESTART_DELAY_S, RESTART_DELAY_S * 2 ** recent)
+        self.restarts.setdefault(child.name, []).append(time.monotonic())
+        line = f"{child.why()}; restarting it in {delay_s:g} s, restart {len(self.restarts[child.name])}"
+        self.say(line)
+        try:
+            with open(child.log_path, "a") as out:
+                out.write(f"supervisor: {line}\n")
+        except OSError:
+            pass
+        self.children.remove(child)
+        self._due.append((time.monotonic() + delay_s, child))
+
+    def _start_due(self) -> None:
+        now_s = time.monotonic()
+        for due in [d for d in self._due if d[0] <= now_s]:
+            self._due.remove(due)
+            old = due[1]
+            self.start(old.name, list(old.command), verbose=old.verbose, restart=old.restart).restarted = True
 
     def exited(self) -> list[Child]:
         """Children that have ended."""
         return [c for c in self.children if c.process.poll() is not None]
 
     def check(self) -> None:
-        """Raise CamnetError naming every child that has ended, with its error line.
+        """Restart the children that have ended and may be (`restart`), start those whose back-off is over,
+        and raise CamnetError naming every other child that has ended, with its error line.
 
         When one fails at start, its siblings still starting (cameras of one
         rig often fail together: unplugged, wrong ids) are given until
         `STARTUP_S` after their start, so that all of them are named at once.
+        A node restarted more than `RESTARTS_PER_MINUTE` times a minute ends the run so too.
         """
+        for child in self.exited():
+            if self._restartable(child):
+                self._schedule_restart(child)
+        self._start_due()
         exited = self.exited()
         if not exited:
             return
@@ -112,7 +184,9 @@ class Launch:
             exited = self.exited()
         if len(exited) == 1:
             child = exited[0]
-            raise CamnetError(f"node {child.why()}; the end of {child.log_path}:\n{child.log_tail()}")
+            again = len(self._recent_restarts(child.name))
+            often = f" after {again} restarts within a minute" if again >= RESTARTS_PER_MINUTE else ""
+            raise CamnetError(f"node {child.why()}{often}; the end of {child.log_path}:\n{child.log_tail()}")
         lines = [f"{len(exited)} of {len(self.children)} nodes exited:", *(f"  {c.why()}" for c in exited),
                  f"their logs are in {self.log_dir}"]
         raise CamnetError("\n".join(lines))
@@ -171,4 +245,6 @@ def start_network(launch: Launch, spec: NetworkSpec) -> None:
     launch.start("matcher", ["matcher", "--rig", rig, *spec.matcher, *spec.bus])
     launch.start("calibrator", ["calibrator", "--rig", rig, *spec.calibrator, *spec.bus])
     if spec.record_path is not None:
-        launch.start("recorder", ["record", "--rig", spec.rig_name, "-o", str(spec.record_path), *spec.bus])
+        # Not restarted: a session file is never overwritten, so a second recorder could only fail.
+        launch.start("recorder", ["record", "--rig", spec.rig_name, "-o", str(spec.record_path), *spec.bus],
+                     restart=False)

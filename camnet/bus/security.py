@@ -175,6 +175,15 @@ class SecureDir:
     def ca_certificate(self) -> Path:
         return self.path / CA_CERTIFICATE
 
+    @property
+    def router_port(self) -> int:
+        """The port `camnet secure init --port` gave the router: that of the endpoints nodes dial."""
+        for endpoint in self.router_endpoints:
+            port = endpoint.rsplit(":", 1)[-1]
+            if port.isdigit():
+                return int(port)
+        return DEFAULT_PORT
+
     def certificate(self, identity: str) -> Path:
         return self.path / f"{identity}.pem"
 
@@ -216,8 +225,8 @@ def zenoh_settings(secure: SecureDir, identity: str, *, connect: tuple[str, ...]
     Nodes are clients: they open no port, dial the router (`connect`, else the
     directory's endpoints) over TLS, wait for it if it is not up yet, and
     check that its certificate comes from the rig's CA and names the host they
-    dialled. The router listens on `listen` (default: every interface, TLS
-    only), demands a certificate from every node and enforces `access_control`.
+    dialled. The router listens on `listen` (default: every interface, on the
+    port the nodes dial, TLS only), demands a certificate from every node and enforces `access_control`.
     """
     tls = "transport/link/tls"
     settings: dict[str, object] = {
@@ -233,7 +242,7 @@ def zenoh_settings(secure: SecureDir, identity: str, *, connect: tuple[str, ...]
     if identity == ROUTER:
         settings.update({
             "mode": "router",
-            "listen/endpoints": list(listen or (f"tls/[::]:{DEFAULT_PORT}",)),
+            "listen/endpoints": list(listen or (f"tls/[::]:{secure.router_port}",)),
             f"{tls}/listen_certificate": str(secure.certificate(identity).resolve()),
             f"{tls}/listen_private_key": str(secure.private_key(identity).resolve()),
             "access_control": access_control(secure.rig),

@@ -60,6 +60,7 @@ class BusOptions:
     mode: str = "peer"
     secure: str | None = None
     identity: str | None = None
+    session_id: str | None = None  # the Zenoh session id to take (camnet.bus.source); None: a random one
 
 
 def add_bus_arguments(parser: argparse.ArgumentParser) -> None:
@@ -102,6 +103,8 @@ def make_config(options: BusOptions):
             raise InputError(f"{options.zenoh_config}: cannot load Zenoh config: {exc}") from exc
     else:
         config = zenoh.Config()
+    if options.session_id:
+        _insert(config, "id", options.session_id)
     if options.secure:
         _apply_secure(config, options)
         return config

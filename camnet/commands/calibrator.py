@@ -36,6 +36,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-scale-rel", type=float, default=0.05,
                         help="a solution whose scale is less certain (1 sigma, relative) is not trusted "
                              "(default 0.05)")
+    parser.add_argument("--session-id", metavar="HEX",
+                        help="this node's Zenoh session id, 32 hex digits: its calibrations state it as their "
+                             "source (camnet up gives its calibrator one, to tell them from other publishers')")
     parser.add_argument("--lockstep", action="store_true",
                         help="acknowledge every observations message once solved, for `camnet replay --lockstep`")
     add_rerun_arguments(parser)
@@ -66,10 +69,11 @@ def run(args: argparse.Namespace) -> int:
     import socket
 
     from camnet.bus.session import joined, options_from_args
+    from camnet.bus.source import check_session_id
     from camnet.commands.calibrate import parse_free
     from camnet.errors import InputError
     from camnet.live.policy import LiveConfig, SoundnessLimits
-    from camnet.services.calibrator import CalibratorConfig, CalibratorNode, RerunView
+    from camnet.services.calibrator import CalibratorConfig, CalibratorNode, RerunView, untrusted_state
     from camnet.solve import Options
     from camnet.viz import close_recording, open_recording
     from camnet.viz_sinks import sinks_from_args
@@ -81,10 +85,14 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"{flag}: must be positive, got {value}")
     if not 0 <= args.rerun_frame_period_s < float("inf"):
         raise InputError(f"--rerun-frame-period-s: must be 0 or more seconds, got {args.rerun_frame_period_s}")
+    if args.session_id is not None:
+        check_session_id(args.session_id)
     state = None
     if not args.no_state:
         state = Path(args.state) if args.state else default_state_path(name)
         state.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
+        if (problem := untrusted_state(state)) is not None:  # said before joining the bus
+            raise InputError(f"--state {problem}")
     free, stereo_pose = parse_free(args.free), None
     if rig is not None and rig.stereo is not None and rig.stereo.R is not None:
         stereo_pose = (rig.stereo.R, rig.stereo.t)
@@ -104,7 +112,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"rerun: {sink.describe(host=socket.gethostname())}", flush=True)
         truth = (rig.simulated_truth() if rig is not None else []) or None
         viewer = RerunView(rec, truth=truth, frame_period_s=args.rerun_frame_period_s) if rec is not None else None
-        with joined(options_from_args(args)) as session:
+        with joined(replace(options_from_args(args), session_id=args.session_id)) as session:
             CalibratorNode(session, name, config, viewer=viewer, lockstep=args.lockstep, rig=rig).run()
     finally:
         close_recording(rec)

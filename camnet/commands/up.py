@@ -1,11 +1,12 @@
 """`camnet up [RIG.yaml]`: the whole network on this machine, calibrating itself.
 
 Starts one driver per camera, the matcher and the calibrator as child
-processes on the bus, follows the calibrations they produce, and ends (after
-`--duration-s`, or never with `--forever`; with `--until-frame-sets N` at the
-first calibration from N pooled frame sets) by printing the last calibration,
-beside the ground truth when the rig is simulated. With no rig file it runs
-the built-in simulated rig: the paper's four cameras.
+processes on the bus (restarting one that exits, camnet.bus.launch), follows
+the calibrations its calibrator publishes, and ends (after `--duration-s`, or
+never with `--forever`; with `--until-frame-sets N` at the first calibration
+from N pooled frame sets) by printing the calibrator's last, read from its
+state file, beside the ground truth when the rig is simulated. With no rig
+file it runs the built-in simulated rig: the paper's four cameras.
 """
 
 from __future__ import annotations
@@ -52,6 +53,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-o", "--output", metavar="CALIBRATION.json", help="also write the final calibration here")
     parser.add_argument("--record", metavar="SESSION.mcap",
                         help="also run the recorder: everything the rig publishes goes into this MCAP file")
+    parser.add_argument("--no-restart", action="store_true",
+                        help="end the run when any node exits (default: a node that exits is restarted, after 1 s "
+                             "doubling to 10 s, at most 5 times a minute)")
     parser.add_argument("--progress-jsonl", metavar="FILE",
                         help="also write one JSON line per calibration (what the progress lines show)")
     add_rerun_arguments(parser)
@@ -121,17 +125,19 @@ def _check_sources(rig_path: Path, rig) -> None:
 
 
 class LatestCalibration:
-    """Subscriber callback keeping the latest valid calibration message (`latest`), and every one that
-    arrived since the last `take`, in order (a few at most: two solves in quick succession are both
-    shown, not just the second).
+    """Subscriber callback keeping the latest valid calibration message of the rig's calibrator (`latest`),
+    and every one that arrived since the last `take`, in order (a few at most: two solves in quick
+    succession are both shown, not just the second).
 
-    Any peer may publish on the calibration key: what is no calibration is
-    counted and logged once per kind, never shown or kept.
+    Any peer may publish on the calibration key: what is no calibration, and
+    a calibration whose sample does not state the calibrator's session
+    (`source`, camnet.bus.source) as its source, are counted and logged once
+    per kind, never shown or kept.
     """
 
     PENDING = 32  # kept for `take`; beyond, the oldest go (the console is that far behind)
 
-    def __init__(self) -> None:
+    def __init__(self, source: str | None = None) -> None:
         import collections
         import logging
         import threading
@@ -141,16 +147,23 @@ class LatestCalibration:
         self.latest: CalibrationMessage | None = None
         self.arrived = threading.Event()
         self.malformed = Tally(logging.getLogger("camnet.up"))
+        self.source = source
+        self.foreign = Tally(logging.getLogger("camnet.up"))  # well-formed, from another publisher
         self._pending: collections.deque[CalibrationMessage] = collections.deque(maxlen=self.PENDING)
         self._lock = threading.Lock()
 
     def __call__(self, sample) -> None:
+        from camnet.bus.source import sample_source
         from camnet.io.messages import MessageError, decode_calibration_message
 
         try:
             message = decode_calibration_message(sample.payload.to_bytes())
         except MessageError as exc:
             self.malformed.count(exc.kind, "ignoring a message that is no calibration (%s)", exc)
+            return
+        if self.source is not None and (source := sample_source(sample)) != self.source:
+            self.foreign.count("other publisher", "ignoring a calibration that is not the rig's calibrator's "
+                               "(its source: %s)", source or "not stated")
             return
         with self._lock:
             self._pending.append(message)
@@ -168,11 +181,11 @@ class LatestCalibration:
 class RunFollower:
     """What `camnet up` follows on the bus: calibrations (progress lines) and the observations behind them."""
 
-    def __init__(self, args: argparse.Namespace, truth) -> None:
+    def __init__(self, args: argparse.Namespace, truth, calibrator_id: str | None = None) -> None:
         from camnet.io.run_dir import RecentObservations
 
         self.args, self.truth = args, truth
-        self.on_calibration = LatestCalibration()
+        self.on_calibration = LatestCalibration(calibrator_id)
         self.observations = RecentObservations()
         self.reached: CalibrationMessage | None = None  # the first calibration from --until-frame-sets frame sets
 
@@ -234,7 +247,7 @@ class SolveNumbering:
         first = 1 if self.last is None or solve <= self.last else self.last + 1
         self.last = solve
         if resumed:
-            return "  (resumed: the last run's calibration)"
+            return "  (resumed: the calibrator's state file)"
         if solve <= first:
             return ""
         skipped = f"solve {first}" if solve - first == 1 else f"solves {first}-{solve - 1}"
@@ -266,7 +279,8 @@ def rerun_lines(values: list[str]) -> list[str]:
     return [f"rerun: {parse_sink(value).describe(host=socket.gethostname())}" for value in values]
 
 
-def _network_spec(args: argparse.Namespace, rig_path: Path, rig, run_dir: Path):
+def _network_spec(args: argparse.Namespace, rig_path: Path, rig, run_dir: Path, calibrator_id: str | None = None):
+    """The nodes `camnet up` starts; `calibrator_id`: the calibrator's session id (camnet.bus.source)."""
     from camnet.bus.launch import NetworkSpec, bus_flags
     from camnet.bus.session import options_from_args
 
@@ -276,7 +290,9 @@ def _network_spec(args: argparse.Namespace, rig_path: Path, rig, run_dir: Path):
         bus=tuple(bus_flags(options_from_args(args))),
         driver=("--features", "--detector", str(args.detector)) if args.features else (),
         matcher=("--detector", str(args.detector)),
-        calibrator=("--state", str(run_dir / "calibration.json"), *(f for v in args.rerun for f in ("--rerun", v)),
+        calibrator=("--state", str(run_dir / "calibration.json"),
+                    *(("--session-id", calibrator_id) if calibrator_id else ()),
+                    *(f for v in args.rerun for f in ("--rerun", v)),
                     "--rerun-frame-period-s", repr(args.rerun_frame_period_s)),
         record_path=Path(args.record) if args.record else None)
 
@@ -290,6 +306,7 @@ def run(args: argparse.Namespace) -> int:
     from camnet.bus.launch import Launch, start_network
     from camnet.bus.node import stop_on_signals
     from camnet.bus.session import joined, options_from_args
+    from camnet.bus.source import new_session_id
     from camnet.errors import CamnetError
     from camnet.io.run_dir import default_run_dir
 
@@ -297,8 +314,9 @@ def run(args: argparse.Namespace) -> int:
     run_dir = Path(args.out) if args.out else default_run_dir(rig.name)
     (run_dir / "logs").mkdir(parents=True, exist_ok=True)
     truth = rig.simulated_truth()
-    spec = _network_spec(args, rig_path, rig, run_dir)
-    follower = RunFollower(args, truth)
+    calibrator_id = new_session_id()
+    spec = _network_spec(args, rig_path, rig, run_dir, calibrator_id)
+    follower = RunFollower(args, truth, calibrator_id)
     source = f", replaying {args.replay}" if args.replay else ""
     print(f"camnet up: rig {rig.name!r}, {len(rig.cameras)} cameras{source}; results and logs in {run_dir}",
           flush=True)
@@ -309,20 +327,23 @@ def run(args: argparse.Namespace) -> int:
         stop = stack.enter_context(stop_on_signals(threading.Event()))
         progress_file = stack.enter_context(open(args.progress_jsonl, "w")) if args.progress_jsonl else None
         session = stack.enter_context(joined(options_from_args(args)))
-        launch = stack.enter_context(Launch(run_dir / "logs"))
+        launch = stack.enter_context(Launch(run_dir / "logs", restart=not args.no_restart,
+                                            say=lambda line: print(f"camnet up: {line}", flush=True)))
         subscribers = [session.declare_subscriber(keys.calibration(rig.name), follower.on_calibration),
                        session.declare_subscriber(keys.observations(rig.name), follower.on_observations)]
         start_network(launch, spec)
         for line in rerun_lines(args.rerun):
             print(line, flush=True)
         if args.replay:
-            launch.start("replay", ["replay", str(args.replay), "--rig", rig.name, *spec.bus])
+            launch.start("replay", ["replay", str(args.replay), "--rig", rig.name, *spec.bus], restart=False)
         follower.follow(launch, stop, time.monotonic(), run_dir, progress_file)
+        _await_state(run_dir / "calibration.json", follower.on_calibration.latest)
         if stop.is_set():
             print("interrupted", flush=True)
         for subscriber in subscribers:
             subscriber.undeclare()
-    message = follower.reached or follower.on_calibration.latest
+        restarts = launch.restart_counts()
+    message = _state(run_dir / "calibration.json")
     if message is None and stop.is_set():
         return 130
     if args.until_frame_sets is not None and follower.reached is None and not stop.is_set():
@@ -332,12 +353,57 @@ def run(args: argparse.Namespace) -> int:
                           f"in {run_dir / 'logs'}")
     if message is None:
         raise CamnetError(f"no calibration in {args.duration_s:.0f} s; the nodes' logs are in {run_dir / 'logs'}")
-    print(_finish(args, run_dir, message, follower, truth))
+    print(_finish(args, run_dir, message, follower, truth, restarts))
     return 0
 
 
+STATE_WAIT_S = 10.0  # how long the calibrator may take to persist the last calibration it published
+
+
+def _state(path: Path) -> CalibrationMessage | None:
+    """The calibration the calibrator persisted in its state file `path` (None: none yet); CamnetError if
+    it is unreadable."""
+    from camnet.errors import CamnetError, InputError
+    from camnet.io.messages import load_calibration_message
+
+    if not path.exists():
+        return None
+    try:
+        return load_calibration_message(path)
+    except InputError as exc:
+        raise CamnetError(f"the calibrator's state file cannot be read: {exc}") from exc
+
+
+def _await_state(path: Path, published: CalibrationMessage | None) -> None:
+    """Wait (at most STATE_WAIT_S) until the state file holds the calibrator's calibration `published`:
+    it writes it just after publishing it."""
+    import time
+
+    from camnet.errors import CamnetError
+
+    if published is None or published.solve is None:
+        return
+    deadline_s = time.monotonic() + STATE_WAIT_S
+    while time.monotonic() < deadline_s:
+        try:
+            kept = _state(path)
+        except CamnetError:  # being replaced: read it again
+            kept = None
+        if kept is not None and (kept.solve or 0) >= published.solve:
+            return
+        time.sleep(0.1)
+
+
+def restarts_line(restarts: dict[str, int]) -> str:
+    """The final summary's line on the nodes restarted: which, and how often."""
+    if not restarts:
+        return "nodes restarted: none"
+    return "nodes restarted: " + ", ".join(f"{name} ({n} {'time' if n == 1 else 'times'})"
+                                           for name, n in restarts.items())
+
+
 def _finish(args: argparse.Namespace, run_dir: Path, message: CalibrationMessage, follower: RunFollower,
-            truth) -> str:
+            truth, restarts: dict[str, int]) -> str:
     """Write the run directory's results of calibration `message`; the final lines: the calibration, the
     files, the next commands."""
     from camnet.commands.up_console import final_report
@@ -350,7 +416,11 @@ def _finish(args: argparse.Namespace, run_dir: Path, message: CalibrationMessage
     if args.output:
         write_json_atomic(args.output, calibration_message_to_doc(message))
         written.append(Path(args.output))
-    lines = [final_report(message.calibration, truth), "", f"files in {run_dir}:"]
+    lines = [final_report(message.calibration, truth), "", restarts_line(restarts)]
+    foreign = follower.on_calibration.foreign.total
+    if foreign:
+        lines.append(f"calibrations from another publisher than the rig's calibrator: {foreign}, ignored")
+    lines += ["", f"files in {run_dir}:"]
     lines += [f"  {p.name + ('/' if p.is_dir() else ''):<20} {_DESCRIBE.get(p.name, '')}".rstrip() for p in written]
     if observations is None:
         lines.append("  (the observations behind the last calibration were not received: no observations.json)")

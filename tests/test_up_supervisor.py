@@ -1,0 +1,198 @@
+"""`camnet up` as a supervisor: a node killed with SIGKILL is restarted, and the run ends with its calibration.
+
+Real processes on a loopback port of the test's own; the waits are on progress (calibrations, the nodes'
+logs), not on fixed times.
+"""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+from camnet.io.formats import parse_calibration
+from camnet.io.rig import load_rig
+from camnet.model.accuracy import compare_cameras, scale_sigma_rel
+from tests.conftest import free_port, logs_written, stop_process, wait_for
+from tests.test_network import rig_file
+
+WAIT_S = 120  # with no progress at all (no calibration, no line logged), a wait has failed
+LIMIT_S = 300  # nor does a wait go on past this, progress or not
+# The nodes killed in turn, and a pattern of their command lines (`pgrep -f`) among camnet up's children.
+KILLED = (("driver-mono_a", r"camnet\.cli -v driver sim .*--camera mono_a( |$)"),
+          ("matcher", r"camnet\.cli -v matcher "),
+          ("calibrator", r"camnet\.cli -v calibrator "))
+
+
+class Output:
+    """The lines a process prints, read as they come (a full pipe would stall it)."""
+
+    def __init__(self, stream) -> None:
+        self.lines: list[str] = []
+        self._thread = threading.Thread(target=self._read, args=(stream,), daemon=True)
+        self._thread.start()
+
+    def _read(self, stream) -> None:
+        for line in stream:
+            self.lines.append(line.rstrip("\n"))
+
+    def text(self) -> str:
+        return "\n".join(self.lines)
+
+    def join(self) -> None:
+        self._thread.join(timeout=30)
+
+
+def child_pid(parent: int, pattern: str) -> int:
+    """The pid of the one child of `parent` whose command line matches `pattern`."""
+    found = subprocess.run(["pgrep", "-P", str(parent), "-f", pattern], capture_output=True, text=True)
+    pids = [int(p) for p in found.stdout.split()]
+    assert len(pids) == 1, (pattern, found.stdout, found.stderr)
+    return pids[0]
+
+
+def solves(progress: Path) -> list[dict]:
+    """The calibrations camnet up has shown so far (its --progress-jsonl)."""
+    try:
+        return [json.loads(line) for line in progress.read_text().splitlines() if line.endswith("}")]
+    except FileNotFoundError:
+        return []
+
+
+def test_up_restarts_a_killed_driver_matcher_and_calibrator_and_ends_with_a_calibration_to_scale(tmp_path):
+    rig_path = rig_file(tmp_path, 4)
+    run_dir, progress = tmp_path / "run", tmp_path / "progress.jsonl"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "camnet.cli", "up", rig_path, "--forever", "--run-dir", str(run_dir),
+         "--progress-jsonl", str(progress), "--listen", f"tcp/127.0.0.1:{free_port()}"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    stdout, stderr = Output(proc.stdout), Output(proc.stderr)
+
+    def moving() -> tuple[int, int]:
+        return len(solves(progress)), logs_written(run_dir)
+
+    def failed(what: str) -> str:
+        logs = "\n".join(p.read_text()[-1500:] for p in run_dir.rglob("*.log"))
+        return f"{what}\n{stdout.text()}\n{stderr.text()}\n{logs}"
+
+    try:
+        for name, pattern in KILLED:
+            before = solves(progress)
+            last = max((s["solve"] for s in before), default=0)
+            # A new solve (after a calibrator's restart, its resumed calibration is not one) since the last kill.
+            assert wait_for(lambda last=last: any(s["solve"] > last for s in solves(progress)), WAIT_S,
+                            progress=moving, limit_s=LIMIT_S), failed(f"no calibration before killing {name}")
+            os.kill(child_pid(proc.pid, pattern), signal.SIGKILL)
+            told = f"{name} was killed by signal 9 (SIGKILL); restarting it in 1 s, restart 1"
+            wait_for(lambda told=told: told in stdout.text() or proc.poll() is not None, WAIT_S)
+            assert told in stdout.text(), failed(f"{name}'s restart was not told")
+        # The matcher restarted after the driver: what it pools of mono_a comes from the driver's restart.
+        last = max(s["solve"] for s in solves(progress))
+        assert wait_for(lambda: any(s["solve"] > last for s in solves(progress)), WAIT_S, progress=moving,
+                        limit_s=LIMIT_S), \
+            failed("no calibration after the calibrator's restart")
+    finally:
+        stop_process(proc, first_signal=signal.SIGINT)
+        stdout.join()
+        stderr.join()
+    assert proc.returncode == 0, failed("camnet up did not end well")
+    assert "nodes restarted: driver-mono_a (1 time), matcher (1 time), calibrator (1 time)" in stdout.text(), \
+        failed("the summary does not name the restarts")
+    for name, _ in KILLED:
+        log = (run_dir / "logs" / f"{name}.log").read_text()
+        assert f"supervisor: {name} was killed by signal 9 (SIGKILL); restarting it in 1 s, restart 1" in log
+    calibrator_log = (run_dir / "logs" / "calibrator.log").read_text()
+    assert f"resumed from {run_dir / 'calibration.json'}" in calibrator_log, calibrator_log[-3000:]
+    cal = parse_calibration(json.loads((run_dir / "calibration.json").read_text()))
+    truth = load_rig(rig_path).simulated_truth()
+    assert len(cal.cameras) == 4, failed("a camera (the restarted driver's?) is missing from the final calibration")
+    scale_error = compare_cameras(cal, truth).scale_rel
+    assert abs(scale_error) < 3 * scale_sigma_rel(cal), failed(f"scale off by {scale_error:+.3%}")
+
+
+def forge(doc: dict, factor: float) -> bytes:
+    """A well-formed calibration message of the rig: `doc`'s, every length times `factor`, claiming a solve
+    and frame sets the calibrator has not reached."""
+    forged = {**doc, "solve": 1231, "frame_sets": 999_999, "status": "good"}
+    forged["cameras"] = [{**cam, "t": [factor * x for x in cam["t"]]} for cam in doc["cameras"]]
+    forged["points"] = [{**p, "xyz": [factor * x for x in p["xyz"]]} for p in doc["points"]]
+    return json.dumps(forged).encode()
+
+
+def test_up_ignores_calibrations_of_another_publisher_and_ends_with_its_calibrators_own(tmp_path):
+    from camnet.bus import keys
+    from camnet.bus.session import BusOptions, open_session
+    from camnet.io.messages import decode_calibration_message
+
+    rig_path = rig_file(tmp_path, 4)
+    rig = load_rig(rig_path)
+    truth = rig.simulated_truth()
+    run_dir, out, endpoint = tmp_path / "run", tmp_path / "out.json", f"tcp/127.0.0.1:{free_port()}"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "camnet.cli", "up", rig_path, "--until-frame-sets", "8", "--duration-s", "300",
+         "--run-dir", str(run_dir), "-o", str(out), "--listen", endpoint],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    stdout, stderr = Output(proc.stdout), Output(proc.stderr)
+    forged: list[bytes] = []
+    with open_session(BusOptions(connect=(endpoint,))) as peer:
+        publisher = peer.declare_publisher(keys.calibration(rig.name))
+        try:
+            # From the calibrator's first calibration to the run's end: a copy 6% too large, four times a second.
+            state = run_dir / "calibration.json"
+            wait_for(lambda: state.exists() or proc.poll() is not None, WAIT_S,
+                     progress=lambda: logs_written(run_dir), limit_s=LIMIT_S)
+            if state.exists():
+                forged.append(forge(json.loads(state.read_text()), 1.06))
+            while forged and proc.poll() is None:
+                publisher.put(forged[0])
+                forged.append(forged[0])
+                wait_for(lambda: proc.poll() is not None, 0.25)
+        finally:
+            stop_process(proc, first_signal=signal.SIGINT)
+            stdout.join()
+            stderr.join()
+    assert proc.returncode == 0, f"{stdout.text()}\n{stderr.text()}"
+    published = len(forged) - 1
+    assert published >= 2, stdout.text()
+    # The forgery is a calibration, and a wrong one.
+    assert abs(compare_cameras(decode_calibration_message(forged[0]).calibration, truth).scale_rel - 0.06) < 0.01
+    assert " solve 1231 " not in stdout.text(), stdout.text()
+    ignored = [line for line in stdout.lines if line.startswith("calibrations from another publisher")]
+    assert len(ignored) == 1, stdout.text()
+    count = int(ignored[0].split(": ")[1].split(",")[0])
+    assert 1 <= count <= published, (ignored, published)
+    for path in (out, run_dir / "calibration.json"):
+        doc = json.loads(path.read_text())
+        assert doc["solve"] != 1231 and doc["frame_sets"] >= 8, path
+        cal = parse_calibration(doc)
+        scale_error = compare_cameras(cal, truth).scale_rel
+        assert abs(scale_error) < 3 * scale_sigma_rel(cal), f"{path}: scale off by {scale_error:+.3%}"
+
+
+def test_a_node_that_keeps_exiting_ends_the_run_past_the_restarts_a_minute_allows(tmp_path, monkeypatch):
+    """Restarted with back-off until the limit a minute, then the run ends naming it and its own error."""
+    import pytest
+
+    from camnet.bus import launch as launch_module
+    from camnet.errors import CamnetError
+
+    # Shortened, so that the test takes seconds: a node that fails at once counts as one that came up, and
+    # the limit is two restarts.
+    monkeypatch.setattr(launch_module, "STARTUP_S", 0.0)
+    monkeypatch.setattr(launch_module, "RESTART_DELAY_S", 0.05)
+    monkeypatch.setattr(launch_module, "RESTARTS_PER_MINUTE", 2)
+    told: list[str] = []
+    with launch_module.Launch(tmp_path, restart=True, say=told.append) as launch:
+        launch.start("calibrator", ["calibrator", "--rig", "not*a*rig"])
+        with pytest.raises(CamnetError) as raised:
+            assert wait_for(lambda: launch.check() and False, 120)
+    limit = launch_module.RESTARTS_PER_MINUTE
+    assert launch.restart_counts() == {"calibrator": limit}
+    # The back-off: doubling from the first delay.
+    assert [line.rsplit("; ", 1)[1] for line in told] == [f"restarting it in {0.05 * 2 ** i:g} s, restart {i + 1}"
+                                                          for i in range(limit)]
+    assert str(raised.value).startswith("node calibrator exited with status 2: --rig: ")
+    assert f"after {limit} restarts within a minute" in str(raised.value).splitlines()[0]
+    assert (tmp_path / "calibrator.log").read_text().count("supervisor: calibrator exited with status 2") == limit
