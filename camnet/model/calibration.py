@@ -119,7 +119,8 @@ class PairPoseCheck:
     rotation_deg: the angle between the solved relative rotation and the two-view one; direction_deg: the angle
     between the solved baseline direction and the two-view one; in_sigmas: the solved pose's excess cost over the
     two views' best fit (squared Sampson distances, over their inliers), its square root in units of the
-    distances' own sigma (about sqrt(5) for a pose that agrees); shared: observations used; inliers: kept by RANSAC.
+    distances' own sigma (about sqrt(5) for a pose that agrees); shared: tracks both see; inliers: of the at most
+    MAX_MATCHES checked, those within THRESHOLD_PX of the two views' best fit.
     """
 
     first: str

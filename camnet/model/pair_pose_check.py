@@ -29,6 +29,7 @@ from camnet.model.two_view import relative_pose
 
 NEIGHBOURS = 4  # each camera is checked with the cameras it shares the most tracks with, at most this many
 MIN_SHARED = 30  # shared observations below which two views say too little to judge a pose
+MAX_MATCHES = 300  # of a pair's shared observations, the most that enter its check
 RANSAC_SEED = 0
 THRESHOLD_PX = 2.0  # RANSAC's inlier distance for the essential matrix, pixels at the cameras' focal length
 
@@ -77,15 +78,17 @@ def relative(cam_i: Camera, cam_j: Camera) -> tuple[np.ndarray, np.ndarray]:
 
 def check_pair(cam_i: Camera, cam_j: Camera, uv_i: np.ndarray, uv_j: np.ndarray) -> PairPoseCheck | None:
     """Cameras i and j's solved relative pose against the essential matrix of their matched pixels uv_i, uv_j
-    (n, 2), undistorted through each camera's own intrinsics; None where fewer than MIN_SHARED matches remain
-    or no essential matrix is found."""
+    (n, 2), undistorted through each camera's own intrinsics, at most MAX_MATCHES of them; None where fewer than
+    MIN_SHARED matches remain or no essential matrix is found."""
     import cv2
 
     n_i, J_i = _rays(cam_i, uv_i)
     n_j, J_j = _rays(cam_j, uv_j)
     ok = (np.isfinite(n_i).all(axis=1) & np.isfinite(n_j).all(axis=1)
           & np.isfinite(J_i).all(axis=(1, 2)) & np.isfinite(J_j).all(axis=(1, 2)))
-    n_i, n_j, J_i, J_j = n_i[ok], n_j[ok], J_i[ok], J_j[ok]
+    # Evenly thinned: a few hundred matches tell a misplaced camera as well as thousands, at a fraction of the time.
+    rows = np.flatnonzero(ok)[:: max(1, int(np.ceil(ok.sum() / MAX_MATCHES)))]
+    n_i, n_j, J_i, J_j = n_i[rows], n_j[rows], J_i[rows], J_j[rows]
     if len(n_i) < MIN_SHARED:
         return None
     f_i, f_j = float(cam_i.K[0, 0]), float(cam_j.K[0, 0])
@@ -109,12 +112,14 @@ def check_pair(cam_i: Camera, cam_j: Camera, uv_i: np.ndarray, uv_j: np.ndarray)
         rows = np.abs(distances(R, t)) < THRESHOLD_PX
         if rows.sum() < MIN_SHARED:
             return R, t
-        fit = least_squares(lambda p: distances(*_perturbed(p, R, t), rows), np.zeros(5))
+        # To a thousandth of the cost: the ratio it feeds is read to a sigma, not to its last digit.
+        fit = least_squares(lambda p: distances(*_perturbed(p, R, t), rows), np.zeros(5), method="lm", ftol=1e-3)
         return _perturbed(fit.x, R, t)
 
-    # The two views' best fit: refined from RANSAC's minimal sample and from the solved pose (on repeated
-    # structure RANSAC's may explain fewer matches than the solved one), the least cost over every match kept.
-    R_pair, t_pair = min((refined(pose.R, pose.t), refined(R_solved, t_solved)), key=lambda rt: cost(*rt))
+    # The two views' best fit: refined from the solved pose, and from RANSAC's minimal sample where that fits
+    # better still (on repeated structure it may explain fewer matches than the solved one), the least cost kept.
+    starts = [(R_solved, t_solved)] + ([(pose.R, pose.t)] if cost(pose.R, pose.t) < cost(R_solved, t_solved) else [])
+    R_pair, t_pair = min((refined(R, t) for R, t in starts), key=lambda rt: cost(*rt))
     r = distances(R_pair, t_pair)
     inliers = np.abs(r) < THRESHOLD_PX
     # The distances' spread, robustly, at least a tenth of a pixel (features are no better).
@@ -126,7 +131,7 @@ def check_pair(cam_i: Camera, cam_j: Camera, uv_i: np.ndarray, uv_j: np.ndarray)
         first=cam_i.id, second=cam_j.id,
         rotation_deg=float(np.degrees(Rotation.from_matrix(R_solved @ R_pair.T).magnitude())),
         direction_deg=float(np.degrees(np.arccos(np.clip(t_solved @ t_pair, -1.0, 1.0)))),
-        in_sigmas=float(np.sqrt(max(excess, 0.0)) / sigma_px), shared=int(len(n_i)), inliers=int(inliers.sum()),
+        in_sigmas=float(np.sqrt(max(excess, 0.0)) / sigma_px), shared=int(ok.sum()), inliers=int(inliers.sum()),
     )
 
 
@@ -149,8 +154,11 @@ def _tangent(t: np.ndarray) -> np.ndarray:
 
 
 def _perturbed(p: np.ndarray, R0: np.ndarray, t0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """R0 and unit t0 moved by p (5,): R = exp([p[:3]]) R0, t along t0's tangent plane by p[3:], renormalised."""
+    import cv2
+
     t = t0 + _tangent(t0).T @ p[3:]
-    return Rotation.from_rotvec(p[:3]).as_matrix() @ R0, t / np.linalg.norm(t)
+    return cv2.Rodrigues(p[:3])[0] @ R0, t / np.linalg.norm(t)
 
 
 def _sampson_px(x_i: np.ndarray, x_j: np.ndarray, J_i: np.ndarray, J_j: np.ndarray, R: np.ndarray,
