@@ -18,7 +18,7 @@ from camnet.errors import CamnetError, in_words
 from camnet.live.moved_cameras import without_cameras
 from camnet.model.calibration import Calibration
 from camnet.model.observations import Observations
-from camnet.solve import Options, calibrate
+from camnet.solve import Options, calibrate, with_second_opinion
 from camnet.solve.start.cold import MIN_CAMERAS, with_cameras_left_out
 
 REFUSED_RETRIES = 2  # a solve refused for cameras placed wrong is solved again without them at most this often
@@ -67,18 +67,23 @@ def solve_judged(obs: Observations, start: Calibration | None, *, options: Optio
     left_out: dict[str, str] = dict(leave_out or {})
     if left_out:
         obs = without_cameras(obs, left_out)
+    # The second opinion is asked once, of the solve kept, not of each attempt.
+    second, options = options.halves, replace(options, halves=False)
     judged, refusal = _attempt(obs, start, options=options, check=check, reset=reset, left_out=dict(left_out))
     for _ in range(retries):
         refused = refusal.placed_wrong if judged.status == Status.REJECTED else {}
         if not refused or len(obs.cameras) - len(refused) < MIN_CAMERAS:
             break
         left_out.update(refused)
-        obs = without_cameras(obs, refused)
-        again, refusal = _attempt(obs, start, options=options, check=check, reset=reset, left_out=left_out)
+        fewer = without_cameras(obs, refused)
+        again, refusal = _attempt(fewer, start, options=options, check=check, reset=reset, left_out=left_out)
         if again.status == Status.FAILED:
             # The refused solve is the last one that solved: a caller may still show it, with why not.
-            return replace(judged, reason=f"{judged.reason}; without {in_words(sorted(refused))}: {again.reason}")
-        judged = again
+            judged = replace(judged, reason=f"{judged.reason}; without {in_words(sorted(refused))}: {again.reason}")
+            break
+        judged, obs = again, fewer
+    if second and judged.calibration is not None:
+        judged = replace(judged, calibration=with_second_opinion(obs, judged.calibration, options))
     return judged
 
 

@@ -181,14 +181,21 @@ def calibrate(
         raise SolveError(f"the observations do not determine the calibration (singular equations){pair_advice(obs)}"
                          ) from None
     if options.halves:
-        # Each half from a cold start: warm from the whole, it keeps the whole's outliers and basin and agrees.
-        alone = replace(options, halves=False)
-        cal = with_halves_check(obs, result.calibration, lambda half: calibrate(half, alone).calibration)
-        result = replace(result, calibration=with_pair_check(obs, cal))
+        result = replace(result, calibration=with_second_opinion(obs, result.calibration, options))
     if not unobserved:
         return result
     report = with_cameras_left_out(result.calibration.report, unobserved)
     return replace(result, calibration=replace(result.calibration, report=report))
+
+
+def with_second_opinion(obs: Observations, cal: Calibration, options: Options) -> Calibration:
+    """`cal`, solved from `obs`, with the second opinion: the scene's halves solved apart and compared
+    (camnet.solve.halves), each camera's pose against its own two views (camnet.solve.pair_check)."""
+    obs, _ = without_unobserved(obs)
+    # Each half from a cold start: warm from the whole, it keeps the whole's outliers and basin and agrees.
+    alone = replace(options, halves=False)
+    cal = with_halves_check(obs, cal, lambda half: calibrate(half, alone).calibration)
+    return with_pair_check(obs, cal)
 
 
 def _calibrate(
