@@ -5,7 +5,6 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
 
 from camnet.io.formats import calibration_to_doc, parse_calibration
 from camnet.model.calibration import PairPoseCheck
@@ -14,6 +13,7 @@ from camnet.solve import Options, calibrate
 from camnet.solve.pair_check import with_pair_check
 from camnet.solve.report.pair_poses import judge_pairs
 from camnet.solve.report.verdict import Level, judge
+from camnet.testing.turned import turned
 
 
 @pytest.fixture(scope="module")
@@ -21,17 +21,6 @@ def solved():
     """(observations, calibration) of the paper's four cameras on 300 points at 0.5 px, its pair check made."""
     obs = observe(make_rig(n_points=300, seed=3), noise_px=0.5, seed=3).observations
     return obs, calibrate(obs, Options(halves=False)).calibration
-
-
-def _turned(cal, cam_id: str, degrees: float):
-    """`cal` with camera `cam_id` turned about its own vertical axis, its centre kept."""
-    cams = []
-    for c in cal.cameras:
-        if c.id == cam_id:
-            R = Rotation.from_euler("y", degrees, degrees=True).as_matrix() @ c.R
-            c = replace(c, R=R, t=-R @ c.centre)
-        cams.append(c)
-    return replace(cal, cameras=tuple(cams))
 
 
 def test_a_sound_solve_names_no_camera_and_its_checks_read_back(solved):
@@ -54,7 +43,7 @@ def test_a_camera_turned_two_degrees_is_named_and_rated_poor_and_its_neighbours_
     obs, cal = solved
     wrong = cal.cameras[2].id
 
-    checked = with_pair_check(obs, _turned(cal, wrong, 2.0))
+    checked = with_pair_check(obs, turned(cal, wrong, 2.0))
 
     verdict = judge_pairs(checked.report.pair_checks)
     assert list(verdict.named) == [wrong] and not verdict.unexplained, verdict
