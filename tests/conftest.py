@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import signal
 import subprocess
 import threading
@@ -12,6 +13,10 @@ from pathlib import Path
 import pytest
 
 from camnet.testing.ports import free_port  # noqa: F401  (the tests import it from here)
+
+# Files the tests write by hand (state files among them) are the user's alone to write, whatever the machine's
+# umask: the calibrator refuses a state file that others may write.
+os.umask(0o022)
 
 # wait_for's clock, replaced by a fake one in tests/test_waiting.py.
 _monotonic, _sleep = time.monotonic, time.sleep
