@@ -271,7 +271,7 @@ class FeatureNode:
                                                                     congestion_control=zenoh.CongestionControl.DROP))
         failures = Tally(log)
         presence = Presence(self.session, rig=self.rig, kind="features", node_id=self.camera_id,
-                            report=self._activity, tallies=(self.receiver.malformed, failures),
+                            report=self._activity, tallies=(self.receiver.malformed, self.receiver.off_clock, failures),
                             period_s=self.stats_period_s)
         stage = declare_stage(self.session, self.rig, self.camera_id)  # after its publisher: none is missed
         with FeatureWorker(publisher, self.camera_id, self.config, pace=self.pace) as worker, presence:

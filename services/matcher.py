@@ -182,16 +182,17 @@ class MatcherNode:
         except FeaturesError as exc:
             self.rejected.count(f"features {exc.kind}", "dropping malformed features on %s (%s)", key, exc)
             return
-        kind = None
+        kind = why = None
+        key_camera = key.split("/")[-2]
         if message.camera_id not in self.camera_ids:
-            kind = "features unknown-camera"
-        elif key.split("/")[-2] != message.camera_id:
-            kind = "features camera-mismatch"
+            kind, why = "unknown-camera", f"not a camera of rig {self.rig.name!r}: {', '.join(self.camera_ids)}"
+        elif key_camera != message.camera_id:
+            kind, why = "camera-mismatch", f"on the key of camera {key_camera!r}"
         elif message.detector != str(self.config.detector):
-            kind = "features detector-mismatch"
+            kind = "detector-mismatch"
+            why = f"detected with {message.detector}, this matcher uses {self.config.detector}"
         if kind is not None:
-            self.rejected.count(kind, "dropping the features of camera %r (%s; this matcher uses %s)",
-                                message.camera_id, kind, self.config.detector)
+            self.rejected.count(f"features {kind}", "dropping the features of camera %r (%s)", message.camera_id, why)
             return
         source = sample_source(sample)
         why = self.frames.features_arrived(message.camera_id, time.monotonic(), source)
@@ -420,8 +421,8 @@ class MatcherNode:
                                                            congestion_control=zenoh.CongestionControl.BLOCK)
             declared.append(declare_liveliness(self.session, keys.lockstep_ack(rig, NODE_KIND)))
         presence = Presence(self.session, rig=rig, kind=NODE_KIND, node_id=NODE_ID, report=self.activity,
-                            tallies=(self.receiver.malformed, self.rejected, self.failures, self.few_features,
-                                     self.foreign),
+                            tallies=(self.receiver.malformed, self.receiver.off_clock, self.rejected, self.failures,
+                                     self.few_features, self.foreign),
                             period_s=self.config.stats_period_s, counted="frame sets matched",
                             dropped="frames dropped", trim_heap_period_s=heap.TRIM_PERIOD_S)
         log.info("matching %s (stereo %s-%s, %s), publishing %s%s", ", ".join(self.camera_ids), self.stereo.left,
