@@ -13,8 +13,14 @@ has published a good calibration:
   calibration published (the network calibrates again);
 - RSS MB: the nodes' resident memory before and after.
 
+Then the same rig under `camnet up`, whose supervisor restarts a node that
+dies: a driver, the matcher and the calibrator killed with SIGKILL in turn,
+with the same columns (next good s: from the death to the next good
+calibration solved from frames captured after it).
+
     python benchmarks/bench_faults.py                # every fault, full length
     python benchmarks/bench_faults.py --short        # the test's version: a few faults, short
+    python benchmarks/bench_faults.py --supervised   # only the rows under camnet up
 """
 
 from __future__ import annotations
@@ -23,6 +29,7 @@ import argparse
 import json
 import os
 import signal
+import subprocess
 import sys
 import tempfile
 import threading
@@ -158,9 +165,13 @@ class Network:
             got = self.good_after(since_s)
             if got is not None:
                 return got - since_s
-            self.launch.check()
+            self.check()
             time.sleep(0.2)
         return None
+
+    def check(self) -> None:
+        """Raise if a node has exited that should not have."""
+        self.launch.check()
 
     def answered_ns(self, timeout_s: float = 20.0) -> int | None:
         """When the calibration the network answers on its key was solved (None: nobody answers)."""
@@ -187,6 +198,75 @@ class Network:
 
     def alive(self) -> bool:
         return not self.launch.exited()
+
+
+class SupervisedNetwork(Network):
+    """The rig under `camnet up` (one process, whose supervisor starts and restarts the nodes), observed the
+    same way."""
+
+    def __enter__(self) -> SupervisedNetwork:
+        self.started_s = time.monotonic()
+        self._log = open(self.work / "up.log", "w")  # noqa: SIM115 (closed in __exit__)
+        self.up = subprocess.Popen([sys.executable, "-m", "camnet.cli", "up", str(self.rig_path), "--forever",
+                                    "--run-dir", str(self.work / "run"), "--listen", self.endpoint],
+                                   stdout=self._log, stderr=subprocess.STDOUT)
+        self.session = open_session(BusOptions(connect=(self.endpoint,)))
+        self.session.declare_subscriber(keys.calibration(self.rig_name), self._on_calibration)
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        try:
+            if self.session is not None:
+                self.session.close()
+        finally:
+            self.up.send_signal(signal.SIGINT)
+            try:
+                self.up.wait(timeout=120)
+            except subprocess.TimeoutExpired:
+                self.up.kill()
+                self.up.wait()
+            self._log.close()
+
+    def node_pid(self, pattern: str) -> int:
+        """The pid of the one node of camnet up whose command line matches `pattern` (`pgrep -f`)."""
+        found = subprocess.run(["pgrep", "-P", str(self.up.pid), "-f", pattern], capture_output=True, text=True)
+        pids = [int(p) for p in found.stdout.split()]
+        if len(pids) != 1:
+            raise RuntimeError(f"{len(pids)} nodes of camnet up match {pattern!r}; its log: {self.work / 'up.log'}")
+        return pids[0]
+
+    def rss_mb(self) -> float:
+        found = subprocess.run(["pgrep", "-P", str(self.up.pid)], capture_output=True, text=True)
+        return rss_mb(self.up.pid) + sum(rss_mb(int(p)) for p in found.stdout.split())
+
+    def alive(self) -> bool:
+        return self.up.poll() is None
+
+    def check(self) -> None:
+        if self.up.poll() is not None:
+            raise RuntimeError(f"camnet up exited with status {self.up.returncode}; its output ends:\n"
+                               f"{(self.work / 'up.log').read_text()[-3000:]}")
+
+    def good_after(self, since_s: float) -> float | None:
+        """The first good calibration published after `since_s` from frames captured after it: the rig
+        calibrating again, not a solve already under way."""
+        since_ns = time.time_ns() - round((time.monotonic() - since_s) * 1e9)
+        with self._lock:
+            times = [t for t, m in self.calibrations if t >= since_s and (m.latest_capture_ns or 0) >= since_ns]
+        return times[0] if times else None
+
+
+# The nodes killed under camnet up, and a pattern of their command lines among its children.
+SUPERVISED = (("driver-mono_a", r"camnet\.cli -v driver sim .*--camera mono_a( |$)"),
+              ("matcher", r"camnet\.cli -v matcher "),
+              ("calibrator", r"camnet\.cli -v calibrator "))
+
+
+def kill_supervised(pattern: str) -> Callable[[Network], str]:
+    def fault(net: SupervisedNetwork) -> str:
+        os.kill(net.node_pid(pattern), signal.SIGKILL)
+        return "kill -9; camnet up restarts it"
+    return fault
 
 
 @dataclass(frozen=True)
@@ -388,13 +468,36 @@ def run(work: Path, *, short: bool, recover_s: float, out=print) -> list[Result]
     return results
 
 
+def run_supervised(work: Path, *, recover_s: float, out=print) -> list[Result]:
+    results = []
+    with SupervisedNetwork(work, rig_document("supervised")) as net:
+        first = net.wait_good(net.started_s, 180.0)
+        if first is None:
+            raise RuntimeError(f"no first calibration under camnet up; its output ends:\n"
+                               f"{(work / 'up.log').read_text()[-3000:]}")
+        out(f"under camnet up: first good calibration after {first:.1f} s of the run")
+        out(HEADER)
+        for name, pattern in SUPERVISED:
+            net.wait_good(time.monotonic(), recover_s)  # calibrating again since the fault before
+            result = measure(net, f"camnet up: kill -9 {name}", kill_supervised(pattern), recover_s=recover_s)
+            out(result.row())
+            results.append(result)
+    return results
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--short", action="store_true", help="the few short faults the tests run")
     parser.add_argument("--recover-s", type=float, default=90.0, help="longest wait for the next good calibration")
+    parser.add_argument("--supervised", action="store_true", help="only the rows under camnet up")
     args = parser.parse_args()
-    with tempfile.TemporaryDirectory(prefix="camnet-bench-faults-") as tmp:
-        results = run(Path(tmp), short=args.short, recover_s=args.recover_s)
+    results = []
+    if not args.supervised:
+        with tempfile.TemporaryDirectory(prefix="camnet-bench-faults-") as tmp:
+            results += run(Path(tmp), short=args.short, recover_s=args.recover_s)
+    if not args.short:
+        with tempfile.TemporaryDirectory(prefix="camnet-bench-faults-up-") as tmp:
+            results += run_supervised(Path(tmp), recover_s=args.recover_s)
     return 0 if all(r.alive and r.lost == 0 for r in results) else 1
 
 

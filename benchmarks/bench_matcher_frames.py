@@ -40,6 +40,7 @@ from camnet.bus.features_wire import encode_features
 from camnet.bus.frame import Frame, encode_frame
 from camnet.bus.launch import Launch
 from camnet.bus.session import BusOptions, open_session
+from camnet.bus.source import declare_stage
 from camnet.io.formats import calibration_to_doc
 from camnet.io.rig import load_rig
 from camnet.matching.edge import FeatureExtractor
@@ -81,6 +82,8 @@ def play(session, rig, images: dict, features: dict, *, period_s: float, feature
     frames = {c: session.declare_publisher(keys.frame(rig.name, c)) for c in images}
     calibration = true_calibration(rig)
     feature_keys = {c: keys.features(rig.name, c) for c in images}
+    # Each camera's stage declared, as a live one is, or its features are refused; kept while it plays.
+    stages = [declare_stage(session, rig.name, camera_id) for camera_id in images]
     period_ns = round(period_s * 1e9)
     slot = time.time_ns() // period_ns + 1
     while not stop.is_set():
@@ -97,6 +100,8 @@ def play(session, rig, images: dict, features: dict, *, period_s: float, feature
         if slot % round(1 / period_s) == 0:
             session.put(keys.calibration(rig.name), calibration)
         slot = max(slot + 1, time.time_ns() // period_ns)  # late: skip slots, as a camera does
+    for stage in stages:
+        stage.undeclare()
 
 
 def main() -> int:

@@ -5,7 +5,9 @@ on the camera's host, so that detection is spread over the hosts and the
 matcher only matches. The driver hands it every frame (`offer`: a few
 microseconds, never blocking the camera); its own thread detects
 (`camnet.matching.edge.FeatureExtractor`: only where the image changed) and
-publishes on ``keys.features(rig, camera)`` (`camnet.bus.features_wire`).
+publishes on ``keys.features(rig, camera)`` (`camnet.bus.features_wire`),
+each message stating the stage's session as its source (`camnet.bus.source`),
+while its liveliness token declares it the camera's stage (`declare_stage`).
 
 Which frames: the frame set of the matcher needs the same capture instant
 from every camera, while each camera's stage is free at its own moments. So
@@ -262,13 +264,16 @@ class FeatureNode:
 
         from camnet.bus import keys
         from camnet.bus.node import Presence, stop_on_signals
+        from camnet.bus.source import SourcedPublisher, declare_stage
 
-        publisher = self.session.declare_publisher(keys.features(self.rig, self.camera_id),
-                                                   congestion_control=zenoh.CongestionControl.DROP)
+        # Stating its session as the source: the matcher takes the camera's features from this stage only.
+        publisher = SourcedPublisher(self.session.declare_publisher(keys.features(self.rig, self.camera_id),
+                                                                    congestion_control=zenoh.CongestionControl.DROP))
         failures = Tally(log)
         presence = Presence(self.session, rig=self.rig, kind="features", node_id=self.camera_id,
-                            report=self._activity, tallies=(self.receiver.malformed, failures),
+                            report=self._activity, tallies=(self.receiver.malformed, self.receiver.off_clock, failures),
                             period_s=self.stats_period_s)
+        stage = declare_stage(self.session, self.rig, self.camera_id)  # after its publisher: none is missed
         with FeatureWorker(publisher, self.camera_id, self.config, pace=self.pace) as worker, presence:
             self.worker = worker
             subscribers = [self.session.declare_subscriber(keys.frame(self.rig, self.camera_id),
@@ -286,4 +291,5 @@ class FeatureNode:
             finally:
                 for subscriber in subscribers:
                     subscriber.undeclare()
+                stage.undeclare()
         return 0

@@ -16,9 +16,11 @@ set, waiting for late cameras and the publish period follow the replayed
 capture times, not the wall clock, and every step is acknowledged.
 
 A camera whose feature stage runs beside its driver (`camnet driver
---features`) publishes keypoints and descriptors on ``keys.features``; once
-they arrive, the matcher stops receiving its frames (`matcher_frames`, until
-its stage stops) and its features join the frame sets in place of frames.
+--features`) publishes keypoints and descriptors on ``keys.features``, taken
+only from the stage declared for the camera (others are counted as foreign and
+ignored); once they arrive, the matcher stops receiving its frames
+(`matcher_frames`, until its stage stops) and its features join the frame sets
+in place of frames.
 The engine detects the frames of the other cameras, in a thread pool over the
 cores (OpenCV releases the GIL), and matches every pair until the rig's
 calibration (``keys.calibration``, also asked of the calibrator at start:
@@ -50,6 +52,7 @@ from camnet.bus.frame import Frame
 from camnet.bus.node import Presence, Tally, guarded, stop_on_signals
 from camnet.bus.receiver import FrameReceiver
 from camnet.bus.session import declare_liveliness
+from camnet.bus.source import sample_source
 from camnet.bus.stats import Activity, CameraSeen, RateMeter
 from camnet.bus.sync import FrameSet, FrameSynchronizer, SyncCounts
 from camnet.errors import InputError
@@ -129,6 +132,7 @@ class MatcherNode:
         self.rejected = Tally(log)  # frames decoded but not usable, and malformed steps, by kind
         self.failures = Tally(log)  # handlers that raised (matching a frame set, say), by what and type
         self.few_features = Tally(log)  # images with too few keypoints, by camera
+        self.foreign = Tally(log)  # well-formed features from another publisher than the camera's stage, by camera
         handler = guarded(self.on_sample, self.failures, "receiving a frame")
         self.frames = FrameSubscriptions(  # whose frames to receive; the worker (un)declares
             self.camera_ids, declare_all=lambda: session.declare_subscriber(keys.all_frames(rig.name), handler),
@@ -178,18 +182,24 @@ class MatcherNode:
         except FeaturesError as exc:
             self.rejected.count(f"features {exc.kind}", "dropping malformed features on %s (%s)", key, exc)
             return
-        kind = None
+        kind = why = None
+        key_camera = key.split("/")[-2]
         if message.camera_id not in self.camera_ids:
-            kind = "features unknown-camera"
-        elif key.split("/")[-2] != message.camera_id:
-            kind = "features camera-mismatch"
+            kind, why = "unknown-camera", f"not a camera of rig {self.rig.name!r}: {', '.join(self.camera_ids)}"
+        elif key_camera != message.camera_id:
+            kind, why = "camera-mismatch", f"on the key of camera {key_camera!r}"
         elif message.detector != str(self.config.detector):
-            kind = "features detector-mismatch"
+            kind = "detector-mismatch"
+            why = f"detected with {message.detector}, this matcher uses {self.config.detector}"
         if kind is not None:
-            self.rejected.count(kind, "dropping the features of camera %r (%s; this matcher uses %s)",
-                                message.camera_id, kind, self.config.detector)
+            self.rejected.count(f"features {kind}", "dropping the features of camera %r (%s)", message.camera_id, why)
             return
-        self.frames.features_arrived(message.camera_id, time.monotonic())
+        source = sample_source(sample)
+        why = self.frames.features_arrived(message.camera_id, time.monotonic(), source)
+        if why is not None:
+            self.foreign.count(f"foreign features: {message.camera_id}", "ignoring features of camera %r from "
+                               "source %s (%s)", message.camera_id, source or "not stated", why)
+            return
         with self._ready:
             self._sync.add(message, now_s=time.monotonic())
             self._ready.notify()
@@ -216,6 +226,19 @@ class MatcherNode:
         except InputError:
             return "bad-key"
         return None if key_camera == frame.camera_id else "camera-mismatch"
+
+    def _on_stage(self, sample) -> None:
+        """Liveliness callback of the feature stages' tokens: a camera's stage joins or leaves."""
+        import zenoh
+
+        try:
+            _, camera_id = keys.parse_features(str(sample.key_expr))
+        except InputError:
+            return
+        if sample.kind == zenoh.SampleKind.PUT:
+            self.frames.stage_declared(camera_id)
+        else:
+            self.frames.stage_left(camera_id)
 
     def _on_step(self, sample) -> None:
         try:
@@ -382,6 +405,9 @@ class MatcherNode:
                         self.on_sample, self.failures, "receiving a frame"))] if self._inbox is not None else []),
                     self.session.declare_subscriber(keys.all_features(rig),
                                                     guarded(self.on_features, self.failures, "receiving features")),
+                    self.session.liveliness().declare_subscriber(
+                        keys.all_features(rig), guarded(self._on_stage, self.failures, "watching the feature stages"),
+                        history=True),
                     # Not in lockstep, whose matching must not depend on when a calibration arrives.
                     *([self.calibration.declare(self.session, self.failures, time.monotonic())]
                       if self.config.view_graph and self._inbox is None else []),
@@ -395,7 +421,8 @@ class MatcherNode:
                                                            congestion_control=zenoh.CongestionControl.BLOCK)
             declared.append(declare_liveliness(self.session, keys.lockstep_ack(rig, NODE_KIND)))
         presence = Presence(self.session, rig=rig, kind=NODE_KIND, node_id=NODE_ID, report=self.activity,
-                            tallies=(self.receiver.malformed, self.rejected, self.failures, self.few_features),
+                            tallies=(self.receiver.malformed, self.receiver.off_clock, self.rejected, self.failures,
+                                     self.few_features, self.foreign),
                             period_s=self.config.stats_period_s, counted="frame sets matched",
                             dropped="frames dropped", trim_heap_period_s=heap.TRIM_PERIOD_S)
         log.info("matching %s (stereo %s-%s, %s), publishing %s%s", ", ".join(self.camera_ids), self.stereo.left,

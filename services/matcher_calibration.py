@@ -17,6 +17,11 @@ whether or not their calibration is ever taken, for the worker to forget
 time the calibrator names them. Each observations
 message then says from which track on the pool holds a forgotten camera's
 views afresh (`pool_attachment`): the calibrator places it only from those.
+
+Each calibration is parsed as it arrives, so that every one that does not
+parse is counted (the worker takes one at most every few seconds, and most
+are replaced before then), and one that does not parse never replaces a good
+one not taken yet.
 """
 
 from __future__ import annotations
@@ -41,7 +46,7 @@ class CalibrationInbox:
     def __init__(self, rig_name: str, *, rejected: Tally) -> None:
         self.rig_name = rig_name
         self.rejected = rejected  # calibrations that do not parse are counted here
-        self._payload: bytes | None = None
+        self._latest: Calibration | None = None  # parsed, not taken yet
         self._published = False  # one came by subscription: a query's answer is no newer
         self._received = False  # one came, by subscription or answer: no more asking
         self._asked_s = float("-inf")  # monotonic time of the latest query
@@ -53,7 +58,7 @@ class CalibrationInbox:
     @property
     def waiting(self) -> bool:
         """Whether a calibration arrived that the worker has not taken yet."""
-        return self._payload is not None
+        return self._latest is not None
 
     def on_sample(self, sample) -> None:
         """Subscriber callback: the newest published calibration replaces any not yet taken; the cameras
@@ -65,9 +70,11 @@ class CalibrationInbox:
             moved = ()
             self.rejected.count("calibration attachment", "ignoring a calibration's attachment (%s); is the "
                                 "calibrator of another camnet version?", exc)
+        calibration = self._parse(sample.payload.to_bytes())
         with self._lock:
-            self._payload, self._published, self._received = sample.payload.to_bytes(), True, True
             self._moved.update(moved)
+            if calibration is not None:
+                self._latest, self._published, self._received = calibration, True, True
 
     def take_moved(self) -> tuple[str, ...]:
         """The cameras named moved since the last call (sorted), each once."""
@@ -80,9 +87,10 @@ class CalibrationInbox:
         sample = reply.ok
         if sample is None:
             return
+        calibration = self._parse(sample.payload.to_bytes())
         with self._lock:
-            if not self._published:
-                self._payload, self._received = sample.payload.to_bytes(), True
+            if not self._published and calibration is not None:
+                self._latest, self._received = calibration, True
 
     def declare(self, session, failures: Tally, now_s: float):
         """Subscribe to the rig's calibrations and ask for the latest (the answer arrives on Zenoh's thread)."""
@@ -102,11 +110,13 @@ class CalibrationInbox:
         self._ask()
 
     def take(self) -> Calibration | None:
-        """The calibration that arrived since the last call, or None; one that does not parse is counted."""
+        """The calibration that arrived since the last call, or None."""
         with self._lock:
-            payload, self._payload = self._payload, None
-        if payload is None:
-            return None
+            calibration, self._latest = self._latest, None
+        return calibration
+
+    def _parse(self, payload: bytes) -> Calibration | None:
+        """The calibration of `payload`; None for one that does not parse (counted)."""
         try:
             return decode_calibration_message(payload).calibration
         except InputError as exc:

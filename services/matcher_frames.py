@@ -15,6 +15,19 @@ of a camera came for `STALE_INTERVALS` of its own intervals between features
 `MIN_STALE_S`, its frames are received again, with a warning; its features,
 should they come back, take over again.
 
+Whose features: a feature stage declares itself for its camera with a
+liveliness token on the camera's features key (`declare_stage`), and states
+its session as the source of each message (`camnet.bus.source`). A camera's
+features are taken only while a stage is declared for it (`stage_declared`,
+`stage_left`: from the matcher's liveliness subscriber), and only from the
+first source that states itself: features from another source, or stating
+none once a source is known, are foreign, refused so that a stray publisher on
+the camera's key can neither feed the matcher nor take the place of the
+camera's frames. A stage that leaves takes its source along: a restarted one,
+a new session, is then taken at its first features. A publisher that declares
+a stage of its own, or states the stage's source, is not told apart: only a
+secured rig keeps those out.
+
 Zenoh's threads report features (`features_arrived`) and ask whether a frame
 is wanted (`sends_features`); the worker declares and undeclares subscribers
 (`update`), never a callback, which must not wait on Zenoh.
@@ -42,6 +55,7 @@ class _Stage:
     """A camera's feature stage as the matcher sees it."""
 
     last_s: float  # monotonic time of its latest features
+    source: str | None  # the session id its features state; None while none stated one
     gaps_s: deque = field(default_factory=lambda: deque(maxlen=INTERVALS_KEPT))
 
     def interval_s(self) -> float:
@@ -65,19 +79,47 @@ class FrameSubscriptions:
         self._all = None  # the subscriber to every camera's frames, while no camera sends features
         self._one: dict[str, Any] = {}  # otherwise one subscriber per camera whose frames are needed
         self.fallbacks = 0  # stages taken for stopped
+        self._declared: set[str] = set()  # cameras with a feature stage on the bus (its liveliness token)
 
     # ------------------------------------------------------------ Zenoh's threads
 
-    def features_arrived(self, camera_id: str, now_s: float) -> None:
+    def stage_declared(self, camera_id: str) -> None:
+        """A feature stage of `camera_id` is on the bus: its features are taken from now on."""
         with self._lock:
+            self._declared.add(camera_id)
+
+    def stage_left(self, camera_id: str) -> None:
+        """The camera's feature stage left the bus: its frames are received again, its features refused
+        until a stage is declared again, and then taken from whichever source states itself first."""
+        with self._lock:
+            self._declared.discard(camera_id)
+            if self._stages.pop(camera_id, None) is not None:
+                log.info("camera %r: its feature stage left; receiving its frames again", camera_id)
+
+    def features_arrived(self, camera_id: str, now_s: float, source: str | None = None) -> str | None:
+        """Take features of `camera_id` that state `source` (None: none); why not, when they are foreign."""
+        with self._lock:
+            if camera_id not in self._declared:
+                return "no feature stage of the camera is on the bus"
             stage = self._stages.get(camera_id)
             if stage is None:
-                self._stages[camera_id] = _Stage(now_s)
-                log.info("camera %r: features from its own stage; its frames are no longer received here",
-                         camera_id)
-                return
+                self._stages[camera_id] = _Stage(now_s, source)
+                log.info("camera %r: features from its own stage (source %s); its frames are no longer received "
+                         "here", camera_id, source or "not stated")
+                return None
+            if stage.source is None and source is not None:
+                stage.source = source
+                log.info("camera %r: its features are taken from source %s only", camera_id, source)
+            elif source != stage.source:
+                return f"its stage is source {stage.source}"
             stage.gaps_s.append(now_s - stage.last_s)
             stage.last_s = now_s
+            return None
+
+    def stage_source(self, camera_id: str) -> str | None:
+        """The source the features of `camera_id` are taken from; None when none is known."""
+        stage = self._stages.get(camera_id)
+        return None if stage is None else stage.source
 
     def sends_features(self, camera_id: str) -> bool:
         return camera_id in self._stages  # a dict lookup is atomic: no lock on the frame path
@@ -86,6 +128,12 @@ class FrameSubscriptions:
         """(seconds since its latest features, its interval between features) per camera whose stage sends them."""
         with self._lock:
             return {c: (now_s - stage.last_s, stage.interval_s()) for c, stage in self._stages.items()}
+
+    @property
+    def declared_cameras(self) -> frozenset[str]:
+        """Cameras with a feature stage declared on the bus."""
+        with self._lock:
+            return frozenset(self._declared)
 
     @property
     def feature_cameras(self) -> frozenset[str]:

@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 from camnet.bus import keys, lockstep
 from camnet.bus.frame import FrameError, FrameHeader
 from camnet.bus.node import Presence, Tally, guarded, stop_on_signals
+from camnet.bus.source import declare_stage
 from camnet.bus.stats import Activity, RateMeter
 from camnet.errors import CamnetError, InputError
 from camnet.io import session_file as sf
@@ -368,6 +369,10 @@ class Replayer:
             cameras = self._declare_cameras(stack)
             others = {topic: self.session.declare_publisher(key) for topic, key in routes.items()
                       if topic not in cameras}
+            for topic in others:  # a recorded feature stage is declared, as the live one was
+                if routes[topic].endswith("/features"):
+                    stage = declare_stage(self.session, self.rig, keys.parse_features(routes[topic])[1])
+                    stack.callback(stage.undeclare)
             if keys.groundtruth(self.recorded_rig) in routes:
                 stack.callback(self.session.declare_queryable(
                     keys.groundtruth(self.rig),

@@ -23,6 +23,7 @@ from camnet.services.matcher import MatcherNodeConfig
 from camnet.bus import keys
 from camnet.bus.features_wire import FeaturesError, FeaturesMessage, decode_features, encode_features
 from camnet.bus.frame import Frame
+from camnet.bus.source import declare_stage
 from camnet.bus.stats import NodeStats
 from camnet.errors import InputError
 from camnet.io.rig import parse_rig
@@ -85,11 +86,12 @@ def test_a_stage_beside_two_drivers_feeds_the_matcher(network):  # noqa: F811 (t
 
     rig = parse_rig(rig_document("ftest"))
     net = network(rig, MatcherNodeConfig(publish_period_s=0.5, max_wait_s=0.3, stats_period_s=0.5))
-    workers = []
+    workers, stages = [], []
     for camera_id in CAMERAS:
         on_frame = None
         if camera_id in ("left", "mono_a"):
             publisher = net.drivers_session.declare_publisher(keys.features(rig.name, camera_id))
+            stages.append(declare_stage(net.drivers_session, rig.name, camera_id))  # kept: dropped, it leaves
             worker = FeatureWorker(publisher, camera_id, FeatureStageConfig(period_s=0.5)).__enter__()
             workers.append(worker)
             on_frame = worker.offer
@@ -133,6 +135,8 @@ def test_a_stage_beside_two_drivers_feeds_the_matcher(network):  # noqa: F811 (t
             driver.stop.set()
         for worker in workers:
             worker.__exit__(None, None, None)
+        for stage in stages:
+            stage.undeclare()
 
 
 def test_message_and_camera_features_convert_both_ways():

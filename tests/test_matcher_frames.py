@@ -14,6 +14,7 @@ from camnet.bus import keys
 from camnet.bus.features_wire import FeaturesMessage, encode_features
 from camnet.bus.frame import Frame, encode_frame
 from camnet.bus.latency import StageStamps
+from camnet.bus.source import declare_stage
 from camnet.io.formats import observations_to_doc, parse_observations
 from camnet.io.messages import ObservationsMessage, encode_observations_message
 from camnet.io.observations_encoder import ObservationsEncoder
@@ -101,13 +102,14 @@ def test_a_camera_sending_features_has_its_frames_unsubscribed_until_its_feature
     worker = threading.Thread(target=node.run, daemon=True)
     worker.start()
     pixels = np.zeros((HEIGHT, WIDTH), np.uint8)
-    running = []
+    running, stages = [], []
     try:
         frames = matched_publisher(peer, keys.frame(rig.name, "mono_b"), timeout_s=30.0)
         running.append(Repeating(lambda n: frames.put(encode_frame(Frame("mono_b", n, n * 100_000_000, "mono8",
                                                                          pixels))), lambda n: n, 0.1))
         assert wait_for(lambda: node.delivered.get("mono_b", 0) >= 3, 60.0), "no frames reached the matcher"
         with caplog.at_level(logging.INFO, logger="camnet.services.matcher_frames"):
+            stages.append(declare_stage(peer, rig.name, "mono_b"))  # a stage of mono_b: its features are taken
             features = Repeating(lambda n: peer.put(keys.features(rig.name, "mono_b"), features_of("mono_b", n)),
                                  lambda n: n, 0.2)
             running.append(features)
@@ -131,6 +133,8 @@ def test_a_camera_sending_features_has_its_frames_unsubscribed_until_its_feature
     finally:
         for repeating in running:
             repeating.close()
+        for stage in stages:
+            stage.undeclare()
         node.stop.set()
         worker.join(timeout=30)
     assert not worker.is_alive()

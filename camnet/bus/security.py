@@ -108,17 +108,18 @@ def grants(rig: str) -> dict[str, Grants]:
         # feature stage runs on its host with the driver's identity: beside it, or on its frames; it
         # detects at the pace the matcher's statistics show (services/features.py).
         "driver": Grants(publish=(frames, features, groundtruth, *driver_stats, *stage_stats), serve=(groundtruth,),
-                         subscribe=(frames, *matcher_stats), token=(*driver_tokens, *stage_tokens)),
+                         subscribe=(frames, *matcher_stats), token=(*driver_tokens, *stage_tokens, features)),
         # A replayed camera is a driver to the rest of the rig (services/replayer.py); a lockstep
         # replay also announces its steps and waits for the acknowledgements.
         "replayer": Grants(publish=(frames, features, groundtruth, *driver_stats, keys.lockstep_step(rig)),
-                           serve=(groundtruth,), token=driver_tokens,
+                           serve=(groundtruth,), token=(*driver_tokens, features),
                            subscribe=(keys.all_lockstep_acks(rig),), watch=(keys.all_lockstep_acks(rig),)),
-        # The calibration: to choose the pairs it matches (camnet.matching.viewgraph), asked for at start.
+        # The calibration: to choose the pairs it matches (camnet.matching.viewgraph), asked for at start; the
+        # feature stages' tokens: a camera's features are taken only from a stage declared for it.
         "matcher": Grants(subscribe=(frames, features, calibration, keys.lockstep_step(rig)),
                           ask=(calibration,),
                           publish=(observations, *matcher_stats, *acks("matcher")), serve=(observations,),
-                          token=(*matcher_tokens, *acks("matcher"))),
+                          token=(*matcher_tokens, *acks("matcher")), watch=(features,)),
         # Frames only for showing them in Rerun beside the solve.
         "calibrator": Grants(subscribe=(observations, frames),
                              publish=(calibration, *calibrator_stats, *acks("calibrator")),

@@ -4,7 +4,9 @@ Zenoh sends a sample's source (the publishing session's id and its
 publisher's) only when the publisher states it. A node that others must tell
 from any peer publishing on its key (the calibrator, for `camnet up`) is
 given its session id (`--session-id`), so that its supervisor knows it
-before it starts, and publishes through `SourcedPublisher`. On an open bus a
+before it starts, and publishes through `SourcedPublisher`; so do feature
+stages, whose camera's features the matcher takes from the first source it
+hears (services/matcher_frames.py). On an open bus a
 peer can state any source: this tells the rig's own node from a stray or
 careless publisher, not from an attacker (a secured rig keeps those out).
 """
@@ -30,6 +32,15 @@ def check_session_id(value: str, *, what: str = "--session-id") -> str:
     if not _SESSION_ID.fullmatch(value) or value[0] == "0":
         raise InputError(f"{what}: expected 32 lowercase hex digits, the first not 0, got {value!r}")
     return value
+
+
+def declare_stage(session, rig: str, camera_id: str):
+    """The liveliness token that declares a feature stage of `camera_id` on the bus: the matcher takes the
+    camera's features only while one is declared (services/matcher_frames.py). Undeclare it to leave."""
+    from camnet.bus import keys
+    from camnet.bus.session import declare_liveliness
+
+    return declare_liveliness(session, keys.features(rig, camera_id))
 
 
 def sample_source(sample) -> str | None:

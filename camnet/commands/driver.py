@@ -66,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
             pace = _matcher_pace(session, rig.name, args, stack) if args.features and args.features_pace else None
             nodes = []
             for camera in cameras:
-                on_frame = stack.enter_context(_feature_worker(session, rig.name, camera.camera_id, args, pace)).offer \
+                on_frame = _feature_worker(session, rig.name, camera.camera_id, args, pace, stack).offer \
                     if args.features else None
                 nodes.append(DriverNode(session, rig, camera, compression=Compression[args.compression.upper()],
                                         stats_period_s=args.stats_period_s, on_frame=on_frame))
@@ -88,17 +88,21 @@ def _matcher_pace(session, rig_name: str, args: argparse.Namespace, stack: conte
     return pace
 
 
-def _feature_worker(session, rig_name: str, camera_id: str, args: argparse.Namespace, pace):
-    """The feature stage of the camera, publishing beside its driver."""
+def _feature_worker(session, rig_name: str, camera_id: str, args: argparse.Namespace, pace,
+                    stack: contextlib.ExitStack):
+    """The feature stage of the camera, publishing beside its driver, declared and running until `stack` closes."""
     import zenoh
 
     from camnet.bus import keys
+    from camnet.bus.source import SourcedPublisher, declare_stage
     from camnet.matching.features import Detector, MatcherConfig
     from camnet.services.features import FeatureStageConfig, FeatureWorker
 
     # DROP, as frames: a slow link loses a frame set's features rather than stalling detection.
-    publisher = session.declare_publisher(keys.features(rig_name, camera_id),
-                                          congestion_control=zenoh.CongestionControl.DROP)
+    # Stating its session as the source: the matcher takes the camera's features from this stage only.
+    publisher = SourcedPublisher(session.declare_publisher(keys.features(rig_name, camera_id),
+                                                           congestion_control=zenoh.CongestionControl.DROP))
     config = FeatureStageConfig(period_s=args.features_period_s,
                                 matcher=MatcherConfig(detector=Detector(args.detector)))
-    return FeatureWorker(publisher, camera_id, config, pace=pace)
+    stack.callback(declare_stage(session, rig_name, camera_id).undeclare)
+    return stack.enter_context(FeatureWorker(publisher, camera_id, config, pace=pace))

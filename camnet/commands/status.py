@@ -8,7 +8,9 @@ Below the table: the cameras as the matcher receives them (a camera silent
 for longer than a frame set waits is MISSING, with the seconds since its
 last frame), and what looks wrong. Statistics are what a node says of
 itself, and any peer may publish them: those of a node with no liveliness
-token, and a camera's rate that the matcher does not receive, are flagged.
+token, and a camera's rate that the matcher does not receive, are flagged, as
+are features of a camera that the matcher ignored, from another publisher than
+the camera's feature stage.
 """
 
 from __future__ import annotations
@@ -70,10 +72,14 @@ def format_cameras(stats: dict) -> list[str]:
     return lines
 
 
+FOREIGN_FEATURES = "foreign features: "  # the matcher's count of them, by camera (services/matcher.py)
+
+
 def suspicious(nodes: list[tuple[str, str]], stats: dict) -> list[str]:
     """What in `stats` (by (kind, id)) is not to be believed: statistics of a node with no liveliness
     token among `nodes`, a driver that claims a rate the matcher does not receive or a camera the
-    matcher does not know."""
+    matcher does not know; and features of a camera that the matcher ignored, from another publisher
+    than the camera's stage."""
     live = set(nodes)
     received = {camera_id: seen for (kind, _), s in stats.items() if kind == "matcher"
                 for camera_id, seen in s.cameras.items()}
@@ -82,6 +88,10 @@ def suspicious(nodes: list[tuple[str, str]], stats: dict) -> list[str]:
         if (kind, node_id) not in live:
             found.append(f"{kind} {node_id}: statistics without a liveliness token (a node gone, or a peer "
                          "publishing in its name)")
+        if kind == "matcher":
+            found += [f"camera {fault.removeprefix(FOREIGN_FEATURES)}: {n} features from another publisher than its "
+                      "feature stage, ignored by the matcher (the matcher's log names the publisher)"
+                      for fault, n in sorted(s.faults.items()) if fault.startswith(FOREIGN_FEATURES)]
         if kind != "driver" or not received:
             continue
         seen = received.get(node_id)
