@@ -122,6 +122,8 @@ def check_pair(cam_i: Camera, cam_j: Camera, uv_i: np.ndarray, uv_j: np.ndarray)
     R_pair, t_pair = min((refined(R, t) for R, t in starts), key=lambda rt: cost(*rt))
     r = distances(R_pair, t_pair)
     inliers = np.abs(r) < THRESHOLD_PX
+    if inliers.sum() < MIN_SHARED:
+        return None
     # The distances' spread, robustly, at least a tenth of a pixel (features are no better).
     sigma_px = max(1.4826 * float(np.median(np.abs(r[inliers]))), 0.1)
     # The likelihood ratio of the solved pose against the best, not a linearised covariance: exact along the
