@@ -54,7 +54,7 @@ def test_the_run_directory_holds_the_results_and_the_last_lines_name_them(tmp_pa
     follower.observations.add(obs_message)
     follower.observations.add(replace(obs_message, frame_sets=8, latest_capture_ns=999))  # solved from by none
     run_dir = tmp_path / "runs" / "sim-1"
-    text = _finish(argparse.Namespace(output=None), run_dir, cal_message, follower, truth=None)
+    text = _finish(argparse.Namespace(output=None), run_dir, cal_message, follower, truth=None, restarts={})
     names = sorted(p.name for p in run_dir.iterdir())
     assert names == ["calibration.json", "calibration.yaml", "colmap", "observations.json", "points.ply",
                      "report.html"]
@@ -82,7 +82,7 @@ def test_a_simulated_run_keeps_its_truth_and_its_report_shows_what_the_console_d
     follower = RunFollower(argparse.Namespace(), truth=truth)
     follower.observations.add(obs_message)
     run_dir = tmp_path / "run"
-    text = _finish(argparse.Namespace(output=None), run_dir, cal_message, follower, truth=truth)
+    text = _finish(argparse.Namespace(output=None), run_dir, cal_message, follower, truth=truth, restarts={})
     assert "truth.json" in text and "against the simulation's ground truth:" in text
     kept = parse_calibration(json.loads((run_dir / "truth.json").read_text())).cameras
     for cam, true in zip(kept, truth, strict=True):
@@ -146,7 +146,7 @@ def test_a_partial_calibrations_run_directory_and_final_table_name_the_camera_le
     cal_message = CalibrationMessage(cal, frame_sets=7, latest_capture_ns=1, solve=3)
     follower = RunFollower(argparse.Namespace(), truth=None)
     follower.observations.add(ObservationsMessage(obs, frame_sets=7, latest_capture_ns=1))
-    text = _finish(argparse.Namespace(output=None), tmp_path / "run", cal_message, follower, truth=None)
+    text = _finish(argparse.Namespace(output=None), tmp_path / "run", cal_message, follower, truth=None, restarts={})
     assert re.search(rf"^{away}\s+not calibrated: it has no observations", text, flags=re.MULTILINE), text
     assert "Needs the observations" not in (tmp_path / "run" / "report.html").read_text()
     images = (tmp_path / "run" / "colmap" / "images.txt").read_text()
