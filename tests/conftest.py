@@ -18,6 +18,26 @@ from camnet.testing.ports import free_port  # noqa: F401  (the tests import it f
 # umask: the calibrator refuses a state file that others may write.
 os.umask(0o022)
 
+def _plain(value):
+    """`value` as plain Python (numpy numbers as Python numbers, keys as strings): what xdist can send from a
+    worker."""
+    if isinstance(value, dict):
+        return {str(_plain(k)): _plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    if hasattr(value, "item"):
+        return value.item()
+    return value if isinstance(value, str | int | float | bool | type(None)) else str(value)
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item, call):
+    """Properties a test records (`record_property`) as plain values, so that a worker can report them."""
+    outcome = yield
+    report = outcome.get_result()
+    report.user_properties = [(name, _plain(value)) for name, value in report.user_properties]
+
+
 # wait_for's clock, replaced by a fake one in tests/test_waiting.py.
 _monotonic, _sleep = time.monotonic, time.sleep
 
