@@ -309,6 +309,8 @@ def test_only_authorised_identities_reach_the_calibrator(secrets, foreign_secret
             observer.declare_subscriber(keys.calibration(RIG), keep("calibrations"))
             observer.declare_subscriber(keys.all_node_stats(RIG), keep("stats"))
             with calibrator_running(calibrator, tmp_path / "state.json") as node:
+                # Its first statistics follow its subscriptions: the observations cannot arrive before it listens.
+                assert wait_for(lambda: seen["stats"], 60), "the calibrator published no statistics"
                 # The matcher's observations are solved, and the calibration is published.
                 good = observations_payload(seed=1)
                 matched_publisher(matcher, keys.observations(RIG), 60).put(good)
