@@ -21,7 +21,7 @@ from camnet.model.calibration import CameraSigmas
 from camnet.model.projection import rotation_exp
 from camnet.sim.simulate import make_rig, observe
 from camnet.solve import Options, calibrate
-from camnet.solve.halves import MIN_HALF_OBSERVATIONS, track_sides
+from camnet.solve.halves import MIN_HALF_OBSERVATIONS, track_sides, with_halves_check
 from camnet.solve.report.halves import DISAGREE_SIGMAS, INFLATE_FROM, differences, widened
 from camnet.solve.report.verdict import Level, judge
 from tests.test_live import pooled
@@ -155,6 +155,23 @@ def test_a_scene_too_small_to_split_says_it_has_no_second_opinion():
     verdict = judge(cal)
     assert verdict.level == Level.POOR
     assert [f.level for f in verdict.findings if f.what.startswith("no second opinion")] == [Level.POOR]
+
+
+def test_a_camera_seen_in_few_tracks_of_a_long_pool_keeps_its_second_opinion():
+    # A live check thins each half of a long pool; the camera the others outnumber keeps its views first.
+    obs = observe(make_rig(n_cameras=5, n_points=4000, seed=3), noise_px=0.3, seed=3).observations
+    rare = obs.index_of(obs.camera_ids[4])
+    drop = (obs.cam_index == rare) & (obs.track_index % 16 != 0)
+    obs = replace(obs, cam_index=obs.cam_index[~drop], track_index=obs.track_index[~drop], uv=obs.uv[~drop])
+    seen = int(np.sum(obs.cam_index == rare))
+    assert 4 * MIN_HALF_OBSERVATIONS < seen < 10 * MIN_HALF_OBSERVATIONS, seen  # every 7th track would thin it short
+    cal = calibrate(obs, Options(halves=False)).calibration
+
+    checked = with_halves_check(obs, cal, lambda half: calibrate(half, Options(halves=False)).calibration,
+                                max_half_tracks=300)
+
+    assert checked.report.halves.splits == 1, checked.report.halves.reason
+    assert f"f {obs.camera_ids[4]}" in checked.report.halves.in_sigmas
 
 
 def test_the_check_is_written_and_read_back(solved):

@@ -52,12 +52,34 @@ def track_sides(obs: Observations, cal: Calibration) -> Iterator[tuple[str, np.n
         yield name, side
 
 
-def _thinned(side: np.ndarray, most: int) -> np.ndarray:
-    """`side` with each half cut to at most `most` tracks, every k-th kept (the others set to -1, in neither)."""
+def _thinned(obs: Observations, side: np.ndarray, most: int) -> np.ndarray:
+    """`side` with each half cut to about `most` tracks (the others set to -1, in neither half).
+
+    A camera seen in few of a half's tracks keeps them first, up to twice the observations a half needs of it,
+    drawn evenly: every k-th track alone would thin a camera seen in a twentieth of a long pool below what a
+    half needs to place it, and leave it without a second opinion. Every k-th of the rest fills the half.
+    """
     out = np.full_like(side, -1)
+    per_track = [np.flatnonzero(obs.cam_index == c) for c in range(len(obs.cameras))]
     for h in (0, 1):
         rows = np.flatnonzero(side == h)
-        out[rows[:: max(1, int(np.ceil(len(rows) / most)))]] = h
+        if len(rows) <= most:
+            out[rows] = h
+            continue
+        kept = np.zeros(len(side), dtype=bool)
+        in_half = side[obs.track_index] == h
+        seen = np.bincount(obs.cam_index[in_half], minlength=len(obs.cameras))
+        for c in np.argsort(seen, kind="stable"):
+            tracks = np.unique(obs.track_index[per_track[c][in_half[per_track[c]]]])
+            short = 2 * MIN_HALF_OBSERVATIONS - int(kept[tracks].sum())
+            if short > 0:
+                spare = tracks[~kept[tracks]]
+                kept[spare[np.linspace(0, len(spare) - 1, min(short, len(spare))).astype(int)]] = True
+        rest = rows[~kept[rows]]
+        room = most - int(kept.sum())
+        if room > 0:
+            kept[rest[:: max(1, int(np.ceil(len(rest) / room)))]] = True
+        out[kept] = h
     return out
 
 
@@ -67,13 +89,13 @@ def _half(obs: Observations, keep: np.ndarray) -> Observations:
     return replace(obs, cam_index=obs.cam_index[rows], track_index=obs.track_index[rows], uv=obs.uv[rows])
 
 
-def _covers(obs: Observations, side: np.ndarray, cameras: list[str]) -> bool:
-    """Whether every camera of `cameras` keeps MIN_HALF_OBSERVATIONS observations in each half."""
+def _short(obs: Observations, side: np.ndarray, cameras: list[str]) -> list[str]:
+    """The cameras of `cameras` that keep fewer than MIN_HALF_OBSERVATIONS observations in either half."""
+    short = set()
     for h in (0, 1):
         counts = np.bincount(obs.cam_index[side[obs.track_index] == h], minlength=len(obs.cameras))
-        if any(counts[obs.index_of(c)] < MIN_HALF_OBSERVATIONS for c in cameras):
-            return False
-    return True
+        short |= {c for c in cameras if counts[obs.index_of(c)] < MIN_HALF_OBSERVATIONS}
+    return [c for c in cameras if c in short]
 
 
 def with_halves_check(obs: Observations, cal: Calibration, solve: Callable[[Observations], Calibration], *,
@@ -92,12 +114,18 @@ def with_halves_check(obs: Observations, cal: Calibration, solve: Callable[[Obse
     cameras = [c.id for c in cal.cameras]
     compared: list[dict[str, HalfDifference]] = []
     why = "no split keeps every camera's view in both halves"
+    fewest: list[str] | None = None
     for name, side in track_sides(obs, cal):
         if len(compared) == SPLITS:
             break
         if max_half_tracks is not None:
-            side = _thinned(side, max_half_tracks)
-        if not _covers(obs, side, cameras):
+            side = _thinned(obs, side, max_half_tracks)
+        short = _short(obs, side, cameras)
+        if short:
+            if fewest is None or len(short) < len(fewest):
+                fewest = short
+                why = (f"no split keeps every camera's view in both halves ({in_words(short, noun='camera')} "
+                       f"{'has' if len(short) == 1 else 'have'} too few observations for two)")
             continue
         try:
             a, b = solve(_half(obs, side == 0)), solve(_half(obs, side == 1))
