@@ -9,17 +9,20 @@ their source and stating none, and answers queries on the calibration key with o
 from __future__ import annotations
 
 import json
+import logging
 import threading
 
 import numpy as np
+import zenoh
 from camnet.services.calibrator import CalibratorConfig, CalibratorNode
 from camnet.services.matcher import MatcherNodeConfig
 from camnet.services.recorder import Recorder, RecorderConfig
 from mcap.reader import make_reader
 
 from camnet.bus import keys
+from camnet.bus.node import Tally
 from camnet.bus.session import BusOptions, open_session
-from camnet.bus.source import FOREIGN_CALIBRATIONS, SourcedPublisher
+from camnet.bus.source import FOREIGN_CALIBRATIONS, HELD_PER_SOURCE, CalibratorSources, SourcedPublisher
 from camnet.commands.status import suspicious
 from camnet.io.formats import calibration_to_doc, parse_calibration
 from camnet.io.rig import parse_rig
@@ -152,3 +155,40 @@ def test_the_recorder_writes_only_its_calibrators_calibrations(tmp_path):
     summary = result["summary"]
     assert summary.foreign_calibrations == recorder.foreign.total >= 4  # those stating no source, as they come
     assert any(line.startswith("calibrations from another publisher") for line in summary.lines())
+
+
+class _Token:
+    """A calibrator's liveliness token as Zenoh hands it to the callback: joined (PUT) or left (DELETE)."""
+
+    def __init__(self, source: str, kind: zenoh.SampleKind) -> None:
+        self.key_expr, self.kind = keys.calibrator("tokens", source), kind
+
+
+def test_a_calibration_waits_for_its_calibrators_token_for_a_while_and_is_then_counted():
+    foreign = Tally(logging.getLogger(__name__))
+    sources = CalibratorSources(foreign, hold_s=10.0)
+    handed: list[str] = []
+    # The calibrator's first calibration and its answer, before its token; a forger's; one stating no source.
+    sources.admit("c0ffee", lambda: handed.append("resumed"), now_s=0.0)
+    sources.admit("c0ffee", lambda: handed.append("answer"), now_s=0.5)
+    sources.admit("f00d", lambda: handed.append("forged"), now_s=1.0)
+    sources.admit(None, lambda: handed.append("unstated"), now_s=1.0)
+    assert handed == [] and foreign.total == 1  # no source: counted at once
+    sources.on_token(_Token("c0ffee", zenoh.SampleKind.PUT))
+    assert handed == ["resumed", "answer"]  # in the order they came
+    sources.admit("c0ffee", lambda: handed.append("solved"), now_s=2.0)
+    assert handed == ["resumed", "answer", "solved"]
+    sources.expire(now_s=10.5)
+    assert foreign.total == 1  # the forger's is still held
+    sources.expire(now_s=11.0)
+    assert foreign.counts == {FOREIGN_CALIBRATIONS: 2} and "forged" not in handed
+    # Only the latest few of a source are held: the older ones are counted as the newer come.
+    for n in range(HELD_PER_SOURCE + 3):
+        sources.admit("f00d", lambda: handed.append("forged"), now_s=12.0 + n)
+    assert foreign.total == 2 + 3
+    # A calibrator that left is no longer taken from, until it declares itself again.
+    sources.on_token(_Token("c0ffee", zenoh.SampleKind.DELETE))
+    sources.admit("c0ffee", lambda: handed.append("after leaving"), now_s=20.0)
+    assert handed == ["resumed", "answer", "solved"]
+    sources.on_token(_Token("c0ffee", zenoh.SampleKind.PUT))
+    assert handed[-1] == "after leaving" and "forged" not in handed
