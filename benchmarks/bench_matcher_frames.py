@@ -40,7 +40,7 @@ from camnet.bus.features_wire import encode_features
 from camnet.bus.frame import Frame, encode_frame
 from camnet.bus.launch import Launch
 from camnet.bus.session import BusOptions, open_session
-from camnet.bus.source import declare_stage
+from camnet.bus.source import SourcedPublisher, declare_calibrator, declare_stage
 from camnet.io.formats import calibration_to_doc
 from camnet.io.rig import load_rig
 from camnet.matching.edge import FeatureExtractor
@@ -84,6 +84,9 @@ def play(session, rig, images: dict, features: dict, *, period_s: float, feature
     feature_keys = {c: keys.features(rig.name, c) for c in images}
     # Each camera's stage declared, as a live one is, or its features are refused; kept while it plays.
     stages = [declare_stage(session, rig.name, camera_id) for camera_id in images]
+    # Published as the calibrator publishes, or the matcher ignores it.
+    calibrator = declare_calibrator(session, rig.name)
+    calibration_publisher = SourcedPublisher(session.declare_publisher(keys.calibration(rig.name)))
     period_ns = round(period_s * 1e9)
     slot = time.time_ns() // period_ns + 1
     while not stop.is_set():
@@ -98,10 +101,11 @@ def play(session, rig, images: dict, features: dict, *, period_s: float, feature
                 session.put(feature_keys[camera_id], encode_features(replace(message, seq=slot,
                                                                              timestamp_ns=timestamp_ns)))
         if slot % round(1 / period_s) == 0:
-            session.put(keys.calibration(rig.name), calibration)
+            calibration_publisher.put(calibration)
         slot = max(slot + 1, time.time_ns() // period_ns)  # late: skip slots, as a camera does
     for stage in stages:
         stage.undeclare()
+    calibrator.undeclare()
 
 
 def main() -> int:

@@ -26,7 +26,7 @@ from camnet.bus import heap, keys, latency, lockstep
 from camnet.bus.moved import moved_attachment, parse_forgotten_attachment
 from camnet.bus.node import Presence, Tally, guarded, stop_on_signals
 from camnet.bus.session import declare_liveliness
-from camnet.bus.source import SourcedPublisher
+from camnet.bus.source import SourcedPublisher, declare_calibrator
 from camnet.bus.stats import Activity, RateMeter
 from camnet.errors import InputError
 from camnet.io.formats import MAX_TRACKS, write_json_atomic
@@ -309,8 +309,10 @@ class CalibratorNode:
     def run(self) -> None:
         """Serve until `stop` is set (or SIGTERM, Ctrl-C)."""
         rig = self.rig_name
-        # Its samples state their source, so that a supervisor tells them from any other publisher's.
+        # Its samples state their source, and its token names that source, so that the nodes reading calibrations
+        # (and a supervisor) tell them from any other publisher's; declared before the first one is published.
         publisher = SourcedPublisher(self.session.declare_publisher(keys.calibration(rig)))
+        token = declare_calibrator(self.session, rig)
         self._resume(publisher)
         queryable = self.session.declare_queryable(keys.calibration(rig),
                                                    guarded(self._on_query, self.failures, "answering a query"))
@@ -347,6 +349,7 @@ class CalibratorNode:
             queryable.undeclare()
             if ack_token is not None:
                 ack_token.undeclare()
+            token.undeclare()
 
 
 def _ack(message: ObservationsMessage | None, outcome: Outcome | None) -> lockstep.Ack:

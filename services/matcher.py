@@ -23,8 +23,9 @@ ignored); once they arrive, the matcher stops receiving its frames
 in place of frames.
 The engine detects the frames of the other cameras, in a thread pool over the
 cores (OpenCV releases the GIL), and matches every pair until the rig's
-calibration (``keys.calibration``, also asked of the calibrator at start:
-`matcher_calibration`) arrives, then the view graph's pairs.
+calibration (``keys.calibration``, also asked of the calibrator at start,
+taken only from the rig's calibrator: `matcher_calibration`) arrives, then the
+view graph's pairs.
 
 Cameras are listed with the sizes of their frames (or of the rig file before
 the first frame) and what the rig file's `intrinsics` section knows of them
@@ -132,12 +133,14 @@ class MatcherNode:
         self.rejected = Tally(log)  # frames decoded but not usable, and malformed steps, by kind
         self.failures = Tally(log)  # handlers that raised (matching a frame set, say), by what and type
         self.few_features = Tally(log)  # images with too few keypoints, by camera
-        self.foreign = Tally(log)  # well-formed features from another publisher than the camera's stage, by camera
+        # Well-formed features from another publisher than the camera's stage, by camera; calibrations from
+        # another publisher than the rig's calibrator.
+        self.foreign = Tally(log)
         handler = guarded(self.on_sample, self.failures, "receiving a frame")
         self.frames = FrameSubscriptions(  # whose frames to receive; the worker (un)declares
             self.camera_ids, declare_all=lambda: session.declare_subscriber(keys.all_frames(rig.name), handler),
             declare_one=lambda camera_id: session.declare_subscriber(keys.frame(rig.name, camera_id), handler))
-        self.calibration = CalibrationInbox(rig.name, rejected=self.rejected)  # for the worker to take
+        self.calibration = CalibrationInbox(rig.name, rejected=self.rejected, foreign=self.foreign)  # for the worker
         self._view_graph_s = float("-inf")  # monotonic time the view graph last took a calibration
         self._process_safely = guarded(self.process, self.failures, "matching a frame set")
         self._update_frames = guarded(self.frames.update, self.failures, "subscribing to frames")
@@ -409,8 +412,8 @@ class MatcherNode:
                         keys.all_features(rig), guarded(self._on_stage, self.failures, "watching the feature stages"),
                         history=True),
                     # Not in lockstep, whose matching must not depend on when a calibration arrives.
-                    *([self.calibration.declare(self.session, self.failures, time.monotonic())]
-                      if self.config.view_graph and self._inbox is None else []),
+                    *(self.calibration.declare(self.session, self.failures, time.monotonic())
+                      if self.config.view_graph and self._inbox is None else ()),
                     self.session.declare_queryable(keys.observations(rig),
                                                    guarded(self._on_query, self.failures, "answering a query"))]
         ack_publisher = None

@@ -18,6 +18,10 @@ time the calibrator names them. Each observations
 message then says from which track on the pool holds a forgotten camera's
 views afresh (`pool_attachment`): the calibrator places it only from those.
 
+Calibrations are taken only from the rig's calibrator, published or answered
+(`camnet.bus.source.CalibratorSources`): one from any other publisher is
+counted as foreign, its attachment ignored too.
+
 Each calibration is parsed as it arrives, so that every one that does not
 parse is counted (the worker takes one at most every few seconds, and most
 are replaced before then), and one that does not parse never replaces a good
@@ -31,6 +35,7 @@ import threading
 from camnet.bus import keys
 from camnet.bus.moved import forgotten_attachment, parse_moved_attachment
 from camnet.bus.node import Tally, guarded
+from camnet.bus.source import CalibratorSources, reply_source, sample_source
 from camnet.errors import InputError
 from camnet.io.messages import decode_calibration_message
 from camnet.matching.pool import TrackPool
@@ -43,9 +48,10 @@ ASK_PERIOD_S = 3.0  # asked again this often while no calibration has come
 class CalibrationInbox:
     """The latest calibration payload, for the worker to take; filled by the subscriber and the start query."""
 
-    def __init__(self, rig_name: str, *, rejected: Tally) -> None:
+    def __init__(self, rig_name: str, *, rejected: Tally, foreign: Tally) -> None:
         self.rig_name = rig_name
         self.rejected = rejected  # calibrations that do not parse are counted here
+        self.sources = CalibratorSources(foreign)  # those from another publisher than the calibrator, there
         self._latest: Calibration | None = None  # parsed, not taken yet
         self._published = False  # one came by subscription: a query's answer is no newer
         self._received = False  # one came, by subscription or answer: no more asking
@@ -92,17 +98,29 @@ class CalibrationInbox:
             if not self._published and calibration is not None:
                 self._latest, self._received = calibration, True
 
-    def declare(self, session, failures: Tally, now_s: float):
-        """Subscribe to the rig's calibrations and ask for the latest (the answer arrives on Zenoh's thread)."""
+    def declare(self, session, failures: Tally, now_s: float) -> tuple:
+        """Watch the rig's calibrators, subscribe to their calibrations and ask for the latest (the answer
+        arrives on Zenoh's thread); the entities declared."""
+        import zenoh
+
         key = keys.calibration(self.rig_name)
-        subscriber = session.declare_subscriber(key, guarded(self.on_sample, failures, "receiving a calibration"))
-        reply = guarded(self.on_reply, failures, "receiving the latest calibration")
-        self._ask = lambda: session.get(key, reply, timeout=QUERY_TIMEOUT_S)
+        calibrators = self.sources.declare(session, self.rig_name, failures)
+        # Handed on when the calibrator is known: maybe later, on the thread of its token.
+        on_sample = guarded(self.on_sample, failures, "receiving a calibration")
+        on_reply = guarded(self.on_reply, failures, "receiving the latest calibration")
+        subscriber = session.declare_subscriber(
+            key, lambda sample: self.sources.admit(sample_source(sample), lambda: on_sample(sample)))
+        # Every answer, not Zenoh's one per key: another peer answering must not hide the calibrator's.
+        self._ask = lambda: session.get(key, lambda reply: self.sources.admit(reply_source(reply),
+                                                                              lambda: on_reply(reply)),
+                                        timeout=QUERY_TIMEOUT_S, consolidation=zenoh.ConsolidationMode.NONE)
         self.ask_until_answered(now_s)
-        return subscriber
+        return calibrators, subscriber
 
     def ask_until_answered(self, now_s: float) -> None:
-        """Ask for the latest calibration if none has come and `ASK_PERIOD_S` passed since the last query."""
+        """Ask for the latest calibration if none has come and `ASK_PERIOD_S` passed since the last query;
+        count as foreign what waited too long for its calibrator."""
+        self.sources.expire(now_s)
         if self._ask is None or self._received or now_s < self._asked_s + ASK_PERIOD_S:
             return
         self._asked_s = now_s

@@ -15,7 +15,9 @@ flush; a stopped recorder (SIGTERM, Ctrl-C, duration) writes the summary and
 footer, on time: what is still queued is written for at most `stop_grace_s`,
 the rest dropped and counted. Missing frames are told in one warning a
 period, with their likely causes (`camnet.services.recording_gaps`).
-Layout: docs/session-format.md.
+Calibrations are written only from the rig's calibrator (published, or its
+answer at start: `camnet.bus.source.CalibratorSources`); those of any other
+publisher are counted and not written. Layout: docs/session-format.md.
 """
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ from camnet import __version__
 from camnet.bus import keys
 from camnet.bus.frame import FrameError, FrameHeader
 from camnet.bus.node import Presence, Tally, guarded, stop_on_signals
+from camnet.bus.source import FOREIGN_CALIBRATIONS, CalibratorSources, reply_source, sample_source
 from camnet.bus.stats import Activity, RateMeter
 from camnet.errors import CamnetError, InputError
 from camnet.io import session_file as sf
@@ -115,6 +118,7 @@ class RecordingSummary:
     queue_overflows: int
     malformed: dict[str, int]
     unwritten_at_stop: int = 0  # received, still queued when the recording stopped, not written
+    foreign_calibrations: int = 0  # from another publisher than the rig's calibrator, not written
 
     def lines(self) -> list[str]:
         """A table of the recording, for the command's summary."""
@@ -127,6 +131,9 @@ class RecordingSummary:
         if self.unwritten_at_stop:
             rows.append(f"not written: {self.unwritten_at_stop} message(s) still queued at the stop (the recorder "
                         "was behind: this machine cannot keep up with writing)")
+        if self.foreign_calibrations:
+            rows.append(f"calibrations from another publisher than the rig's calibrator (not written): "
+                        f"{self.foreign_calibrations}")
         if self.malformed:
             rows.append("malformed (not written): " + ", ".join(
                 f"{kind} {n}" for kind, n in sorted(self.malformed.items())))
@@ -193,6 +200,8 @@ class Recorder:
         self._tallies: dict[str, CameraTally] = {}
         self.malformed = Tally(log)  # messages not recorded, by kind
         self.failures = Tally(log)  # callbacks that raised, by what and exception type
+        self.foreign = Tally(log)  # calibrations from another publisher than the rig's calibrator
+        self._calibrators = CalibratorSources(self.foreign)
         self._messages = 0
         self._sequence: dict[str, int] = {}
         self._gaps = GapTracker(stall_s=config.stall_s)  # missing frames since the last report, and why
@@ -203,7 +212,12 @@ class Recorder:
     # -- Zenoh callbacks: stamp and queue, nothing else ------------------------------------
 
     def _on_sample(self, sample) -> None:
-        self._queue.put(str(sample.key_expr), sample.payload.to_bytes())
+        key = str(sample.key_expr)
+        if key == keys.calibration(self.config.rig):  # queued when its calibrator is known: maybe later
+            payload = sample.payload.to_bytes()
+            self._calibrators.admit(sample_source(sample), lambda: self._queue.put(key, payload))
+            return
+        self._queue.put(key, sample.payload.to_bytes())
 
     def _on_liveliness(self, sample) -> None:
         import zenoh
@@ -212,8 +226,13 @@ class Recorder:
         self._queue.put(str(sample.key_expr), b"", event)
 
     def _on_reply(self, reply) -> None:
-        if reply.ok is not None:
-            self._queue.put(str(reply.ok.key_expr), reply.ok.payload.to_bytes())
+        if reply.ok is None:
+            return
+        key, payload = str(reply.ok.key_expr), reply.ok.payload.to_bytes()
+        if key == keys.calibration(self.config.rig):
+            self._calibrators.admit(reply_source(reply), lambda: self._queue.put(key, payload))
+            return
+        self._queue.put(key, payload)
 
     # -- writing (the node's thread) -------------------------------------------------------
 
@@ -295,7 +314,8 @@ class Recorder:
             path=path, duration_s=time.monotonic() - self._started, messages=self._messages,
             file_bytes=path.stat().st_size if path.exists() else 0, cameras=dict(self._tallies),
             queue_overflows=self._queue.refused,
-            malformed=self.malformed.counts, unwritten_at_stop=self._unwritten_at_stop)
+            malformed=self.malformed.counts, unwritten_at_stop=self._unwritten_at_stop,
+            foreign_calibrations=self.foreign.counts.get(FOREIGN_CALIBRATIONS, 0))
 
     def _activity(self) -> Activity:
         summary = self.summary()
@@ -342,6 +362,7 @@ class Recorder:
                 next_flush = now + cfg.flush_period_s
             if now >= next_report:
                 self._gaps.report(self._queue)
+                self._calibrators.expire(now)
                 next_report = now + cfg.report_period_s
             presence.publish_if_due()
             if on_progress is not None and now >= next_progress:
@@ -351,6 +372,8 @@ class Recorder:
     def run(self, *, on_progress: Callable[[RecordingSummary], None] | None = None,
             progress_period_s: float = 1.0) -> RecordingSummary:
         """Record until stopped (stop event, SIGTERM, Ctrl-C) or `duration_s`; the summary."""
+        import zenoh
+
         cfg = self.config
         stream = self._open_file()
         try:
@@ -363,12 +386,15 @@ class Recorder:
         nodes = self.session.liveliness().declare_subscriber(
             keys.all_nodes(cfg.rig), guarded(self._on_liveliness, self.failures, "receiving a node event"),
             history=True)
+        calibrators = self._calibrators.declare(self.session, cfg.rig, self.failures)
         # Latest values published before we subscribed (the sim driver's ground truth, the
         # calibrator's latest calibration) are only reachable by query.
+        # Every answer, not Zenoh's one per key: another peer answering must not hide the calibrator's.
         for key in (keys.groundtruth(cfg.rig), keys.calibration(cfg.rig)):
-            self.session.get(key, guarded(self._on_reply, self.failures, "receiving a reply"), timeout=2.0)
+            self.session.get(key, guarded(self._on_reply, self.failures, "receiving a reply"), timeout=2.0,
+                             consolidation=zenoh.ConsolidationMode.NONE)
         presence = Presence(self.session, rig=cfg.rig, kind=NODE_KIND, node_id=cfg.node_id, report=self._activity,
-                            tallies=(self.malformed, self.failures), period_s=cfg.stats_period_s,
+                            tallies=(self.malformed, self.failures, self.foreign), period_s=cfg.stats_period_s,
                             status_period_s=None)  # camnet record prints its own progress
         log.info("recording %s/** to %s", prefix, cfg.path)
         error = None
@@ -380,6 +406,7 @@ class Recorder:
             finally:
                 subscriber.undeclare()
                 nodes.undeclare()
+                calibrators.undeclare()
                 error = self._finish(channels, stream, error)
         if error is not None:
             raise CamnetError(f"{cfg.path}: cannot write ({error.strerror or error}); the file is "
@@ -422,6 +449,7 @@ def _summary_metadata(summary: RecordingSummary) -> dict[str, str]:
                for cid, t in summary.cameras.items()}
     return {"messages": str(summary.messages), "queue_overflows": str(summary.queue_overflows),
             "unwritten_at_stop": str(summary.unwritten_at_stop),
+            "foreign_calibrations": str(summary.foreign_calibrations),
             "cameras": json.dumps(cameras), "malformed": json.dumps(summary.malformed)}
 
 

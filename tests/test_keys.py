@@ -13,6 +13,8 @@ def test_keys_layout():
     assert keys.node_stats("sim", "driver", "left") == "camnet/sim/nodes/driver/left/stats"
     assert keys.parse_node("camnet/sim/nodes/driver/left") == ("sim", "driver", "left")
     assert keys.parse_frame(keys.frame("r", "c")) == ("r", "c")
+    assert keys.calibrator("sim", "4ba47ec6") == "camnet/sim/calibrator/4ba47ec6"
+    assert keys.parse_calibrator(keys.calibrator("r", "4ba47ec6")) == ("r", "4ba47ec6")
 
 
 @pytest.mark.parametrize("bad", ["a/b", "a*", "$x", "q?", "h#", "", " x"])

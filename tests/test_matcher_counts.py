@@ -14,6 +14,7 @@ from camnet.bus import keys
 from camnet.bus.frame import Frame, encode_frame
 from camnet.bus.node import Tally
 from camnet.bus.receiver import FrameReceiver
+from camnet.bus.source import SourcedPublisher, declare_calibrator
 from camnet.bus.stats import NodeStats
 from camnet.io.rig import parse_rig
 from tests.conftest import matched_publisher, running_node, wait_for
@@ -55,9 +56,10 @@ def test_every_calibration_that_does_not_parse_is_counted_and_none_replaces_a_go
 
     calibrator_side, matcher_side = zenoh_pair
     rejected = Tally(logging.getLogger(__name__))
-    inbox = CalibrationInbox(RIG, rejected=rejected)
-    subscriber = inbox.declare(matcher_side, Tally(logging.getLogger(__name__)), time.monotonic())
-    publisher = matched_publisher(calibrator_side, keys.calibration(RIG))
+    inbox = CalibrationInbox(RIG, rejected=rejected, foreign=Tally(logging.getLogger(__name__)))
+    declared = inbox.declare(matcher_side, Tally(logging.getLogger(__name__)), time.monotonic())
+    token = declare_calibrator(calibrator_side, RIG)
+    publisher = SourcedPublisher(matched_publisher(calibrator_side, keys.calibration(RIG)))
     try:
         import json
 
@@ -75,7 +77,9 @@ def test_every_calibration_that_does_not_parse_is_counted_and_none_replaces_a_go
         assert inbox.take() is None
     finally:
         publisher.undeclare()
-        subscriber.undeclare()
+        token.undeclare()
+        for entity in declared:
+            entity.undeclare()
 
 
 def test_the_matcher_counts_lying_stamps_and_says_why_it_drops_features(zenoh_pair, caplog):

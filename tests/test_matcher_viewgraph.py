@@ -19,6 +19,7 @@ from camnet.services.matcher_calibration import ASK_PERIOD_S, CalibrationInbox
 
 from camnet.bus import keys
 from camnet.bus.node import Tally
+from camnet.bus.source import SourcedPublisher, declare_calibrator
 from camnet.io.formats import calibration_to_doc
 from camnet.io.rig import parse_rig
 from camnet.model.calibration import Calibration
@@ -61,7 +62,8 @@ def pairs_matched(net) -> tuple[list[int], list[tuple[int, int]]]:
 def test_a_calibration_narrows_the_pairs_and_exploration_finds_the_rest_again(network):  # noqa: F811
     rig = parse_rig(rig_document("vgtest"))
     net = network(rig, MatcherNodeConfig(publish_period_s=0.5, max_wait_s=0.3, explore_pairs=1))
-    publisher = matched_publisher(net.observer, keys.calibration(rig.name), timeout_s=30.0)
+    token = declare_calibrator(net.observer, rig.name)  # noqa: F841 (kept: a token dropped is undeclared)
+    publisher = SourcedPublisher(matched_publisher(net.observer, keys.calibration(rig.name), timeout_s=30.0))
     publisher.put(json.dumps(calibration_with_mono_b_elsewhere(rig)).encode())
     assert wait_for(lambda: net.node.calibration.waiting, 60.0), "the calibration never reached the matcher"
     for camera_id in rig_document("vgtest")["cameras"]:
@@ -106,13 +108,15 @@ def test_the_matcher_asks_for_the_latest_calibration_until_an_answer_comes(zenoh
     # subscribed.
     calibrator_side, matcher_side = zenoh_pair
     rig = parse_rig(rig_document("vgask"))
-    inbox = CalibrationInbox(rig.name, rejected=Tally(logging.getLogger(__name__)))
-    subscriber = inbox.declare(matcher_side, Tally(logging.getLogger(__name__)), time.monotonic())
+    inbox = CalibrationInbox(rig.name, rejected=Tally(logging.getLogger(__name__)),
+                             foreign=Tally(logging.getLogger(__name__)))
+    declared = inbox.declare(matcher_side, Tally(logging.getLogger(__name__)), time.monotonic())
     try:
         assert inbox.asked == 1
         time.sleep(0.5)
         assert not inbox.waiting
         answer = json.dumps(calibration_with_mono_b_elsewhere(rig)).encode()
+        token = declare_calibrator(calibrator_side, rig.name)
         queryable = calibrator_side.declare_queryable(keys.calibration(rig.name),
                                                       lambda query: query.reply(query.key_expr, answer))
         try:
@@ -127,8 +131,10 @@ def test_the_matcher_asks_for_the_latest_calibration_until_an_answer_comes(zenoh
             assert inbox.asked == asked, "asked again after an answer"
         finally:
             queryable.undeclare()
+            token.undeclare()
     finally:
-        subscriber.undeclare()
+        for entity in declared:
+            entity.undeclare()
 
 
 class _Sample:

@@ -15,6 +15,7 @@ from camnet.services.matcher_calibration import CalibrationInbox
 from camnet.bus import keys
 from camnet.bus.moved import forgotten_attachment, moved_attachment, parse_forgotten_attachment, parse_moved_attachment
 from camnet.bus.node import Tally
+from camnet.bus.source import SourcedPublisher, declare_calibrator
 from camnet.errors import InputError
 from camnet.io.messages import decode_observations_message
 from camnet.live.tracker import Status
@@ -26,10 +27,11 @@ from tests.test_calibrator_node import RIG, observations_payload
 def test_a_published_calibration_names_the_moved_cameras_to_the_matcher_once(zenoh_pair):
     calibrator_side, matcher_side = zenoh_pair
     rejected = Tally(logging.getLogger(__name__))
-    inbox = CalibrationInbox(RIG, rejected=rejected)
-    subscriber = inbox.declare(matcher_side, Tally(logging.getLogger(__name__)), time.monotonic())
+    inbox = CalibrationInbox(RIG, rejected=rejected, foreign=Tally(logging.getLogger(__name__)))
+    declared = inbox.declare(matcher_side, Tally(logging.getLogger(__name__)), time.monotonic())
     node = CalibratorNode(calibrator_side, RIG)
-    publisher = matched_publisher(calibrator_side, keys.calibration(RIG))
+    token = declare_calibrator(calibrator_side, RIG)  # as the node's run declares it
+    publisher = SourcedPublisher(matched_publisher(calibrator_side, keys.calibration(RIG)))
     try:
         def arrived() -> Calibration:
             assert wait_for(lambda: inbox.waiting, 60.0), "the calibration did not arrive"
@@ -64,7 +66,9 @@ def test_a_published_calibration_names_the_moved_cameras_to_the_matcher_once(zen
         assert rejected.total == 0
     finally:
         publisher.undeclare()
-        subscriber.undeclare()
+        token.undeclare()
+        for entity in declared:
+            entity.undeclare()
 
 
 def test_the_attachment_round_trips_and_a_foreign_one_is_refused():

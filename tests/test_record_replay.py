@@ -29,6 +29,7 @@ from mcap.stream_reader import StreamReader
 from camnet.bus import keys
 from camnet.bus.frame import FrameError, encode_frame
 from camnet.bus.session import BusOptions, open_session
+from camnet.bus.source import SourcedPublisher, declare_calibrator
 from camnet.errors import InputError
 from camnet.io.rig import parse_rig
 from camnet.io.session_file import (
@@ -102,6 +103,7 @@ def recorded(tmp_path_factory):
             left.add(str(sample.key_expr).rsplit("/", 1)[-1])
 
     recorder_bus.liveliness().declare_subscriber(keys.all_nodes(RIG), on_token)
+    token = declare_calibrator(bus, RIG)  # noqa: F841 (kept: a token dropped is undeclared); the test publishes as the calibrator
     try:
         threads.append(run_in_thread(lambda: result.setdefault("summary", recorder.run())))
         injector = matched_publisher(bus, keys.frame(RIG, INJECTED))
@@ -115,7 +117,7 @@ def recorded(tmp_path_factory):
         for payload in injected:
             injector.put(payload)
         bus.put(keys.observations(RIG), json.dumps(OBSERVATIONS))
-        bus.put(keys.calibration(RIG), json.dumps(CALIBRATION))
+        SourcedPublisher(bus.declare_publisher(keys.calibration(RIG))).put(json.dumps(CALIBRATION).encode())
         for payload in FEATURES:
             bus.put(keys.features(RIG, "left"), payload)
         bus.put(keys.observations(RIG), b"not json")  # counted, not written

@@ -190,6 +190,10 @@ def test_each_key_is_granted_to_the_kinds_whose_job_it_is():
     assert who("put egress", keys.features(RIG, "left")) == {"matcher", "recorder"}
     assert who("liveliness_token ingress", keys.node(RIG, "features", "left")) == {"driver"}
     assert who("put egress", keys.calibration(RIG)) == {"matcher", "recorder", "observer"}
+    # Who reads calibrations takes them only from a session a calibrator's token names.
+    calibrator = keys.calibrator(RIG, "4ba47ec6cc3c913134b083514c2c9f94")
+    assert who("liveliness_token ingress", calibrator) == {"calibrator"}
+    assert who("liveliness_token egress", calibrator) == {"matcher", "recorder"}
     # A restarted matcher asks for the latest calibration; the cameras' stages follow its pace.
     assert who("query ingress", keys.calibration(RIG)) == {"matcher", "recorder", "observer"}
     assert who("put egress", keys.node_stats(RIG, "matcher", "matcher")) == {"driver", "recorder", "observer"}

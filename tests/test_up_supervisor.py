@@ -129,22 +129,28 @@ def forge(doc: dict, factor: float) -> bytes:
 
 
 def test_up_ignores_calibrations_of_another_publisher_and_ends_with_its_calibrators_own(tmp_path):
+    from mcap.reader import make_reader
+
     from camnet.bus import keys
     from camnet.bus.session import BusOptions, open_session
+    from camnet.bus.source import SourcedPublisher
     from camnet.io.messages import decode_calibration_message
 
     rig_path = rig_file(tmp_path, 4)
     rig = load_rig(rig_path)
     truth = rig.simulated_truth()
     run_dir, out, endpoint = tmp_path / "run", tmp_path / "out.json", f"tcp/127.0.0.1:{free_port()}"
+    session_path = tmp_path / "session.mcap"
     proc = subprocess.Popen(
         [sys.executable, "-m", "camnet.cli", "up", rig_path, "--until-frame-sets", "8", "--duration-s", "300",
-         "--run-dir", str(run_dir), "-o", str(out), "--listen", endpoint],
+         "--run-dir", str(run_dir), "-o", str(out), "--listen", endpoint, "--record", str(session_path)],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     stdout, stderr = Output(proc.stdout), Output(proc.stderr)
     forged: list[bytes] = []
     with open_session(BusOptions(connect=(endpoint,))) as peer:
-        publisher = peer.declare_publisher(keys.calibration(rig.name))
+        # Stating no source, and stating the peer's own.
+        publishers = [peer.declare_publisher(keys.calibration(rig.name))]
+        publishers.append(SourcedPublisher(peer.declare_publisher(keys.calibration(rig.name))))
         try:
             # From the calibrator's first calibration to the run's end: a copy 6% too large, four times a second.
             state = run_dir / "calibration.json"
@@ -153,7 +159,7 @@ def test_up_ignores_calibrations_of_another_publisher_and_ends_with_its_calibrat
             if state.exists():
                 forged.append(forge(json.loads(state.read_text()), 1.06))
             while forged and proc.poll() is None:
-                publisher.put(forged[0])
+                publishers[len(forged) % 2].put(forged[0])
                 forged.append(forged[0])
                 wait_for(lambda: proc.poll() is not None, 0.25)
         finally:
@@ -176,6 +182,14 @@ def test_up_ignores_calibrations_of_another_publisher_and_ends_with_its_calibrat
         cal = parse_calibration(doc)
         scale_error = compare_cameras(cal, truth).scale_rel
         assert abs(scale_error) < 3 * scale_sigma_rel(cal), f"{path}: scale off by {scale_error:+.3%}"
+    # The matcher chose its pairs from the calibrator's calibrations only, and the recording holds only those.
+    for node in ("matcher", "recorder"):
+        log = (run_dir / "logs" / f"{node}.log").read_text()
+        assert "ignoring a calibration that is not the rig's calibrator's" in log, log[-3000:]
+    with open(session_path, "rb") as stream:
+        recorded = [json.loads(message.data) for _, channel, message in make_reader(stream).iter_messages()
+                    if channel.topic == keys.calibration(rig.name)]
+    assert recorded and all(doc["solve"] != 1231 for doc in recorded), [doc["solve"] for doc in recorded]
 
 
 def test_a_node_that_keeps_exiting_ends_the_run_past_the_restarts_a_minute_allows(tmp_path, monkeypatch):

@@ -46,6 +46,17 @@ def calibration(rig: str) -> str:
     return f"{rig_prefix(rig)}/calibration"
 
 
+def calibrator(rig: str, session_id: str) -> str:
+    """Liveliness token of a calibrator of a rig, named by its Zenoh session id: calibrations are taken only
+    from the sessions these tokens name (camnet.bus.source)."""
+    return f"{rig_prefix(rig)}/calibrator/{validate_id(session_id, what='session id')}"
+
+
+def all_calibrators(rig: str) -> str:
+    """Selector for the liveliness tokens of every calibrator of a rig."""
+    return f"{rig_prefix(rig)}/calibrator/*"
+
+
 def groundtruth(rig: str) -> str:
     return f"{rig_prefix(rig)}/groundtruth"
 
@@ -104,6 +115,14 @@ def parse_frame(key: str) -> tuple[str, str]:
     parts = str(key).split("/")
     if len(parts) != 5 or parts[0] != ROOT or parts[2] != "cam" or parts[4] != "frame":
         raise InputError(f"not a camnet frame key: {key!r}")
+    return parts[1], parts[3]
+
+
+def parse_calibrator(key: str) -> tuple[str, str]:
+    """(rig, session_id) of a calibrator's liveliness key; InputError if it is not one."""
+    parts = str(key).split("/")
+    if len(parts) != 4 or parts[0] != ROOT or parts[2] != "calibrator":
+        raise InputError(f"not a camnet calibrator key: {key!r}")
     return parts[1], parts[3]
 
 

@@ -90,6 +90,7 @@ def grants(rig: str) -> dict[str, Grants]:
     prefix = keys.rig_prefix(rig)
     frames, features = keys.all_frames(rig), keys.all_features(rig)
     observations, calibration, groundtruth = keys.observations(rig), keys.calibration(rig), keys.groundtruth(rig)
+    calibrators = keys.all_calibrators(rig)  # a calibrator's token names its session (camnet.bus.source)
 
     def own(kind: str) -> tuple[tuple[str, ...], tuple[str, ...]]:
         """(liveliness tokens, statistics) of the nodes of `kind`, whatever their ids."""
@@ -114,17 +115,18 @@ def grants(rig: str) -> dict[str, Grants]:
         "replayer": Grants(publish=(frames, features, groundtruth, *driver_stats, keys.lockstep_step(rig)),
                            serve=(groundtruth,), token=(*driver_tokens, features),
                            subscribe=(keys.all_lockstep_acks(rig),), watch=(keys.all_lockstep_acks(rig),)),
-        # The calibration: to choose the pairs it matches (camnet.matching.viewgraph), asked for at start; the
-        # feature stages' tokens: a camera's features are taken only from a stage declared for it.
+        # The calibration: to choose the pairs it matches (camnet.matching.viewgraph), asked for at start, taken
+        # only from a declared calibrator; the feature stages' tokens: a camera's features are taken only from a
+        # stage declared for it.
         "matcher": Grants(subscribe=(frames, features, calibration, keys.lockstep_step(rig)),
                           ask=(calibration,),
                           publish=(observations, *matcher_stats, *acks("matcher")), serve=(observations,),
-                          token=(*matcher_tokens, *acks("matcher")), watch=(features,)),
+                          token=(*matcher_tokens, *acks("matcher")), watch=(features, calibrators)),
         # Frames only for showing them in Rerun beside the solve.
         "calibrator": Grants(subscribe=(observations, frames),
                              publish=(calibration, *calibrator_stats, *acks("calibrator")),
-                             serve=(calibration,), token=(*calibrator_tokens, *acks("calibrator"))),
-        "recorder": Grants(subscribe=(f"{prefix}/**",), watch=(keys.all_nodes(rig),),
+                             serve=(calibration,), token=(*calibrator_tokens, *acks("calibrator"), calibrators)),
+        "recorder": Grants(subscribe=(f"{prefix}/**",), watch=(keys.all_nodes(rig), calibrators),
                            ask=(groundtruth, calibration), publish=recorder_stats, token=recorder_tokens),
         # `camnet up` and `camnet status`: they read, and publish nothing.
         "observer": Grants(subscribe=(calibration, observations, keys.all_node_stats(rig)),

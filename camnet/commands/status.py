@@ -10,7 +10,8 @@ last frame), and what looks wrong. Statistics are what a node says of
 itself, and any peer may publish them: those of a node with no liveliness
 token, and a camera's rate that the matcher does not receive, are flagged, as
 are features of a camera that the matcher ignored, from another publisher than
-the camera's feature stage.
+the camera's feature stage, and calibrations a node ignored, from another
+publisher than the rig's calibrator.
 """
 
 from __future__ import annotations
@@ -78,8 +79,10 @@ FOREIGN_FEATURES = "foreign features: "  # the matcher's count of them, by camer
 def suspicious(nodes: list[tuple[str, str]], stats: dict) -> list[str]:
     """What in `stats` (by (kind, id)) is not to be believed: statistics of a node with no liveliness
     token among `nodes`, a driver that claims a rate the matcher does not receive or a camera the
-    matcher does not know; and features of a camera that the matcher ignored, from another publisher
-    than the camera's stage."""
+    matcher does not know; features of a camera that the matcher ignored, from another publisher
+    than the camera's stage; and calibrations a node ignored, from another publisher than the calibrator."""
+    from camnet.bus.source import FOREIGN_CALIBRATIONS
+
     live = set(nodes)
     received = {camera_id: seen for (kind, _), s in stats.items() if kind == "matcher"
                 for camera_id, seen in s.cameras.items()}
@@ -88,6 +91,9 @@ def suspicious(nodes: list[tuple[str, str]], stats: dict) -> list[str]:
         if (kind, node_id) not in live:
             found.append(f"{kind} {node_id}: statistics without a liveliness token (a node gone, or a peer "
                          "publishing in its name)")
+        if s.faults.get(FOREIGN_CALIBRATIONS):
+            found.append(f"{kind} {node_id}: {s.faults[FOREIGN_CALIBRATIONS]} calibrations from another publisher "
+                         "than the rig's calibrator, ignored (the node's log names the publisher)")
         if kind == "matcher":
             found += [f"camera {fault.removeprefix(FOREIGN_FEATURES)}: {n} features from another publisher than its "
                       "feature stage, ignored by the matcher (the matcher's log names the publisher)"
