@@ -20,6 +20,7 @@ from camnet.model.calibration import (
     CameraStats,
     FreeSet,
     HalvesCheck,
+    LensShift,
     PairPoseCheck,
     PointsLeftOut,
     Rival,
@@ -83,6 +84,9 @@ def report_to_doc(report: SolveReport) -> dict:
         diagnostics["pair_checks"] = [
             {"cameras": [c.first, c.second], "rotation_deg": c.rotation_deg, "direction_deg": c.direction_deg,
              "in_sigmas": c.in_sigmas, "shared": c.shared, "inliers": c.inliers} for c in report.pair_checks]
+    if report.lens_shifts is not None:
+        diagnostics["lens_shifts"] = {c: {"f_rel": sh.f_rel, "in_sigmas": sh.in_sigmas, "k1": sh.k1}
+                                      for c, sh in report.lens_shifts.items()}
     doc: dict[str, Any] = {
         "method": report.method.value,
         "diagnostics": diagnostics,
@@ -199,6 +203,7 @@ def parse_report(doc: dict) -> SolveReport | None:
         rivals=get("rivals", _parse_rivals, ()),
         far_principal_points=get("far_principal_points", _parse_shares, {}),
         pair_checks=get("pair_checks", _parse_pair_checks),
+        lens_shifts=get("lens_shifts", _parse_lens_shifts),
     )
 
 
@@ -219,6 +224,16 @@ def _parse_pair_checks(value: Any, path: str) -> tuple[PairPoseCheck, ...]:
                                       for k in ("rotation_deg", "direction_deg", "in_sigmas")),
             *(v.integer(v.require(c, k, here), f"{here}.{k}") for k in ("shared", "inliers"))))
     return tuple(out)
+
+
+def _parse_lens_shifts(value: Any, path: str) -> dict[str, LensShift]:
+    out = {}
+    for cam_id, shift in v.mapping(value, path).items():
+        here = f"{path}.{cam_id}"
+        shift = v.mapping(shift, here)
+        out[cam_id] = LensShift(*(v.number(v.require(shift, k, here), f"{here}.{k}")
+                                  for k in ("f_rel", "in_sigmas", "k1")))
+    return out
 
 
 def _parse_shares(value: Any, path: str) -> dict[str, float]:

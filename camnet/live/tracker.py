@@ -36,11 +36,12 @@ from camnet.live.judged_solve import Judged, Status, solve_judged
 from camnet.live.moved_cameras import MoveEvidence, drop_before, move_evidence, off_their_pose
 from camnet.live.newest_first import solve_newest_first
 from camnet.live.policy import LiveConfig, policy_check
-from camnet.model.calibration import Calibration, HalvesCheck, PairPoseCheck
+from camnet.model.calibration import Calibration, HalvesCheck, LensShift, PairPoseCheck
 from camnet.model.camera import Camera
 from camnet.model.observations import Observations
-from camnet.solve import Options, calibrate
+from camnet.solve import Options, calibrate, solved_from
 from camnet.solve.halves import with_check_carried, with_halves_check
+from camnet.solve.lens_check import with_lens_carried, with_lens_check
 from camnet.solve.pair_check import with_pair_check, with_pairs_carried
 
 log = logging.getLogger(__name__)
@@ -103,6 +104,7 @@ class Tracker:
     _halves_max_id: int = -1
     _halves_at_s: float = -np.inf
     _pairs: tuple[PairPoseCheck, ...] = ()  # the pair checks made with the last second opinion
+    _lens: Mapping[str, LensShift] | None = None  # and the lens check (camnet.solve.lens_check)
     # Per camera, how many suspected moves were not confirmed (`_not_confirmed`).
     not_confirmed: dict[str, int] = field(default_factory=dict)
     # Suspected moves (`_persisted`): per camera, the first track id of its views off its pose, and how many frame
@@ -150,7 +152,8 @@ class Tracker:
         outcome = replace(outcome, told=told, solve_s=time.perf_counter() - t0)
         self.counts[outcome.status] += 1
         if outcome.status == Status.GOOD:
-            outcome = replace(outcome, calibration=self._second_opinion(solve_obs, outcome.calibration),
+            outcome = replace(outcome, calibration=self._second_opinion(solve_obs, outcome.calibration,
+                                                                        warm=outcome.warm),
                               solve_s=time.perf_counter() - t0)
             self.good = outcome.calibration
             # A moved camera left out stays to be placed again (by the checked warm path, with its lens).
@@ -160,24 +163,38 @@ class Tracker:
             self._points_valid = True
         return outcome
 
-    def _second_opinion(self, obs: Observations, cal: Calibration) -> Calibration:
+    def _second_opinion(self, obs: Observations, cal: Calibration, *, warm: bool) -> Calibration:
         """`cal` with the halves check and the pair check (camnet.solve.pair_check): asked afresh where at least
         HALVES_TURNOVER of the pool is newer than the last check saw (the first time, and after a move) and
-        `halves_interval_s` have passed since, else the last checks carried over."""
+        `halves_interval_s` have passed since, else the last checks carried over. Asked afresh, a `warm` solve is
+        first solved on with the free rule tried again (`_freed_again`)."""
         if not self.config.options.halves:
             return cal
         turnover = float(np.mean(obs.track_ids > self._halves_max_id)) if len(obs.track_ids) else 0.0
         recent = time.monotonic() - self._halves_at_s < self.config.halves_interval_s
         if self._halves is not None and (turnover < HALVES_TURNOVER or recent):
-            return with_pairs_carried(with_check_carried(cal, self._halves), self._pairs)
+            return with_lens_carried(with_pairs_carried(with_check_carried(cal, self._halves), self._pairs),
+                                     self._lens)
+        if warm:
+            cal = self._freed_again(obs, cal)
         cold = self._options
         cal = with_halves_check(obs, cal, lambda half: calibrate(half, cold).calibration,
                                 max_half_tracks=HALVES_MAX_TRACKS)
-        cal = with_pair_check(obs, cal)
+        cal = with_lens_check(obs, with_pair_check(obs, cal), self.config.options, solved_from)
         self._halves, self._halves_max_id = cal.report.halves, int(obs.track_ids.max())
-        self._pairs = cal.report.pair_checks
+        self._pairs, self._lens = cal.report.pair_checks, cal.report.lens_shifts
         self._halves_at_s = time.monotonic()
         return cal
+
+    def _freed_again(self, obs: Observations, cal: Calibration) -> Calibration:
+        """`cal` solved on with the automatic rule tried again (Options.free_again), where that is good: a warm
+        solve keeps the free set of the first, and a pool that has grown since may determine more of a lens."""
+        if self.config.options.free != "auto":
+            return cal
+        waiting = {c: NOT_FORGOTTEN_YET for c in sorted(self._awaiting) if c in obs.camera_ids}
+        again = solve_judged(obs, cal, options=replace(self._options, free_again=True),
+                             check=partial(policy_check, config=self.config), leave_out=waiting)
+        return again.calibration if again.status == Status.GOOD else cal
 
     def _move_state(self) -> tuple[dict[str, int], set[str], dict[str, tuple[Camera, float | None]], set[str]]:
         """Copies of what a move found changes: the cut-offs, the cameras reset, pending and awaited."""

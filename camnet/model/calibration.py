@@ -112,6 +112,17 @@ class PointsLeftOut:
 
 
 @dataclass(frozen=True)
+class LensShift:
+    """What one camera's solution does when its lens distortion, held at none because nobody gave it, is freed
+    (camnet.solve.lens_check): f_rel, its focal length's relative move; in_sigmas, that move over its sigma with
+    the lens free; k1, the k1 it then takes."""
+
+    f_rel: float
+    in_sigmas: float
+    k1: float
+
+
+@dataclass(frozen=True)
 class PairPoseCheck:
     """The solved relative pose of cameras `first`, `second` against their own two-view geometry
     (camnet.model.pair_pose_check).
@@ -233,6 +244,8 @@ class SolveReport:
     far_principal_points: Mapping[str, float] = field(default_factory=dict)
     # Each camera against the two-view geometry with its neighbours (None: not checked).
     pair_checks: tuple[PairPoseCheck, ...] | None = None
+    # Camera id -> what freeing its undescribed lens's k1 moves (None: not checked: distortion was free or given).
+    lens_shifts: Mapping[str, LensShift] | None = None
 
 
 @dataclass(frozen=True)

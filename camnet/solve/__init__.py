@@ -8,7 +8,7 @@ camnet.solve.report.
 """
 
 from camnet.solve.options import Options
-from camnet.solve.pipeline import calibrate, with_second_opinion
+from camnet.solve.pipeline import calibrate, solved_from, with_second_opinion
 from camnet.solve.result import Result
 
-__all__ = ["Options", "Result", "calibrate", "with_second_opinion"]
+__all__ = ["Options", "Result", "calibrate", "solved_from", "with_second_opinion"]

@@ -29,3 +29,7 @@ class Options:
     # Solve the scene's two halves apart and widen the sigmas of what they disagree on (camnet.solve.halves):
     # the second opinion that the curvature at one minimum cannot give.
     halves: bool = True
+    # Under the automatic rule, a warm start also tries to free what its start held: a pool that has grown since
+    # may determine a lens the first few tracks could not (a webcam's k1), which held at zero biases its focal
+    # length and distance together by more than their sigmas.
+    free_again: bool = False

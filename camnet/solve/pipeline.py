@@ -70,6 +70,7 @@ from camnet.solve.free_rule import (
 )
 from camnet.solve.halves import with_halves_check
 from camnet.solve.known_distances import known_distances
+from camnet.solve.lens_check import with_lens_check
 from camnet.solve.options import Options
 from camnet.solve.pair_check import with_pair_check
 from camnet.solve.report.assemble import (
@@ -190,12 +191,18 @@ def calibrate(
 
 def with_second_opinion(obs: Observations, cal: Calibration, options: Options) -> Calibration:
     """`cal`, solved from `obs`, with the second opinion: the scene's halves solved apart and compared
-    (camnet.solve.halves), each camera's pose against its own two views (camnet.solve.pair_check)."""
+    (camnet.solve.halves), each camera's pose against its own two views (camnet.solve.pair_check), and the lenses
+    nobody described freed (camnet.solve.lens_check)."""
     obs, _ = without_unobserved(obs)
     # Each half from a cold start: warm from the whole, it keeps the whole's outliers and basin and agrees.
     alone = replace(options, halves=False)
     cal = with_halves_check(obs, cal, lambda half: calibrate(half, alone).calibration)
-    return with_pair_check(obs, cal)
+    return with_lens_check(obs, with_pair_check(obs, cal), options, solved_from)
+
+
+def solved_from(obs: Observations, options: Options, initial: Calibration) -> Calibration:
+    """`obs` solved with `options` warm from `initial`."""
+    return calibrate(obs, options, initial=initial).calibration
 
 
 def _calibrate(
@@ -248,10 +255,11 @@ def _calibrate(
     timings["robust_adjustment"] = time.perf_counter() - t1
 
     decisions: list[str] = []
-    if options.free == "auto" and initial is None and options.method != Method.UNCONSTRAINED:
+    if options.free == "auto" and (initial is None or options.free_again) and options.method != Method.UNCONSTRAINED:
         t2 = time.perf_counter()
+        # A warm start's pair stays as it was solved (or given): the rule frees more, from there.
         full, problem, state, inliers, decisions = _apply_free_rule(
-            ctx, full, problem, state, inliers, options, ideal_pair=start.parallel)
+            ctx, full, problem, state, inliers, options, ideal_pair=start.parallel and initial is None)
         timings["choose_free"] = time.perf_counter() - t2
 
     t3 = time.perf_counter()

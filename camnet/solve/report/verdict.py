@@ -22,6 +22,8 @@ import numpy as np
 
 from camnet.errors import in_words
 from camnet.model.calibration import Calibration, CameraSigmas, SolveReport
+from camnet.solve.report.lens_shifts import biased
+from camnet.solve.report.lens_shifts import describe as lens_move
 from camnet.solve.report.pair_poses import describe, judge_pairs
 from camnet.solve.report.rivals import TO_DECIDE, named_parameter
 from camnet.solve.report.scale_cause import GIVE_STEREO_K, pair_rotation_todo, scale_cause
@@ -179,6 +181,7 @@ def _camera_findings(cam_id: str, f_px: float, report: SolveReport, lever_m: flo
         pp_loose = sigmas.cx_px > 0 or sigmas.cy_px > 0
         out += _sigma_findings(cam_id, f_px, sigmas, lever_m, pp_loose, t)
     out += _pair_findings(cam_id, report)
+    out += _lens_findings(cam_id, report)
     disputed = set(report.halves.widened) if report.halves is not None else set()
     return [_disputed(f, cam_id) if _measure(f) and f"{_measure(f)} {cam_id}" in disputed else f for f in out]
 
@@ -202,6 +205,17 @@ def _pair_findings(cam_id: str, report: SolveReport) -> list[Finding]:
                         f"({describe(mine)})", "one of the two is placed wrong", Action.ADD_FRAME_SET,
                         f"add a frame set, or give camera {cam_id}'s K")]
     return []
+
+
+def _lens_findings(cam_id: str, report: SolveReport) -> list[Finding]:
+    """A camera whose focal length moves beyond its sigmas once its lens, held straight, is freed, is poor: its
+    sigmas were those of a lens it does not have (camnet.solve.lens_check)."""
+    shift = biased(report.lens_shifts).get(cam_id)
+    if shift is None:
+        return []
+    return [Finding(Level.POOR, lens_move(shift), "its lens bends the image, which the solve held straight as nobody "
+                    "gave its dist: its focal length and distance took the bend up", Action.GIVE_K,
+                    f"give camera {cam_id}'s K and dist, or free its distortion (--free with k1)")]
 
 
 def _measure(finding: Finding) -> str:
