@@ -266,3 +266,35 @@ def test_a_node_that_exits_before_it_is_up_ends_the_run_naming_it_however_long_i
     assert str(raised.value).startswith("node driver-nope exited with status 2: "
                                         f"{rig_path}: no camera 'nope' in rig"), str(raised.value)
     assert told == [] and launch.restart_counts() == {}
+
+
+def test_on_a_secured_rig_camnet_ups_nodes_are_seen_up_through_the_access_control(tmp_path):
+    """camnet up joins a secured rig as an observer: the router's access control lets it see its nodes' tokens,
+    else every exit would be taken for a failure to start."""
+    import shutil
+
+    from camnet.bus.security import COMMAND_IDENTITY
+    from tests.test_security import camnet, router_process
+
+    if shutil.which("openssl") is None:
+        pytest.skip("camnet secure init needs the openssl CLI")
+    rig_path = rig_file(tmp_path, 4)
+    rig_name = load_rig(rig_path).name
+    secrets, logs = tmp_path / "secrets", tmp_path / "logs"
+    logs.mkdir()
+    done = camnet("secure", "init", str(secrets), "--rig", rig_path)
+    assert done.returncode == 0, done.stderr
+    with router_process(secrets, tmp_path / "router.log") as (endpoint, _), \
+            open_session(BusOptions(secure=str(secrets), identity=COMMAND_IDENTITY["up"],
+                                    connect=(endpoint,))) as session, \
+            launch_module.Launch(logs, restart=True) as launch:
+        launch.watch(session, rig_name)
+        bus = ["--secure", str(secrets), "--connect", endpoint]
+        children = [launch.start("driver-left", ["driver", "sim", "--rig", rig_path, "--camera", "left", *bus],
+                                 token=keys.node(rig_name, "driver", "left")),
+                    launch.start("calibrator", ["calibrator", "--rig", rig_path, "--no-state", *bus],
+                                 token=keys.node(rig_name, "calibrator", "calibrator"))]
+        # check() raises if one has exited.
+        assert wait_for(lambda: launch.check() or all(launch.is_up(c) for c in children), WAIT_S,
+                        progress=lambda: logs_written(logs), limit_s=LIMIT_S), \
+            "\n".join(c.log_tail() for c in children)
