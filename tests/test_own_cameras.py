@@ -16,6 +16,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 import yaml
 
 from tests.conftest import free_port
@@ -74,7 +75,8 @@ def test_up_names_every_absent_camera_before_starting_anything(tmp_path):
     assert len(lines) == 4 and proc.stdout == "" and not (tmp_path / "run").exists()
 
 
-def test_up_names_every_camera_its_drivers_could_not_open_and_keeps_opencv_quiet(tmp_path):
+@pytest.mark.parametrize("restart", [(), ("--no-restart",)], ids=["restart", "no-restart"])
+def test_up_names_every_camera_its_drivers_could_not_open_and_keeps_opencv_quiet(tmp_path, restart):
     for name in ("a.mp4", "b.mp4"):
         (tmp_path / name).write_bytes(b"not a video at all" * 100)
     (tmp_path / "frames").mkdir()
@@ -85,15 +87,16 @@ def test_up_names_every_camera_its_drivers_could_not_open_and_keeps_opencv_quiet
     rig = v4l2_rig(tmp_path, {"a": "a.mp4", "b": "b.mp4", "good": "frames/*.png"})
     elsewhere = tmp_path / "elsewhere"  # the rig's paths are relative to the rig file
     elsewhere.mkdir()
-    # --no-restart: the run ends at the first exit, as a rig whose cameras cannot open must.
-    proc = camnet("up", str(rig), "--duration-s", "60", "--run-dir", str(tmp_path / "run"), "--no-restart",
+    # Restarting or not, the run ends: a driver that exits before it is up failed to start (its camera fails
+    # again), and its sibling failing too is named with it.
+    proc = camnet("up", str(rig), "--duration-s", "60", "--run-dir", str(tmp_path / "run"), *restart,
                   *own_bus(), cwd=elsewhere)
     assert proc.returncode == 2, proc.stdout + proc.stderr
     error = proc.stderr[proc.stderr.index("camnet up: error:"):]
     assert error.startswith("camnet up: error: 2 of "), proc.stderr
     assert f"driver-a exited with status 2: camera 'a': cannot open '{tmp_path / 'a.mp4'}'" in error
     assert f"driver-b exited with status 2: camera 'b': cannot open '{tmp_path / 'b.mp4'}'" in error
-    assert "driver-good" not in error
+    assert "driver-good" not in error and "restarting" not in proc.stdout, proc.stdout
     logs = "".join(p.read_text() for p in (tmp_path / "run" / "logs").glob("*.log"))
     for mark in OPENCV_LOG_MARKS:
         assert mark not in proc.stdout + proc.stderr + logs, (mark, proc.stderr, logs)

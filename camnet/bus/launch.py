@@ -3,8 +3,11 @@
 Each node is `python -m camnet.cli <command> ...` with its log in its own
 file. `Launch` is a context manager: leaving it (normally, on an error or on
 Ctrl-C) stops every child with SIGTERM, then SIGKILL after a grace period.
-With `restart`, `check` restarts a node that exits, after a back-off, up to
-`RESTARTS_PER_MINUTE` times a minute; without, any exit ends the run.
+A child is up once the liveliness token it declares when it serves (`token`,
+`camnet.bus.keys.node`) has been seen (`watch`). With `restart`, `check`
+restarts a node that exits after it came up, after a back-off, up to
+`RESTARTS_PER_MINUTE` times a minute; one that exits before it was ever up
+failed to start, and ends the run; without `restart`, any exit ends the run.
 `start_network` starts the nodes of one rig (`NetworkSpec`) in it.
 """
 
@@ -15,18 +18,23 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from camnet.bus import keys
 from camnet.bus.session import BusOptions
 from camnet.errors import CamnetError
 
 log = logging.getLogger(__name__)
 
 
-STARTUP_S = 5.0  # a node that fails this soon after its start is failing to start, as its siblings may be
+# Only for a child that names no token, or a Launch that watches none: such a child counts as up once it has run
+# this long. Generous, as a loaded machine can take many seconds just to import and connect a node. Also the
+# longest a child still starting is waited for when a sibling fails to start.
+STARTUP_S = 30.0
 RESTART_DELAY_S = 1.0  # a node's first restart waits this long, each further one within a minute twice as long
 MAX_RESTART_DELAY_S = 10.0
 RESTARTS_PER_MINUTE = 5  # a node that exits more often is broken, not unlucky: the run ends
@@ -42,7 +50,9 @@ class Child:
     command: tuple[str, ...] = ()  # what `Launch.start` was given, to start it again
     verbose: bool = True
     restart: bool = True  # restarted when it exits, under a Launch that restarts
-    restarted: bool = False  # a restart itself: it came up once, so a quick exit is no failure to start
+    restarted: bool = False  # a restart itself: the node came up once, so an exit before it is up again is no
+    # failure to start (a camera host rebooting), and only the limit a minute ends its restarts
+    token: str | None = None  # the liveliness key it declares once it serves (camnet.bus.keys.node)
 
     def log_tail(self, lines: int = 15) -> str:
         try:
@@ -99,6 +109,9 @@ class Launch:
         self.children: list[Child] = []
         self.restarts: dict[str, list[float]] = {}  # node name -> when each of its restarts was decided
         self._due: list[tuple[float, Child]] = []  # exited children to start again, and when
+        self._watching = False
+        self._appeared: dict[str, float] = {}  # liveliness key -> when its latest token appeared (monotonic s)
+        self._lock = threading.Lock()  # tokens arrive on Zenoh's threads
 
     def __enter__(self) -> Launch:
         return self
@@ -106,14 +119,30 @@ class Launch:
     def __exit__(self, *exc_info: object) -> None:
         self.stop_all()
 
-    def start(self, name: str, command: list[str], *, verbose: bool = True, restart: bool = True) -> Child:
-        """Start node `name`; with `restart` (and a Launch that restarts), it is started again when it exits."""
+    def watch(self, session, rig: str):
+        """Judge the children of `rig` that name a `token` by it, from now on: watch the node tokens on
+        `session`. The liveliness subscriber (undeclare it, or close the session, to stop)."""
+        self._watching = True
+        return session.liveliness().declare_subscriber(keys.all_nodes(rig), self._on_token, history=True)
+
+    def _on_token(self, sample) -> None:
+        import zenoh
+
+        if sample.kind == zenoh.SampleKind.PUT:
+            with self._lock:
+                self._appeared[str(sample.key_expr)] = time.monotonic()
+
+    def start(self, name: str, command: list[str], *, verbose: bool = True, restart: bool = True,
+              token: str | None = None) -> Child:
+        """Start node `name`; with `restart` (and a Launch that restarts), it is started again when it exits
+        after it came up; `token`: the liveliness key by which it is known to be up (see `watch`)."""
         argv = [sys.executable, "-m", "camnet.cli", *(["-v"] if verbose else []), *command]
         log_path = self.log_dir / f"{name}.log"
+        started_s = time.monotonic()  # before the process: no token of its can have appeared earlier
         with open(log_path, "ab") as out:
             process = subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                                        start_new_session=True)
-        child = Child(name, argv, log_path, process, time.monotonic(), tuple(command), verbose, restart)
+        child = Child(name, argv, log_path, process, started_s, tuple(command), verbose, restart, token=token)
         self.children.append(child)
         log.info("started %s (pid %d): %s", name, process.pid, " ".join(command))
         return child
@@ -122,12 +151,26 @@ class Launch:
         """How often each restarted node was restarted, in the order of their first restart."""
         return {name: len(times) for name, times in self.restarts.items()}
 
+    def is_up(self, child: Child) -> bool:
+        """Whether `child` has come up: its token has appeared since its start. A child that names no token,
+        or under a Launch that watches none, has only the clock to go by: up once it has run `STARTUP_S`."""
+        if child.token is not None and self._watching:
+            with self._lock:
+                appeared_s = self._appeared.get(child.token)
+            return appeared_s is not None and appeared_s >= child.started_mono_s
+        return time.monotonic() - child.started_mono_s >= STARTUP_S
+
+    def _starting(self, child: Child) -> bool:
+        """Whether `child` is still starting: running, not up, and within `STARTUP_S` of its start."""
+        return (child.process.poll() is None and not self.is_up(child)
+                and time.monotonic() - child.started_mono_s < STARTUP_S)
+
     def _restartable(self, child: Child) -> bool:
-        """Whether `child`, ended, is to be started again: it came up (a node failing at its start, as a
-        camera that is not there, fails again), and its restarts this minute are within the limit."""
+        """Whether `child`, ended, is to be started again: it came up (a node that fails before it is up, as
+        a camera that is not there, fails again), and its restarts this minute are within the limit."""
         if not (self.restart and child.restart):
             return False
-        if not child.restarted and time.monotonic() - child.started_mono_s < STARTUP_S:
+        if not (child.restarted or self.is_up(child)):
             return False
         return len(self._recent_restarts(child.name)) < RESTARTS_PER_MINUTE
 
@@ -154,7 +197,8 @@ class Launch:
         for due in [d for d in self._due if d[0] <= now_s]:
             self._due.remove(due)
             old = due[1]
-            self.start(old.name, list(old.command), verbose=old.verbose, restart=old.restart).restarted = True
+            self.start(old.name, list(old.command), verbose=old.verbose, restart=old.restart,
+                       token=old.token).restarted = True
 
     def exited(self) -> list[Child]:
         """Children that have ended."""
@@ -164,10 +208,11 @@ class Launch:
         """Restart the children that have ended and may be (`restart`), start those whose back-off is over,
         and raise CamnetError naming every other child that has ended, with its error line.
 
-        When one fails at start, its siblings still starting (cameras of one
-        rig often fail together: unplugged, wrong ids) are given until
-        `STARTUP_S` after their start, so that all of them are named at once.
-        A node restarted more than `RESTARTS_PER_MINUTE` times a minute ends the run so too.
+        When one fails before it is up, its siblings still starting (cameras
+        of one rig often fail together: unplugged, wrong ids) are given until
+        they are up, or at most `STARTUP_S` after their start, so that all of
+        them are named at once. A node restarted more than
+        `RESTARTS_PER_MINUTE` times a minute ends the run so too.
         """
         for child in self.exited():
             if self._restartable(child):
@@ -177,9 +222,7 @@ class Launch:
         if not exited:
             return
         if any(c.process.returncode != 0 for c in exited):
-            starting = [c for c in self.children if c not in exited]
-            deadline = max((c.started_mono_s + STARTUP_S for c in starting), default=0.0)
-            while time.monotonic() < deadline and any(c.process.poll() is None for c in starting):
+            while any(self._starting(c) for c in self.children if c not in exited):
                 time.sleep(0.1)
             exited = self.exited()
         if len(exited) == 1:
@@ -237,14 +280,20 @@ class NetworkSpec:
 
 
 def start_network(launch: Launch, spec: NetworkSpec) -> None:
-    """Start the nodes of `spec` as children of `launch`, drivers first."""
+    """Start the nodes of `spec` as children of `launch`, drivers first, each naming the token it declares
+    once it serves (kind and id as its `camnet.bus.node.Presence` states them: a driver's id is its camera's)."""
     rig = str(spec.rig_path)
+
+    def token(kind: str, node_id: str) -> str:
+        return keys.node(spec.rig_name, kind, node_id)
+
     for camera_id, driver in spec.cameras:
         launch.start(f"driver-{camera_id}", ["driver", driver, "--rig", rig, "--camera", camera_id, *spec.driver,
-                                                     *spec.bus])
-    launch.start("matcher", ["matcher", "--rig", rig, *spec.matcher, *spec.bus])
-    launch.start("calibrator", ["calibrator", "--rig", rig, *spec.calibrator, *spec.bus])
+                                                     *spec.bus], token=token("driver", camera_id))
+    launch.start("matcher", ["matcher", "--rig", rig, *spec.matcher, *spec.bus], token=token("matcher", "matcher"))
+    launch.start("calibrator", ["calibrator", "--rig", rig, *spec.calibrator, *spec.bus],
+                 token=token("calibrator", "calibrator"))
     if spec.record_path is not None:
         # Not restarted: a session file is never overwritten, so a second recorder could only fail.
         launch.start("recorder", ["record", "--rig", spec.rig_name, "-o", str(spec.record_path), *spec.bus],
-                     restart=False)
+                     restart=False, token=token("recorder", "recorder"))

@@ -1,12 +1,13 @@
 """`camnet up [RIG.yaml]`: the whole network on this machine, calibrating itself.
 
 Starts one driver per camera, the matcher and the calibrator as child
-processes on the bus (restarting one that exits, camnet.bus.launch), follows
-the calibrations its calibrator publishes, and ends (after `--duration-s`, or
-never with `--forever`; with `--until-frame-sets N` at the first calibration
-from N pooled frame sets) by printing the calibrator's last, read from its
-state file, beside the ground truth when the rig is simulated. With no rig
-file it runs the built-in simulated rig: the paper's four cameras.
+processes on the bus (restarting one that exits after it came up,
+camnet.bus.launch), follows the calibrations its calibrator publishes, and
+ends (after `--duration-s`, or never with `--forever`; with
+`--until-frame-sets N` at the first calibration from N pooled frame sets)
+by printing the calibrator's last, read from its state file, beside the
+ground truth when the rig is simulated. With no rig file it runs the
+built-in simulated rig: the paper's four cameras.
 """
 
 from __future__ import annotations
@@ -54,8 +55,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--record", metavar="SESSION.mcap",
                         help="also run the recorder: everything the rig publishes goes into this MCAP file")
     parser.add_argument("--no-restart", action="store_true",
-                        help="end the run when any node exits (default: a node that exits is restarted, after 1 s "
-                             "doubling to 10 s, at most 5 times a minute)")
+                        help="end the run when any node exits (default: a node that exits after it came up on "
+                             "the bus is restarted, after 1 s doubling to 10 s, at most 5 times a minute; one that "
+                             "exits before ends the run)")
     parser.add_argument("--progress-jsonl", metavar="FILE",
                         help="also write one JSON line per calibration (what the progress lines show)")
     add_rerun_arguments(parser)
@@ -330,11 +332,14 @@ def run(args: argparse.Namespace) -> int:
         launch = stack.enter_context(Launch(run_dir / "logs", restart=not args.no_restart,
                                             say=lambda line: print(f"camnet up: {line}", flush=True)))
         subscribers = [session.declare_subscriber(keys.calibration(rig.name), follower.on_calibration),
-                       session.declare_subscriber(keys.observations(rig.name), follower.on_observations)]
+                       session.declare_subscriber(keys.observations(rig.name), follower.on_observations),
+                       launch.watch(session, rig.name)]  # a node is up once its token is seen
         start_network(launch, spec)
         for line in rerun_lines(args.rerun):
             print(line, flush=True)
         if args.replay:
+            # Named by no token (it declares one per camera of its session): judged by the clock, and never
+            # restarted anyway.
             launch.start("replay", ["replay", str(args.replay), "--rig", rig.name, *spec.bus], restart=False)
         follower.follow(launch, stop, time.monotonic(), run_dir, progress_file)
         _await_state(run_dir / "calibration.json", follower.on_calibration.latest)
