@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from camnet.io.formats import observations_to_doc, parse_observations
-from camnet.matching.pool import PoolConfig, TrackPool, crowding, dedupe_frame_tracks
+from camnet.matching.pool import MOVED_FRAME_SETS, PoolConfig, TrackPool, crowding, dedupe_frame_tracks
 from camnet.matching.tracks import FrameTracks
 from camnet.model.camera import CameraInfo
 from camnet.model.observations import Stereo
@@ -233,8 +233,9 @@ def test_a_forgotten_moved_camera_keeps_its_new_views():
 
 def test_a_camera_whose_new_views_break_its_pairs_geometry_alone_is_taken_for_moved():
     # Not told (the calibrator, seeing only the views the old F let through, would never find the move):
-    # the first frame set of 100 tracks in which M alone is off its pairs' F makes the pool forget M's earlier
-    # views, and keep the new ones, not judge them against the old F, which keeps few and leaves the move unseen.
+    # the third frame set running of 100 tracks in which M alone is off its pairs' F makes the pool forget M's
+    # earlier views, and keep the new ones since the first, not judge them against the old F, which keeps few
+    # and leaves the move unseen.
     pool, first, offered = _pool_across_a_move(forget=False)
     obs = pool.observations()
     new_m = (obs.cam_index == 2) & (obs.track_ids[obs.track_index] >= first)
@@ -246,6 +247,25 @@ def test_a_camera_whose_new_views_break_its_pairs_geometry_alone_is_taken_for_mo
     assert first + 4 <= pool.forgotten["M"] <= obs.track_ids.max() and set(pool.forgotten) == {"M"}
     # A camera that did not move is never taken for moved: L and R keep every view of the 8 sets before.
     assert ((obs.cam_index == 0) & (obs.track_ids[obs.track_index] < first)).sum() >= 0.95 * 800
+
+
+def test_a_camera_off_its_pairs_geometry_in_fewer_frame_sets_running_than_a_move_takes_is_not_taken_for_moved():
+    # A person moving between free-running cameras' capture instants puts one camera's views off for a frame
+    # set or two: not a move, and its views of before are kept.
+    skewed = RIG[:2] + (_camera([-0.8, -0.04, 0.2], -35),)
+    rng = np.random.default_rng(7)
+    pool = TrackPool(CAMS, STEREO, PoolConfig(max_tracks=10_000))
+    for seq in range(8 + MOVED_FRAME_SETS + 2):
+        seen_by = skewed if 8 <= seq < 8 + MOVED_FRAME_SETS - 1 else RIG
+        X = rng.uniform([-0.15, -0.15, 1.4], [0.25, 0.15, 1.8], size=(100, 3))
+        x = np.stack([(p @ np.column_stack([X, np.ones(100)]).T).T for p in seen_by], axis=1)
+        pool.add(FrameTracks(("L", "R", "M"), x[:, :, :2] / x[:, :, 2:] + rng.normal(0, 0.2, (100, 3, 2))),
+                 frame_seq=seq)
+
+    assert pool.forgotten == {}
+    obs = pool.observations()
+    # Its views of the 8 frame sets before (the first 800 tracks) are all kept.
+    assert ((obs.cam_index == 2) & (obs.track_ids[obs.track_index] < 800)).sum() >= 0.95 * 800
 
 
 def test_forgetting_a_camera_drops_the_tracks_left_with_one_view():

@@ -59,6 +59,10 @@ CAMERA_PLANE_PX = 1e6
 # its new ones against the old geometry, and the calibrator would never see the move (`_reject_off_epipolar`).
 MOVED_SHARE = 0.5
 MOVED_MIN_VIEWS = 10
+# ... over this many frame sets running (each with MOVED_MIN_VIEWS of its views in such tracks): a person moving
+# between the capture instants of free-running cameras puts one camera's views off in a frame set or two, a move
+# in every one. A suspect's views are kept meanwhile: if it moved, they are its new pose's.
+MOVED_FRAME_SETS = 3
 
 
 @dataclass(frozen=True)
@@ -237,6 +241,9 @@ class TrackPool:
         # Per camera whose views were forgotten (it moved), the first track id pooled since: its views of older
         # tracks were judged against its old geometry, a biased few (told to the calibrator, `camnet.bus.moved`).
         self.forgotten: dict[str, int] = {}
+        # Per column suspected of a move (`_reject_off_epipolar`): the first track id of its first frame set off
+        # its pairs' F, how many frame sets running have been, and the ids of the tracks its views were kept in.
+        self._suspects: dict[int, tuple[int, int, set[int]]] = {}
         self._geometry = PairGeometry(len(ids), threshold_px=config.epipolar_px,
                                       min_inliers=config.epipolar_min_tracks)
 
@@ -301,6 +308,7 @@ class TrackPool:
             raise ValueError(f"camera {camera_id!r} is not in the pool's cameras")
         self.forgotten[camera_id] = self._next_id
         column = self._column[camera_id]
+        self._suspects.pop(column, None)
         self._uv[:, column] = np.nan
         self._geometry.forget(column)
         keep = np.isfinite(self._uv[:, :, 0]).sum(axis=1) >= 2
@@ -311,15 +319,26 @@ class TrackPool:
         if self.config.epipolar_px <= 0:
             return 0
         off = self._geometry.off_views(self._uv, changed)
-        for column in moved_columns(off, np.isfinite(self._uv[:, :, 0]), changed):
-            # Its views from before this frame set go, not its new ones; its pairs are fitted to those afresh.
-            log.warning("camera %r: %d of its views in this frame set's tracks break its pairs' epipolar geometry "
-                        "alone: taken for moved, its earlier views forgotten", self.cameras[column].id,
-                        int(off[changed, column].sum()))
-            self._uv[~changed, column] = np.nan
-            self._geometry.forget(column)
-            self.forgotten[self.cameras[column].id] = first_new_id
+        blamed, judged = moved_columns(off, np.isfinite(self._uv[:, :, 0]), changed)
+        for column in set(judged) - set(blamed):  # on its pairs' F in a frame set that shows it: not moved
+            self._suspects.pop(column, None)
+        for column in blamed:
+            first, sets, kept = self._suspects.get(column, (first_new_id, 0, set()))
+            kept |= set(self._ids[changed & off[:, column]].tolist())
             off[:, column] = False
+            if sets + 1 < MOVED_FRAME_SETS:
+                self._suspects[column] = (first, sets + 1, kept)
+                log.info("camera %r: its views break its pairs' epipolar geometry alone in %d frame set(s) running: "
+                         "kept, and a move once they do in %d", self.cameras[column].id, sets + 1, MOVED_FRAME_SETS)
+                continue
+            del self._suspects[column]
+            # Its views from before its first frame set off go, not those since; its pairs are fitted to those afresh.
+            log.warning("camera %r: its views break its pairs' epipolar geometry alone in %d frame sets running: "
+                        "taken for moved, its earlier views forgotten", self.cameras[column].id, MOVED_FRAME_SETS)
+            since = changed | np.isin(self._ids, list(kept))
+            self._uv[~since, column] = np.nan
+            self._geometry.forget(column)
+            self.forgotten[self.cameras[column].id] = first
         self._uv[off] = np.nan
         keep = ~off.any(axis=1) | (np.isfinite(self._uv[:, :, 0]).sum(axis=1) >= 2)
         self._uv, self._ids, self._last_seen = self._uv[keep], self._ids[keep], self._last_seen[keep]
@@ -359,14 +378,16 @@ class TrackPool:
         )
 
 
-def moved_columns(off: np.ndarray, seen: np.ndarray, changed: np.ndarray) -> list[int]:
-    """Columns of the cameras that moved, by `off` (T, C) the views off their pairs' F (`PairGeometry.off_views`),
-    `seen` (T, C) and `changed` (T,) the tracks of this frame set: blamed alone, in tracks of three or more
-    views, in over MOVED_SHARE of their views in those tracks and in at least MOVED_MIN_VIEWS."""
+def moved_columns(off: np.ndarray, seen: np.ndarray, changed: np.ndarray) -> tuple[list[int], list[int]]:
+    """(blamed, judged): columns of the cameras off their pairs' F in this frame set, by `off` (T, C) the views
+    off their pairs' F (`PairGeometry.off_views`), `seen` (T, C) and `changed` (T,) the tracks of this frame
+    set: blamed alone, in tracks of three or more views, in over MOVED_SHARE of their views in those tracks and
+    in at least MOVED_MIN_VIEWS; and the columns with at least MOVED_MIN_VIEWS views in those tracks."""
     wide = changed & (seen.sum(axis=1) >= 3)
     alone = off[wide] & (off[wide].sum(axis=1) == 1)[:, None]
     blamed, views = alone.sum(axis=0), seen[wide].sum(axis=0)
-    return [int(c) for c in np.flatnonzero((blamed >= MOVED_MIN_VIEWS) & (blamed > MOVED_SHARE * views))]
+    return ([int(c) for c in np.flatnonzero((blamed >= MOVED_MIN_VIEWS) & (blamed > MOVED_SHARE * views))],
+            [int(c) for c in np.flatnonzero(views >= MOVED_MIN_VIEWS)])
 
 
 def regrow_pool(pool: TrackPool | None, cameras: list[CameraInfo], stereo: Stereo, config: PoolConfig,
