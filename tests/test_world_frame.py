@@ -1,0 +1,137 @@
+"""The world frame from the scene (camnet.solve.world_frame): the floor, up and an origin on the floor."""
+
+import numpy as np
+import pytest
+
+from camnet.model.calibration import Calibration
+from camnet.model.camera import Camera
+from camnet.model.projection import look_at, rotation_exp
+from camnet.sim.families import FLOOR_FAMILIES, family, observe_family
+from camnet.solve import calibrate
+from camnet.solve.world_frame import camera_down, fit_floor, points_variance, world_frame
+
+
+def angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.degrees(np.arccos(np.clip(a @ b / np.linalg.norm(a) / np.linalg.norm(b), -1.0, 1.0))))
+
+
+def room(seed: int = 0, *, floor: int = 400, box: int = 300, wall: int = 300) -> tuple[list[Camera], np.ndarray,
+                                                                                     np.ndarray]:
+    """Cameras, points and the true up of a room with gravity along +y (y down), floor at y = 1.2 m: a box (0.6 m
+    high, its top a horizontal plane of many points) and a wall; in the first camera's frame, as a calibration."""
+    rng = np.random.default_rng(seed)
+    K = np.array([[800.0, 0, 639.5], [0, 800.0, 359.5], [0, 0, 1]])
+    cameras = []
+    for k, angle in enumerate(np.radians([-40.0, -15.0, 15.0, 40.0])):
+        centre = np.array([2.5 * np.sin(angle), rng.uniform(-0.1, 0.1), -2.5 * np.cos(angle)])
+        R, t = look_at(centre, np.array([0.0, 0.8, 0.0]))  # pitched down at the box
+        cameras.append(Camera(f"cam{k}", 1280, 720, K, np.zeros(5), R, t))
+    on_floor = np.column_stack([rng.uniform(-1.5, 1.5, floor), np.full(floor, 1.2), rng.uniform(-1.0, 1.5, floor)])
+    top = np.column_stack([rng.uniform(-0.4, 0.4, box), np.full(box, 0.6), rng.uniform(-0.3, 0.3, box)])
+    side = box // 2
+    sides = np.column_stack([np.full(side, -0.4), rng.uniform(0.6, 1.2, side), rng.uniform(-0.3, 0.3, side)])
+    on_wall = np.column_stack([rng.uniform(-1.5, 1.5, wall), rng.uniform(-1.0, 1.2, wall), np.full(wall, 1.5)])
+    points = np.concatenate([on_floor, top, sides, on_wall])
+    points += rng.normal(scale=0.002, size=points.shape)
+    R0, t0 = cameras[0].R, cameras[0].t
+    cameras = [Camera(c.id, c.width, c.height, c.K, c.dist, c.R @ R0.T, c.t - c.R @ R0.T @ t0) for c in cameras]
+    return cameras, points @ R0.T + t0, R0 @ np.array([0.0, -1.0, 0.0])
+
+
+def calibration(cameras: list[Camera], points: np.ndarray) -> Calibration:
+    return Calibration(tuple(cameras), np.arange(len(points)), points, 0.5, cameras[0].id)
+
+
+def test_the_floor_is_the_lowest_plane_not_the_box_top_with_more_points_nor_the_wall():
+    cameras, points, up_truth = room(0, floor=200, box=400, wall=600)
+    frame = world_frame(calibration(cameras, points), x_toward=("cam1", "cam2"))
+    assert frame.floor is not None and frame.reason == ""
+    assert angle_deg(frame.floor.up_left, up_truth) < 0.2
+    assert 195 <= frame.floor.inliers <= 215  # the floor, and the few points of the wall and box sides at its level
+    # In the world frame the floor is z = 0, the box's top 0.6 m above it and the cameras above both.
+    world = frame.to_world(points)
+    assert np.median(np.abs(world[:200, 2])) < 0.003
+    assert np.median(world[200:600, 2]) == pytest.approx(0.6, abs=0.005)
+    centres = frame.to_world(np.array([c.centre for c in cameras]))
+    assert np.all(centres[:, 2] > 1.0)
+
+
+def test_the_frame_is_right_handed_z_up_x_toward_the_cameras_named_origin_below_what_most_cameras_see():
+    cameras, points, _ = room(1)
+    frame = world_frame(calibration(cameras, points), x_toward=("cam1", "cam2"))
+    np.testing.assert_allclose(frame.R @ frame.R.T, np.eye(3), atol=1e-12)
+    assert np.linalg.det(frame.R) == pytest.approx(1.0)
+    toward = frame.to_world(np.mean([cameras[1].centre, cameras[2].centre], axis=0)[None])[0]
+    assert abs(toward[1]) < 1e-9 and toward[0] > 0  # X points at them, horizontally
+    # The box's middle is what all four cameras see: the origin lies on the floor below it.
+    box_middle = frame.to_world(np.median(points[400:700], axis=0)[None])[0]
+    assert np.hypot(*box_middle[:2]) < 0.3
+    origin_left = frame.R.T @ -frame.t
+    assert frame.floor.height_m(origin_left)[0] == pytest.approx(0.0, abs=1e-9)
+    assert frame.to_world(np.zeros((1, 3)))[0, 2] == pytest.approx(frame.floor.left_height_m, abs=1e-9)
+
+
+def test_a_scene_without_a_floor_says_so_and_takes_up_from_the_cameras():
+    cameras, points, _ = room(2)
+    above = points[400:]  # the box and the wall: every horizontal plane has points below it
+    frame = world_frame(calibration(cameras, above))
+    assert frame.floor is None
+    assert "no floor in view" in frame.reason and "cameras' own down" in frame.reason
+    np.testing.assert_allclose(frame.up_left, -camera_down(np.array([c.R for c in cameras])), atol=1e-12)
+    assert isinstance(fit_floor(above[:10], np.array([0.0, 1.0, 0.0]), np.zeros((1, 3))), str)
+
+
+def test_a_camera_named_that_the_calibration_lacks_is_refused():
+    cameras, points, _ = room(3)
+    with pytest.raises(ValueError, match="x_toward names camera 'nope'"):
+        world_frame(calibration(cameras, points), x_toward=("nope",))
+
+
+def test_the_down_prior_is_the_mean_image_y_axis():
+    turned = rotation_exp(np.array([0.0, 0.0, np.radians(10.0)]))  # rolled 10 degrees about the optical axis
+    down = camera_down(np.array([np.eye(3), turned]))
+    assert angle_deg(down, np.array([0.0, 1.0, 0.0])) == pytest.approx(5.0, abs=1e-9)
+
+
+@pytest.mark.parametrize("name", FLOOR_FAMILIES)
+def test_a_simulated_floor_lies_where_its_truth_says_and_leaves_the_rest_of_the_rig_as_drawn(name):
+    plain, floored = family(name, seed=3), family(name, seed=3, floor_points=50)
+    n = len(plain.rig.points)
+    np.testing.assert_array_equal(floored.rig.points[:n], plain.rig.points)
+    assert [c.id for c in floored.rig.cameras] == [c.id for c in plain.rig.cameras]
+    floor = floored.floor
+    on_floor = floored.rig.points[n:]
+    np.testing.assert_allclose(on_floor @ floor.up_left + floor.left_height_m, 0.0, atol=1e-12)
+    np.testing.assert_allclose(floored.normals[n:], np.tile(floor.up_left, (50, 1)), atol=1e-12)
+    assert plain.floor is None and 0.9 < floor.left_height_m < 1.3  # cameras at chest height
+    with pytest.raises(ValueError, match="family 'wide' has no floor"):
+        family("wide", floor_points=10)
+
+
+def solved_floor(name: str, seed: int, floor_points: int = 300):
+    drawn = family(name, seed=seed, floor_points=floor_points)
+    result = calibrate(observe_family(drawn, seed=seed))
+    cal = result.calibration
+    kept = np.isin(np.asarray(result.track_rows), cal.point_ids)  # simulated track ids are track rows
+    return drawn, world_frame(cal, variance=points_variance(result.covariance, kept))
+
+
+# ring_K: the head's K given, so that its principal points do not leave its pitch and yaw open; ring: guessed.
+@pytest.mark.parametrize(("name", "seed"), [("ring_K", 0), ("ring_K", 1), ("ring_K", 2),
+                                            ("ring", 4), ("tape_pair", 5)])
+def test_the_floor_of_a_simulated_rig_is_within_three_of_its_sigmas(name, seed):
+    drawn, frame = solved_floor(name, seed)
+    floor = frame.floor
+    assert floor is not None, frame.reason
+    assert angle_deg(floor.up_left, drawn.floor.up_left) <= 3 * floor.normal_sigma_deg
+    assert abs(floor.left_height_m - drawn.floor.left_height_m) <= 3 * floor.height_sigma_m
+    # The sigmas say something: the ring's floor is known to a fraction of a degree and a centimetre.
+    assert floor.normal_sigma_deg < 0.5 and floor.height_sigma_m < 0.01
+
+
+def test_a_simulated_rig_without_a_floor_in_view_falls_back_to_the_cameras_down():
+    drawn, frame = solved_floor("ring", 6, floor_points=0)
+    assert frame.floor is None and "no floor in view" in frame.reason
+    truth = family("ring", seed=6, floor_points=10).floor.up_left
+    # The ring's cameras pitch down at the person from all round: their mean down is gravity's to a degree or two.
+    assert angle_deg(frame.up_left, truth) < 2.0
