@@ -1,14 +1,19 @@
 """The world frame from the scene (camnet.solve.world_frame): the floor, up and an origin on the floor."""
 
+import json
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
+from camnet.errors import InputError
+from camnet.io.formats import calibration_to_doc, parse_calibration
 from camnet.model.calibration import Calibration
 from camnet.model.camera import Camera
 from camnet.model.projection import look_at, rotation_exp
 from camnet.sim.families import FLOOR_FAMILIES, family, observe_family
 from camnet.solve import calibrate
-from camnet.solve.world_frame import camera_down, fit_floor, points_variance, world_frame
+from camnet.solve.world_frame import camera_down, fit_floor, floor_frame, points_variance, world_frame
 
 
 def angle_deg(a: np.ndarray, b: np.ndarray) -> float:
@@ -106,6 +111,55 @@ def test_a_simulated_floor_lies_where_its_truth_says_and_leaves_the_rest_of_the_
     assert plain.floor is None and 0.9 < floor.left_height_m < 1.3  # cameras at chest height
     with pytest.raises(ValueError, match="family 'wide' has no floor"):
         family("wide", floor_points=10)
+
+
+def test_a_calibration_in_the_floor_frame_is_written_as_the_contract_says_and_read_back_in_the_left_frame():
+    cameras, points, _ = room(4)
+    cal = calibration(cameras, points)
+    frame = world_frame(cal, x_toward=("cam1", "cam2"))
+    doc = json.loads(json.dumps(calibration_to_doc(replace(cal, floor_frame=floor_frame(frame))), allow_nan=False))
+    assert list(doc)[:4] == ["format", "world_frame", "world_from_left", "floor"]
+    assert doc["world_frame"] == "floor"
+    assert doc["floor"] == {"normal_sigma_deg": frame.floor.normal_sigma_deg,
+                            "height_sigma_m": frame.floor.height_sigma_m}
+    # A reader recovers the left camera's frame from the document alone: X_left = R^T (X_world - t).
+    R, t = np.array(doc["world_from_left"]["R"]), np.array(doc["world_from_left"]["t"])
+    world = np.array([p["xyz"] for p in doc["points"]])
+    np.testing.assert_allclose((world - t) @ R, points, atol=1e-12)
+    assert np.median(np.abs(world[:400, 2])) < 0.003  # the floor's points at z = 0
+    for written, cam in zip(doc["cameras"], cameras, strict=True):  # x_cam = R_c X_world + t_c, the same pixels
+        Rc, tc = np.array(written["R"]), np.array(written["t"])
+        np.testing.assert_allclose(world @ Rc.T + tc, points @ cam.R.T + cam.t, atol=1e-12)
+    back = parse_calibration(doc)
+    assert back.world_frame == "cam0" and back.floor_frame.found
+    np.testing.assert_allclose(back.points, points, atol=1e-12)
+    for got, cam in zip(back.cameras, cameras, strict=True):
+        np.testing.assert_allclose(got.R, cam.R, atol=1e-12)
+        np.testing.assert_allclose(got.t, cam.t, atol=1e-12)
+    np.testing.assert_allclose(back.floor_frame.R, frame.R, atol=0)
+    again = calibration_to_doc(back)  # written again: the same document, to rounding
+    assert list(again) == list(doc) and again["floor"] == doc["floor"]
+    assert again["world_from_left"] == doc["world_from_left"]
+    np.testing.assert_allclose([p["xyz"] for p in again["points"]], world, atol=1e-12)
+    np.testing.assert_allclose([c["t"] for c in again["cameras"]], [c["t"] for c in doc["cameras"]], atol=1e-12)
+
+
+def test_a_floor_frame_without_a_floor_says_why_and_a_wrong_world_from_left_is_refused():
+    cameras, points, _ = room(5)
+    cal = calibration(cameras, points[400:])
+    frame = world_frame(cal)
+    doc = calibration_to_doc(replace(cal, floor_frame=floor_frame(frame)))
+    assert doc["floor"] == {"found": False, "reason": frame.reason}
+    back = parse_calibration(doc)
+    assert not back.floor_frame.found and back.floor_frame.reason == frame.reason
+    left = calibration_to_doc(cal)  # no floor frame: the left camera's, as before
+    assert left["world_frame"] == "cam0" and "floor" not in left and "world_from_left" not in left
+    doc["world_from_left"]["t"] = [0.0, 0.0, 5.0]
+    with pytest.raises(InputError, match="world_from_left: no camera lands at the left camera's origin"):
+        parse_calibration(doc)
+    del doc["floor"]
+    with pytest.raises(InputError, match="floor"):
+        parse_calibration(doc)
 
 
 def solved_floor(name: str, seed: int, floor_points: int = 300):

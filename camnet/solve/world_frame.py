@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from camnet.model.calibration import Calibration
+from camnet.model.calibration import Calibration, FloorFrame
 from camnet.model.camera import Camera
 from camnet.solve.uncertainty import Covariance
 
@@ -328,3 +328,10 @@ def world_frame(cal: Calibration, *, x_toward: Sequence[str] = (), variance: Poi
     origin = centre - floor.height_m(centre)[0] * floor.up_left
     R, t = frame_from(floor.up_left, origin, toward)
     return WorldFrame(R, t, floor)
+
+
+def floor_frame(frame: WorldFrame) -> FloorFrame:
+    """What a calibration written in `frame` says of it (Calibration.floor_frame)."""
+    if frame.floor is None:
+        return FloorFrame(frame.R, frame.t, reason=frame.reason)
+    return FloorFrame(frame.R, frame.t, frame.floor.normal_sigma_deg, frame.floor.height_sigma_m)
