@@ -12,8 +12,9 @@ from camnet.model.calibration import Calibration
 from camnet.model.camera import Camera
 from camnet.model.projection import look_at, rotation_exp
 from camnet.sim.families import FLOOR_FAMILIES, family, observe_family
-from camnet.solve import calibrate
-from camnet.solve.world_frame import camera_down, fit_floor, floor_frame, points_variance, world_frame
+from camnet.solve import Options, calibrate
+from camnet.solve.options import World
+from camnet.solve.world_frame import camera_down, fit_floor, floor_frame, world_frame
 
 
 def angle_deg(a: np.ndarray, b: np.ndarray) -> float:
@@ -162,30 +163,38 @@ def test_a_floor_frame_without_a_floor_says_why_and_a_wrong_world_from_left_is_r
         parse_calibration(doc)
 
 
-def solved_floor(name: str, seed: int, floor_points: int = 300):
+def solved(name: str, seed: int, floor_points: int = 300, world: World = World.FLOOR):
     drawn = family(name, seed=seed, floor_points=floor_points)
-    result = calibrate(observe_family(drawn, seed=seed))
-    cal = result.calibration
-    kept = np.isin(np.asarray(result.track_rows), cal.point_ids)  # simulated track ids are track rows
-    return drawn, world_frame(cal, variance=points_variance(result.covariance, kept))
+    return drawn, calibrate(observe_family(drawn, seed=seed), Options(world=world)).calibration
 
 
 # ring_K: the head's K given, so that its principal points do not leave its pitch and yaw open; ring: guessed.
-@pytest.mark.parametrize(("name", "seed"), [("ring_K", 0), ("ring_K", 1), ("ring_K", 2),
-                                            ("ring", 4), ("tape_pair", 5)])
+@pytest.mark.parametrize(("name", "seed"), [("ring_K", 0), ("ring_K", 1), ("ring_K", 2), ("ring", 4),
+                                            ("tape_pair", 5)])
 def test_the_floor_of_a_simulated_rig_is_within_three_of_its_sigmas(name, seed):
-    drawn, frame = solved_floor(name, seed)
-    floor = frame.floor
-    assert floor is not None, frame.reason
-    assert angle_deg(floor.up_left, drawn.floor.up_left) <= 3 * floor.normal_sigma_deg
-    assert abs(floor.left_height_m - drawn.floor.left_height_m) <= 3 * floor.height_sigma_m
+    drawn, cal = solved(name, seed)
+    frame = cal.floor_frame
+    assert frame.found, frame.reason
+    # The frame's up in the left camera's frame is its third row; the left camera stands at t's height.
+    assert angle_deg(frame.R[2], drawn.floor.up_left) <= 3 * frame.normal_sigma_deg
+    assert abs(frame.t[2] - drawn.floor.left_height_m) <= 3 * frame.height_sigma_m
     # The sigmas say something: the ring's floor is known to a fraction of a degree and a centimetre.
-    assert floor.normal_sigma_deg < 0.5 and floor.height_sigma_m < 0.01
+    assert frame.normal_sigma_deg < 0.5 and frame.height_sigma_m < 0.01
+    # X points from the origin toward the stereo pair, horizontally.
+    pair = frame.R @ np.mean([c.centre for c in cal.cameras[:2]], axis=0) + frame.t
+    assert pair[0] > 1.0 and abs(pair[1]) < 1e-9
 
 
-def test_a_simulated_rig_without_a_floor_in_view_falls_back_to_the_cameras_down():
-    drawn, frame = solved_floor("ring", 6, floor_points=0)
-    assert frame.floor is None and "no floor in view" in frame.reason
+def test_a_simulated_rig_without_a_floor_in_view_falls_back_to_the_cameras_down_and_warns():
+    drawn, cal = solved("ring", 6, floor_points=0)
+    frame = cal.floor_frame
+    assert not frame.found and "no floor in view" in frame.reason
+    assert frame.reason in cal.warnings
     truth = family("ring", seed=6, floor_points=10).floor.up_left
     # The ring's cameras pitch down at the person from all round: their mean down is gravity's to a degree or two.
-    assert angle_deg(frame.up_left, truth) < 2.0
+    assert angle_deg(frame.R[2], truth) < 2.0
+
+
+def test_the_left_camera_frame_stays_the_default():
+    _, cal = solved("ring_K", 0, world=World.LEFT_CAMERA)
+    assert cal.floor_frame is None and calibration_to_doc(cal)["world_frame"] == "head0_left"

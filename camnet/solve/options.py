@@ -3,8 +3,16 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from enum import StrEnum
 
 from camnet.model.methods import Loss, Method
+
+
+class World(StrEnum):
+    """The frame a calibration is written in (the rig file's `world`)."""
+
+    LEFT_CAMERA = "left_camera"  # the left stereo camera's, as the paper's
+    FLOOR = "floor"  # found from the scene: floor, up and origin (camnet.solve.world_frame)
 
 
 @dataclass(frozen=True)
@@ -29,3 +37,4 @@ class Options:
     # Solve the scene's two halves apart and widen the sigmas of what they disagree on (camnet.solve.halves):
     # the second opinion that the curvature at one minimum cannot give.
     halves: bool = True
+    world: World = World.LEFT_CAMERA

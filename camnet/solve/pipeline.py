@@ -70,7 +70,7 @@ from camnet.solve.free_rule import (
 )
 from camnet.solve.halves import with_halves_check
 from camnet.solve.known_distances import known_distances
-from camnet.solve.options import Options
+from camnet.solve.options import Options, World
 from camnet.solve.pair_check import with_pair_check
 from camnet.solve.report.assemble import (
     refuse_undetermined,
@@ -107,6 +107,7 @@ from camnet.solve.uncertainty import (
     with_guessed_pp,
     with_held_turns,
 )
+from camnet.solve.world_frame import with_floor_frame
 
 log = logging.getLogger(__name__)
 
@@ -182,6 +183,8 @@ def calibrate(
                          ) from None
     if options.halves:
         result = replace(result, calibration=with_second_opinion(obs, result.calibration, options))
+    if options.world == World.FLOOR:
+        result = with_floor_frame(result, obs)
     if not unobserved:
         return result
     report = with_cameras_left_out(result.calibration.report, unobserved)
@@ -193,7 +196,7 @@ def with_second_opinion(obs: Observations, cal: Calibration, options: Options) -
     (camnet.solve.halves), each camera's pose against its own two views (camnet.solve.pair_check)."""
     obs, _ = without_unobserved(obs)
     # Each half from a cold start: warm from the whole, it keeps the whole's outliers and basin and agrees.
-    alone = replace(options, halves=False)
+    alone = replace(options, halves=False, world=World.LEFT_CAMERA)
     cal = with_halves_check(obs, cal, lambda half: calibrate(half, alone).calibration)
     return with_pair_check(obs, cal)
 

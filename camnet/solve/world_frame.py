@@ -16,12 +16,14 @@ origin the centre of the capture volume, and `WorldFrame.reason` says so.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from camnet.model.calibration import Calibration, FloorFrame
 from camnet.model.camera import Camera
+from camnet.model.observations import Observations
+from camnet.solve.result import Result
 from camnet.solve.uncertainty import Covariance
 
 # The variance of a linear function of a calibration's points, given its gradient (n, 3) over them.
@@ -330,8 +332,29 @@ def world_frame(cal: Calibration, *, x_toward: Sequence[str] = (), variance: Poi
     return WorldFrame(R, t, floor)
 
 
-def floor_frame(frame: WorldFrame) -> FloorFrame:
-    """What a calibration written in `frame` says of it (Calibration.floor_frame)."""
+def floor_frame(frame: WorldFrame, *, sigma_factor: float = 1.0) -> FloorFrame:
+    """What a calibration written in `frame` says of it (Calibration.floor_frame); sigma_factor: what every
+    reported sigma of the calibration was multiplied by (its second opinion's, HalvesCheck.sigma_factor)."""
     if frame.floor is None:
         return FloorFrame(frame.R, frame.t, reason=frame.reason)
-    return FloorFrame(frame.R, frame.t, frame.floor.normal_sigma_deg, frame.floor.height_sigma_m)
+    return FloorFrame(frame.R, frame.t, sigma_factor * frame.floor.normal_sigma_deg,
+                      sigma_factor * frame.floor.height_sigma_m)
+
+
+def with_floor_frame(result: Result, obs: Observations) -> Result:
+    """`result` of solving `obs` with its calibration to be written in the frame found from its scene, X toward
+    the stereo pair; the floor's sigmas from the solve's covariance. Where the scene shows no floor, a warning
+    says so."""
+    cal = result.calibration
+    variance = None
+    if result.covariance is not None:
+        kept = np.isin(obs.track_ids[np.asarray(result.track_rows)], cal.point_ids)
+        variance = points_variance(result.covariance, kept)
+    pair = tuple(c for c in (obs.stereo.left, obs.stereo.right) if c in {k.id for k in cal.cameras})
+    frame = world_frame(cal, x_toward=pair, variance=variance)
+    report = cal.report
+    halves = report.halves if report is not None else None
+    cal = replace(cal, floor_frame=floor_frame(frame, sigma_factor=halves.sigma_factor if halves else 1.0))
+    if frame.floor is None and report is not None:
+        cal = replace(cal, report=replace(report, warnings=(*report.warnings, frame.reason)))
+    return replace(result, calibration=cal)
