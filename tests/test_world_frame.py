@@ -1,13 +1,15 @@
 """The world frame from the scene (camnet.solve.world_frame): the floor, up and an origin on the floor."""
 
 import json
+import subprocess
+import sys
 from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from camnet.errors import InputError
-from camnet.io.formats import calibration_to_doc, parse_calibration
+from camnet.io.formats import calibration_to_doc, observations_to_doc, parse_calibration
 from camnet.model.calibration import Calibration
 from camnet.model.camera import Camera
 from camnet.model.projection import look_at, rotation_exp
@@ -198,3 +200,19 @@ def test_a_simulated_rig_without_a_floor_in_view_falls_back_to_the_cameras_down_
 def test_the_left_camera_frame_stays_the_default():
     _, cal = solved("ring_K", 0, world=World.LEFT_CAMERA)
     assert cal.floor_frame is None and calibration_to_doc(cal)["world_frame"] == "head0_left"
+
+
+def test_camnet_calibrate_writes_the_floor_frame_when_asked(tmp_path):
+    drawn = family("ring_K", seed=0, floor_points=300)
+    (tmp_path / "obs.json").write_text(json.dumps(observations_to_doc(observe_family(drawn, seed=0))))
+    proc = subprocess.run([sys.executable, "-m", "camnet", "calibrate", str(tmp_path / "obs.json"), "-o",
+                           str(tmp_path / "cal.json"), "--world", "floor"], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    doc = json.loads((tmp_path / "cal.json").read_text())
+    assert doc["world_frame"] == "floor" and set(doc["floor"]) == {"normal_sigma_deg", "height_sigma_m"}
+    R, t = np.array(doc["world_from_left"]["R"]), np.array(doc["world_from_left"]["t"])
+    left = next(c for c in doc["cameras"] if c["id"] == "head0_left")
+    # The left camera's pose in the world is world_from_left's inverse: X_left = R^T (X_world - t).
+    np.testing.assert_allclose(np.array(left["R"]), R.T, atol=1e-9)
+    np.testing.assert_allclose(np.array(left["t"]), -R.T @ t, atol=1e-9)
+    assert abs(t[2] - drawn.floor.left_height_m) <= 3 * doc["floor"]["height_sigma_m"]
