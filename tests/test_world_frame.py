@@ -216,3 +216,14 @@ def test_camnet_calibrate_writes_the_floor_frame_when_asked(tmp_path):
     np.testing.assert_allclose(np.array(left["R"]), R.T, atol=1e-9)
     np.testing.assert_allclose(np.array(left["t"]), -R.T @ t, atol=1e-9)
     assert abs(t[2] - drawn.floor.left_height_m) <= 3 * doc["floor"]["height_sigma_m"]
+    assert "written in the floor's frame" in proc.stderr
+    # A warm start from it reads it back into the left camera's frame and solves to the same poses.
+    proc = subprocess.run([sys.executable, "-m", "camnet", "calibrate", str(tmp_path / "obs.json"), "-o",
+                           str(tmp_path / "warm.json"), "--initial", str(tmp_path / "cal.json")],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    warm = parse_calibration(json.loads((tmp_path / "warm.json").read_text()))
+    cold = parse_calibration(doc)
+    assert warm.floor_frame is None and warm.world_frame == cold.world_frame == "head0_left"
+    for a, b in zip(warm.cameras, cold.cameras, strict=True):
+        np.testing.assert_allclose(a.centre, b.centre, atol=1e-4)
