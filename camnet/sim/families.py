@@ -46,7 +46,7 @@ import numpy as np
 from camnet.model.camera import Camera, LensModel
 from camnet.model.observations import Baseline, Observations
 from camnet.model.projection import distort_fisheye, look_at, rotation_exp
-from camnet.sim.simulate import HEIGHT, WIDTH, SimRig, make_rig, observe
+from camnet.sim.simulate import HEIGHT, WIDTH, SimRig, TrueFloor, make_rig, observe
 
 FAMILIES = ("ring", "ring_K", "two_heads", "tape_pair", "wide", "fisheye")
 HARD_FAMILIES = ("narrow_ring", "facade")
@@ -75,14 +75,6 @@ NARROW_FOCAL_PX = (WIDTH / 2) / np.tan(np.radians(12.0))  # 24 degrees across th
 NARROW_OBJECT_SEMI_AXES_M = (0.03, 0.035, 0.025)  # x, y, z of an ellipsoid resting on the table
 FACADE_SIZE = (3072, 2048)
 FACADE_FOCAL_PX = (3072 / 2) / np.tan(np.radians(29.0))  # 58 degrees across the image
-
-
-@dataclass(frozen=True)
-class TrueFloor:
-    """The floor of a drawn rig in its left camera's frame: the points X with ``up_left . X = -left_height_m``."""
-
-    up_left: np.ndarray  # (3,) unit, against gravity
-    left_height_m: float  # the left camera centre's height above the floor
 
 
 @dataclass(frozen=True)
