@@ -24,10 +24,11 @@ def angle_deg(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip(a @ b / np.linalg.norm(a) / np.linalg.norm(b), -1.0, 1.0))))
 
 
-def room(seed: int = 0, *, floor: int = 400, box: int = 300, wall: int = 300) -> tuple[list[Camera], np.ndarray,
-                                                                                     np.ndarray]:
+def room(seed: int = 0, *, floor: int = 400, box: int = 300, wall: int = 300,
+         table: int = 0) -> tuple[list[Camera], np.ndarray, np.ndarray]:
     """Cameras, points and the true up of a room with gravity along +y (y down), floor at y = 1.2 m: a box (0.6 m
-    high, its top a horizontal plane of many points) and a wall; in the first camera's frame, as a calibration."""
+    high, its top a horizontal plane of many points), a wall and a table top 0.75 m over the floor hiding most of
+    it; in the first camera's frame, as a calibration."""
     rng = np.random.default_rng(seed)
     K = np.array([[800.0, 0, 639.5], [0, 800.0, 359.5], [0, 0, 1]])
     cameras = []
@@ -40,7 +41,8 @@ def room(seed: int = 0, *, floor: int = 400, box: int = 300, wall: int = 300) ->
     side = box // 2
     sides = np.column_stack([np.full(side, -0.4), rng.uniform(0.6, 1.2, side), rng.uniform(-0.3, 0.3, side)])
     on_wall = np.column_stack([rng.uniform(-1.5, 1.5, wall), rng.uniform(-1.0, 1.2, wall), np.full(wall, 1.5)])
-    points = np.concatenate([on_floor, top, sides, on_wall])
+    on_table = np.column_stack([rng.uniform(-1.0, 1.0, table), np.full(table, 0.45), rng.uniform(-0.8, 1.2, table)])
+    points = np.concatenate([on_floor, top, sides, on_wall, on_table])
     points += rng.normal(scale=0.002, size=points.shape)
     R0, t0 = cameras[0].R, cameras[0].t
     cameras = [Camera(c.id, c.width, c.height, c.K, c.dist, c.R @ R0.T, c.t - c.R @ R0.T @ t0) for c in cameras]
@@ -63,6 +65,24 @@ def test_the_floor_is_the_lowest_plane_not_the_box_top_with_more_points_nor_the_
     assert np.median(world[200:600, 2]) == pytest.approx(0.6, abs=0.005)
     centres = frame.to_world(np.array([c.centre for c in cameras]))
     assert np.all(centres[:, 2] > 1.0)
+
+
+def test_a_table_top_over_the_floor_showing_more_than_it_is_passed_over_and_the_floor_called_ambiguous():
+    # Little of the floor shows beside the table: the table has too few points below it to be refused.
+    cameras, points, up_truth = room(6, floor=35, box=0, wall=0, table=700)
+    fit = fit_floor(points, camera_down(np.array([c.R for c in cameras])), np.array([c.centre for c in cameras]))
+    assert not isinstance(fit, str) and fit.inliers[:35].all() and fit.inliers.sum() == 35
+    assert angle_deg(fit.normal, up_truth) < 1.0
+    assert fit.ambiguity.startswith("the floor is ambiguous: another plane 0.75 m above it holds about 70")
+    frame = world_frame(calibration(cameras, points))
+    assert frame.ambiguity == fit.ambiguity
+    assert np.median(frame.floor.height_m(points[-700:])) == pytest.approx(0.75, abs=0.01)
+    # With the wall down to the floor behind it, the table has points below it: it is no floor, and the floor's
+    # few points are found among those below it, unambiguous.
+    cameras, points, up_truth = room(7, floor=45, box=0, wall=300, table=700)
+    fit = fit_floor(points, camera_down(np.array([c.R for c in cameras])), np.array([c.centre for c in cameras]))
+    assert not isinstance(fit, str) and fit.inliers[:45].all() and fit.ambiguity == ""
+    assert angle_deg(fit.normal, up_truth) < 1.0
 
 
 def test_the_frame_is_right_handed_z_up_x_toward_the_cameras_named_origin_below_what_most_cameras_see():

@@ -36,6 +36,9 @@ THRESHOLD_REL = 0.01  # a point lies on a candidate plane within this share of t
 RANSAC_SAMPLES = 500
 RANSAC_POINTS = 5000  # the candidates are scored on at most this many points (a seeded draw), the fit on all
 ROBUST_SIGMAS = 3.0  # the refit keeps points within this many robust sigmas of the plane
+RIVAL_SHARE = 0.5  # another plane holding this share of the floor's points makes it ambiguous
+LAYER_RATIO = 2.0  # a floor holds this many times the points in as thick a band just above it
+MAX_LOWER = 5  # the floor is sought below the plane taken at most this many times (a table on a platform ...)
 
 
 @dataclass(frozen=True)
@@ -71,6 +74,7 @@ class WorldFrame:
     t: np.ndarray
     floor: Floor | None
     reason: str = ""
+    ambiguity: str = ""  # another plane could be the floor (PlaneFit.ambiguity)
 
     @property
     def up_left(self) -> np.ndarray:
@@ -155,6 +159,7 @@ class PlaneFit:
     sigma_m: float
     axes: np.ndarray
     tilt_cov: np.ndarray
+    ambiguity: str = ""  # another plane could be the floor: which, and that the lowest was taken
 
 
 def fit_floor(points: np.ndarray, down: np.ndarray, camera_centres: np.ndarray, *, seed: int = 0) -> PlaneFit | str:
@@ -165,9 +170,13 @@ def fit_floor(points: np.ndarray, down: np.ndarray, camera_centres: np.ndarray, 
 
     Candidate planes through three points, their normal within MAX_TILT_DEG of up, are scored by the points within
     THRESHOLD_REL of the scene's size (the median distance of the points from the cameras' mean centre); a
-    candidate that has more than BELOW_SHARE of the points below it (beyond that threshold) or that does not lie
-    below the cameras is no floor. The best is refitted by least squares to its inliers, twice, the second time to
-    those within ROBUST_SIGMAS of 1.4826 times the median absolute residual.
+    candidate that has more than BELOW_SHARE of the points below it (beyond that threshold), that does not lie
+    below the cameras or that holds fewer than LAYER_RATIO times the points in as thick a band just above it (a
+    slice through upright surfaces) is no floor. From the plane below the cameras holding the most points, lower
+    planes holding MIN_INLIERS are sought among the points below the one taken, down to the lowest (at most
+    MAX_LOWER times); it is refitted by least squares to its inliers, twice, the second time to those within
+    ROBUST_SIGMAS of 1.4826 times the median absolute residual. Another plane that may be the floor holding
+    RIVAL_SHARE of its points makes it ambiguous (PlaneFit.ambiguity).
     """
     points = np.asarray(points, dtype=float).reshape(-1, 3)
     down = np.asarray(down, dtype=float)
@@ -179,22 +188,57 @@ def fit_floor(points: np.ndarray, down: np.ndarray, camera_centres: np.ndarray, 
     threshold = THRESHOLD_REL * float(np.median(np.linalg.norm(points - middle, axis=1)))
     rng = np.random.default_rng(seed)
     scored = points if len(points) <= RANSAC_POINTS else points[rng.choice(len(points), RANSAC_POINTS, replace=False)]
-    triples = scored[rng.integers(len(scored), size=(RANSAC_SAMPLES, 3))]
-    normals, offsets = _planes(triples, down, MAX_TILT_DEG)
+    per_scored = len(points) / len(scored)
+    enough = MIN_INLIERS / per_scored  # the scored points a floor needs
+
+    def candidates(pool: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Planes through triples of `pool`: normals, offsets, the scored points' heights over them, which lie on
+        them, which lie below the cameras and which of those may be the floor (few points below them, a layer)."""
+        normals, offsets = _planes(pool[rng.integers(len(pool), size=(RANSAC_SAMPLES, 3))], down, MAX_TILT_DEG)
+        heights = scored @ normals.T - offsets
+        on = np.abs(heights) <= threshold
+        under_cameras = middle @ normals.T - offsets > threshold
+        # A floor is a layer of points: a slice through upright surfaces has as many just above it.
+        layer = on.sum(axis=0) >= LAYER_RATIO * ((heights > threshold) & (heights <= 3 * threshold)).sum(axis=0)
+        valid = ((heights < -threshold).sum(axis=0) <= BELOW_SHARE * len(scored)) & under_cameras & layer
+        return normals, offsets, heights, on, under_cameras, valid
+
+    normals, offsets, heights, on, under_cameras, valid = candidates(scored)
     if len(normals) == 0:
         return f"no plane through the points lies within {MAX_TILT_DEG:g} degrees of the cameras' up"
-    distances = scored @ normals.T - offsets  # (n, k): height above each candidate
-    inliers = (np.abs(distances) <= threshold).sum(axis=0)
-    below = (distances < -threshold).sum(axis=0)
-    under_cameras = (middle @ normals.T - offsets) > threshold
-    fit = (below <= BELOW_SHARE * len(scored)) & under_cameras
-    if not fit.any():
+    held = under_cameras & (on.sum(axis=0) >= enough)
+    if not held.any():
+        return (f"no plane within the tilt the cameras allow lies below them holding the {MIN_INLIERS} points a "
+                "floor needs")
+    # The plane holding the most points below the cameras, then, while there is one, a lower plane found among the
+    # points below it: the one holding the most of those that may be the floor, else the one holding the most (a
+    # table top or a platform may show more of itself than of the floor, and a box's top has its sides below).
+    chosen = int(np.argmax(np.where(held, on.sum(axis=0), -1)))
+    for _ in range(MAX_LOWER):
+        under = scored[heights[:, chosen] < -threshold]
+        if len(under) < max(enough, 3):
+            break
+        more = candidates(under)
+        normals, offsets = np.concatenate([normals, more[0]]), np.concatenate([offsets, more[1]])
+        heights, on = np.hstack([heights, more[2]]), np.hstack([on, more[3]])
+        under_cameras, valid = np.concatenate([under_cameras, more[4]]), np.concatenate([valid, more[5]])
+        median, apart = _apart(on, heights, chosen, threshold)
+        lower = apart & (median < 0) & under_cameras & (on.sum(axis=0) >= enough)
+        if not lower.any():
+            break
+        chosen = int(np.argmax(np.where(lower, on.sum(axis=0) + len(scored) * valid, -1)))
+    if not valid[chosen]:
         return "no plane within the tilt the cameras allow lies below the cameras with the scene above it"
-    best = int(np.argmax(np.where(fit, inliers, -1)))
-    if inliers[best] * len(points) / len(scored) < MIN_INLIERS:
-        return (f"the best floor candidate holds about {inliers[best] * len(points) // len(scored)} points, fewer "
-                f"than the {MIN_INLIERS} a floor needs")
-    normal, offset = normals[best], offsets[best]
+    median, apart = _apart(on, heights, chosen, threshold)
+    inliers = on.sum(axis=0)
+    rivals = valid & apart & (inliers >= max(enough, RIVAL_SHARE * inliers[chosen]))
+    ambiguity = ""
+    if rivals.any():
+        rival = int(np.argmax(np.where(rivals, inliers, -1)))
+        ambiguity = (f"the floor is ambiguous: another plane {abs(median[rival]):.2f} m "
+                     f"{'above' if median[rival] > 0 else 'below'} it holds about {int(inliers[rival] * per_scored)} "
+                     f"points to its {int(inliers[chosen] * per_scored)}; the lowest was taken")
+    normal, offset = normals[chosen], offsets[chosen]
     keep = np.abs(points @ normal - offset) <= threshold
     normal, offset = _refit(points[keep], up)
     residuals = points @ normal - offset
@@ -210,7 +254,18 @@ def fit_floor(points: np.ndarray, down: np.ndarray, camera_centres: np.ndarray, 
     s = float(np.sqrt(np.sum((on_floor @ normal - offset) ** 2) / max(n - 3, 1)))
     axes = np.linalg.svd(np.eye(3) - np.outer(normal, normal))[0][:, :2].T  # any orthonormal pair across the normal
     along = (on_floor - on_floor.mean(axis=0)) @ axes.T
-    return PlaneFit(normal, offset, keep, s, axes, s**2 * np.linalg.inv(along.T @ along))
+    return PlaneFit(normal, offset, keep, s, axes, s**2 * np.linalg.inv(along.T @ along), ambiguity)
+
+
+def _apart(on: np.ndarray, heights: np.ndarray, chosen: int, threshold: float) -> tuple[np.ndarray, np.ndarray]:
+    """(median, apart): per candidate plane, the median height of its inliers over plane `chosen`, and whether it is
+    another plane: fewer than half its inliers are the chosen one's and that median is beyond 3 thresholds.
+
+    on (n, k): which scored points lie on which candidate; heights (n, k): their heights over it.
+    """
+    median = np.nanmedian(np.where(on, heights[:, [chosen]], np.nan), axis=0)  # every plane holds its 3 points
+    shared = (on & on[:, [chosen]]).sum(axis=0) / on.sum(axis=0)
+    return median, (shared < 0.5) & (np.abs(median) > 3 * threshold)
 
 
 def floor_gradients(fit: PlaneFit, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -329,7 +384,7 @@ def world_frame(cal: Calibration, *, x_toward: Sequence[str] = (), variance: Poi
     floor = floor_sigmas(fit, cal.points, variance=variance, scale_rel=scale or 0.0)
     origin = centre - floor.height_m(centre)[0] * floor.up_left
     R, t = frame_from(floor.up_left, origin, toward)
-    return WorldFrame(R, t, floor)
+    return WorldFrame(R, t, floor, ambiguity=fit.ambiguity)
 
 
 def floor_frame(frame: WorldFrame, *, sigma_factor: float = 1.0) -> FloorFrame:
@@ -343,8 +398,8 @@ def floor_frame(frame: WorldFrame, *, sigma_factor: float = 1.0) -> FloorFrame:
 
 def with_floor_frame(result: Result, obs: Observations) -> Result:
     """`result` of solving `obs` with its calibration to be written in the frame found from its scene, X toward
-    the stereo pair; the floor's sigmas from the solve's covariance. Where the scene shows no floor, a warning
-    says so."""
+    the stereo pair; the floor's sigmas from the solve's covariance. Where the scene shows no floor, or another
+    plane could be it, a warning says so."""
     cal = result.calibration
     variance = None
     if result.covariance is not None:
@@ -355,6 +410,7 @@ def with_floor_frame(result: Result, obs: Observations) -> Result:
     report = cal.report
     halves = report.halves if report is not None else None
     cal = replace(cal, floor_frame=floor_frame(frame, sigma_factor=halves.sigma_factor if halves else 1.0))
-    if frame.floor is None and report is not None:
-        cal = replace(cal, report=replace(report, warnings=(*report.warnings, frame.reason)))
+    said = tuple(w for w in (frame.reason, frame.ambiguity) if w)
+    if said and report is not None:
+        cal = replace(cal, report=replace(report, warnings=(*report.warnings, *said)))
     return replace(result, calibration=cal)
