@@ -110,6 +110,16 @@ def test_a_scene_without_a_floor_says_so_and_takes_up_from_the_cameras():
     assert isinstance(fit_floor(above[:10], np.array([0.0, 1.0, 0.0]), np.zeros((1, 3))), str)
 
 
+def test_cameras_whose_down_directions_cancel_out_leave_up_to_the_left_cameras():
+    cameras, points, _ = room(8)
+    upside_down = replace(cameras[0], id="upside_down", R=np.diag([-1.0, -1.0, 1.0]))  # turned 180 degrees in place
+    with pytest.raises(ValueError, match="cancel out"):
+        camera_down(np.array([cameras[0].R, upside_down.R]))
+    frame = world_frame(calibration([cameras[0], upside_down], points[400:]))
+    assert frame.floor is None and "the left camera's own down direction" in frame.reason
+    np.testing.assert_allclose(frame.up_left, [0.0, -1.0, 0.0], atol=1e-12)
+
+
 def test_a_camera_named_that_the_calibration_lacks_is_refused():
     cameras, points, _ = room(3)
     with pytest.raises(ValueError, match="x_toward names camera 'nope'"):

@@ -1,16 +1,18 @@
 """The world frame of a calibration found from its scene: the floor, the up direction and an origin on the floor.
 
 Pure geometry on a metric calibration (camnet.model.calibration.Calibration: cameras ``x_cam = R X + t`` and
-points in the left stereo camera's frame, metres). The frame it gives is the one ../formats README names
-``"floor"``: right-handed, Z up (against gravity), origin on the floor below the centre of the capture volume, X
-horizontal toward the rig's front (the stereo pair, or the cameras named); ``X_world = R X_left + t``.
+points in the left stereo camera's frame, metres), and `with_floor_frame`, which puts it on a solve's result. The
+frame it gives is the contract's ``"floor"`` world frame: right-handed, Z up (against gravity), origin on the floor
+below the centre of the capture volume, X horizontal toward the rig's front (the stereo pair, or the cameras
+named); ``X_world = R X_left + t``.
 
-The floor is the dominant plane of the point cloud whose normal lies within MAX_TILT_DEG of the cameras' own
-"down" (the mean of their image y axes: cameras on a rig stand mostly upright), that lies below the cameras and
-that has few points below it (nothing is seen through a floor: a slice through an object, the top of a box or a
-table with the floor in view around it all have points below them). It is found by RANSAC over such planes and
-refitted by least squares on its inliers. Without such a plane the up direction is the cameras' down alone, the
-origin the centre of the capture volume, and `WorldFrame.reason` says so.
+The floor is the lowest plane of the point cloud whose normal lies within MAX_TILT_DEG of the cameras' own
+"down" (the mean of their image y axes: cameras on a rig stand mostly upright), that lies below the cameras, that
+has few points below it (nothing is seen through a floor: the top of a box has its sides below it, a table the
+floor around it) and that is a layer (a slice through upright surfaces has as many points just above it). It is
+found by RANSAC over such planes and refitted by least squares on its inliers (fit_floor). Without such a plane
+the up direction is the cameras' down alone, the origin the centre of the capture volume, and
+`WorldFrame.reason` says so.
 """
 
 from __future__ import annotations
@@ -371,15 +373,20 @@ def world_frame(cal: Calibration, *, x_toward: Sequence[str] = (), variance: Poi
     if unknown:
         raise ValueError(f"x_toward names camera {unknown[0]!r}, which the calibration lacks; "
                          f"name one of {', '.join(ids)}")
-    down = camera_down(np.array([c.R for c in cal.cameras]))
+    whose = "the cameras' own down direction"
+    try:
+        down = camera_down(np.array([c.R for c in cal.cameras]))
+    except ValueError:
+        down = np.array([0.0, 1.0, 0.0])  # the left camera's image y axis, in its own frame
+        whose = "the left camera's own down direction (the cameras' cancel out)"
     centres = np.array([c.centre for c in cal.cameras])
     fit = fit_floor(cal.points, down, centres, seed=seed)
     centre = capture_centre(cal.cameras, cal.points)
     toward = centres[[ids.index(i) for i in x_toward]].mean(axis=0) if x_toward else np.zeros(3)
     if isinstance(fit, str):
         R, t = frame_from(-down, centre, toward)
-        return WorldFrame(R, t, None, f"no floor in view ({fit}): up is the cameras' own down direction, the "
-                                      "origin the centre of the capture volume")
+        return WorldFrame(R, t, None, f"no floor in view ({fit}): up is {whose}, the origin the centre of the "
+                                      "capture volume")
     scale = cal.uncertainty.scale_rel.value if cal.uncertainty is not None else None
     floor = floor_sigmas(fit, cal.points, variance=variance, scale_rel=scale or 0.0)
     origin = centre - floor.height_m(centre)[0] * floor.up_left
