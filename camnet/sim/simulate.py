@@ -121,6 +121,17 @@ def with_floor(rig: SimRig, *, n_points: int = 250, height_m: float = 0.45, pitc
     return replace(rig, points=np.concatenate([rig.points, points])), TrueFloor(up, height_m)
 
 
+def rolled(rig: SimRig, max_deg: float, *, seed: int = 0) -> SimRig:
+    """The rig with every camera but the stereo pair turned about its own optical axis, in place, by a seeded
+    angle within max_deg either way (cameras on a rig are upright only roughly)."""
+    rng = np.random.default_rng(seed)
+    cameras = list(rig.cameras[:2])
+    for cam in rig.cameras[2:]:
+        R = rotation_exp(np.array([0.0, 0.0, np.radians(rng.uniform(-max_deg, max_deg))])) @ cam.R
+        cameras.append(replace(cam, R=R, t=-R @ cam.centre))
+    return replace(rig, cameras=cameras)
+
+
 def with_head(rig: SimRig, camera_id: str, *, baseline_m: float = PAPER_BASELINE_M, sigma_m: float = 0.0) -> SimRig:
     """The rig with a second parallel head: camera `camera_id` its left camera, a new one
     (``<camera_id>_right``, the same K and orientation) `baseline_m` to its right, and their
