@@ -10,12 +10,13 @@ import pytest
 
 from camnet.errors import InputError
 from camnet.io.formats import calibration_to_doc, observations_to_doc, parse_calibration
-from camnet.model.calibration import Calibration
+from camnet.model.calibration import Calibration, HalvesCheck
 from camnet.model.camera import Camera
 from camnet.model.projection import look_at, rotation_exp
 from camnet.sim.families import FLOOR_FAMILIES, family, observe_family
 from camnet.sim.simulate import make_rig, observe, rolled, with_floor
 from camnet.solve import Options, calibrate
+from camnet.solve.halves import with_check_carried
 from camnet.solve.options import World
 from camnet.solve.world_frame import camera_down, fit_floor, floor_frame, world_frame
 
@@ -270,3 +271,14 @@ def test_camnet_calibrate_writes_the_floor_frame_when_asked(tmp_path):
     assert warm.floor_frame is None and warm.world_frame == cold.world_frame == "head0_left"
     for a, b in zip(warm.cameras, cold.cameras, strict=True):
         np.testing.assert_allclose(a.centre, b.centre, atol=1e-4)
+
+
+def test_a_second_opinion_that_widens_every_sigma_widens_the_floors():
+    _, cal = solved("ring_K", 0)
+    names = ["scale", *(f"f {c.id}" for c in cal.cameras[:5])]
+    check = HalvesCheck(1, dict.fromkeys(names, 0.01), dict.fromkeys(names, 4.0))
+    widened = with_check_carried(cal, check)
+    assert widened.report.halves.sigma_factor == pytest.approx(4.0)
+    assert widened.floor_frame.normal_sigma_deg == pytest.approx(4.0 * cal.floor_frame.normal_sigma_deg)
+    assert widened.floor_frame.height_sigma_m == pytest.approx(4.0 * cal.floor_frame.height_sigma_m)
+    np.testing.assert_array_equal(widened.floor_frame.R, cal.floor_frame.R)

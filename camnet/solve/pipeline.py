@@ -181,10 +181,10 @@ def calibrate(
     except np.linalg.LinAlgError:
         raise SolveError(f"the observations do not determine the calibration (singular equations){pair_advice(obs)}"
                          ) from None
-    if options.halves:
-        result = replace(result, calibration=with_second_opinion(obs, result.calibration, options))
     if options.world == World.FLOOR:
         result = with_floor_frame(result, obs)
+    if options.halves:  # after the floor frame: it widens the floor's sigmas with every other
+        result = replace(result, calibration=with_second_opinion(obs, result.calibration, options))
     if not unobserved:
         return result
     report = with_cameras_left_out(result.calibration.report, unobserved)

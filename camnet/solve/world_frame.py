@@ -394,19 +394,18 @@ def world_frame(cal: Calibration, *, x_toward: Sequence[str] = (), variance: Poi
     return WorldFrame(R, t, floor, ambiguity=fit.ambiguity)
 
 
-def floor_frame(frame: WorldFrame, *, sigma_factor: float = 1.0) -> FloorFrame:
-    """What a calibration written in `frame` says of it (Calibration.floor_frame); sigma_factor: what every
-    reported sigma of the calibration was multiplied by (its second opinion's, HalvesCheck.sigma_factor)."""
+def floor_frame(frame: WorldFrame) -> FloorFrame:
+    """What a calibration written in `frame` says of it (Calibration.floor_frame)."""
     if frame.floor is None:
         return FloorFrame(frame.R, frame.t, reason=frame.reason)
-    return FloorFrame(frame.R, frame.t, sigma_factor * frame.floor.normal_sigma_deg,
-                      sigma_factor * frame.floor.height_sigma_m)
+    return FloorFrame(frame.R, frame.t, frame.floor.normal_sigma_deg, frame.floor.height_sigma_m)
 
 
 def with_floor_frame(result: Result, obs: Observations) -> Result:
     """`result` of solving `obs` with its calibration to be written in the frame found from its scene, X toward
-    the stereo pair; the floor's sigmas from the solve's covariance. Where the scene shows no floor, or another
-    plane could be it, a warning says so."""
+    the stereo pair; the floor's sigmas from the solve's covariance (a second opinion widens them as it widens
+    every sigma: camnet.solve.halves). Where the scene shows no floor, or another plane could be it, a warning
+    says so."""
     cal = result.calibration
     variance = None
     if result.covariance is not None:
@@ -415,8 +414,7 @@ def with_floor_frame(result: Result, obs: Observations) -> Result:
     pair = tuple(c for c in (obs.stereo.left, obs.stereo.right) if c in {k.id for k in cal.cameras})
     frame = world_frame(cal, x_toward=pair, variance=variance)
     report = cal.report
-    halves = report.halves if report is not None else None
-    cal = replace(cal, floor_frame=floor_frame(frame, sigma_factor=halves.sigma_factor if halves else 1.0))
+    cal = replace(cal, floor_frame=floor_frame(frame))
     said = tuple(w for w in (frame.reason, frame.ambiguity) if w)
     if said and report is not None:
         cal = replace(cal, report=replace(report, warnings=(*report.warnings, *said)))
