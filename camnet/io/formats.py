@@ -274,7 +274,7 @@ def calibration_to_doc(cal: Calibration) -> dict:
     """The ``camnet.calibration/1`` document of `cal`; its report adds the further keys.
 
     A calibration with a floor frame is written in it: cameras and points in the floor's frame, ``world_frame``
-    "floor", then ``world_from_left`` and ``floor`` (../formats README, "World frame").
+    "floor", then ``world_from_left`` and ``floor``, as the contract defines them.
     """
     frame = cal.floor_frame
     posed = cal.cameras if frame is None else tuple(in_frame(cam, frame.R, frame.t) for cam in cal.cameras)
