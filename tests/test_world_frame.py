@@ -18,7 +18,7 @@ from camnet.sim.simulate import make_rig, observe, rolled, with_floor
 from camnet.solve import Options, calibrate
 from camnet.solve.halves import with_check_carried
 from camnet.solve.options import World
-from camnet.solve.world_frame import camera_down, fit_floor, floor_frame, world_frame
+from camnet.solve.world_frame import camera_down, fit_floor, floor_frame, floor_sigmas, world_frame
 
 
 def angle_deg(a: np.ndarray, b: np.ndarray) -> float:
@@ -119,6 +119,18 @@ def test_cameras_whose_down_directions_cancel_out_leave_up_to_the_left_cameras()
     frame = world_frame(calibration([cameras[0], upside_down], points[400:]))
     assert frame.floor is None and "the left camera's own down direction" in frame.reason
     np.testing.assert_allclose(frame.up_left, [0.0, -1.0, 0.0], atol=1e-12)
+
+
+def test_a_covariance_that_leaves_the_floor_undetermined_gives_way_to_its_scatter():
+    cameras, points, _ = room(9)
+    fit = fit_floor(points, camera_down(np.array([c.R for c in cameras])), np.array([c.centre for c in cameras]))
+    scatter = floor_sigmas(fit, points)
+    undetermined = floor_sigmas(fit, points, variance=lambda gradient: float("inf"))
+    assert (undetermined.normal_sigma_deg, undetermined.height_sigma_m) == (scatter.normal_sigma_deg,
+                                                                            scatter.height_sigma_m)
+    assert np.isfinite(scatter.normal_sigma_deg) and np.isfinite(scatter.height_sigma_m)
+    wider = floor_sigmas(fit, points, variance=lambda gradient: 1e-4 * float(np.sum(gradient**2)) / 1e-6)
+    assert wider.normal_sigma_deg > scatter.normal_sigma_deg and wider.height_sigma_m > scatter.height_sigma_m
 
 
 def test_a_camera_named_that_the_calibration_lacks_is_refused():

@@ -300,7 +300,8 @@ def floor_sigmas(fit: PlaneFit, points: np.ndarray, *, variance: PointsVariance 
     floor that is not flat: the tilt's covariance is the fit's (PlaneFit.tilt_cov) and the left camera's height's
     variance sigma_m^2 / n plus the tilt's through the in-plane distance from the inliers' mean to the left camera
     plus (scale_rel times the height)^2. Of the two, the larger is reported, each (normal_sigma_deg: the square
-    root of the tilt covariance's larger eigenvalue).
+    root of the tilt covariance's larger eigenvalue); the scatter's alone where the covariance leaves a variance
+    infinite (a direction the observations do not fix).
     """
     n = int(fit.inliers.sum())
     lever = -points[fit.inliers].mean(axis=0) @ fit.axes.T  # the left camera (the origin) from the inliers' mean
@@ -309,11 +310,12 @@ def floor_sigmas(fit: PlaneFit, points: np.ndarray, *, variance: PointsVariance 
     height_var = fit.sigma_m**2 / n + float(lever @ tilt_cov @ lever) + (scale_rel * height) ** 2
     if variance is not None:
         g0, g1, gh = floor_gradients(fit, points)
-        v0, v1, v01 = variance(g0), variance(g1), variance(g0 + g1)
+        v0, v1, v01, vh = variance(g0), variance(g1), variance(g0 + g1), variance(gh)
         solved = np.array([[v0, (v01 - v0 - v1) / 2], [(v01 - v0 - v1) / 2, v1]])
-        if np.linalg.eigvalsh(solved)[-1] > np.linalg.eigvalsh(tilt_cov)[-1]:
+        if np.all(np.isfinite(solved)) and np.linalg.eigvalsh(solved)[-1] > np.linalg.eigvalsh(tilt_cov)[-1]:
             tilt_cov = solved
-        height_var = max(height_var, variance(gh))
+        if np.isfinite(vh):
+            height_var = max(height_var, vh)
     return Floor(
         up_left=fit.normal,
         left_height_m=float(height),
