@@ -9,6 +9,7 @@ from camnet.errors import InputError
 from camnet.io.rig import AravisConfig, V4l2Config, load_rig, parse_rig
 from camnet.model.projection import look_at
 from camnet.sim.config import SimConfig
+from camnet.solve.options import World
 
 CONFIG = Path(__file__).resolve().parent.parent / "config"
 
@@ -270,3 +271,10 @@ def test_an_image_sequence_beside_the_rig_file_is_found_from_anywhere(tmp_path, 
     entry = load_rig("../rig/rig.yaml").camera("c")
     with V4l2Camera("c", entry.config) as cam:
         assert cam.info.width == 10 and cam.read(timeout_s=1.0).image.shape[:2] == (8, 10)
+
+
+def test_the_world_frame_is_the_left_cameras_unless_the_rig_asks_for_the_floors():
+    assert parse_rig(base()).world == World.LEFT_CAMERA
+    assert parse_rig({**base(), "world": "floor"}).world == World.FLOOR
+    assert parse_rig({**base(), "world": "left_camera"}).world == World.LEFT_CAMERA
+    refused(lambda d: d.update(world="ceiling"), r"rig\.yaml: world: .*ceiling.*left_camera, floor")

@@ -62,6 +62,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "in the reported uncertainty (0: sigmas conditional on the centre being right)",
     )
     parser.add_argument(
+        "--world", choices=("left_camera", "floor"), default="left_camera",
+        help="the frame the calibration is written in: the left stereo camera's (default), or the floor's found "
+        "from the scene (Z up, origin on the floor below the capture volume, X toward the stereo pair)",
+    )
+    parser.add_argument(
         "--pair-tolerance-deg", type=float, default=None, metavar="DEG",
         help="1 sigma, degrees, to which a stereo pair held parallel (or at the rotation --initial gives) is known, "
         "in the reported uncertainty (default 0.08: a head sold as parallel, and 0 for a pose --initial gives; "
@@ -111,6 +116,7 @@ def run(args: argparse.Namespace) -> int:
     )
     from camnet.io.summary import summary_lines
     from camnet.solve import Options
+    from camnet.solve.options import World
     from camnet.solve.report.verdict import judge
 
     if not args.loss_scale_px > 0:
@@ -137,7 +143,7 @@ def run(args: argparse.Namespace) -> int:
     progress.say(f"solving {len(obs.track_ids)} tracks, {len(obs.uv)} observations, {len(obs.cameras)} cameras")
     initial = parse_calibration(load_json(args.initial)) if args.initial else None
     options = Options(method=Method(args.method), loss=Loss(args.loss), loss_scale_px=args.loss_scale_px, free=free,
-                      seed=args.seed, pp_prior_rel=args.pp_prior_rel)
+                      seed=args.seed, pp_prior_rel=args.pp_prior_rel, world=World(args.world))
     if args.pair_tolerance_deg is not None:
         options = replace(options, pair_tolerance_deg=args.pair_tolerance_deg)
     cal = _solve(obs, options, initial, progress)

@@ -75,6 +75,7 @@ def run(args: argparse.Namespace) -> int:
     from camnet.live.policy import LiveConfig, SoundnessLimits
     from camnet.services.calibrator import CalibratorConfig, CalibratorNode, RerunView, untrusted_state
     from camnet.solve import Options
+    from camnet.solve.options import World
     from camnet.viz import close_recording, open_recording
     from camnet.viz_sinks import sinks_from_args
 
@@ -98,7 +99,7 @@ def run(args: argparse.Namespace) -> int:
         stereo_pose = (rig.stereo.R, rig.stereo.t)
         if args.free == DEFAULT_FREE:  # a factory head: its pose is known, only the scene's cameras move
             free = frozenset({"f", "fisheye"})
-    options = Options(free=free, loss=args.loss)
+    options = Options(free=free, loss=args.loss, world=rig.world if rig is not None else World.LEFT_CAMERA)
     tolerance = None if rig is None or rig.stereo is None else rig.stereo.tolerance_deg
     if stereo_pose is not None or tolerance is not None:
         # A given pose is held as given, as a fixed K is, unless the rig file says to what it is known.

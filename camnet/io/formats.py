@@ -20,8 +20,8 @@ import numpy as np
 from camnet.errors import InputError, in_words
 from camnet.io import validate as v
 from camnet.io.solve_report import parse_report, report_to_doc, verdict_to_doc
-from camnet.model.calibration import Calibration
-from camnet.model.camera import FIXABLE, Camera, CameraInfo, LensModel
+from camnet.model.calibration import Calibration, FloorFrame
+from camnet.model.camera import FIXABLE, Camera, CameraInfo, LensModel, in_frame
 from camnet.model.observations import Baseline, Observations, Stereo
 from camnet.solve.report.verdict import judge
 
@@ -258,10 +258,29 @@ def _distance_doc(entry: dict, known: Stereo | Baseline) -> dict:
 # ---------------------------------------------------------------- calibration
 
 
+FLOOR_FRAME = "floor"  # the world frame found from the scene (FloorFrame)
+# A camera the document's world_from_left brings to within this of the origin, unturned, is the left camera.
+LEFT_POSE_TOLERANCE = 1e-6
+
+
+def _floor_frame_to_doc(frame: FloorFrame) -> dict:
+    floor = ({"normal_sigma_deg": frame.normal_sigma_deg, "height_sigma_m": frame.height_sigma_m} if frame.found
+             else {"found": False, "reason": frame.reason})
+    return {"world_from_left": {"R": np.asarray(frame.R).tolist(), "t": np.asarray(frame.t).tolist()},
+            "floor": floor}
+
+
 def calibration_to_doc(cal: Calibration) -> dict:
-    """The ``camnet.calibration/1`` document of `cal`; its report adds the further keys."""
+    """The ``camnet.calibration/1`` document of `cal`; its report adds the further keys.
+
+    A calibration with a floor frame is written in it: cameras and points in the floor's frame, ``world_frame``
+    "floor", then ``world_from_left`` and ``floor``, as the contract defines them.
+    """
+    frame = cal.floor_frame
+    posed = cal.cameras if frame is None else tuple(in_frame(cam, frame.R, frame.t) for cam in cal.cameras)
+    points = cal.points if frame is None else cal.points @ np.asarray(frame.R).T + frame.t
     cameras = []
-    for cam in cal.cameras:
+    for cam in posed:
         model = {} if cam.model == LensModel.PINHOLE else {"model": cam.model.value}  # the default stays implicit
         cameras.append(
             {
@@ -277,11 +296,12 @@ def calibration_to_doc(cal: Calibration) -> dict:
         )
     doc = {
         "format": CALIBRATION_FORMAT,
-        "world_frame": cal.world_frame,
+        "world_frame": cal.world_frame if frame is None else FLOOR_FRAME,
+        **({} if frame is None else _floor_frame_to_doc(frame)),
         "units": "m",
         "cameras": cameras,
         "points": [
-            {"id": int(i), "xyz": [float(x) for x in p]} for i, p in zip(cal.point_ids, cal.points, strict=True)
+            {"id": int(i), "xyz": [float(x) for x in p]} for i, p in zip(cal.point_ids, points, strict=True)
         ],
         # A calibration that no observation went into (a factory stereo head) has no RMS; JSON has no NaN.
         "rms_reprojection_px": float(cal.rms_reprojection_px) if np.isfinite(cal.rms_reprojection_px) else None,
@@ -318,14 +338,46 @@ def parse_calibration(doc: Any) -> Calibration:
         ids.append(v.integer(v.require(p, "id", f"points[{i}]"), f"points[{i}].id"))
         xyz.append(v.vector(v.require(p, "xyz", f"points[{i}]"), f"points[{i}].xyz", size=3))
     rms = doc.get("rms_reprojection_px", float("nan"))
+    points = np.asarray(xyz, dtype=float).reshape(-1, 3)
+    world_frame, frame = str(doc.get("world_frame", cameras[0].id)), None
+    if world_frame == FLOOR_FRAME:
+        frame = _parse_floor_frame(doc)
+        # Back to the left camera's frame, in which a calibration is solved: X_left = R^T (X_world - t).
+        cameras = tuple(in_frame(cam, frame.R.T, -frame.R.T @ frame.t) for cam in cameras)
+        points = (points - frame.t) @ frame.R
+        world_frame = _left_camera(cameras)
     return Calibration(
         cameras=cameras,
         point_ids=np.asarray(ids, dtype=np.int64),
-        points=np.asarray(xyz, dtype=float).reshape(-1, 3),
+        points=points,
         rms_reprojection_px=float(rms) if isinstance(rms, int | float) else float("nan"),
-        world_frame=str(doc.get("world_frame", cameras[0].id)),
+        world_frame=world_frame,
         report=parse_report(doc),
+        floor_frame=frame,
     )
+
+
+def _parse_floor_frame(doc: Any) -> FloorFrame:
+    pose = v.require(doc, "world_from_left", "")
+    R = v.rotation(v.require(pose, "R", "world_from_left"), "world_from_left.R")
+    t = v.vector(v.require(pose, "t", "world_from_left"), "world_from_left.t", size=3)
+    floor = v.mapping(v.require(doc, "floor", ""), "floor")
+    if "found" in floor and not v.boolean(floor["found"], "floor.found"):
+        return FloorFrame(R, t, reason=v.string(floor.get("reason", ""), "floor.reason"))
+    return FloorFrame(R, t, v.number(v.require(floor, "normal_sigma_deg", "floor"), "floor.normal_sigma_deg",
+                                     minimum=0.0),
+                      v.number(v.require(floor, "height_sigma_m", "floor"), "floor.height_sigma_m", minimum=0.0))
+
+
+def _left_camera(cameras: tuple[Camera, ...]) -> str:
+    """The id of the camera at the origin of the left camera's frame, unturned; the document is wrong without."""
+    for cam in cameras:
+        if np.allclose(cam.R, np.eye(3), atol=LEFT_POSE_TOLERANCE) and np.allclose(cam.t, 0.0,
+                                                                                   atol=LEFT_POSE_TOLERANCE):
+            return cam.id
+    raise InputError("world_from_left: no camera lands at the left camera's origin, unturned, when the cameras are "
+                     "taken back with it (X_left = R^T (X_world - t)); it must map the left camera's frame to the "
+                     "world's")
 
 
 def write_json_atomic(path: str | Path, doc: Any, *, private: bool = False) -> None:

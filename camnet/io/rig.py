@@ -25,6 +25,7 @@ from camnet.io.rig_section import Section
 from camnet.model.camera import Camera, CameraInfo, LensModel
 from camnet.model.observations import Baseline, Stereo
 from camnet.sim.config import SceneConfig, SimConfig
+from camnet.solve.options import World
 
 SIM_ENCODINGS = ("mono8", "mono16", "bgr8", "rgb8")
 V4L2_ENCODINGS = ("bgr8", "mono8")
@@ -117,6 +118,7 @@ class Rig:
     source: str = "<memory>"
     sync: SyncSettings | None = None
     baselines: tuple[Baseline, ...] = ()  # known distances beyond the stereo pair's (a second head, a tape)
+    world: World = World.LEFT_CAMERA  # the frame its calibrations are written in
 
     def camera(self, camera_id: str) -> CameraEntry:
         for entry in self.cameras:
@@ -155,7 +157,7 @@ SCENE_KEYS = ("seed", "box_centre_m", "box_size_m", "box_rotation_deg_per_s", "w
               "wall_y_range_m", "floor_y_m", "floor_z_range_m", "object")
 CAMERA_KEYS = ("id", "driver", "model", "intrinsics")  # and the section named after its driver
 STEREO_KEYS = ("left", "right", "baseline_m", "sigma_m", "parallel", "R", "t", "tolerance_deg")
-TOP_KEYS = ("rig", "stereo", "baselines", "scene", "sync", "cameras", v.ANY_DISTANCE_FLAG)
+TOP_KEYS = ("rig", "stereo", "baselines", "scene", "sync", "cameras", "world", v.ANY_DISTANCE_FLAG)
 
 
 def _sim(s: Section, model: LensModel = LensModel.PINHOLE) -> SimConfig:
@@ -385,7 +387,9 @@ def _parse_rig(data: Any, source: str, base_dir: Path | None, ids: v.Ids) -> Rig
                             keep=v.KEEP_IN_RIG_FILE, any_distance=any_distance, ids=ids)
     scene = _scene(top.section("scene", SCENE_KEYS, required=False))
     sync = _sync(top.section("sync", SYNC_KEYS)) if top.raw("sync", None) is not None else None
-    return Rig(name=name, cameras=cameras, stereo=stereo, scene=scene, source=source, sync=sync, baselines=baselines)
+    world = World(top.string("world", World.LEFT_CAMERA.value, choices=tuple(w.value for w in World)))
+    return Rig(name=name, cameras=cameras, stereo=stereo, scene=scene, source=source, sync=sync, baselines=baselines,
+               world=world)
 
 
 def _stereo_pose(st: Section, pair: Stereo, cameras: tuple[CameraEntry, ...]) -> Stereo:

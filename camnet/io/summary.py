@@ -54,6 +54,20 @@ def camera_rows(cal: Calibration) -> list[str]:
     return rows
 
 
+def _floor_frame_lines(cal: Calibration) -> list[str]:
+    """What the frame found from the scene says, where the calibration is written in it (the table below stays in
+    the left camera's frame)."""
+    frame = cal.floor_frame
+    if frame is None:
+        return []
+    if not frame.found:
+        return [f"written in a frame with up from the cameras' own down, no floor in view (the table: camera "
+                f"{cal.world_frame}'s frame)"]
+    return [f"written in the floor's frame (Z up, origin on the floor): the floor's normal known to "
+            f"{frame.normal_sigma_deg:.3f} degrees, its height to {1e3 * frame.height_sigma_m:.1f} mm (1 sigma; "
+            f"the table: camera {cal.world_frame}'s frame)"]
+
+
 def summary_lines(cal: Calibration) -> list[str]:
     """The whole summary: the rig in one line, the camera table, the verdict, warnings and notes."""
     u = cal.uncertainty
@@ -62,6 +76,7 @@ def summary_lines(cal: Calibration) -> list[str]:
     lines = [f"{len(cal.cameras)} cameras, {len(cal.points)} points, RMS {cal.rms_reprojection_px:.2f} px, "
              f"{scale_text} (1 sigma; centre sigma: length of its 3 axes; rotation: angle from "
              f"camera {cal.world_frame}, sigma of its largest axis)"]
+    lines += _floor_frame_lines(cal)
     lines += camera_rows(cal)
     verdict = judge(cal)
     if verdict is not None:

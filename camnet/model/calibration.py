@@ -249,11 +249,34 @@ class SolveReport:
 
 
 @dataclass(frozen=True)
+class FloorFrame:
+    """The frame found from the scene that a calibration is written in (the calibration document's ``"floor"``
+    world frame): ``X_world = R @ X_left + t`` (metres), Z up, origin on the floor, X toward the rig's front.
+
+    normal_sigma_deg, height_sigma_m: 1 sigma of the floor's normal (degrees) and of its height (metres); both None
+    where the scene showed no floor, `reason` then saying why and what the frame rests on instead.
+    """
+
+    R: np.ndarray
+    t: np.ndarray
+    normal_sigma_deg: float | None = None
+    height_sigma_m: float | None = None
+    reason: str = ""
+
+    @property
+    def found(self) -> bool:
+        """Whether the scene showed a floor."""
+        return self.normal_sigma_deg is not None
+
+
+@dataclass(frozen=True)
 class Calibration:
     """A solved network: cameras in the left stereo camera's frame, metric points.
 
     rms_reprojection_px is NaN when no observation went into it (a factory
-    stereo head); report is None when no solve made it.
+    stereo head); report is None when no solve made it. floor_frame: the
+    frame the calibration is written in where that is not the left
+    camera's (its cameras and points here stay in the left camera's).
     """
 
     cameras: tuple[Camera, ...]
@@ -262,6 +285,7 @@ class Calibration:
     rms_reprojection_px: float
     world_frame: str
     report: SolveReport | None = None
+    floor_frame: FloorFrame | None = None
 
     @property
     def uncertainty(self) -> Uncertainty | None:

@@ -8,7 +8,7 @@ order: ``[k1, k2, p1, p2, k3]`` for the pinhole lens model, ``[k1, k2, k3, k4]``
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from enum import StrEnum
 
 import numpy as np
@@ -62,6 +62,12 @@ class Camera:
     def normalised(self, uv: np.ndarray) -> np.ndarray:
         """Undistorted normalised coordinates (n, 2) of pixels (n, 2); see camnet.model.projection.normalised."""
         return normalised(uv, K=self.K, dist=self.dist, fisheye=self.model == LensModel.FISHEYE)
+
+
+def in_frame(camera: Camera, R: np.ndarray, t: np.ndarray) -> Camera:
+    """The camera with its pose in the frame ``X_new = R @ X + t`` of its world (R a rotation, t metres)."""
+    R_new = camera.R @ np.asarray(R, dtype=float).T
+    return replace(camera, R=R_new, t=camera.t - R_new @ np.asarray(t, dtype=float))
 
 
 FIXABLE = ("K", "dist")  # what observations may hold as given (CameraInfo.fixed)

@@ -15,6 +15,9 @@ the scene that faces it (`observe(..., normals=)`).
   baseline a further known distance.
 - ``tape_pair``: the ring with no head: two single cameras 45 degrees apart
   (1.53 m) are the pair, their distance measured with a tape (sigma 2 mm).
+- The families round a person (``FLOOR_FAMILIES``) may stand it on a floor:
+  ``floor_points`` points on a disc about its feet, the true floor in the
+  drawn rig's ``floor``.
 - ``wide``: the paper's four cameras with 100 degree lenses (k1 -0.28,
   k2 0.09) looking at a scene that fills their images.
 - ``fisheye``: the paper's four cameras with fisheye lenses (OpenCV's
@@ -43,15 +46,18 @@ import numpy as np
 from camnet.model.camera import Camera, LensModel
 from camnet.model.observations import Baseline, Observations
 from camnet.model.projection import distort_fisheye, look_at, rotation_exp
-from camnet.sim.simulate import HEIGHT, WIDTH, SimRig, make_rig, observe
+from camnet.sim.simulate import HEIGHT, WIDTH, SimRig, TrueFloor, make_rig, observe
 
 FAMILIES = ("ring", "ring_K", "two_heads", "tape_pair", "wide", "fisheye")
 HARD_FAMILIES = ("narrow_ring", "facade")
+FLOOR_FAMILIES = ("ring", "ring_K", "two_heads", "tape_pair")  # a person on a floor: `floor_points` may draw it
 RING_RADIUS_M = 2.0
 HEAD_BASELINE_M = 0.12
 TAPE_SIGMA_M = 0.002  # a tape measure's 1 sigma over 1.5 m
 PERSON_SEMI_AXES_M = (0.25, 0.17)  # x, z of the elliptic cylinder
 PERSON_HEIGHT_M = 1.7
+FLOOR_CLEAR_M = 0.3  # the floor's points start this far from the person's axis (outside its feet)
+FLOOR_RADIUS_M = 1.5  # and end this far: inside the ring, where the cameras across see it
 RING_FOCAL_PX = 950.0  # a 1.7 m person fills 1024 rows at 2 m
 WIDE_FOCAL_PX = (WIDTH / 2) / np.tan(np.radians(50.0))  # 100 degrees across the image
 WIDE_DIST = (-0.28, 0.09)
@@ -76,6 +82,7 @@ class FamilyRig:
     rig: SimRig
     normals: np.ndarray  # (N, 3) outward unit normals of rig.points, left frame; NaN: seen from everywhere
     given: tuple[str, ...] = ()  # cameras whose K and distortion the observations give, fixed (factory-calibrated)
+    floor: TrueFloor | None = None  # None: no floor in the scene's points
 
 
 def _K(f: float, rng: np.random.Generator) -> np.ndarray:
@@ -101,6 +108,27 @@ def _ring_camera(name: str, angle: float, rng: np.random.Generator) -> Camera:
     return Camera(name, WIDTH, HEIGHT, _K(RING_FOCAL_PX, rng), np.zeros(5), R, t)
 
 
+def _floor_disc(n_points: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Points (n, 3) on the floor the person stands on (y down: at its feet), a disc from just outside the person to
+    FLOOR_RADIUS_M about its axis, and their normals (up, -y)."""
+    r = np.sqrt(rng.uniform(FLOOR_CLEAR_M**2, FLOOR_RADIUS_M**2, n_points))
+    phi = rng.uniform(0.0, 2.0 * np.pi, n_points)
+    points = np.column_stack([r * np.cos(phi), np.full(n_points, PERSON_HEIGHT_M / 2), r * np.sin(phi)])
+    return points, np.tile([0.0, -1.0, 0.0], (n_points, 1))
+
+
+def _with_floor(cameras: list[Camera], points: np.ndarray, normals: np.ndarray, n_floor: int,
+                seed: int) -> tuple[np.ndarray, np.ndarray, TrueFloor | None]:
+    """The person's points and normals with `n_floor` floor points after them (drawn from a generator of their own,
+    so that the rest of the rig's draws stay as they were), and the floor in cameras[0]'s frame (None: none)."""
+    if n_floor == 0:
+        return points, normals, None
+    on_floor, floor_normals = _floor_disc(n_floor, np.random.default_rng(seed + 2))
+    R0 = cameras[0].R
+    truth = TrueFloor(R0 @ np.array([0.0, -1.0, 0.0]), float(PERSON_HEIGHT_M / 2 - cameras[0].centre[1]))
+    return np.concatenate([points, on_floor]), np.concatenate([normals, floor_normals]), truth
+
+
 def _in_left_frame(cameras: list[Camera], points: np.ndarray, normals: np.ndarray) -> tuple:
     """Cameras, points and normals re-expressed in cameras[0]'s frame."""
     R0, t0 = cameras[0].R, cameras[0].t
@@ -108,11 +136,13 @@ def _in_left_frame(cameras: list[Camera], points: np.ndarray, normals: np.ndarra
     return moved, points @ R0.T + t0, normals @ R0.T
 
 
-def ring(*, seed: int = 0, n_points: int = 600, heads: int = 1, head_yaw_deg: float = 0.0) -> FamilyRig:
+def ring(*, seed: int = 0, n_points: int = 600, heads: int = 1, head_yaw_deg: float = 0.0,
+         floor_points: int = 0) -> FamilyRig:
     """8 ring positions; `heads` of them (1 or 2, opposite) hold a parallel head, the rest one camera.
 
     head_yaw_deg: every head's right camera turned by this about its own y axis (a head toed in, not
-    parallel: positive turns it towards the left camera's side).
+    parallel: positive turns it towards the left camera's side). floor_points: as many points on the floor the
+    person stands on (after the person's), the floor in the FamilyRig's `floor`.
     """
     rng = np.random.default_rng(seed)
     angles = np.radians(np.arange(8) * 45.0 + rng.uniform(-5, 5, 8))
@@ -131,21 +161,25 @@ def ring(*, seed: int = 0, n_points: int = 600, heads: int = 1, head_yaw_deg: fl
         if slot not in head_slots:
             cameras.append(_ring_camera(f"ring{slot}", angles[slot], rng))
     points, normals = _person(n_points, rng)
+    points, normals, floor = _with_floor(cameras, points, normals, floor_points, seed)
     cameras, points, normals = _in_left_frame(cameras, points, normals)
-    return FamilyRig(SimRig(cameras, HEAD_BASELINE_M, points, baselines=known), normals)
+    return FamilyRig(SimRig(cameras, HEAD_BASELINE_M, points, baselines=known), normals, floor=floor)
 
 
-def tape_pair(*, seed: int = 0, n_points: int = 600) -> FamilyRig:
-    """8 single cameras on the ring; the pair is two neighbours 45 degrees apart, their distance taped."""
+def tape_pair(*, seed: int = 0, n_points: int = 600, floor_points: int = 0) -> FamilyRig:
+    """8 single cameras on the ring; the pair is two neighbours 45 degrees apart, their distance taped.
+
+    floor_points: as `ring`'s."""
     rng = np.random.default_rng(seed)
     angles = np.radians(np.arange(8) * 45.0 + rng.uniform(-5, 5, 8))
     cameras = [_ring_camera(f"ring{slot}", angles[slot], rng) for slot in range(8)]
     points, normals = _person(n_points, rng)
+    points, normals, floor = _with_floor(cameras, points, normals, floor_points, seed)
     cameras, points, normals = _in_left_frame(cameras, points, normals)
     distance_m = float(np.linalg.norm(cameras[1].centre - cameras[0].centre))
     # The tape's reading: off by a draw of its sigma (a generator of its own keeps the rig's draws as they were).
     taped_m = distance_m + np.random.default_rng(seed + 1).normal(scale=TAPE_SIGMA_M)
-    return FamilyRig(SimRig(cameras, taped_m, points, stereo_sigma_m=TAPE_SIGMA_M), normals)
+    return FamilyRig(SimRig(cameras, taped_m, points, stereo_sigma_m=TAPE_SIGMA_M), normals, floor=floor)
 
 
 def wide(*, seed: int = 0, n_points: int = 400) -> FamilyRig:
@@ -233,19 +267,23 @@ def facade(*, seed: int = 0, n_points: int = 1500) -> FamilyRig:
     return FamilyRig(SimRig(cameras, distance_m, points), normals)
 
 
-def family(name: str, *, seed: int = 0, head_yaw_deg: float = 0.0) -> FamilyRig:
-    """The family `name` (one of FAMILIES) drawn with `seed`; head_yaw_deg: as `ring`'s, for the ring families."""
+def family(name: str, *, seed: int = 0, head_yaw_deg: float = 0.0, floor_points: int = 0) -> FamilyRig:
+    """The family `name` (one of FAMILIES) drawn with `seed`; head_yaw_deg: as `ring`'s, for the ring families;
+    floor_points: as `ring`'s, for the families round a person (FLOOR_FAMILIES)."""
     if head_yaw_deg and name not in ("ring", "ring_K", "two_heads"):
         raise ValueError(f"head_yaw_deg: family {name!r} has no parallel head; the ring families have")
+    if floor_points and name not in FLOOR_FAMILIES:
+        raise ValueError(f"floor_points: family {name!r} has no floor; the families round a person have: "
+                         f"{', '.join(FLOOR_FAMILIES)}")
     if name == "ring":
-        return ring(seed=seed, head_yaw_deg=head_yaw_deg)
+        return ring(seed=seed, head_yaw_deg=head_yaw_deg, floor_points=floor_points)
     if name == "ring_K":
-        drawn = ring(seed=seed, head_yaw_deg=head_yaw_deg)
+        drawn = ring(seed=seed, head_yaw_deg=head_yaw_deg, floor_points=floor_points)
         return replace(drawn, given=tuple(c.id for c in drawn.rig.cameras[:2]))
     if name == "two_heads":
-        return ring(seed=seed, heads=2, head_yaw_deg=head_yaw_deg)
+        return ring(seed=seed, heads=2, head_yaw_deg=head_yaw_deg, floor_points=floor_points)
     if name == "tape_pair":
-        return tape_pair(seed=seed)
+        return tape_pair(seed=seed, floor_points=floor_points)
     if name == "wide":
         return wide(seed=seed)
     if name == "fisheye":

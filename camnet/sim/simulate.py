@@ -94,6 +94,44 @@ def make_rig(
     return SimRig(cameras, PAPER_BASELINE_M, points)
 
 
+@dataclass(frozen=True)
+class TrueFloor:
+    """The floor of a simulated rig in its left camera's frame: the points X with ``up_left . X = -left_height_m``."""
+
+    up_left: np.ndarray  # (3,) unit, against gravity
+    left_height_m: float  # the left camera centre's height above the floor
+
+
+def with_floor(rig: SimRig, *, n_points: int = 250, height_m: float = 0.45, pitch_deg: float = 0.0,
+               roll_deg: float = 0.0, seed: int = 0) -> tuple[SimRig, TrueFloor]:
+    """The rig with `n_points` points on a floor `height_m` below its left camera, the camera pitched down by
+    pitch_deg and rolled by roll_deg against gravity, and that floor.
+
+    The points cover 0.6 to 2 m ahead of the left camera along the floor and 0.7 m to either side (what its
+    image shows of a floor at that height and pitch), drawn from a generator of their own.
+    """
+    # Gravity's up in the left camera's frame: a camera pitched down sees up tilted towards its own -z.
+    turn = rotation_exp(np.radians([pitch_deg, 0.0, roll_deg]))
+    up = turn @ np.array([0.0, -1.0, 0.0])
+    ahead = turn @ np.array([0.0, 0.0, 1.0])
+    side = np.cross(up, ahead)
+    rng = np.random.default_rng(seed + 104729)
+    points = (-height_m * up + np.outer(rng.uniform(0.6, 2.0, n_points), ahead)
+              + np.outer(rng.uniform(-0.7, 0.7, n_points), side))
+    return replace(rig, points=np.concatenate([rig.points, points])), TrueFloor(up, height_m)
+
+
+def rolled(rig: SimRig, max_deg: float, *, seed: int = 0) -> SimRig:
+    """The rig with every camera but the stereo pair turned about its own optical axis, in place, by a seeded
+    angle within max_deg either way (cameras on a rig are upright only roughly)."""
+    rng = np.random.default_rng(seed)
+    cameras = list(rig.cameras[:2])
+    for cam in rig.cameras[2:]:
+        R = rotation_exp(np.array([0.0, 0.0, np.radians(rng.uniform(-max_deg, max_deg))])) @ cam.R
+        cameras.append(replace(cam, R=R, t=-R @ cam.centre))
+    return replace(rig, cameras=cameras)
+
+
 def with_head(rig: SimRig, camera_id: str, *, baseline_m: float = PAPER_BASELINE_M, sigma_m: float = 0.0) -> SimRig:
     """The rig with a second parallel head: camera `camera_id` its left camera, a new one
     (``<camera_id>_right``, the same K and orientation) `baseline_m` to its right, and their

@@ -168,4 +168,9 @@ def _widened_by(cal: Calibration, diffs: dict[str, HalfDifference], splits: int)
                         raised, factor)
     said = raised or factor > 1.0
     warnings = report.warnings + ((disagreement_warning(diffs, raised, factor),) if said else ())
-    return replace(cal, report=replace(report, uncertainty=uncertainty, halves=check, warnings=warnings))
+    floor = cal.floor_frame
+    if floor is not None and floor.found:  # a floor's sigmas rest on the same covariance as every other
+        floor = replace(floor, normal_sigma_deg=factor * floor.normal_sigma_deg,
+                        height_sigma_m=factor * floor.height_sigma_m)
+    return replace(cal, report=replace(report, uncertainty=uncertainty, halves=check, warnings=warnings),
+                   floor_frame=floor)

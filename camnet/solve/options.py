@@ -3,8 +3,16 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from enum import StrEnum
 
 from camnet.model.methods import Loss, Method
+
+
+class World(StrEnum):
+    """The frame a calibration is written in (the rig file's `world`)."""
+
+    LEFT_CAMERA = "left_camera"  # the left stereo camera's, as the paper's
+    FLOOR = "floor"  # found from the scene: floor, up and origin (camnet.solve.world_frame)
 
 
 @dataclass(frozen=True)
@@ -33,3 +41,4 @@ class Options:
     # may determine a lens the first few tracks could not (a webcam's k1), which held at zero biases its focal
     # length and distance together by more than their sigmas.
     free_again: bool = False
+    world: World = World.LEFT_CAMERA

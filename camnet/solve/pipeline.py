@@ -71,7 +71,7 @@ from camnet.solve.free_rule import (
 from camnet.solve.halves import with_halves_check
 from camnet.solve.known_distances import known_distances
 from camnet.solve.lens_check import with_lens_check
-from camnet.solve.options import Options
+from camnet.solve.options import Options, World
 from camnet.solve.pair_check import with_pair_check
 from camnet.solve.report.assemble import (
     refuse_undetermined,
@@ -108,6 +108,7 @@ from camnet.solve.uncertainty import (
     with_guessed_pp,
     with_held_turns,
 )
+from camnet.solve.world_frame import with_floor_frame
 
 log = logging.getLogger(__name__)
 
@@ -181,7 +182,9 @@ def calibrate(
     except np.linalg.LinAlgError:
         raise SolveError(f"the observations do not determine the calibration (singular equations){pair_advice(obs)}"
                          ) from None
-    if options.halves:
+    if options.world == World.FLOOR:
+        result = with_floor_frame(result, obs)
+    if options.halves:  # after the floor frame: it widens the floor's sigmas with every other
         result = replace(result, calibration=with_second_opinion(obs, result.calibration, options))
     if not unobserved:
         return result
@@ -195,7 +198,7 @@ def with_second_opinion(obs: Observations, cal: Calibration, options: Options) -
     nobody described freed (camnet.solve.lens_check)."""
     obs, _ = without_unobserved(obs)
     # Each half from a cold start: warm from the whole, it keeps the whole's outliers and basin and agrees.
-    alone = replace(options, halves=False)
+    alone = replace(options, halves=False, world=World.LEFT_CAMERA)
     cal = with_halves_check(obs, cal, lambda half: calibrate(half, alone).calibration)
     return with_lens_check(obs, with_pair_check(obs, cal), options, solved_from)
 
