@@ -69,3 +69,10 @@ def test_the_same_call_gives_the_same_result_in_other_threads():
     with concurrent.futures.ThreadPoolExecutor(4) as pool:
         results = list(pool.map(disturbed, range(4)))
     assert all(r == before for r in results)
+
+
+@pytest.mark.filterwarnings("error")
+def test_a_relative_pose_at_a_focal_length_no_pinhole_has_is_none_and_warns_nothing():
+    _, xy1, xy2 = scene()
+    assert relative_pose(xy1, xy2, -800.0, 800.0, threshold_px=1.0) is None
+    assert relative_pose(xy1, xy2, 800.0, 0.0, threshold_px=1.0) is None

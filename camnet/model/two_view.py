@@ -93,7 +93,7 @@ def relative_pose(
     """
     import cv2
 
-    if len(xy1) < MIN_PAIR_POINTS:
+    if len(xy1) < MIN_PAIR_POINTS or not (f1 > 0 and f2 > 0):  # no pinhole has a focal length of 0 or less
         return None
     n1, n2 = xy1 / f1, xy2 / f2
     threshold = threshold_px / np.sqrt(f1 * f2)
