@@ -133,6 +133,7 @@ def test_up_ignores_calibrations_of_another_publisher_and_ends_with_its_calibrat
 
     from camnet.bus.source import SourcedPublisher
     from camnet.io.messages import decode_calibration_message
+    from tests.test_foreign_features import Stranger
 
     rig_path = rig_file(tmp_path, 4)
     rig = load_rig(rig_path)
@@ -145,11 +146,16 @@ def test_up_ignores_calibrations_of_another_publisher_and_ends_with_its_calibrat
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     stdout, stderr = Output(proc.stdout), Output(proc.stderr)
     forged: list[bytes] = []
+    stranger = None
     with open_session(BusOptions(connect=(endpoint,))) as peer:
         # Stating no source, and stating the peer's own.
         publishers = [peer.declare_publisher(keys.calibration(rig.name))]
         publishers.append(SourcedPublisher(peer.declare_publisher(keys.calibration(rig.name))))
         try:
+            # Well-formed features of mono_a, which has no feature stage, for the whole run: its frames must
+            # still be matched.
+            stranger = Stranger({"mono_a": SourcedPublisher(peer.declare_publisher(keys.features(rig.name,
+                                                                                               "mono_a")))})
             # From the calibrator's first calibration to the run's end: a copy 6% too large, four times a second.
             state = run_dir / "calibration.json"
             wait_for(lambda: state.exists() or proc.poll() is not None, WAIT_S,
@@ -161,10 +167,14 @@ def test_up_ignores_calibrations_of_another_publisher_and_ends_with_its_calibrat
                 forged.append(forged[0])
                 wait_for(lambda: proc.poll() is not None, 0.25)
         finally:
+            if stranger is not None:
+                stranger.close()
             stop_process(proc, first_signal=signal.SIGINT)
             stdout.join()
             stderr.join()
     assert proc.returncode == 0, f"{stdout.text()}\n{stderr.text()}"
+    assert stranger.sent >= 2
+    assert "ignoring features of camera 'mono_a'" in (run_dir / "logs" / "matcher.log").read_text()
     published = len(forged) - 1
     assert published >= 2, stdout.text()
     # The forgery is a calibration, and a wrong one.
@@ -178,6 +188,7 @@ def test_up_ignores_calibrations_of_another_publisher_and_ends_with_its_calibrat
         doc = json.loads(path.read_text())
         assert doc["solve"] != 1231 and doc["frame_sets"] >= 8, path
         cal = parse_calibration(doc)
+        assert {c.id for c in cal.cameras} == {c.id for c in truth}, path  # mono_a's frames matched throughout
         scale_error = compare_cameras(cal, truth).scale_rel
         assert abs(scale_error) < 3 * scale_sigma_rel(cal), f"{path}: scale off by {scale_error:+.3%}"
     # The matcher chose its pairs from the calibrator's calibrations only, and the recording holds only those.
