@@ -95,6 +95,10 @@ def test_up_restarts_a_killed_driver_matcher_and_calibrator_and_ends_with_a_cali
             told = f"{name} was killed by signal 9 (SIGKILL); restarting it in 1 s, restart 1"
             wait_for(lambda told=told: told in stdout.text() or proc.poll() is not None, WAIT_S)
             assert told in stdout.text(), failed(f"{name}'s restart was not told")
+        # The restarted calibrator resumes, then solves anew (not a solve its killed self had under way).
+        resumes = run_dir / "logs" / "calibrator.log"
+        assert wait_for(lambda: "resumed from" in resumes.read_text(), WAIT_S, progress=moving,
+                        limit_s=LIMIT_S), failed("the calibrator did not resume")
         # The matcher restarted after the driver: what it pools of mono_a comes from the driver's restart.
         last = max(s["solve"] for s in solves(progress))
         assert wait_for(lambda: any(s["solve"] > last for s in solves(progress)), WAIT_S, progress=moving,
