@@ -186,12 +186,16 @@ class Tracker:
         self._halves_at_s = time.monotonic()
         return cal
 
+    def _waiting(self, obs: Observations) -> dict[str, str]:
+        """The cameras of `obs` left out until the matcher has forgotten their views, with why."""
+        return {c: NOT_FORGOTTEN_YET for c in sorted(self._awaiting) if c in obs.camera_ids}
+
     def _freed_again(self, obs: Observations, cal: Calibration) -> Calibration:
         """`cal` solved on with the automatic rule tried again (Options.free_again), where that is good: a warm
         solve keeps the free set of the first, and a pool that has grown since may determine more of a lens."""
         if self.config.options.free != "auto":
             return cal
-        waiting = {c: NOT_FORGOTTEN_YET for c in sorted(self._awaiting) if c in obs.camera_ids}
+        waiting = self._waiting(obs)
         again = solve_judged(obs, cal, options=replace(self._options, free_again=True),
                              check=partial(policy_check, config=self.config), leave_out=waiting)
         return again.calibration if again.status == Status.GOOD else cal
@@ -391,7 +395,7 @@ class Tracker:
         initial = self._initial()
         cold = None if self.config.stereo_pose is None else stereo_head(obs, *self.config.stereo_pose)
         check = partial(policy_check, config=self.config)
-        waiting = {c: NOT_FORGOTTEN_YET for c in sorted(self._awaiting) if c in obs.camera_ids}
+        waiting = self._waiting(obs)
         if initial is not None:
             warm = solve_judged(self._lens_held(obs), initial, options=self._options, check=check,
                                 reset=self._reset, leave_out=waiting)
