@@ -147,6 +147,15 @@ class _Publisher:
         self.last = payload
 
 
+class _Recorded:
+    """A recorded calibration as the matcher's subscriber hands it over: its payload, no attachment."""
+
+    def __init__(self, payload: bytes) -> None:
+        import zenoh
+
+        self.payload, self.attachment = zenoh.ZBytes(payload), None
+
+
 def replay(directory: Path, name: str, *, max_sets: int,
            solve_every: int = 0) -> tuple[list[SetCost], object, list[Observations]]:
     """Feed the recording of rig `name` to a matcher node; the cost of each frame set, the pool's quality,
@@ -197,7 +206,7 @@ def replay(directory: Path, name: str, *, max_sets: int,
             break
         take(t_s)
         if key == calibration_key:
-            node.calibration._payload = payload  # as the subscriber hands it over
+            node.calibration.on_sample(_Recorded(payload))
         elif key.endswith("/features"):
             node._sync.add(decode_features(payload), now_s=t_s)
             take(t_s)

@@ -38,6 +38,7 @@ from camnet.io.messages import (
     decode_observations_message,
     encode_calibration_message,
     load_calibration_message,
+    observations_message_to_doc,
 )
 from camnet.io.rig import Rig
 from camnet.io.rig_match import calibration_mismatch, observations_mismatch
@@ -64,6 +65,8 @@ class CalibratorConfig:
 
     live: LiveConfig = LiveConfig()
     state_path: Path | None = None
+    # Where the observations behind the last calibration published are written when the node stops.
+    observations_path: Path | None = None
     stats_period_s: float = 1.0
 
 
@@ -173,6 +176,7 @@ class CalibratorNode:
         self._warned_s: dict[str, float] = {}  # outcome -> when it was last warned about
         # Cameras found moved (the tracker says so in one solve only) not yet named by a published calibration.
         self._moved_untold: set[str] = set()
+        self._published_from: ObservationsMessage | None = None  # the observations of the last one published
 
     # ------------------------------------------------------------ bus callbacks
 
@@ -229,6 +233,7 @@ class CalibratorNode:
         publisher.put(payload, attachment=moved_attachment((self._moved_untold | set(outcome.moved))
                                                            - set(outcome.told)))
         self._moved_untold = set()
+        self._published_from = source
         # Kept for a restart after it is published: writing it must not delay the rig's consumers.
         if self.config.state_path is not None:  # the rig's layout: not for every user
             write_json_atomic(self.config.state_path, calibration_message_to_doc(message), private=True)
@@ -306,6 +311,18 @@ class CalibratorNode:
         publisher.put(self.latest_doc)
         log.info("resumed from %s (%d cameras)", self.config.state_path, len(resumed.calibration.cameras))
 
+    def _write_observations(self) -> None:
+        """Write the observations behind the last calibration published (none: nothing), where the config says:
+        the message that calibration names, as solved (camnet.io.run_dir.observations_behind reads it)."""
+        path, source = self.config.observations_path, self._published_from
+        if path is None or source is None:
+            return
+        try:
+            write_json_atomic(path, observations_message_to_doc(source))
+        except OSError as exc:
+            log.warning("could not write the observations behind the last calibration to %s: %s", path,
+                        exc.strerror or exc)
+
     def run(self) -> None:
         """Serve until `stop` is set (or SIGTERM, Ctrl-C)."""
         rig = self.rig_name
@@ -344,6 +361,7 @@ class CalibratorNode:
                     presence.publish_if_due()
         finally:
             subscriber.undeclare()
+            self._write_observations()
             if frames is not None:
                 frames.undeclare()
             queryable.undeclare()

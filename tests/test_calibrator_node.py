@@ -85,6 +85,24 @@ def test_a_restarted_calibrator_resumes_from_its_state(zenoh_pair, tmp_path):
         assert node.tracker.solves == 2  # numbered on from the resumed solve 1: a number names one calibration
 
 
+def test_on_stopping_it_writes_the_observations_behind_its_last_calibration(zenoh_pair, tmp_path):
+    from camnet.io.messages import load_calibration_message
+    from camnet.io.run_dir import observations_behind
+
+    a, b = zenoh_pair
+    state, solved_from = tmp_path / "calibration.json", tmp_path / "observations.json"
+    with running(a, CalibratorConfig(state_path=state, observations_path=solved_from)) as node:
+        publisher = matched_publisher(b, keys.observations(RIG))
+        publisher.put(observations_payload(seed=3))
+        assert wait_for(lambda: node.tracker.counts["good"] == 1, 60)
+        publisher.put(b"{not json")  # not solved: the file names the last one published
+        assert wait_for(lambda: node.malformed.counts == {"json": 1})
+        assert not solved_from.exists()  # written once, when it stops
+    kept = observations_behind(solved_from, load_calibration_message(state))
+    assert kept is not None and kept.latest_capture_ns == 123
+    assert len(kept.observations.track_ids) == len(json.loads(observations_payload(seed=3))["tracks"])
+
+
 @pytest.mark.parametrize("content", [b"\xff\xfe{}", b"[" * 100_000, b'{"format": "camnet.calibration/1", "cameras": '
                                      b'[{"id": "a", "width": 100000000000000000000000000000, "height": 1}]}'])
 def test_a_state_file_that_is_not_a_calibration_is_moved_aside_with_a_warning(tmp_path, content, caplog):

@@ -11,9 +11,9 @@ import pytest
 
 from camnet.commands.up import RunFollower, _finish
 from camnet.commands.up_console import final_report, progress_line, summarise
-from camnet.io.formats import parse_calibration
-from camnet.io.messages import CalibrationMessage, ObservationsMessage
-from camnet.io.run_dir import RecentObservations, default_run_dir
+from camnet.io.formats import parse_calibration, write_json_atomic
+from camnet.io.messages import CalibrationMessage, ObservationsMessage, observations_message_to_doc
+from camnet.io.run_dir import default_run_dir, observations_behind
 from camnet.live.moved_cameras import drop_before
 from camnet.live.policy import LIVE_FREE
 from camnet.sim.simulate import make_rig, observe
@@ -38,22 +38,24 @@ def test_the_default_run_directory_names_the_rig_and_the_time():
     assert path.parts[0] == "runs" and re.fullmatch(r"sim-\d{8}-\d{6}", path.name)
 
 
-def test_recent_observations_keep_the_last_few_by_source(live_like):
+def test_the_observations_behind_a_calibration_are_those_of_its_solve_only(tmp_path, live_like):
     _, cal_message, obs_message = live_like
-    recent = RecentObservations(keep=2)
-    for k in range(3):
-        recent.add(replace(obs_message, frame_sets=k, latest_capture_ns=k))
-    assert recent.source_of(replace(cal_message, frame_sets=0, latest_capture_ns=0)) is None
-    assert recent.source_of(replace(cal_message, frame_sets=2, latest_capture_ns=2)).frame_sets == 2
-    assert recent.source_of(replace(cal_message, frame_sets=2, latest_capture_ns=1)) is None
+    path = tmp_path / "observations.json"
+    assert observations_behind(path, cal_message) is None  # none written
+    write_json_atomic(path, observations_message_to_doc(replace(obs_message, frame_sets=2, latest_capture_ns=2)))
+    assert observations_behind(path, replace(cal_message, frame_sets=2, latest_capture_ns=2)).frame_sets == 2
+    assert observations_behind(path, replace(cal_message, frame_sets=2, latest_capture_ns=1)) is None
+    assert observations_behind(path, cal_message) is None  # a later solve's
+    path.write_text("{")
+    assert observations_behind(path, replace(cal_message, frame_sets=2, latest_capture_ns=2)) is None
 
 
 def test_the_run_directory_holds_the_results_and_the_last_lines_name_them(tmp_path, live_like):
     rig, cal_message, obs_message = live_like
     follower = RunFollower(argparse.Namespace(), truth=None)
-    follower.observations.add(obs_message)
-    follower.observations.add(replace(obs_message, frame_sets=8, latest_capture_ns=999))  # solved from by none
     run_dir = tmp_path / "runs" / "sim-1"
+    run_dir.mkdir(parents=True)
+    write_json_atomic(run_dir / "observations.json", observations_message_to_doc(obs_message))  # the calibrator's
     text = _finish(argparse.Namespace(output=None), run_dir, cal_message, follower, truth=None, restarts={})
     names = sorted(p.name for p in run_dir.iterdir())
     assert names == ["calibration.json", "calibration.yaml", "colmap", "observations.json", "points.ply",
@@ -80,8 +82,9 @@ def test_a_simulated_run_keeps_its_truth_and_its_report_shows_what_the_console_d
     rig, cal_message, obs_message = live_like
     truth = list(rig.cameras)  # the simulation's cameras, in the left camera's frame as Rig.simulated_truth gives
     follower = RunFollower(argparse.Namespace(), truth=truth)
-    follower.observations.add(obs_message)
     run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    write_json_atomic(run_dir / "observations.json", observations_message_to_doc(obs_message))
     text = _finish(argparse.Namespace(output=None), run_dir, cal_message, follower, truth=truth, restarts={})
     assert "truth.json" in text and "against the simulation's ground truth:" in text
     kept = parse_calibration(json.loads((run_dir / "truth.json").read_text())).cameras
@@ -145,7 +148,9 @@ def test_a_partial_calibrations_run_directory_and_final_table_name_the_camera_le
     assert away not in {c.id for c in cal.cameras}
     cal_message = CalibrationMessage(cal, frame_sets=7, latest_capture_ns=1, solve=3)
     follower = RunFollower(argparse.Namespace(), truth=None)
-    follower.observations.add(ObservationsMessage(obs, frame_sets=7, latest_capture_ns=1))
+    (tmp_path / "run").mkdir()
+    write_json_atomic(tmp_path / "run" / "observations.json",
+                      observations_message_to_doc(ObservationsMessage(obs, frame_sets=7, latest_capture_ns=1)))
     text = _finish(argparse.Namespace(output=None), tmp_path / "run", cal_message, follower, truth=None, restarts={})
     assert re.search(rf"^{away}\s+not calibrated: it has no observations", text, flags=re.MULTILINE), text
     assert "Needs the observations" not in (tmp_path / "run" / "report.html").read_text()

@@ -121,6 +121,16 @@ def test_up_restarts_a_killed_driver_matcher_and_calibrator_and_ends_with_a_cali
     assert len(cal.cameras) == 4, failed("a camera (the restarted driver's?) is missing from the final calibration")
     scale_error = compare_cameras(cal, truth).scale_rel
     assert abs(scale_error) < 3 * scale_sigma_rel(cal), failed(f"scale off by {scale_error:+.3%}")
+    assert solved_from_is_kept(run_dir), failed("the observations behind the final calibration are not kept")
+
+
+def solved_from_is_kept(run_dir) -> bool:
+    """Whether the run directory holds the observations its final calibration was solved from."""
+    from camnet.io.messages import load_calibration_message
+    from camnet.io.run_dir import observations_behind
+
+    return observations_behind(run_dir / "observations.json",
+                               load_calibration_message(run_dir / "calibration.json")) is not None
 
 
 def forge(doc: dict, factor: float) -> bytes:
@@ -195,6 +205,7 @@ def test_up_ignores_calibrations_of_another_publisher_and_ends_with_its_calibrat
         assert {c.id for c in cal.cameras} == {c.id for c in truth}, path  # mono_a's frames matched throughout
         scale_error = compare_cameras(cal, truth).scale_rel
         assert abs(scale_error) < 3 * scale_sigma_rel(cal), f"{path}: scale off by {scale_error:+.3%}"
+    assert solved_from_is_kept(run_dir), stdout.text()
     # The matcher chose its pairs from the calibrator's calibrations only, and the recording holds only those.
     for node in ("matcher", "recorder"):
         log = (run_dir / "logs" / f"{node}.log").read_text()

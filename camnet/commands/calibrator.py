@@ -23,6 +23,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="where the last good calibration is kept and resumed from "
                              "(default: $XDG_STATE_HOME/camnet/<rig>/calibration.json)")
     parser.add_argument("--no-state", action="store_true", help="neither resume nor persist")
+    parser.add_argument("--observations-out", metavar="FILE.json",
+                        help="on stopping, write the observations behind the last calibration published here "
+                             "(camnet.observations/1, with the frame sets and capture time that calibration names)")
     parser.add_argument("--free", default=DEFAULT_FREE,
                         help="intrinsics to estimate: a comma list of f, aspect, pp, k1, k2, fisheye, "
                              "stereo_rotation, stereo_direction, or 'auto' for the engine's rule (default: "
@@ -106,7 +109,8 @@ def run(args: argparse.Namespace) -> int:
         options = replace(options, pair_tolerance_deg=tolerance or 0.0)
     live = LiveConfig(options=options, stereo_pose=stereo_pose,
                       limits=SoundnessLimits(max_rms_px=args.max_rms_px), max_scale_rel=args.max_scale_rel)
-    config = CalibratorConfig(live=live, state_path=state)
+    config = CalibratorConfig(live=live, state_path=state,
+                              observations_path=Path(args.observations_out) if args.observations_out else None)
     rec = open_recording(rig=name, sinks=sinks)
     try:
         for sink in sinks:

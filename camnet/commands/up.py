@@ -181,23 +181,12 @@ class LatestCalibration:
 
 
 class RunFollower:
-    """What `camnet up` follows on the bus: calibrations (progress lines) and the observations behind them."""
+    """What `camnet up` follows on the bus: the calibrator's calibrations (progress lines)."""
 
     def __init__(self, args: argparse.Namespace, truth, calibrator_id: str | None = None) -> None:
-        from camnet.io.run_dir import RecentObservations
-
         self.args, self.truth = args, truth
         self.on_calibration = LatestCalibration(calibrator_id)
-        self.observations = RecentObservations()
         self.reached: CalibrationMessage | None = None  # the first calibration from --until-frame-sets frame sets
-
-    def on_observations(self, sample) -> None:
-        from camnet.io.messages import MessageError, decode_observations_message
-
-        try:
-            self.observations.add(decode_observations_message(sample.payload.to_bytes()))
-        except MessageError:
-            return  # no observations: the calibrator counts and logs it
 
     def follow(self, launch, stop, start_s: float, run_dir: Path, progress_file) -> None:
         """Print a line per calibration until the duration is up, Ctrl-C, a replay's end, or the first
@@ -293,6 +282,7 @@ def _network_spec(args: argparse.Namespace, rig_path: Path, rig, run_dir: Path, 
         driver=("--features", "--detector", str(args.detector)) if args.features else (),
         matcher=("--detector", str(args.detector)),
         calibrator=("--state", str(run_dir / "calibration.json"),
+                    "--observations-out", str(run_dir / "observations.json"),
                     *(("--session-id", calibrator_id) if calibrator_id else ()),
                     *(f for v in args.rerun for f in ("--rerun", v)),
                     "--rerun-frame-period-s", repr(args.rerun_frame_period_s)),
@@ -332,7 +322,6 @@ def run(args: argparse.Namespace) -> int:
         launch = stack.enter_context(Launch(run_dir / "logs", restart=not args.no_restart,
                                             say=lambda line: print(f"camnet up: {line}", flush=True)))
         subscribers = [session.declare_subscriber(keys.calibration(rig.name), follower.on_calibration),
-                       session.declare_subscriber(keys.observations(rig.name), follower.on_observations),
                        launch.watch(session, rig.name)]  # a node is up once its token is seen
         start_network(launch, spec)
         for line in rerun_lines(args.rerun):
@@ -414,9 +403,9 @@ def _finish(args: argparse.Namespace, run_dir: Path, message: CalibrationMessage
     from camnet.commands.up_console import final_report
     from camnet.io.formats import write_json_atomic
     from camnet.io.messages import calibration_message_to_doc
-    from camnet.io.run_dir import write_results
+    from camnet.io.run_dir import observations_behind, write_results
 
-    observations = follower.observations.source_of(message)
+    observations = observations_behind(run_dir / "observations.json", message)
     written = write_results(run_dir, message, observations, truth)
     if args.output:
         write_json_atomic(args.output, calibration_message_to_doc(message))
@@ -428,7 +417,8 @@ def _finish(args: argparse.Namespace, run_dir: Path, message: CalibrationMessage
     lines += ["", f"files in {run_dir}:"]
     lines += [f"  {p.name + ('/' if p.is_dir() else ''):<20} {_DESCRIBE.get(p.name, '')}".rstrip() for p in written]
     if observations is None:
-        lines.append("  (the observations behind the last calibration were not received: no observations.json)")
+        lines.append("  (the calibrator stopped without writing the observations behind the last calibration: "
+                     "no observations.json)")
     cal_path = run_dir / "calibration.json"
     lines += ["next:", f"  open {run_dir / 'report.html'}",
               f"  camnet export {cal_path} --to kalibr|ros|anipose|colmap-bin -o OUT"]

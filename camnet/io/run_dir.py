@@ -11,7 +11,6 @@ the report compares the calibration with).
 from __future__ import annotations
 
 import time
-from collections import OrderedDict
 from pathlib import Path
 
 import numpy as np
@@ -21,8 +20,10 @@ from camnet.io.export import COLMAP_FORMATS, export, is_multi_file
 from camnet.io.formats import calibration_to_doc, write_json_atomic
 from camnet.io.messages import (
     CalibrationMessage,
+    MessageError,
     ObservationsMessage,
     calibration_message_to_doc,
+    decode_observations_message,
     observations_message_to_doc,
 )
 from camnet.io.report import render_report
@@ -31,7 +32,6 @@ from camnet.model.camera import Camera
 
 # (format of `camnet export`, file or directory name in the run directory)
 EXPORTS = (("opencv", "calibration.yaml"), ("colmap", "colmap"), ("ply", "points.ply"))
-KEPT_OBSERVATIONS = 16  # observations messages kept until a calibration names the one it was solved from
 
 
 def default_run_dir(rig_name: str, *, now_s: float | None = None) -> Path:
@@ -48,23 +48,14 @@ def source_key(message: CalibrationMessage | ObservationsMessage) -> SourceKey:
     return message.frame_sets, message.latest_capture_ns
 
 
-class RecentObservations:
-    """The last few observations messages, by `source_key`; older ones are dropped."""
-
-    def __init__(self, keep: int = KEPT_OBSERVATIONS) -> None:
-        self.keep = keep
-        self._messages: OrderedDict[SourceKey, ObservationsMessage] = OrderedDict()
-
-    def add(self, message: ObservationsMessage) -> None:
-        key = source_key(message)
-        self._messages[key] = message
-        self._messages.move_to_end(key)
-        while len(self._messages) > self.keep:
-            self._messages.popitem(last=False)
-
-    def source_of(self, calibration: CalibrationMessage) -> ObservationsMessage | None:
-        """The observations `calibration` was solved from, if kept."""
-        return self._messages.get(source_key(calibration))
+def observations_behind(path: Path, calibration: CalibrationMessage) -> ObservationsMessage | None:
+    """The observations `calibration` was solved from, as its calibrator wrote them to `path` when it stopped
+    (`camnet calibrator --observations-out`); None where the file is absent, unreadable, or of another solve."""
+    try:
+        message = decode_observations_message(path.read_bytes())
+    except (OSError, MessageError):
+        return None
+    return message if source_key(message) == source_key(calibration) else None
 
 
 def truth_document(truth: list[Camera]) -> dict:
