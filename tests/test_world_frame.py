@@ -199,8 +199,15 @@ def test_a_floor_frame_without_a_floor_says_why_and_a_wrong_world_from_left_is_r
     assert doc["floor"] == {"found": False, "reason": frame.reason}
     back = parse_calibration(doc)
     assert not back.floor_frame.found and back.floor_frame.reason == frame.reason
-    left = calibration_to_doc(cal)  # no floor frame: the left camera's, as before
-    assert left["world_frame"] == "cam0" and "floor" not in left and "world_from_left" not in left
+    left = calibration_to_doc(cal)  # no floor frame: the left camera's, named as the contract names it
+    assert left["world_frame"] == "left" and "floor" not in left and "world_from_left" not in left
+    assert parse_calibration(left).world_frame == "cam0"
+    assert parse_calibration({**left, "world_frame": "cam0"}).world_frame == "cam0"  # as earlier versions wrote it
+    with pytest.raises(InputError, match='world_frame: "cam9" is neither "left", "floor" nor a camera'):
+        parse_calibration({**left, "world_frame": "cam9"})
+    moved = calibration_to_doc(replace(cal, cameras=tuple(replace(c, t=c.t + 1.0) for c in cal.cameras)))
+    with pytest.raises(InputError, match='world_frame "left": no camera is at the origin'):
+        parse_calibration(moved)
     doc["world_from_left"]["t"] = [0.0, 0.0, 5.0]
     with pytest.raises(InputError, match="world_from_left: no camera lands at the left camera's origin"):
         parse_calibration(doc)
@@ -255,7 +262,8 @@ def test_a_simulated_rig_without_a_floor_in_view_falls_back_to_the_cameras_down_
 
 def test_the_left_camera_frame_stays_the_default():
     _, cal = solved("ring_K", 0, world=World.LEFT_CAMERA)
-    assert cal.floor_frame is None and calibration_to_doc(cal)["world_frame"] == "head0_left"
+    assert cal.floor_frame is None and cal.world_frame == "head0_left"
+    assert calibration_to_doc(cal)["world_frame"] == "left"
 
 
 def test_camnet_calibrate_writes_the_floor_frame_when_asked(tmp_path):

@@ -259,6 +259,7 @@ def _distance_doc(entry: dict, known: Stereo | Baseline) -> dict:
 
 
 FLOOR_FRAME = "floor"  # the world frame found from the scene (FloorFrame)
+LEFT_FRAME = "left"  # the left stereo camera's frame, whatever its id (in memory: the id)
 # A camera the document's world_from_left brings to within this of the origin, unturned, is the left camera.
 LEFT_POSE_TOLERANCE = 1e-6
 
@@ -296,7 +297,7 @@ def calibration_to_doc(cal: Calibration) -> dict:
         )
     doc = {
         "format": CALIBRATION_FORMAT,
-        "world_frame": cal.world_frame if frame is None else FLOOR_FRAME,
+        "world_frame": LEFT_FRAME if frame is None else FLOOR_FRAME,
         **({} if frame is None else _floor_frame_to_doc(frame)),
         "units": "m",
         "cameras": cameras,
@@ -339,13 +340,21 @@ def parse_calibration(doc: Any) -> Calibration:
         xyz.append(v.vector(v.require(p, "xyz", f"points[{i}]"), f"points[{i}].xyz", size=3))
     rms = doc.get("rms_reprojection_px", float("nan"))
     points = np.asarray(xyz, dtype=float).reshape(-1, 3)
-    world_frame, frame = str(doc.get("world_frame", cameras[0].id)), None
+    world_frame, frame = v.string(doc.get("world_frame", LEFT_FRAME), "world_frame"), None
     if world_frame == FLOOR_FRAME:
         frame = _parse_floor_frame(doc)
         # Back to the left camera's frame, in which a calibration is solved: X_left = R^T (X_world - t).
         cameras = tuple(in_frame(cam, frame.R.T, -frame.R.T @ frame.t) for cam in cameras)
         points = (points - frame.t) @ frame.R
-        world_frame = _left_camera(cameras)
+        world_frame = _left_camera(cameras, "world_from_left: no camera lands at the left camera's origin, unturned, "
+                                            "when the cameras are taken back with it (X_left = R^T (X_world - t)); "
+                                            "it must map the left camera's frame to the world's")
+    elif world_frame not in {c.id for c in cameras}:  # a camera's id: as earlier versions wrote it
+        if world_frame != LEFT_FRAME:
+            raise InputError(f'world_frame: "{world_frame}" is neither "{LEFT_FRAME}", "{FLOOR_FRAME}" nor a camera\'s '
+                             "id; see the calibration format")
+        world_frame = _left_camera(cameras, f'world_frame "{LEFT_FRAME}": no camera is at the origin, unturned '
+                                            "(R = I, t = 0), as the left stereo camera must be")
     return Calibration(
         cameras=cameras,
         point_ids=np.asarray(ids, dtype=np.int64),
@@ -369,15 +378,13 @@ def _parse_floor_frame(doc: Any) -> FloorFrame:
                       v.number(v.require(floor, "height_sigma_m", "floor"), "floor.height_sigma_m", minimum=0.0))
 
 
-def _left_camera(cameras: tuple[Camera, ...]) -> str:
-    """The id of the camera at the origin of the left camera's frame, unturned; the document is wrong without."""
+def _left_camera(cameras: tuple[Camera, ...], wrong: str) -> str:
+    """The id of the camera at the origin of the left camera's frame, unturned; InputError(`wrong`) without."""
     for cam in cameras:
         if np.allclose(cam.R, np.eye(3), atol=LEFT_POSE_TOLERANCE) and np.allclose(cam.t, 0.0,
                                                                                    atol=LEFT_POSE_TOLERANCE):
             return cam.id
-    raise InputError("world_from_left: no camera lands at the left camera's origin, unturned, when the cameras are "
-                     "taken back with it (X_left = R^T (X_world - t)); it must map the left camera's frame to the "
-                     "world's")
+    raise InputError(wrong)
 
 
 def write_json_atomic(path: str | Path, doc: Any, *, private: bool = False) -> None:
