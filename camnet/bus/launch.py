@@ -98,8 +98,13 @@ def bus_flags(options: BusOptions) -> list[str]:
     return flags
 
 
+# A stopping calibrator ends its solve, writes the observations behind its last calibration and flushes its
+# Rerun recording: on a loaded machine that takes more than 10 s.
+STOP_GRACE_S = 20.0
+
+
 class Launch:
-    def __init__(self, log_dir: Path, *, grace_s: float = 10.0, restart: bool = False,
+    def __init__(self, log_dir: Path, *, grace_s: float = STOP_GRACE_S, restart: bool = False,
                  say: Callable[[str], None] | None = None) -> None:
         """`say`: where a restart is told besides the node's log (default: this module's log)."""
         self.log_dir = Path(log_dir)
