@@ -99,6 +99,10 @@ class SimCamera:
         its frame is delivered."""
         return self._clock.stamp_ns(self.exposure_ns(slot), self.clock_epoch_ns)
 
+    def due_ns(self, slot: int) -> int:
+        """When the frame of slot `slot` is delivered (Unix epoch, ns): its exposure plus the clock's latency."""
+        return self.exposure_ns(slot) + self._clock.latency_ns
+
     def slot_at(self, time_ns: int) -> int:
         """The last slot due (delivered) at or before `time_ns` (Unix epoch, ns)."""
         return self._clock.slot_at(time_ns - self._clock.latency_ns, self._fps, self.clock_epoch_ns)
@@ -145,8 +149,7 @@ class SimCamera:
             resume = -(-self.slot_at(now_ns) // stride) * stride
             self._dropped += resume - slot
             slot = self._next_slot = resume
-        due_ns = self.exposure_ns(slot) + self._clock.latency_ns
-        wait_s = (due_ns - now_ns) / 1e9
+        wait_s = (self.due_ns(slot) - now_ns) / 1e9
         if wait_s > timeout_s:
             time.sleep(timeout_s)
             raise ReadTimeout(f"next simulated frame due in {wait_s:.3f} s")
