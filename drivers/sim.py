@@ -14,12 +14,19 @@ resumes on a multiple of the smallest power of two above the number of slots
 it was late by: cameras that fall behind alike (same rendering cost, same
 machine) then land on the same slots instead of on interleaved ones, and the
 coarser grids of the worse-off cameras nest in the finer ones.
+
+A camera with a `clock` in the rig file (camnet.sim.clock) departs from this:
+it exposes slot k at its clock's exposure instant (its own phase and drift
+when free-running), shows the scene at that instant of the rig clock, and
+stamps the frame with its own clock's reading `latency_ms` later, when the
+frame is delivered. Its clock is set (drift counts from) when the camera is made.
 """
 
 from __future__ import annotations
 
 import time
 import zlib
+from dataclasses import asdict
 from fractions import Fraction
 
 import numpy as np
@@ -27,6 +34,7 @@ from camnet.drivers.base import DeviceInfo, ReadTimeout
 
 from camnet.bus.frame import Frame, FrameBuffer
 from camnet.io.rig import CameraEntry, Rig
+from camnet.sim.clock import SimClock
 from camnet.sim.config import SimConfig
 from camnet.sim.render import Renderer
 from camnet.sim.scene import Scene
@@ -47,7 +55,7 @@ def _convert(image: np.ndarray, encoding: str) -> np.ndarray:
 
 class SimCamera:
     def __init__(self, camera_id: str, config: SimConfig, scene: Scene, *, seed: int = 0,
-                 groundtruth: dict | None = None) -> None:
+                 groundtruth: dict | None = None, clock_epoch_ns: int | None = None) -> None:
         self.camera_id = camera_id
         self.config = config
         self.scene = scene
@@ -60,6 +68,9 @@ class SimCamera:
                                 description="simulated camera (camnet.sim.render)")
         # fps as an exact fraction, so that every camera computes the same integer timestamps.
         self._fps = Fraction(config.fps)
+        self._clock = config.clock or SimClock()  # the default clock is the common trigger's
+        # When the camera's clock was set, on the rig clock (ns): its drift counts from then.
+        self.clock_epoch_ns = time.time_ns() if clock_epoch_ns is None else clock_epoch_ns
         self._dropped = 0
         self._next_slot = 0
 
@@ -78,21 +89,41 @@ class SimCamera:
     def __exit__(self, *exc_info: object) -> None:
         return None
 
+    def exposure_ns(self, slot: int) -> int:
+        """Rig-clock time of frame slot `slot`'s exposure (Unix epoch, ns): ``slot * 1e9 / fps`` rounded down
+        unless a free-running clock says otherwise."""
+        return self._clock.exposure_ns(slot, self._fps, self.clock_epoch_ns)
+
     def slot_timestamp_ns(self, slot: int) -> int:
-        """Capture time of frame slot `slot`: ``slot * 1e9 / fps`` ns of the Unix epoch, rounded down."""
-        return slot * 1_000_000_000 * self._fps.denominator // self._fps.numerator
+        """The stamp of frame slot `slot` (ns): its exposure instant, or what the camera's clock reads when
+        its frame is delivered."""
+        return self._clock.stamp_ns(self.exposure_ns(slot), self.clock_epoch_ns)
+
+    def due_ns(self, slot: int) -> int:
+        """When the frame of slot `slot` is delivered (Unix epoch, ns): its exposure plus the clock's latency."""
+        return self.exposure_ns(slot) + self._clock.latency_ns
 
     def slot_at(self, time_ns: int) -> int:
-        """The last slot due at or before `time_ns` (Unix epoch, ns)."""
-        return time_ns * self._fps.numerator // (1_000_000_000 * self._fps.denominator)
+        """The last slot due (delivered) at or before `time_ns` (Unix epoch, ns)."""
+        return self._clock.slot_at(time_ns - self._clock.latency_ns, self._fps, self.clock_epoch_ns)
+
+    def true_offset_ms(self, slot: int) -> float:
+        """The formats contract's `offset_ms` of this camera at frame slot `slot`: its capture instant on the
+        rig's clock minus its stamp, in ms (camnet.sim.clock)."""
+        return self._clock.true_offset_ms(self.exposure_ns(slot), self.clock_epoch_ns)
 
     def render(self, slot: int) -> np.ndarray:
-        """The image of frame slot `slot` (scene time slot / fps), in the camera's encoding.
+        """The image of frame slot `slot`, in the camera's encoding: the scene at its exposure instant.
 
         Deterministic: the sensor noise is seeded by the slot too.
         """
-        quads = self.scene.quads(slot / self.config.fps)
-        rng = np.random.default_rng([*self._noise_seed, slot])
+        time_s = slot / self.config.fps if not self._clock.free_run else self.exposure_ns(slot) / 1e9
+        return self.render_at(time_s, noise_key=slot)
+
+    def render_at(self, time_s: float, *, noise_key: int) -> np.ndarray:
+        """The image of the scene at rig time `time_s` (Unix epoch, s), its sensor noise seeded by `noise_key`."""
+        quads = self.scene.quads(time_s)
+        rng = np.random.default_rng([*self._noise_seed, noise_key])
         image = self._renderer.render(quads, noise_sigma_dn=self.config.noise_sigma_dn, rng=rng)
         return _convert(image, self.config.encoding)
 
@@ -118,19 +149,22 @@ class SimCamera:
             resume = -(-self.slot_at(now_ns) // stride) * stride
             self._dropped += resume - slot
             slot = self._next_slot = resume
-        timestamp_ns = self.slot_timestamp_ns(slot)
-        wait_s = (timestamp_ns - now_ns) / 1e9
+        wait_s = (self.due_ns(slot) - now_ns) / 1e9
         if wait_s > timeout_s:
             time.sleep(timeout_s)
             raise ReadTimeout(f"next simulated frame due in {wait_s:.3f} s")
         if wait_s > 0:
             time.sleep(wait_s)
         self._next_slot = slot + 1
-        return slot, timestamp_ns
+        return slot, self.slot_timestamp_ns(slot)
 
 
 def groundtruth_document(rig: Rig) -> dict:
-    """The rig's simulated cameras as a camnet.calibration/1-like document (world = left)."""
+    """The rig's simulated cameras as a camnet.calibration/1-like document (world = left).
+
+    A camera with a clock has its parameters under "clock" (camnet.sim.clock.SimClock's fields); its
+    true `offset_ms` also depends on when its driver set its clock (`SimCamera.true_offset_ms`).
+    """
     cameras = []
     for entry in rig.cameras:
         if entry.driver != "sim":
@@ -139,6 +173,8 @@ def groundtruth_document(rig: Rig) -> dict:
         cameras.append({"id": cam.id, "width": cam.width, "height": cam.height,
                         "K": cam.K.tolist(), "dist": cam.dist.tolist(), "R": cam.R.tolist(),
                         "t": cam.t.tolist()})
+        if entry.config.clock is not None:  # its offset follows from these and its clock's epoch
+            cameras[-1]["clock"] = asdict(entry.config.clock)
     scene = rig.scene
     world = rig.stereo.left if rig.stereo is not None else cameras[0]["id"] if cameras else ""
     doc = {"format": "camnet.calibration/1", "world_frame": world, "units": "m",

@@ -15,10 +15,13 @@ host's: drivers started at different instants still agree) and published at
 the recorded pace times `speed` (or at a fixed `fps`), measured from the
 first frame index of the pass (`frame_range`, by default the first image's),
 so that cameras holding different frames of one recording stay in step. A
-looping sequence adds one pass length to every stamp per pass: the pass's
-frame-index span plus one, times the frame period (the median interval of
-the timestamps file). Cameras that loop together need the same
-`frame_range`.
+looping sequence adds one pass length to every stamp per pass. A sequence's
+own pass length is its frame-index span plus one, times its frame period (the
+median interval of its timestamps file); every looping sequence of a rig
+takes the longest of those of the rig's looping sequences (`rig_pass_ns`),
+since each timestamps file has a median of its own and passes of different
+lengths would carry cameras apart by their difference every pass, out of
+every frame set. Cameras that loop together need the same `frame_range`.
 """
 
 from __future__ import annotations
@@ -28,7 +31,7 @@ import logging
 import os
 import re
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -46,7 +49,26 @@ _STAMP = re.compile(r"(\d{4}-\d{2}-\d{2} \d{2}:\d{2}:\d{2})(?:\.(\d{1,9}))?")
 
 
 def create(entry: CameraEntry, rig: Rig) -> V4l2Camera:
-    return V4l2Camera(entry.id, entry.config)
+    return V4l2Camera(entry.id, entry.config, rig_pass_ns=rig_pass_ns(rig))
+
+
+def rig_pass_ns(rig: Rig) -> int | None:
+    """The pass length (ns) of every looping stamped sequence of `rig`: the longest of their own, among
+    those whose images and timestamps this host has (None: none). A sequence this host cannot read is left
+    to its own driver, which says what is wrong with it."""
+    passes = []
+    for entry in rig.cameras:
+        config = entry.config
+        if entry.driver != "v4l2" or not config.loop or config.timestamps is None:
+            continue
+        try:
+            stamps = parse_timestamps(Path(config.timestamps).read_text(), source=config.timestamps)
+            files = sorted(glob.glob(config.source))
+            passes.append(stamped_sequence(files, stamps, frame_range=config.frame_range,
+                                           source=config.timestamps).pass_ns)
+        except (OSError, ValueError):
+            continue
+    return max(passes, default=None)
 
 
 def source_problem(camera_id: str, config: V4l2Config) -> str | None:
@@ -177,9 +199,10 @@ def _to_encoding(image: np.ndarray, encoding: str) -> np.ndarray:
 
 class V4l2Camera:
     groundtruth = None  # recorded or live, the scene's truth is not known
-    def __init__(self, camera_id: str, config: V4l2Config) -> None:
+    def __init__(self, camera_id: str, config: V4l2Config, *, rig_pass_ns: int | None = None) -> None:
         self.camera_id = camera_id
         self.config = config
+        self._rig_pass_ns = rig_pass_ns  # a looping sequence's pass length, the rig's (module docstring)
         self._capture = None
         self._files: tuple[str, ...] = ()
         self._stamped: StampedSequence | None = None
@@ -237,6 +260,8 @@ class V4l2Camera:
                                              source=path)
         except ValueError as exc:
             raise DeviceError(f"camera {self.camera_id!r}: {exc}") from None
+        if self._rig_pass_ns is not None and self._rig_pass_ns > self._stamped.pass_ns:
+            self._stamped = replace(self._stamped, pass_ns=self._rig_pass_ns)
         self._files = self._stamped.files
         if self.config.fps is None:
             self._fps = self.config.speed * 1e9 / self._stamped.period_ns

@@ -24,6 +24,7 @@ from camnet.io import validate as v
 from camnet.io.rig_section import Section
 from camnet.model.camera import Camera, CameraInfo, LensModel
 from camnet.model.observations import Baseline, Stereo
+from camnet.sim.clock import MAX_DRIFT_PPM, SimClock, free_run_phase
 from camnet.sim.config import SceneConfig, SimConfig
 from camnet.solve.options import World
 
@@ -147,7 +148,8 @@ class Rig:
 
 # The keys of each section of a rig file (config/README.md).
 SIM_KEYS = ("width", "height", "encoding", "fps", "f_px", "fx_px", "fy_px", "cx_px", "cy_px", "dist", "centre_m",
-            "look_at_m", "up", "noise_sigma_dn")
+            "look_at_m", "up", "noise_sigma_dn", "clock")
+CLOCK_KEYS = ("offset_ms", "drift_ppm", "latency_ms", "free_run")
 ARAVIS_KEYS = ("device_id", "pixel_format", "width", "height", "fps", "exposure_us", "gain_db", "packet_size",
                "n_buffers", "enable_fake_interface")
 V4L2_KEYS = ("source", "width", "height", "fps", "fourcc", "encoding", "loop", "timestamps", "speed", "frame_range")
@@ -160,7 +162,7 @@ STEREO_KEYS = ("left", "right", "baseline_m", "sigma_m", "parallel", "R", "t", "
 TOP_KEYS = ("rig", "stereo", "baselines", "scene", "sync", "cameras", "world", v.ANY_DISTANCE_FLAG)
 
 
-def _sim(s: Section, model: LensModel = LensModel.PINHOLE) -> SimConfig:
+def _sim(s: Section, model: LensModel = LensModel.PINHOLE, camera_id: str = "") -> SimConfig:
     if "f_px" in s.data:
         both = [key for key in ("fx_px", "fy_px") if key in s.data]
         if both:
@@ -183,8 +185,19 @@ def _sim(s: Section, model: LensModel = LensModel.PINHOLE) -> SimConfig:
         up=s.vector("up", 3, (0.0, -1.0, 0.0)),
         noise_sigma_dn=s.number("noise_sigma_dn", 2.0, minimum=0.0),
         model=model,
+        clock=_clock(s.section("clock", CLOCK_KEYS), camera_id) if s.raw("clock", None) is not None else None,
     )
     return config
+
+
+def _clock(s: Section, camera_id: str) -> SimClock:
+    drift_ppm = s.number("drift_ppm", 0.0)
+    if abs(drift_ppm) > MAX_DRIFT_PPM:
+        raise InputError(f"{s.field('drift_ppm')}: must be within +-{MAX_DRIFT_PPM:g} ppm, got {drift_ppm:g}")
+    free_run = s.boolean("free_run", False)
+    return SimClock(offset_ms=s.number("offset_ms", 0.0), drift_ppm=drift_ppm,
+                    latency_ms=s.number("latency_ms", 0.0, minimum=0.0), free_run=free_run,
+                    phase=free_run_phase(camera_id) if free_run else 0.0)
 
 
 def _optional_positive(s: Section, key: str, *, integer: bool = False):
@@ -304,7 +317,7 @@ def _camera(data: Any, path: str, base_dir: Path | None, ids: v.Ids) -> CameraEn
     config = None
     if driver is not None:
         section = s.section(driver, _SECTION_KEYS[driver])
-        config = _sim(section, model) if driver == "sim" else _DRIVER_PARSERS[driver](section)
+        config = _sim(section, model, camera_id) if driver == "sim" else _DRIVER_PARSERS[driver](section)
     intrinsics = None
     if s.raw("intrinsics", None) is not None:
         intrinsics = _intrinsics(s.section("intrinsics", INTRINSICS_KEYS), model)

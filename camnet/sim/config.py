@@ -13,6 +13,7 @@ import numpy as np
 
 from camnet.model.camera import Camera, LensModel
 from camnet.model.projection import full_dist, look_at
+from camnet.sim.clock import SimClock
 
 
 @dataclass(frozen=True)
@@ -22,6 +23,8 @@ class SimConfig:
     `dist` is in `model`'s order (pinhole [k1, k2, p1, p2, k3], fisheye [k1, k2, k3, k4]).
     With `look_at_m` absent the camera has R = I (axes along the world's).
     `noise_sigma_dn` is the std of additive Gaussian sensor noise in digital numbers.
+    `clock`: when and how it exposes and stamps its frames (camnet.sim.clock); None: triggered with
+    every other simulated camera on one common clock, stamping the exposure instant.
     """
 
     width: int
@@ -38,6 +41,7 @@ class SimConfig:
     up: tuple[float, float, float]
     noise_sigma_dn: float
     model: LensModel = LensModel.PINHOLE
+    clock: SimClock | None = None
 
     def camera(self, camera_id: str) -> Camera:
         """The ground-truth camnet.model.camera.Camera of this simulated camera."""
