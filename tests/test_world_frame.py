@@ -10,7 +10,7 @@ import pytest
 
 from camnet.errors import InputError
 from camnet.io.formats import calibration_to_doc, observations_to_doc, parse_calibration
-from camnet.model.calibration import Calibration, HalvesCheck
+from camnet.model.calibration import Calibration, FloorFrame, HalvesCheck
 from camnet.model.camera import Camera
 from camnet.model.projection import look_at, rotation_exp
 from camnet.sim.families import FLOOR_FAMILIES, family, observe_family
@@ -18,6 +18,7 @@ from camnet.sim.simulate import make_rig, observe, rolled, with_floor
 from camnet.solve import Options, calibrate
 from camnet.solve.halves import with_check_carried
 from camnet.solve.options import World
+from camnet.solve.report.verdict import Level, judge
 from camnet.solve.world_frame import camera_down, fit_floor, floor_frame, floor_sigmas, world_frame
 
 
@@ -77,6 +78,11 @@ def test_a_table_top_over_the_floor_showing_more_than_it_is_passed_over_and_the_
     assert fit.ambiguity.startswith("the floor is ambiguous: another plane 0.75 m above it holds about 70")
     frame = world_frame(calibration(cameras, points))
     assert frame.ambiguity == fit.ambiguity
+    written = floor_frame(frame)  # as a calibration holds it: said in its document, and read back
+    assert written.ambiguity == fit.ambiguity
+    doc = calibration_to_doc(replace(calibration(cameras, points), floor_frame=written))
+    assert doc["floor"]["ambiguity"] == fit.ambiguity
+    assert parse_calibration(doc).floor_frame.ambiguity == fit.ambiguity
     assert np.median(frame.floor.height_m(points[-700:])) == pytest.approx(0.75, abs=0.01)
     # With the wall down to the floor behind it, the table has points below it: it is no floor, and the floor's
     # few points are found among those below it, unambiguous.
@@ -255,6 +261,15 @@ def test_a_simulated_rig_without_a_floor_in_view_falls_back_to_the_cameras_down_
     frame = cal.floor_frame
     assert not frame.found and "no floor in view" in frame.reason
     assert frame.reason in cal.warnings
+    # The verdict says so too: the frame rests on less than a floor, the cameras are as good as they are.
+    finding = next(f for f in judge(cal).findings if f.what == "no floor in view")
+    assert finding.level == Level.USABLE and finding.cause == frame.reason
+    assert not any(f.what == "no floor in view" for f in judge(replace(cal, floor_frame=None)).findings)
+    ambiguous = FloorFrame(frame.R, frame.t, 0.1, 0.01, ambiguity="the floor is ambiguous: another plane ...")
+    finding = next(f for f in judge(replace(cal, floor_frame=ambiguous)).findings if "floor" in f.what)
+    assert finding.what == "the floor is ambiguous" and finding.cause == ambiguous.ambiguity
+    plain = replace(cal, floor_frame=replace(ambiguous, ambiguity=""))
+    assert not any("floor" in f.what for f in judge(plain).findings)
     truth = family("ring", seed=6, floor_points=10).floor.up_left
     # The ring's cameras pitch down at the person from all round: their mean down is gravity's to a degree or two.
     assert angle_deg(frame.R[2], truth) < 2.0

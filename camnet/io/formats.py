@@ -265,7 +265,8 @@ LEFT_POSE_TOLERANCE = 1e-6
 
 
 def _floor_frame_to_doc(frame: FloorFrame) -> dict:
-    floor = ({"normal_sigma_deg": frame.normal_sigma_deg, "height_sigma_m": frame.height_sigma_m} if frame.found
+    floor = ({"normal_sigma_deg": frame.normal_sigma_deg, "height_sigma_m": frame.height_sigma_m,
+              **({"ambiguity": frame.ambiguity} if frame.ambiguity else {})} if frame.found
              else {"found": False, "reason": frame.reason})
     return {"world_from_left": {"R": np.asarray(frame.R).tolist(), "t": np.asarray(frame.t).tolist()},
             "floor": floor}
@@ -375,7 +376,8 @@ def _parse_floor_frame(doc: Any) -> FloorFrame:
         return FloorFrame(R, t, reason=v.string(floor.get("reason", ""), "floor.reason"))
     return FloorFrame(R, t, v.number(v.require(floor, "normal_sigma_deg", "floor"), "floor.normal_sigma_deg",
                                      minimum=0.0),
-                      v.number(v.require(floor, "height_sigma_m", "floor"), "floor.height_sigma_m", minimum=0.0))
+                      v.number(v.require(floor, "height_sigma_m", "floor"), "floor.height_sigma_m", minimum=0.0),
+                      ambiguity=v.string(floor["ambiguity"], "floor.ambiguity") if "ambiguity" in floor else "")
 
 
 def _left_camera(cameras: tuple[Camera, ...], wrong: str) -> str:

@@ -254,7 +254,8 @@ class FloorFrame:
     world frame): ``X_world = R @ X_left + t`` (metres), Z up, origin on the floor, X toward the rig's front.
 
     normal_sigma_deg, height_sigma_m: 1 sigma of the floor's normal (degrees) and of its height (metres); both None
-    where the scene showed no floor, `reason` then saying why and what the frame rests on instead.
+    where the scene showed no floor, `reason` then saying why and what the frame rests on instead. ambiguity:
+    where another plane could be the floor, which, and that the lowest was taken ("": none).
     """
 
     R: np.ndarray
@@ -262,6 +263,7 @@ class FloorFrame:
     normal_sigma_deg: float | None = None
     height_sigma_m: float | None = None
     reason: str = ""
+    ambiguity: str = ""
 
     @property
     def found(self) -> bool:

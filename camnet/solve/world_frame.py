@@ -400,7 +400,8 @@ def floor_frame(frame: WorldFrame) -> FloorFrame:
     """What a calibration written in `frame` says of it (Calibration.floor_frame)."""
     if frame.floor is None:
         return FloorFrame(frame.R, frame.t, reason=frame.reason)
-    return FloorFrame(frame.R, frame.t, frame.floor.normal_sigma_deg, frame.floor.height_sigma_m)
+    return FloorFrame(frame.R, frame.t, frame.floor.normal_sigma_deg, frame.floor.height_sigma_m,
+                      ambiguity=frame.ambiguity)
 
 
 def with_floor_frame(result: Result, obs: Observations) -> Result:

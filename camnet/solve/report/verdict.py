@@ -313,7 +313,25 @@ def _rig_findings(cal: Calibration, report: SolveReport, t: Thresholds) -> list[
     out += _parallax_findings(report, t)
     out += _halves_findings(report)
     out += _rival_findings(report)
+    out += _floor_findings(cal)
     return out
+
+
+def _floor_findings(cal: Calibration) -> list[Finding]:
+    """A world frame asked of the scene's floor (camnet.solve.world_frame) that rests on less: no floor in view (up
+    from the cameras' down alone), or another plane that could be the floor. The cameras and points are as good
+    as their own findings say; the frame they are written in is what falls short."""
+    frame = cal.floor_frame
+    if frame is None:
+        return []
+    if not frame.found:
+        return [Finding(Level.USABLE, "no floor in view", frame.reason, Action.MOVE_CAMERA,
+                        "turn a camera so that it sees the floor, or keep the left camera's frame "
+                        "(world: left_camera)")]
+    if frame.ambiguity:
+        return [Finding(Level.USABLE, "the floor is ambiguous", frame.ambiguity, Action.MOVE_CAMERA,
+                        "turn a camera so that it sees more of the floor")]
+    return []
 
 
 def _halves_findings(report: SolveReport) -> list[Finding]:
