@@ -106,8 +106,9 @@ class Camera(Protocol):
     def read_into(self, buffer: FrameBuffer, *, timeout_s: float = 1.0) -> tuple[int, int] | Frame: ...
 
 
-def create_camera(entry: CameraEntry, rig: Rig) -> Camera:
-    """An unopened camera for `entry`, importing its driver module now."""
+def create_camera(entry: CameraEntry, rig: Rig, **options: object) -> Camera:
+    """An unopened camera for `entry`, importing its driver module now; `options`: the driver's own keywords
+    (v4l2: `files_start_ns`)."""
     module_name = DRIVER_MODULES.get(entry.driver)
     if module_name is None:
         raise DeviceError(f"camera {entry.id!r}: unknown driver {entry.driver!r} "
@@ -118,4 +119,4 @@ def create_camera(entry: CameraEntry, rig: Rig) -> Camera:
         hint = INSTALL_HINTS.get(entry.driver, "check the installation")
         raise DeviceError(f"camera {entry.id!r}: the {entry.driver} driver is unavailable "
                           f"({exc}); {hint}") from exc
-    return module.create(entry, rig)
+    return module.create(entry, rig, **options)

@@ -5,6 +5,20 @@ pattern of image files (sorted by name). Files and sequences are paced at the
 configured fps (else the file's own, else 30) and stamped with the host clock
 at the frame's due time; devices are stamped when the frame is grabbed.
 
+Files of one rig share one clock from their first frame: given a start
+instant (`files_start_ns`, Unix epoch ns; `camnet up` picks one for the run
+and gives it to every v4l2 driver it starts, a restarted one included, as
+`camnet driver --files-start-ns`), a video file or an image sequence without
+a timestamps file stamps frame i with that start + i/fps and publishes it at
+that wall time, whenever its driver started; without it, the start is the
+driver's own. A driver that opens after the start (started late, or started
+again after it died) begins at the frame due when it opens, published at
+once, skipping those before, rather than replaying them in a burst: the
+matcher's frame sets only go forward in time, so frames past would be of no
+use to it, and the driver is at once in step with the others. A video file
+is sought to that frame (modulo its frame count when it loops); one that does
+not loop and whose end is past ends at once.
+
 A recorded image sequence with a `timestamps` file keeps its capture times,
 so that frames of several cameras recorded together form the same frame
 sets when replayed by separate drivers. The file has one line
@@ -48,8 +62,9 @@ _DEFAULT_FILE_FPS = 30.0
 _STAMP = re.compile(r"(\d{4}-\d{2}-\d{2} \d{2}:\d{2}:\d{2})(?:\.(\d{1,9}))?")
 
 
-def create(entry: CameraEntry, rig: Rig) -> V4l2Camera:
-    return V4l2Camera(entry.id, entry.config, rig_pass_ns=rig_pass_ns(rig))
+def create(entry: CameraEntry, rig: Rig, *, files_start_ns: int | None = None) -> V4l2Camera:
+    """`files_start_ns`: the rig's start instant for files and sequences without timestamps (module docstring)."""
+    return V4l2Camera(entry.id, entry.config, rig_pass_ns=rig_pass_ns(rig), files_start_ns=files_start_ns)
 
 
 def rig_pass_ns(rig: Rig) -> int | None:
@@ -199,10 +214,12 @@ def _to_encoding(image: np.ndarray, encoding: str) -> np.ndarray:
 
 class V4l2Camera:
     groundtruth = None  # recorded or live, the scene's truth is not known
-    def __init__(self, camera_id: str, config: V4l2Config, *, rig_pass_ns: int | None = None) -> None:
+    def __init__(self, camera_id: str, config: V4l2Config, *, rig_pass_ns: int | None = None,
+                 files_start_ns: int | None = None) -> None:
         self.camera_id = camera_id
         self.config = config
         self._rig_pass_ns = rig_pass_ns  # a looping sequence's pass length, the rig's (module docstring)
+        self._files_start_ns = files_start_ns  # the rig's start of frame 0 (Unix epoch ns; module docstring)
         self._capture = None
         self._files: tuple[str, ...] = ()
         self._stamped: StampedSequence | None = None
@@ -240,12 +257,33 @@ class V4l2Camera:
         else:
             first = self._open_capture(source)
             description = f"{'device' if self._is_device else 'video file'} {source}"
-        self._start_mono_ns = time.monotonic_ns()
-        self._start_wall_ns = time.time_ns()
+        self._start_clock()
         self._info = DeviceInfo(camera_id=self.camera_id, driver="v4l2", width=first.shape[1],
                                 height=first.shape[0], encoding=self.config.encoding,
                                 fps=self._fps, description=description)
         return self
+
+    def _start_clock(self) -> None:
+        """Set when frame 0 is due: at the rig's start for a file or sequence without timestamps when one is
+        given, else now; one that opens after it goes on at the frame due now (module docstring)."""
+        now_mono_ns, now_wall_ns = time.monotonic_ns(), time.time_ns()
+        shared = self._files_start_ns is not None and not self._is_device and self._stamped is None
+        self._start_wall_ns = self._files_start_ns if shared else now_wall_ns
+        # Due times are waited for on the monotonic clock: its reading at the start.
+        self._start_mono_ns = now_mono_ns - (now_wall_ns - self._start_wall_ns)
+        due_now = int((now_wall_ns - self._start_wall_ns) * self._fps / 1e9)
+        if due_now > 0:
+            self._seq = due_now
+            self._seek(due_now)
+
+    def _seek(self, seq: int) -> None:
+        """Make frame `seq` the next a video file gives (a sequence reads its files by `seq` anyway)."""
+        if self._capture is None:
+            return
+        self._pending = None
+        count = int(self._capture.get(cv2.CAP_PROP_FRAME_COUNT))
+        # Past the end of a file that does not loop, reading fails: the end of the video.
+        self._capture.set(cv2.CAP_PROP_POS_FRAMES, seq % count if self.config.loop and count > 0 else seq)
 
     def _open_stamps(self) -> None:
         path = self.config.timestamps

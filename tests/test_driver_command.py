@@ -100,6 +100,14 @@ def test_driver_refuses_wrong_driver_for_camera():
     assert "camera 'left' uses driver 'sim', not 'v4l2'" in result.stderr
 
 
+def test_driver_refuses_a_files_start_for_a_driver_that_plays_no_files():
+    result = subprocess.run(
+        [sys.executable, "-m", "camnet", "driver", "sim", "--rig", str(RIG), "--camera", "left",
+         "--files-start-ns", "1"], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2
+    assert "--files-start-ns: only the v4l2 driver plays files, not 'sim'" in result.stderr, result.stderr
+
+
 def small_rig(path: Path, *, side_px: int = 320, fps: float = 5.0, name: str = "sim") -> Path:
     """config/sim.yaml at `side_px` wide and `fps`, named `name`, written to `path`."""
     rig = yaml.safe_load(RIG.read_text())

@@ -8,7 +8,8 @@ A child is up once the liveliness token it declares when it serves (`token`,
 restarts a node that exits after it came up, after a back-off, up to
 `RESTARTS_PER_MINUTE` times a minute; one that exits before it was ever up
 failed to start, and ends the run; without `restart`, any exit ends the run.
-`start_network` starts the nodes of one rig (`NetworkSpec`) in it.
+`start_network` starts the nodes of one rig (`NetworkSpec`) in it, giving its
+v4l2 drivers one start instant for their files (drivers/v4l2.py).
 """
 
 from __future__ import annotations
@@ -282,6 +283,9 @@ class NetworkSpec:
     matcher: tuple[str, ...] = ()
     calibrator: tuple[str, ...] = ()
     record_path: Path | None = None
+    # When frame 0 of the rig's v4l2 files is due (Unix epoch ns), given to every v4l2 driver so that they play
+    # in step (drivers/v4l2.py); None: the instant `start_network` starts them.
+    files_start_ns: int | None = None
 
 
 def start_network(launch: Launch, spec: NetworkSpec) -> None:
@@ -292,9 +296,13 @@ def start_network(launch: Launch, spec: NetworkSpec) -> None:
     def token(kind: str, node_id: str) -> str:
         return keys.node(spec.rig_name, kind, node_id)
 
+    # One start for the files of every driver, a restarted one too (it is started with the same command).
+    files_start_ns = time.time_ns() if spec.files_start_ns is None else spec.files_start_ns
+    files_start = ["--files-start-ns", str(files_start_ns)]
     for camera_id, driver in spec.cameras:
-        launch.start(f"driver-{camera_id}", ["driver", driver, "--rig", rig, "--camera", camera_id, *spec.driver,
-                                                     *spec.bus], token=token("driver", camera_id))
+        files = files_start if driver == "v4l2" else []
+        launch.start(f"driver-{camera_id}", ["driver", driver, "--rig", rig, "--camera", camera_id, *files,
+                                             *spec.driver, *spec.bus], token=token("driver", camera_id))
     launch.start("matcher", ["matcher", "--rig", rig, *spec.matcher, *spec.bus], token=token("matcher", "matcher"))
     launch.start("calibrator", ["calibrator", "--rig", rig, *spec.calibrator, *spec.bus],
                  token=token("calibrator", "calibrator"))

@@ -24,6 +24,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--camera", required=True, action="append", metavar="ID",
                         help="camera id in the rig; repeat it to run several cameras of the rig in this "
                              "process (one session, a thread per camera)")
+    parser.add_argument("--files-start-ns", type=int, metavar="NS",
+                        help="v4l2 only: when frame 0 of the video files and image sequences without a timestamps "
+                             "file is due, in ns since the Unix epoch; frame i is stamped and published at NS + "
+                             "i/fps, and a driver that opens later begins at the frame then due. camnet up gives "
+                             "every v4l2 driver it starts the same, so that the rig's files play in step "
+                             "(default: the driver's own start)")
     parser.add_argument("--compression", choices=[c.name.lower() for c in Compression], default="none",
                         help="frame compression on the wire (default: none)")
     parser.add_argument("--max-frames", type=int, default=0, metavar="N",
@@ -58,7 +64,12 @@ def run(args: argparse.Namespace) -> int:
         if entry.driver != args.driver:
             raise InputError(f"{args.rig}: camera {entry.id!r} uses driver {entry.driver!r}, "
                              f"not {args.driver!r}")
-    cameras = [create_camera(entry, rig) for entry in entries]
+    options = {}
+    if args.files_start_ns is not None:
+        if args.driver != "v4l2":
+            raise InputError(f"--files-start-ns: only the v4l2 driver plays files, not {args.driver!r}; leave it out")
+        options["files_start_ns"] = args.files_start_ns
+    cameras = [create_camera(entry, rig, **options) for entry in entries]
     with joined(options_from_args(args)) as session:
         from camnet.drivers.node import DriverNode, run_together
 
