@@ -106,3 +106,26 @@ def only_tracks(obs, n: int):
     keep = obs.track_index < n
     return replace(obs, track_ids=obs.track_ids[:n], cam_index=obs.cam_index[keep], track_index=obs.track_index[keep],
                    uv=obs.uv[keep])
+
+
+def test_each_lens_is_also_freed_alone_with_the_others_held_straight(bent):
+    _, obs, cal = bent
+    solves = []
+
+    def solve(obs, options, initial):  # the real solve; kept to see what each pass freed
+        solves.append(solved_from(obs, options, initial))
+        return solves[-1]
+
+    checked = with_lens_check(obs, cal, Options(free=LIVE_FREE), solve)
+    undescribed = sorted(c.id for c in obs.cameras if c.dist is None)
+    assert len(solves) == 1 + len(undescribed)  # all at once, then each alone
+    for freed, alone in zip(solves[1:], undescribed, strict=True):
+        k1 = {c.id: c.dist[0] for c in freed.cameras if c.id in undescribed}
+        assert all(value == 0.0 for c, value in k1.items() if c != alone), (alone, k1)
+        assert k1[alone] != 0.0
+    # The larger move of the two passes is the one reported.
+    for camera_id, shift in checked.report.lens_shifts.items():
+        moves = [abs(next(c for c in s.cameras if c.id == camera_id).K[0, 0] / next(
+            c for c in cal.cameras if c.id == camera_id).K[0, 0] - 1) for s in (solves[0], solves[1 + undescribed.index(
+                camera_id)])]
+        assert abs(shift.f_rel) in [pytest.approx(m) for m in moves]
