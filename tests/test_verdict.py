@@ -156,3 +156,18 @@ def test_a_principal_point_moved_where_no_lens_has_it_rates_that_camera_poor_and
     assert doc["diagnostics"]["far_principal_points"] == {cam_id: 0.25}
     assert parse_calibration(doc).report.far_principal_points == {cam_id: 0.25}
     assert "far_principal_points" not in calibration_to_doc(dense)["diagnostics"]
+
+
+def test_no_camera_is_better_than_what_vouches_for_every_cameras_sigmas(dense):
+    """A camera's own measures are its sigmas: with no second opinion nothing vouches for them, and with a
+    competing solution they are widened to cover it; neither lets a camera stay good."""
+    from camnet.model.calibration import HalvesCheck, Rival, RivalDifference
+
+    none = HalvesCheck(splits=0, reason="no split keeps every camera's view in both halves")
+    verdict = judge(replace(dense, report=replace(dense.report, halves=none)))
+    assert verdict.level == Level.POOR and {c.level for c in verdict.cameras} == {Level.POOR}, format_verdict(verdict)
+    assert not any(c.findings for c in verdict.cameras)  # said once, of the rig
+    scale = RivalDifference("scale", None, kept=1.0, rival=1.05, kept_sigma=0.01)
+    rival = Rival("strongest_pair", cost_px2=100.0, kept_cost_px2=99.0, cost_noise_px2=5.0, differences=(scale,))
+    verdict = judge(replace(dense, report=replace(dense.report, rivals=(rival,))))
+    assert verdict.level == Level.USABLE and {c.level for c in verdict.cameras} == {Level.USABLE}

@@ -132,11 +132,14 @@ def judge(cal: Calibration, thresholds: Thresholds = THRESHOLDS) -> Verdict | No
     if report is None:
         return None
     origin = next((c.centre for c in cal.cameras if c.id == cal.world_frame), cal.cameras[0].centre)
+    # A camera's own measures are its sigmas; where nothing vouches for them (no second opinion), or another
+    # solution fits as well, none of them makes it better than the rig's finding says.
+    ceiling = _worst(_halves_findings(report) + _rival_findings(report))
     cameras = []
     for cam in cal.cameras:
         lever_m = float(np.linalg.norm(cam.centre - origin))  # 0 for the camera that fixes the frame
         findings = _camera_findings(cam.id, float(cam.K[0, 0]), report, lever_m, thresholds)
-        cameras.append(CameraVerdict(cam.id, _worst(findings), tuple(findings)))
+        cameras.append(CameraVerdict(cam.id, max(_worst(findings), ceiling, key=lambda lv: lv.rank), tuple(findings)))
     rig = _rig_findings(cal, report, thresholds)
     level = max([_worst(rig), *(c.level for c in cameras)], key=lambda lv: lv.rank)
     return Verdict(level, tuple(rig), tuple(cameras))
