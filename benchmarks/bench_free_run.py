@@ -9,19 +9,22 @@ their clocks set at the run's start) give each frame's exposure instant,
 stamp and delivery; the frames go, in the order and at the instants they are
 delivered, into the matcher's frame synchronizer (camnet.bus.sync) with the
 matcher node's default tolerance and wait and the stereo pair required, and a
-set is taken after every frame, as a matcher that keeps up would. No image is
-rendered or matched: only the sets' forming is measured, in simulated time.
-A free-running set-up is run with `--draws` sets of phases drawn at random
-(seeded) in place of those the cameras' ids give, since whether two cameras'
-exposures fall within the tolerance depends on them; its rates are the means
-over the draws.
+set is taken after every frame, as a matcher that keeps up would. Each set-up
+runs twice: with the matcher's default rule (stamps within the tolerance) and
+with the rig file's `sync: {free_run: true}` (each camera's frame nearest the
+left's, within half its frame period). No image is rendered or matched: only
+the sets' forming is measured, in simulated time. A free-running set-up is
+run with `--draws` sets of phases drawn at random (seeded) in place of those
+the cameras' ids give, since which frames pair up depends on them; its rates
+are the means over the draws.
 
-Per set-up: the draws in which any frame set formed; complete and partial (a mono camera left out after the wait)
-frame sets per second; the largest gap between the exposures of one set's
-frames (the stamps are within the tolerance by construction); and the
-largest image motion that gap makes: how far, in pixels, a corner of the box
-moves in a camera's image between the reference (left) camera's exposure
-and its own.
+Per set-up and rule: the draws in which any frame set formed; complete and
+partial (a mono camera left out after the wait) frame sets per second; the
+mean number of cameras in a set; the largest offset a set records (a frame's
+stamp minus the reference's, `FrameSet.offsets_ns`); the largest gap between
+the exposures of one set's frames; and the largest image motion that gap
+makes: how far, in pixels, a corner of the box moves in a camera's image
+between the reference (left) camera's exposure and its own.
 
     python benchmarks/bench_free_run.py [--seconds 30] [--draws 10] [--rotation-deg-per-s 90]
 """
@@ -98,13 +101,13 @@ def pixels(camera, X: np.ndarray) -> np.ndarray:
     return uv[:, :2] / uv[:, 2:]
 
 
-def run(rig: Rig, scene: Scene, seconds: float) -> dict:
-    config = MatcherNodeConfig()
+def run(rig: Rig, scene: Scene, seconds: float, free_run: bool) -> dict:
+    config = MatcherNodeConfig(sync_free_run=free_run)
     cameras = {e.id: SimCamera(e.id, e.config, scene, clock_epoch_ns=START_NS) for e in rig.cameras}
     truth = {e.id: e.config.camera(e.id) for e in rig.cameras}
     sync = FrameSynchronizer(tuple(cameras), required=(rig.stereo.left, rig.stereo.right),
                              tolerance_ns=round(config.sync_tolerance_ms * 1e6), max_wait_s=config.max_wait_s,
-                             frames_per_camera=config.frames_per_camera)
+                             frames_per_camera=config.frames_per_camera, free_run=config.sync_free_run)
     end_ns = START_NS + round(seconds * 1e9)
     deliveries = []  # (delivered at, camera id, slot)
     for camera_id, camera in cameras.items():
@@ -132,6 +135,7 @@ def run(rig: Rig, scene: Scene, seconds: float) -> dict:
     counts = sync.counts
     return {"complete": counts.complete_sets / seconds, "partial": counts.partial_sets / seconds,
             "cameras": np.mean([len(s.frames) for s in sets]) if sets else 0.0,
+            "offset_ms": max((abs(o) / 1e6 for s in sets for o in s.offsets_ns.values()), default=float("nan")),
             "skew_ms": max(skew_ms, default=float("nan")), "motion_px": max(motion_px, default=float("nan"))}
 
 
@@ -151,20 +155,24 @@ def main() -> None:
           f"{args.seconds:g} s simulated per set-up; matcher's defaults: tolerance "
           f"{MatcherNodeConfig().sync_tolerance_ms:g} ms, wait {MatcherNodeConfig().max_wait_s:g} s, "
           "stereo pair required.\n")
-    print("| Cameras (left, right, mono_a, mono_b) | draws with sets | complete sets/s | partial sets/s "
-          "| cameras per set | largest exposure gap in a set (ms) | largest box motion in a set (px) |")
-    print("|---|---:|---:|---:|---:|---:|---:|")
-    for name, clocks in SETUPS:
-        rig = rig_with(clocks, args.rotation_deg_per_s)
-        free = any(clock is not None and clock.get("free_run") for clock in clocks)
-        draws = [with_phases(rig, np.random.default_rng(draw).random(len(rig.cameras)))
-                 for draw in range(args.draws)] if free else [rig]
-        rows = [run(r, scene, args.seconds) for r in draws]
-        formed = [row for row in rows if row["complete"] + row["partial"] > 0]
-        print(f"| {name} | {len(formed)}/{len(rows)} | {np.mean([r['complete'] for r in rows]):.1f} "
-              f"| {np.mean([r['partial'] for r in rows]):.1f} "
-              f"| {np.mean([r['cameras'] for r in formed]) if formed else 0.0:.2f} "
-              f"| {largest([r['skew_ms'] for r in formed])} | {largest([r['motion_px'] for r in formed])} |")
+    print("| Cameras (left, right, mono_a, mono_b) | matcher's sync | draws with sets | complete sets/s "
+          "| partial sets/s | cameras per set | largest offset a set records (ms) "
+          "| largest exposure gap in a set (ms) | largest box motion in a set (px) |")
+    print("|---|---|---:|---:|---:|---:|---:|---:|---:|")
+    for free_run in (False, True):
+        rule = "free_run" if free_run else f"tolerance {MatcherNodeConfig().sync_tolerance_ms:g} ms"
+        for name, clocks in SETUPS:
+            rig = rig_with(clocks, args.rotation_deg_per_s)
+            free = any(clock is not None and clock.get("free_run") for clock in clocks)
+            draws = [with_phases(rig, np.random.default_rng(draw).random(len(rig.cameras)))
+                     for draw in range(args.draws)] if free else [rig]
+            rows = [run(r, scene, args.seconds, free_run) for r in draws]
+            formed = [row for row in rows if row["complete"] + row["partial"] > 0]
+            print(f"| {name} | {rule} | {len(formed)}/{len(rows)} | {np.mean([r['complete'] for r in rows]):.1f} "
+                  f"| {np.mean([r['partial'] for r in rows]):.1f} "
+                  f"| {np.mean([r['cameras'] for r in formed]) if formed else 0.0:.2f} "
+                  f"| {largest([r['offset_ms'] for r in formed])} | {largest([r['skew_ms'] for r in formed])} "
+                  f"| {largest([r['motion_px'] for r in formed])} |")
     own = rig_with(SETUPS[3][1], args.rotation_deg_per_s)
     print("\nThe phases the rig's camera ids give (fractions of a period), not drawn: "
           + ", ".join(f"{e.id} {e.config.clock.phase:.2f}" for e in own.cameras))

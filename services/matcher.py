@@ -128,7 +128,8 @@ class MatcherNode:
         self._ready = threading.Condition()
         self._sync = FrameSynchronizer(self.camera_ids, required=(self.stereo.left, self.stereo.right),
                                        tolerance_ns=round(config.sync_tolerance_ms * 1e6),
-                                       max_wait_s=config.max_wait_s, frames_per_camera=config.frames_per_camera)
+                                       max_wait_s=config.max_wait_s, frames_per_camera=config.frames_per_camera,
+                                       free_run=config.sync_free_run)
         self._inbox = lockstep.StepInbox() if config.lockstep else None
         self.rejected = Tally(log)  # frames decoded but not usable, and malformed steps, by kind
         self.failures = Tally(log)  # handlers that raised (matching a frame set, say), by what and type
@@ -355,9 +356,13 @@ class MatcherNode:
         if silent_s is not None:
             counts = self.receiver.counts()
             received = ", ".join(f"{c} {counts[c].received if c in counts else 0}" for c in self.camera_ids)
+            if self.config.sync_free_run:
+                apart = "within half a frame period of each other"
+            else:
+                apart = (f"within {self.config.sync_tolerance_ms:.1f} ms of each other (cameras not triggered "
+                         "together need 'free_run: true' in the rig file's sync section)")
             log.warning("no frame set for %.0f s (frames received: %s); the stereo cameras must publish, "
-                        "with capture times within %.1f ms of each other", silent_s, received,
-                        self.config.sync_tolerance_ms)
+                        "with capture times %s", silent_s, received, apart)
 
     def _publish_if_due(self, publisher, clock_s: float, *, force: bool = False) -> bool:
         """Publish the pool if it changed and a publish period has passed on `clock_s` (or `force`)."""

@@ -21,6 +21,9 @@ class MatcherNodeConfig:
     detector: Detector = Detector.SIFT
     sync_tolerance_ms: float = 5.0  # capture times of one frame set differ by at most this
     max_wait_s: float = 0.5  # then a frame set goes without its late cameras (never without the stereo pair)
+    # The cameras are not triggered together: a set takes each camera's frame nearest to the reference's,
+    # within half that camera's frame period (camnet.bus.sync).
+    sync_free_run: bool = False
     frames_per_camera: int = 4  # latest frames kept per camera while matching runs
     # At most one observations document per period; 0: after every frame set that changed the pool, so that
     # the calibrator, which always solves the latest document, never waits for a period to end.
@@ -82,5 +85,6 @@ def rig_options(rig: Rig) -> dict:
     """The MatcherNodeConfig fields the rig file sets (its `sync` section); the node's flags override them."""
     if rig.sync is None:
         return {}
-    given = {"sync_tolerance_ms": rig.sync.tolerance_ms, "max_wait_s": rig.sync.max_wait_s}
+    given = {"sync_tolerance_ms": rig.sync.tolerance_ms, "max_wait_s": rig.sync.max_wait_s,
+             "sync_free_run": rig.sync.free_run}
     return {name: value for name, value in given.items() if value is not None}

@@ -14,6 +14,7 @@ import cv2
 import numpy as np
 import pytest
 from camnet.services.matcher import NO_SET_WARNING_S, WARNING_PERIOD_S, HealthWatch, MatcherNode, MatcherNodeConfig
+from camnet.services.matcher_config import rig_options
 
 from camnet.bus import keys
 from camnet.bus.frame import Frame, encode_frame
@@ -204,6 +205,21 @@ def test_live_network_tracks_match_the_ground_truth(network):
     assert any(r.ok is not None for r in tokens)
     replies = [r.ok for r in net.observer.get(keys.observations(rig.name), timeout=30.0) if r.ok is not None]
     assert replies and json.loads(replies[0].payload.to_bytes())["format"] == "camnet.observations/1"
+
+
+def test_cameras_not_triggered_together_form_frame_sets_when_the_rig_file_says_so(network):
+    doc = rig_document("freerun")
+    for camera in doc["cameras"]:
+        camera["sim"]["clock"] = {"free_run": True}  # each on its own phase: 0.23 of a period between the pair
+    doc["sync"] = {"free_run": True}
+    rig = parse_rig(doc)
+    net = network(rig, MatcherNodeConfig(**rig_options(rig), publish_period_s=0.5, max_wait_s=0.3))
+    for camera_id in CAMERAS:
+        net.start_driver(camera_id)
+    assert wait_for(lambda: net.node.sync_counts().complete_sets >= 3, 60.0, progress=net.progress), \
+        "no complete frame set of free-running cameras"
+    assert wait_for(lambda: net.count() >= 1 and all(
+        any(c in t["observations"] for t in net.latest()["tracks"]) for c in CAMERAS), 60.0, progress=net.progress)
 
 
 def render_set(rig, timestamp_ns: int, camera_ids) -> FrameSet:

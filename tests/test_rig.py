@@ -278,3 +278,28 @@ def test_the_world_frame_is_the_left_cameras_unless_the_rig_asks_for_the_floors(
     assert parse_rig({**base(), "world": "floor"}).world == World.FLOOR
     assert parse_rig({**base(), "world": "left_camera"}).world == World.LEFT_CAMERA
     refused(lambda d: d.update(world="ceiling"), r"rig\.yaml: world: .*ceiling.*left_camera, floor")
+
+
+def test_the_sync_section_says_whether_the_cameras_run_free_and_the_matcher_follows_it(tmp_path):
+    import argparse
+    import subprocess
+    import sys
+
+    from camnet.commands.matcher import node_config_from_args
+
+    rig = parse_rig({**base(), "sync": {"free_run": True, "tolerance_ms": 2}})
+    assert (rig.sync.free_run, rig.sync.tolerance_ms, rig.sync.max_wait_s) == (True, 2.0, None)
+    assert parse_rig({**base(), "sync": {"tolerance_ms": 2}}).sync.free_run is None  # the matcher's default
+    config = node_config_from_args(argparse.Namespace(), rig)
+    assert (config.sync_free_run, config.sync_tolerance_ms) == (True, 2.0)
+    assert not node_config_from_args(argparse.Namespace(sync_free_run=False), rig).sync_free_run  # flags win
+    assert not node_config_from_args(argparse.Namespace(), parse_rig(base())).sync_free_run
+
+    refused(lambda d: d.update(sync={"free_run": "yes"}),
+            r"^rig\.yaml: sync\.free_run: expected true or false, got 'yes'$")
+    path = tmp_path / "rig.yaml"
+    path.write_text(yaml.safe_dump({**base(), "sync": {"free_run": 1}}))
+    result = subprocess.run([sys.executable, "-m", "camnet", "matcher", "--rig", str(path)], capture_output=True,
+                            text=True, timeout=60)
+    assert result.returncode == 2 and result.stderr.count("\n") == 1
+    assert "sync.free_run: expected true or false, got 1" in result.stderr

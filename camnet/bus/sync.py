@@ -8,10 +8,15 @@ Frames of one capture instant carry capture timestamps within `tolerance_ns`
 of each other (equal for triggered cameras). The reference of a set is a
 frame of the first required camera (the left stereo camera); a set holds,
 for each camera, its buffered frame nearest to the reference within the
-tolerance. A set is ready when every camera has one, or, once `max_wait_s`
-has passed since its last frame arrived, when the required cameras have one:
-a late or silent camera is then left out of that set (counted). `pop` never
-waits: it returns the newest ready set or None.
+tolerance, and each frame's offset from the reference (its stamp minus the
+reference's). Cameras that are not triggered together (`free_run`) expose
+anywhere within a frame period of each other: each camera's frame nearest to
+the reference is then accepted within half that camera's frame period (the
+median interval of its recent stamps; the tolerance until it has enough), so
+that one frame at most is near enough. A set is ready when every camera has
+one, or, once `max_wait_s` has passed since its last frame arrived, when the
+required cameras have one: a late or silent camera is then left out of that
+set (counted). `pop` never waits: it returns the newest ready set or None.
 
 Each camera keeps its latest `frames_per_camera` frames, and any that arrived
 within `KEEP_WAITS` times `max_wait_s`, up to `max_frames_per_camera`: a set
@@ -26,8 +31,11 @@ Sets go forward in time and no frame is ever in two sets.
 from __future__ import annotations
 
 import bisect
+from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+
+import numpy as np
 
 from camnet.bus.frame import Frame
 
@@ -39,6 +47,8 @@ class FrameSet:
     timestamp_ns: int  # capture time of the reference frame
     frames: dict[str, Frame]
     missing: tuple[str, ...] = ()  # cameras left out because they were late or silent
+    # Per camera in the set, its frame's capture stamp minus the reference frame's (ns).
+    offsets_ns: dict[str, int] = field(default_factory=dict)
 
     @property
     def complete(self) -> bool:
@@ -64,6 +74,8 @@ class _Buffered:
 
 
 KEEP_WAITS = 1.5  # frames are kept this many max_wait_s after they arrive (pop runs a little late)
+PERIOD_STAMPS = 17  # a free-running camera's period: the median interval of its latest this many stamps,
+PERIOD_MIN_INTERVALS = 3  # known from this many intervals on (a median of three outvotes one lost frame)
 
 
 class FrameSynchronizer:
@@ -71,7 +83,7 @@ class FrameSynchronizer:
 
     def __init__(self, camera_ids: Sequence[str], *, required: Sequence[str], tolerance_ns: int,
                  max_wait_s: float, frames_per_camera: int = 4, max_frames_per_camera: int = 64,
-                 future_tolerance_s: float = 2.0) -> None:
+                 future_tolerance_s: float = 2.0, free_run: bool = False) -> None:
         self.camera_ids = tuple(camera_ids)
         self.required = tuple(required)
         if len(set(self.camera_ids)) != len(self.camera_ids):
@@ -87,6 +99,9 @@ class FrameSynchronizer:
         self.frames_per_camera = int(frames_per_camera)
         self.max_frames_per_camera = int(max_frames_per_camera)
         self.future_tolerance_ns = round(future_tolerance_s * 1e9)
+        self.free_run = bool(free_run)
+        self._stamps_ns = {c: deque(maxlen=PERIOD_STAMPS) for c in self.camera_ids}  # latest, for the periods
+        self._period_ns: dict[str, int | None] = {c: None for c in self.camera_ids}
         # Per camera, its last accepted frame's capture time minus its arrival time (ns):
         # how far its capture clock is from the arrival clock.
         self._clock_offset_ns: dict[str, int] = {}
@@ -111,6 +126,9 @@ class FrameSynchronizer:
             self._future += 1
             return False
         self._clock_offset_ns[frame.camera_id] = offset_ns
+        if self.free_run:
+            self._stamps_ns[frame.camera_id].append(frame.timestamp_ns)
+            self._period_ns[frame.camera_id] = median_interval_ns(self._stamps_ns[frame.camera_id])
         if frame.timestamp_ns <= self._floor_ns[frame.camera_id]:
             self._dropped += 1
             return False
@@ -143,11 +161,18 @@ class FrameSynchronizer:
                 return self._take(ref.frame.timestamp_ns, chosen)
         return None
 
+    def _within(self, camera_id: str, offset_ns: int) -> bool:
+        """Whether a frame of `camera_id` `offset_ns` from the reference may be in its set."""
+        period_ns = self._period_ns[camera_id]
+        if period_ns is None:
+            return abs(offset_ns) <= self.tolerance_ns
+        return 2 * abs(offset_ns) <= period_ns
+
     def _nearest(self, reference_ns: int) -> dict[str, _Buffered]:
         chosen = {}
         for camera_id, buffer in self._buffers.items():
             best = min(buffer, key=lambda b: abs(b.frame.timestamp_ns - reference_ns), default=None)
-            if best is not None and abs(best.frame.timestamp_ns - reference_ns) <= self.tolerance_ns:
+            if best is not None and self._within(camera_id, best.frame.timestamp_ns - reference_ns):
                 chosen[camera_id] = best
         return chosen
 
@@ -167,7 +192,8 @@ class FrameSynchronizer:
         else:
             self._complete += 1
         frames = {c: chosen[c].frame for c in self.camera_ids if c in chosen}
-        return FrameSet(timestamp_ns=reference_ns, frames=frames, missing=missing)
+        offsets_ns = {c: f.timestamp_ns - reference_ns for c, f in frames.items()}
+        return FrameSet(timestamp_ns=reference_ns, frames=frames, missing=missing, offsets_ns=offsets_ns)
 
     @property
     def counts(self) -> SyncCounts:
@@ -179,3 +205,13 @@ class FrameSynchronizer:
     def buffered(self) -> int:
         """Frames waiting in the buffers now."""
         return sum(len(b) for b in self._buffers.values())
+
+
+def median_interval_ns(stamps_ns) -> int | None:
+    """The median interval between distinct capture stamps (ns, in any order); None if fewer than
+    PERIOD_MIN_INTERVALS."""
+    stamps = sorted(set(stamps_ns))
+    intervals = np.diff(stamps)
+    if len(intervals) < PERIOD_MIN_INTERVALS:
+        return None
+    return round(float(np.median(intervals)))

@@ -14,6 +14,10 @@ def _node_flags() -> tuple[tuple[str, dict], ...]:
                             help="features: sift (accurate) or orb (fast) (default: sift)")),
         ("--sync-tolerance-ms", dict(type=float, metavar="MS",
                                      help="capture times of one frame set differ by at most this (default: 5.0)")),
+        ("--sync-free-run", dict(action=argparse.BooleanOptionalAction,
+                                 help="the cameras are not triggered together: a frame set takes each camera's "
+                                      "frame nearest to the left camera's, within half its frame period, in place "
+                                      "of the tolerance (default: False)")),
         ("--max-wait-s", dict(type=float, metavar="S",
                               help="wait this long for late cameras, then match without them; the stereo "
                                    "pair is always required (default: 0.5)")),

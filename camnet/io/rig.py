@@ -97,6 +97,7 @@ class SyncSettings:
 
     tolerance_ms: float | None
     max_wait_s: float | None
+    free_run: bool | None = None  # the cameras are not triggered together (None: the matcher's default)
 
 
 @dataclass(frozen=True)
@@ -154,7 +155,7 @@ ARAVIS_KEYS = ("device_id", "pixel_format", "width", "height", "fps", "exposure_
                "n_buffers", "enable_fake_interface")
 V4L2_KEYS = ("source", "width", "height", "fps", "fourcc", "encoding", "loop", "timestamps", "speed", "frame_range")
 INTRINSICS_KEYS = ("K", "dist", "fixed")
-SYNC_KEYS = ("tolerance_ms", "max_wait_s")
+SYNC_KEYS = ("tolerance_ms", "max_wait_s", "free_run")
 SCENE_KEYS = ("seed", "box_centre_m", "box_size_m", "box_rotation_deg_per_s", "wall_z_m", "wall_x_range_m",
               "wall_y_range_m", "floor_y_m", "floor_z_range_m", "object")
 CAMERA_KEYS = ("id", "driver", "model", "intrinsics")  # and the section named after its driver
@@ -295,8 +296,9 @@ def _intrinsics(s: Section, model: LensModel) -> KnownIntrinsics:
 
 
 def _sync(s: Section) -> SyncSettings:
+    free_run = s.boolean("free_run", False) if s.raw("free_run", None) is not None else None
     settings = SyncSettings(tolerance_ms=s.number("tolerance_ms", None, minimum=0.0),
-                            max_wait_s=s.number("max_wait_s", None, minimum=0.0))
+                            max_wait_s=s.number("max_wait_s", None, minimum=0.0), free_run=free_run)
     return settings
 
 
