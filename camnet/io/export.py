@@ -3,11 +3,13 @@
 Every exporter is a pure function from a `Calibration` to ``{file name:
 content}`` (text, or bytes for the binary formats); the `export` command
 writes the files. camnet's conventions (see camnet/model/projection.py):
-``x_cam = R @ X_world + t`` with the world the left stereo camera's frame,
-lengths in metres, ``K`` in pixels with the origin at the centre of the
-top-left pixel, distortion in OpenCV's order ``[k1, k2, p1, p2, k3]``, or
-``[k1, k2, k3, k4]`` for a camera with the fisheye lens model (OpenCV's
-fisheye, which COLMAP calls OPENCV_FISHEYE, ROS and Kalibr equidistant).
+``x_cam = R @ X_world + t`` with the world the calibration's, as its
+document is written (`in_world_frame`): its floor frame where it has one,
+else the left stereo camera's frame; lengths in metres, ``K`` in pixels with
+the origin at the centre of the top-left pixel, distortion in OpenCV's order
+``[k1, k2, p1, p2, k3]``, or ``[k1, k2, k3, k4]`` for a camera with the
+fisheye lens model (OpenCV's fisheye, which COLMAP calls OPENCV_FISHEYE, ROS
+and Kalibr equidistant).
 Each exporter's docstring says what it changes. OpenCV, ROS and Kalibr are
 here; COLMAP, aniposelib and PLY in the export_*.py modules beside this one.
 """
@@ -23,7 +25,7 @@ from camnet.io.export_anipose import anipose_toml
 from camnet.io.export_base import require_zero_skew, safe_names
 from camnet.io.export_colmap import colmap_binary, colmap_model, colmap_text
 from camnet.io.export_ply import ply_points
-from camnet.model.calibration import Calibration
+from camnet.model.calibration import Calibration, in_world_frame
 from camnet.model.camera import LensModel
 from camnet.model.observations import Observations
 
@@ -85,9 +87,13 @@ def opencv_yaml(cal: Calibration) -> str:
     cv2.Rodrigues(R)[0], t, K, dist)`` expects (``cv2.fisheye.projectPoints``
     for a fisheye).
     Also ``points`` (Nx3, m, world frame), ``point_ids`` (Nx1) and the
-    calibration's ``world_frame`` and ``rms_reprojection_px``. No conversion:
-    camnet uses OpenCV's conventions. A comment at the top says them, for
-    whoever opens the file without this docstring.
+    calibration's ``world_frame`` and ``rms_reprojection_px``. The world is
+    the calibration's (`in_world_frame`): with a floor frame ``world_frame``
+    is ``floor`` and ``world_from_left`` (a map of ``R`` 3x3 and ``t`` 3x1, m,
+    ``X_world = R X_left + t``) says how it lies to the left camera's, as in
+    the calibration document. No conversion: camnet uses OpenCV's
+    conventions. A comment at the top says them, for whoever opens the file
+    without this docstring.
     """
     import cv2
 
@@ -97,14 +103,24 @@ def opencv_yaml(cal: Calibration) -> str:
     fs.write("format", "opencv export of camnet.calibration/1")
     fs.writeComment("pose: x_cam = R X + t (R, t take a world point into the camera's frame)")
     fs.writeComment("units: metres (t, points); K in pixels, origin at the centre of the top-left pixel")
-    fs.writeComment(f"world frame: the left stereo camera's ({cal.world_frame}): its R = I, t = 0")
-    fs.write("world_frame", cal.world_frame)
+    posed = in_world_frame(cal)
+    floor = cal.floor_frame
+    if floor is None:
+        fs.writeComment(f"world frame: the left stereo camera's ({posed.frame}): its R = I, t = 0")
+    else:
+        fs.writeComment("world frame: the floor's (Z up, origin on the floor); world_from_left: X_world = R X_left + t")
+    fs.write("world_frame", posed.frame)
+    if floor is not None:
+        fs.startWriteStruct("world_from_left", cv2.FILE_NODE_MAP)
+        fs.write("R", np.asarray(floor.R, dtype=np.float64))
+        fs.write("t", np.asarray(floor.t, dtype=np.float64).reshape(3, 1))
+        fs.endWriteStruct()
     fs.write("units", "m")
     if math.isfinite(cal.rms_reprojection_px):
         fs.write("rms_reprojection_px", float(cal.rms_reprojection_px))
     fs.write("camera_count", len(cal.cameras))
     fs.startWriteStruct("cameras", cv2.FILE_NODE_SEQ)
-    for cam in cal.cameras:
+    for cam in posed.cameras:
         fs.startWriteStruct("", cv2.FILE_NODE_MAP)
         fs.write("id", cam.id)
         fs.write("image_width", int(cam.width))
@@ -118,7 +134,7 @@ def opencv_yaml(cal: Calibration) -> str:
     fs.endWriteStruct()
     if len(cal.points):
         fs.write("point_ids", np.asarray(cal.point_ids, dtype=np.int32).reshape(-1, 1))
-        fs.write("points", np.asarray(cal.points, dtype=np.float64).reshape(-1, 3))
+        fs.write("points", np.asarray(posed.points, dtype=np.float64).reshape(-1, 3))
     return fs.releaseAndGetString()
 
 
@@ -137,7 +153,8 @@ def ros_camera_info(cal: Calibration) -> dict[str, str]:
     convention); a fisheye's are the ``equidistant`` model's ``[k1, k2, k3,
     k4]`` (image_geometry undistorts them with cv2.fisheye). Each camera is described alone, as a monocular calibration:
     ``rectification_matrix`` is the identity and ``projection_matrix`` is
-    ``[K | 0]``. The poses are not part of camera_info (ROS keeps them in tf).
+    ``[K | 0]``. The poses are not part of camera_info (ROS keeps them in tf),
+    so the world frame (a floor frame's or the left camera's) changes nothing here.
     """
     import yaml
 
@@ -201,6 +218,8 @@ def kalibr_camchain(cal: Calibration) -> str:
     `overlapping_cameras`). From cam1 on, ``T_cn_cnm1`` is the 4x4 transform
     taking a point from the previous camera's frame to this camera's frame
     (metres): ``T_n @ inv(T_{n-1})`` with ``T_k`` camnet's ``[R_k | t_k]``.
+    The camchain holds only poses between cameras, which are the same in any
+    world frame: a calibration's floor frame changes none of its numbers.
     """
     import yaml
 

@@ -8,7 +8,7 @@ import numpy as np
 
 from camnet.errors import InputError
 from camnet.io.export_base import num, require_zero_skew
-from camnet.model.calibration import Calibration
+from camnet.model.calibration import Calibration, in_world_frame
 from camnet.model.camera import LensModel
 
 # Length units of the translations: aniposelib has none of its own (see `anipose_toml`).
@@ -32,8 +32,11 @@ def anipose_toml(cal: Calibration, *, unit: str = "m") -> str:
     aniposelib has no unit of its own: translations, and so the points it
     triangulates, are in the unit its calibration board was measured in.
     `unit` is ``m`` (camnet's, and Pose2Sim's) or ``mm`` (what anipose's and
-    FreeMoCap's boards are usually given in). ``metadata`` records the unit,
-    the world frame and the reprojection RMS.
+    FreeMoCap's boards are usually given in). The poses are in the
+    calibration's world frame (`in_world_frame`: its floor frame's where it has
+    one). ``metadata`` records the unit, the world frame, with a floor frame
+    its ``world_from_left_R`` and ``world_from_left_t`` (``X_world = R X_left +
+    t``, t in `unit`), and the reprojection RMS.
     """
     if unit not in UNITS:
         raise InputError(f"--unit: {unit!r} is not one of {', '.join(UNITS)}")
@@ -41,8 +44,9 @@ def anipose_toml(cal: Calibration, *, unit: str = "m") -> str:
     import cv2
 
     width = len(str(len(cal.cameras) - 1)) if len(cal.cameras) > 10 else 1
+    posed = in_world_frame(cal)
     out = []
-    for k, cam in enumerate(cal.cameras):
+    for k, cam in enumerate(posed.cameras):
         table = {
             "name": cam.id,
             "size": [int(cam.width), int(cam.height)],
@@ -53,7 +57,10 @@ def anipose_toml(cal: Calibration, *, unit: str = "m") -> str:
             "fisheye": cam.model == LensModel.FISHEYE,
         }
         out.append(_table(f"cam_{k:0{width}d}", table))
-    metadata = {"units": unit, "world_frame": cal.world_frame, "source": "camnet.calibration/1"}
+    metadata = {"units": unit, "world_frame": posed.frame, "source": "camnet.calibration/1"}
+    if cal.floor_frame is not None:
+        metadata["world_from_left_R"] = np.asarray(cal.floor_frame.R, dtype=float).tolist()
+        metadata["world_from_left_t"] = (UNITS[unit] * np.asarray(cal.floor_frame.t, dtype=float)).tolist()
     if math.isfinite(cal.rms_reprojection_px):
         metadata["rms_reprojection_px"] = float(cal.rms_reprojection_px)
     out.append(_table("metadata", metadata))

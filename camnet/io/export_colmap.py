@@ -15,7 +15,7 @@ import numpy as np
 
 from camnet.errors import InputError
 from camnet.io.export_base import num, require_zero_skew, safe_names
-from camnet.model.calibration import Calibration
+from camnet.model.calibration import Calibration, in_world_frame
 from camnet.model.camera import LensModel
 from camnet.model.observations import Observations
 
@@ -95,8 +95,11 @@ def colmap_model(
       camera id (file-safe). Intrinsics: see `colmap_camera`.
     - ``QW QX QY QZ TX TY TZ`` is COLMAP's ``cam_from_world``, the same
       world-to-camera transform as camnet's ``x_cam = R X + t``: the quaternion
-      of ``R`` and ``t`` in metres, unchanged.
-    - POINT3D_ID is camnet's track id (must be >= 0); XYZ in metres; colour grey.
+      of ``R`` and ``t`` in metres, unchanged. The world is the calibration's
+      (`in_world_frame`: its floor frame where it has one); COLMAP's model has
+      no field that names it.
+    - POINT3D_ID is camnet's track id (must be >= 0); XYZ in metres, in the same
+      world; colour grey.
     - With `observations`, every observation becomes a 2-D point of its image
       (``u + 0.5, v + 0.5``); one of a kept point whose reprojection error is
       at most `max_error_px` (default: `camnet.solve.report.reprojection.outlier_limit_px`) joins that
@@ -122,8 +125,9 @@ def colmap_model(
         uv = np.asarray(observations.uv, dtype=float)
     # Each observation's index among its image's 2-D points (COLMAP's POINT2D_IDX).
     index_in_image = np.zeros(len(cam_k), dtype=np.int64)
+    posed = in_world_frame(cal)
     images = []
-    for k, cam in enumerate(cal.cameras):
+    for k, cam in enumerate(posed.cameras):
         rows = np.flatnonzero(cam_k == k)
         index_in_image[rows] = np.arange(len(rows))
         linked = point_j[rows]
@@ -142,7 +146,7 @@ def colmap_model(
     count = np.bincount(point_j[rows], minlength=len(point_ids))
     total = np.bincount(point_j[rows], weights=error[rows], minlength=len(point_ids))
     errors = np.where(count > 0, total / np.maximum(count, 1), -1.0)
-    return ColmapModel(tuple(cameras), tuple(images), point_ids, np.asarray(cal.points, dtype=float), errors, tracks)
+    return ColmapModel(tuple(cameras), tuple(images), point_ids, np.asarray(posed.points, dtype=float), errors, tracks)
 
 
 def _link_observations(cal: Calibration, observations: Observations, max_error_px: float | None):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from camnet.errors import InputError
-from camnet.model.calibration import Calibration
+from camnet.model.calibration import Calibration, in_world_frame
 
 # PLY has no 64-bit integer type; camnet's track ids are counters far below this.
 MAX_PLY_INT = np.iinfo(np.int32).max
@@ -24,8 +24,9 @@ def point_sigmas(cal: Calibration) -> np.ndarray | None:
 def ply_points(cal: Calibration) -> bytes:
     """Binary little-endian PLY: one ``vertex`` per calibration point.
 
-    Properties: ``double x, y, z`` (metres, world frame: the left stereo
-    camera's, ``x_cam = R X + t`` in the other exports), ``int point_id``
+    Properties: ``double x, y, z`` (metres, in the calibration's world frame,
+    `in_world_frame`: its floor frame's where it has one, Z up, else the left
+    stereo camera's; ``x_cam = R X + t`` in the other exports), ``int point_id``
     (camnet's track id, the POINT3D_ID of the COLMAP export) and, when the
     calibration reports it (``uncertainty.point_sigma_m``), ``double sigma_m``:
     the point's 1-sigma position error in metres, RMS over the three axes.
@@ -40,7 +41,8 @@ def ply_points(cal: Calibration) -> bytes:
     if sigma is not None:
         fields.append(("sigma_m", "<f8"))
     vertices = np.empty(len(ids), dtype=fields)
-    points = np.asarray(cal.points, dtype=float).reshape(-1, 3)
+    posed = in_world_frame(cal)
+    points = np.asarray(posed.points, dtype=float).reshape(-1, 3)
     vertices["x"], vertices["y"], vertices["z"], vertices["point_id"] = points[:, 0], points[:, 1], points[:, 2], ids
     if sigma is not None:
         vertices["sigma_m"] = sigma
@@ -48,7 +50,8 @@ def ply_points(cal: Calibration) -> bytes:
     header = [
         "ply",
         "format binary_little_endian 1.0",
-        f"comment camnet calibration points: metres, world frame {_printable(cal.world_frame)} (left stereo camera)",
+        f"comment camnet calibration points: metres, world frame {_printable(posed.frame)} "
+        + ("(left stereo camera)" if cal.floor_frame is None else "(Z up, origin on the floor)"),
         "comment sigma_m: 1-sigma position error, RMS over the axes, metres"
         if sigma is not None else "comment no per-point uncertainty in the calibration",
         f"element vertex {len(ids)}",

@@ -20,7 +20,7 @@ import numpy as np
 from camnet.errors import InputError, in_words
 from camnet.io import validate as v
 from camnet.io.solve_report import parse_report, report_to_doc, verdict_to_doc
-from camnet.model.calibration import Calibration, FloorFrame
+from camnet.model.calibration import FLOOR_FRAME, Calibration, FloorFrame, in_world_frame
 from camnet.model.camera import FIXABLE, Camera, CameraInfo, LensModel, in_frame
 from camnet.model.observations import Baseline, Observations, Stereo
 from camnet.solve.report.verdict import judge
@@ -258,7 +258,6 @@ def _distance_doc(entry: dict, known: Stereo | Baseline) -> dict:
 # ---------------------------------------------------------------- calibration
 
 
-FLOOR_FRAME = "floor"  # the world frame found from the scene (FloorFrame)
 LEFT_FRAME = "left"  # the left stereo camera's frame, whatever its id (in memory: the id)
 # A camera the document's world_from_left brings to within this of the origin, unturned, is the left camera.
 LEFT_POSE_TOLERANCE = 1e-6
@@ -279,10 +278,9 @@ def calibration_to_doc(cal: Calibration) -> dict:
     "floor", then ``world_from_left`` and ``floor``, as the contract defines them.
     """
     frame = cal.floor_frame
-    posed = cal.cameras if frame is None else tuple(in_frame(cam, frame.R, frame.t) for cam in cal.cameras)
-    points = cal.points if frame is None else cal.points @ np.asarray(frame.R).T + frame.t
+    posed = in_world_frame(cal)
     cameras = []
-    for cam in posed:
+    for cam in posed.cameras:
         model = {} if cam.model == LensModel.PINHOLE else {"model": cam.model.value}  # the default stays implicit
         cameras.append(
             {
@@ -303,7 +301,7 @@ def calibration_to_doc(cal: Calibration) -> dict:
         "units": "m",
         "cameras": cameras,
         "points": [
-            {"id": int(i), "xyz": [float(x) for x in p]} for i, p in zip(cal.point_ids, points, strict=True)
+            {"id": int(i), "xyz": [float(x) for x in p]} for i, p in zip(cal.point_ids, posed.points, strict=True)
         ],
         # A calibration that no observation went into (a factory stereo head) has no RMS; JSON has no NaN.
         "rms_reprojection_px": float(cal.rms_reprojection_px) if np.isfinite(cal.rms_reprojection_px) else None,

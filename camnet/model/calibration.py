@@ -13,7 +13,7 @@ from enum import StrEnum
 
 import numpy as np
 
-from camnet.model.camera import Camera
+from camnet.model.camera import Camera, in_frame
 from camnet.model.methods import Method
 
 
@@ -298,3 +298,29 @@ class Calibration:
     def warnings(self) -> tuple[str, ...]:
         """The report's warnings; none without a report."""
         return self.report.warnings if self.report is not None else ()
+
+
+FLOOR_FRAME = "floor"  # the name a calibration's floor frame (FloorFrame) is written under
+
+
+@dataclass(frozen=True)
+class WorldPosed:
+    """A calibration's cameras and points in the frame it is written in (see `in_world_frame`)."""
+
+    frame: str  # FLOOR_FRAME, or the left camera's (Calibration.world_frame)
+    cameras: tuple[Camera, ...]  # x_cam = R @ X_world + t
+    points: np.ndarray  # (N, 3) metres, in `frame`
+
+
+def in_world_frame(cal: Calibration) -> WorldPosed:
+    """The cameras and points of `cal` in the frame its document and exports are written in.
+
+    With a floor frame, the floor's: ``X_world = R @ X_left + t`` (metres, Z up, origin on the floor); without
+    one, the left camera's: the cameras and points as `cal` holds them.
+    """
+    frame = cal.floor_frame
+    if frame is None:
+        return WorldPosed(cal.world_frame, cal.cameras, cal.points)
+    R, t = np.asarray(frame.R, dtype=float), np.asarray(frame.t, dtype=float)
+    cameras = tuple(in_frame(cam, R, t) for cam in cal.cameras)
+    return WorldPosed(FLOOR_FRAME, cameras, np.asarray(cal.points, dtype=float).reshape(-1, 3) @ R.T + t)
