@@ -132,9 +132,9 @@ def judge(cal: Calibration, thresholds: Thresholds = THRESHOLDS) -> Verdict | No
     if report is None:
         return None
     origin = next((c.centre for c in cal.cameras if c.id == cal.world_frame), cal.cameras[0].centre)
-    # A camera's own measures are its sigmas; where nothing vouches for them (no second opinion), or another
-    # solution fits as well, none of them makes it better than the rig's finding says.
-    ceiling = _worst(_halves_findings(report) + _rival_findings(report))
+    # A camera's own measures are its sigmas: where the rig's findings doubt every sigma, none of them makes it
+    # better than those findings say.
+    ceiling = _worst(_sigma_doubts(report, thresholds))
     cameras = []
     for cam in cal.cameras:
         lever_m = float(np.linalg.norm(cam.centre - origin))  # 0 for the camera that fixes the frame
@@ -335,6 +335,13 @@ def _floor_findings(cal: Calibration) -> list[Finding]:
         return [Finding(Level.USABLE, "the floor is ambiguous", frame.ambiguity, Action.MOVE_CAMERA,
                         "turn a camera so that it sees more of the floor")]
     return []
+
+
+def _sigma_doubts(report: SolveReport, t: Thresholds) -> list[Finding]:
+    """The rig's findings that doubt every camera's sigmas: no second opinion vouches for them, another solution
+    fits as well, or narrow parallax under estimated poses and focal lengths moves them more than they show."""
+    parallax = [f for f in _parallax_findings(report, t) if f.level == Level.POOR]
+    return _halves_findings(report) + _rival_findings(report) + parallax
 
 
 def _halves_findings(report: SolveReport) -> list[Finding]:
