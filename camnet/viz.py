@@ -11,7 +11,9 @@ once per kind and never raised into the caller.
 
 Entity layout (application id ``camnet``, recording name = the rig)::
 
-    world                                   view coordinates RDF (the left stereo camera's frame)
+    world                                   view coordinates: RDF in the left stereo camera's frame; Z up
+                                            (RIGHT_HAND_Z_UP) where the calibration has a floor frame
+    world/floor                             with a floor frame only: LineStrips3D, a grid on the floor (z = 0)
     world/cameras/<id>                      Transform3D world_from_cam + Pinhole (K, resolution, RDF)
     world/cameras/<id>/image                the latest image (JPEG), not logged at every solve
     world/cameras/<id>/image/observations   Points2D: the camera's track observations, coloured
@@ -27,6 +29,10 @@ Entity layout (application id ``camnet``, recording name = the rig)::
     series/focal_error_pct/<id>             with ground truth only: focal length error, %
     series/centre_error_mm/<id>             with ground truth only: camera centre error, mm
     log                                     TextLog: one line per solve, solver warnings, failures
+
+Cameras and points are logged in the frame the calibration is written in
+(`camnet.model.calibration.in_world_frame`): the floor's where it has one,
+so that the cameras stand upright over the floor, the left camera's if not.
 
 Timelines: ``capture_time`` (timestamp of the newest frame set a solve
 includes, or of the frame) and ``solve`` (solve sequence number from 0,
@@ -53,7 +59,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from camnet.errors import CamnetError
-from camnet.model.calibration import Calibration
+from camnet.model.calibration import FLOOR_FRAME, Calibration, WorldPosed, in_world_frame
 from camnet.model.camera import Camera
 from camnet.model.observations import Observations
 from camnet.viz_sinks import RerunSink
@@ -90,6 +96,9 @@ FRAME_PERIOD_S = 10.0
 
 # Solves counted per recording; weak keys so a dropped recording leaves nothing behind.
 _solve_counts: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+# Whether a recording's world is the floor frame (Z up, a floor drawn): the view coordinates are static, so they are
+# logged again only when this changes.
+_on_floor: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 _warned: set[tuple[str, str]] = set()
 
 
@@ -250,6 +259,30 @@ def _degenerate(calibration: Calibration) -> str:
     return ""
 
 
+def shown(calibration: Calibration) -> tuple[WorldPosed, rr.ViewCoordinates]:
+    """The cameras and points of `calibration` as the recording shows them, and the view coordinates of ``world``:
+    in the floor frame, Z up, where it has one; in the left camera's frame, RDF, where not."""
+    import rerun as rr
+
+    view = rr.ViewCoordinates.RDF if calibration.floor_frame is None else rr.ViewCoordinates.RIGHT_HAND_Z_UP
+    return in_world_frame(calibration), view
+
+
+def floor_grid(xy_m: np.ndarray, *, lines: int = 10) -> np.ndarray:
+    """(L, 2, 3) line segments (metres) of a grid on the floor z = 0 covering the horizontal positions xy_m (n, 2)
+    with a margin; its step a power of ten times 1, 2 or 5 giving about `lines` lines across the wider side."""
+    xy_m = np.asarray(xy_m, dtype=float).reshape(-1, 2)
+    lo, hi = xy_m.min(axis=0), xy_m.max(axis=0)
+    span = max(float(np.max(hi - lo)), 0.1)
+    raw = span / lines
+    step = min((m * 10.0 ** np.floor(np.log10(raw)) for m in (1.0, 2.0, 5.0, 10.0)), key=lambda s: abs(s - raw))
+    lo, hi = np.floor((lo - step) / step) * step, np.ceil((hi + step) / step) * step
+    xs, ys = np.arange(lo[0], hi[0] + step / 2, step), np.arange(lo[1], hi[1] + step / 2, step)
+    along_y = [[[x, lo[1], 0.0], [x, hi[1], 0.0]] for x in xs]
+    along_x = [[[lo[0], y, 0.0], [hi[0], y, 0.0]] for y in ys]
+    return np.array(along_y + along_x)
+
+
 # ---------------------------------------------------------------- logging
 
 
@@ -284,23 +317,43 @@ def log_calibration(
                                   level=rr.TextLogLevel.ERROR))
         return
     errors = reprojection_errors(calibration, observations) if observations is not None else None
-    _log_cameras(rec, calibration)
+    posed, view = shown(calibration)
+    _log_world(rec, posed, view)
+    _log_cameras(rec, posed)
     colors = error_colors(errors.point_rms_px) if errors is not None else None
-    rec.log("world/points", rr.Points3D(calibration.points, colors=colors, radii=rr.Radius.ui_points(2.5)))
+    rec.log("world/points", rr.Points3D(posed.points, colors=colors, radii=rr.Radius.ui_points(2.5)))
     if errors is not None:
         _log_observations(rec, observations, errors)
     _log_series(rec, calibration, truth)
     _log_text(rec, calibration, solve_index)
 
 
-def _log_cameras(rec: rr.RecordingStream, calibration: Calibration) -> None:
+def _log_world(rec: rr.RecordingStream, posed: WorldPosed, view: rr.ViewCoordinates) -> None:
+    """The view coordinates where the world's frame changed since the last solve; with a floor, the floor."""
+    import rerun as rr
+
+    on_floor = posed.frame == FLOOR_FRAME
+    if _on_floor.get(rec, False) != on_floor:
+        rec.log("world", view, static=True)
+        if not on_floor:
+            rec.log("world/floor", rr.Clear(recursive=False))
+        _on_floor[rec] = on_floor
+    if on_floor:
+        # The body of the cloud: a far point (no parallax, a false match) would stretch the floor to it.
+        body = np.percentile(posed.points, (1.0, 99.0), axis=0) if len(posed.points) else np.empty((0, 3))
+        xy = np.vstack([np.array([c.centre for c in posed.cameras]), body])[:, :2]
+        rec.log("world/floor", rr.LineStrips3D(floor_grid(xy), colors=[(110, 110, 110)],
+                                               radii=rr.Radius.ui_points(0.75)))
+
+
+def _log_cameras(rec: rr.RecordingStream, posed: WorldPosed) -> None:
     import rerun as rr
 
     plane_m = None
-    if len(calibration.points):
-        depth = calibration.points @ calibration.cameras[0].R[2] + calibration.cameras[0].t[2]
+    if len(posed.points):
+        depth = posed.points @ posed.cameras[0].R[2] + posed.cameras[0].t[2]
         plane_m = 0.15 * float(np.median(np.abs(depth)))
-    for cam in calibration.cameras:
+    for cam in posed.cameras:
         K = np.array(cam.K, dtype=float)
         K[:2, 2] += 0.5  # pixel centre to pixel corner origin
         rec.log(

@@ -7,7 +7,8 @@ known), the solver's warnings, a table per camera, the
 reprojection error of every point in every camera (the paper's Fig. 5) and
 the residual histograms (both need the observations), the uncertainty of
 each parameter, the point cloud's bounding box in millimetres (the paper's
-Sec. IV) and the cameras seen from above. The plots are
+Sec. IV) and the camera layout (a floor plan and a side view where the
+calibration has a floor frame, else from above). The plots are
 camnet.io.report_plots'.
 """
 
@@ -51,7 +52,7 @@ SECTIONS = {
     "residuals": "Residual histograms",
     "uncertainty": "Uncertainty per parameter",
     "bounding-box": "Point cloud bounding box",
-    "layout": "Camera layout from above",
+    "layout": "Camera layout",
 }
 NEEDS_OBSERVATIONS = "Needs the observations: run <code>camnet report CALIBRATION.json --observations OBS.json</code>."
 CSS = """

@@ -2,7 +2,7 @@
 
 Per camera, the reprojection error of every point (the paper's Fig. 5), the
 residual histograms and the uncertainty; the point cloud's robust bounding
-box seen from the front and the side; the cameras seen from above. matplotlib
+box seen from the front and the side; the camera layout (`plot_layout`). matplotlib
 is imported here without pyplot, so no global backend is set.
 """
 
@@ -206,32 +206,44 @@ def bounding_box_figure(cal: Calibration, box: BoundingBox):
     return fig
 
 
-def frustum_xz(cam, depth_m: float) -> np.ndarray:
-    """World (x, z) of the camera centre and its horizontal field of view's edges at `depth_m`.
+def frustum(cam, depth_m: float, *, vertical: bool = False) -> np.ndarray:
+    """World points (metres) of the camera centre and its field of view's edges at `depth_m`: (3, 3), centre, first
+    edge, second edge.
 
-    Rays through the left and right image borders (u = -0.5 and width - 0.5
-    at the principal point's row), undistorted, go from the camera frame
-    to the world by ``X = R.T @ (x_cam - t)``. Returns (3, 2): centre, left
-    edge, right edge.
+    Horizontal: rays through the left and right image borders (u = -0.5 and width - 0.5 at the principal point's
+    row); vertical: through the top and bottom borders (v = -0.5 and height - 0.5 at its column). Undistorted, they
+    go from the camera frame to the world by ``X = R.T @ (x_cam - t)``.
     """
-
-    cy = cam.K[1, 2]
-    border = np.array([[[-0.5, cy]], [[cam.width - 0.5, cy]]])
-    xn = cam.normalised(border.reshape(-1, 2))
+    cx, cy = cam.K[0, 2], cam.K[1, 2]
+    border = np.array([[cx, -0.5], [cx, cam.height - 0.5]]) if vertical else \
+        np.array([[-0.5, cy], [cam.width - 0.5, cy]])
+    xn = cam.normalised(border)
     rays = np.hstack([xn, np.ones((2, 1))]) * depth_m
     world = (rays - cam.t) @ cam.R
-    return np.vstack([cam.centre, world])[:, [0, 2]]
+    return np.vstack([cam.centre, world])
 
 
-def layout_limits(cal: Calibration) -> tuple[np.ndarray, np.ndarray]:
-    """(lo, hi) in world (x, z), metres, of the view from above: the cameras and the robust box of the points."""
-    centres = np.array([cam.centre for cam in cal.cameras])[:, [0, 2]]
-    box = robust_box(cal.points)
-    span = centres if box is None else np.vstack([centres, box.min_m[[0, 2]], box.max_m[[0, 2]]])
+def frustum_xz(cam, depth_m: float) -> np.ndarray:
+    """World (x, z) of the camera centre and its horizontal field of view's edges at `depth_m` (`frustum`):
+    (3, 2), centre, left edge, right edge."""
+    return frustum(cam, depth_m)[:, [0, 2]]
+
+
+def _square_limits(centres: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi) of a square view (two axes, metres) around the cameras' centres (M, 2) and the robust box of the
+    points (N, 2), with a margin."""
+    box = robust_box(np.column_stack([points, np.zeros(len(points))]))
+    span = centres if box is None else np.vstack([centres, box.min_m[:2], box.max_m[:2]])
     lo, hi = span.min(axis=0), span.max(axis=0)
     side = max(float(np.max(hi - lo)), 1e-3)
     mid = (lo + hi) / 2  # square, so that the equal aspect keeps these limits
     return plot_limits(mid - side / 2, mid + side / 2)
+
+
+def layout_limits(cal: Calibration) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi) in world (x, z), metres, of the view from above: the cameras and the robust box of the points."""
+    centres = np.array([cam.centre for cam in cal.cameras])
+    return _square_limits(centres[:, [0, 2]], cal.points.reshape(-1, 3)[:, [0, 2]])
 
 
 LABEL_STEP_PT = 11.0  # a label's height, in points: labels closer than this in both directions are moved
@@ -256,41 +268,89 @@ def label_offsets_pt(anchors_pt: np.ndarray, widths_pt: np.ndarray) -> np.ndarra
 
 
 def plot_layout(cal: Calibration) -> str:
-    """Cameras (frusta) and points in the world X-Z plane, seen from above (X right, Z forward).
+    """Cameras (frusta) and points seen from above, to scale: with a floor frame, its floor plan (X-Y, Z up) and a
+    side view (X-Z, the floor at z = 0); without one, the left camera's X-Z plane (X right, Z forward).
 
-    The view ends near the cameras and the robust box of the points; points beyond are drawn on its
-    edge. Camera labels are moved apart where they would overlap.
+    The views end near the cameras and the robust box of the points; points beyond are drawn on the edge. Camera
+    labels are moved apart where they would overlap.
     """
     return _svg(layout_figure(cal))
 
 
+FLOOR_TITLE = "floor frame: Z up, origin on the floor"
+
+
 def layout_figure(cal: Calibration):
-    """The figure of `plot_layout`."""
+    """The figure of `plot_layout`: one axes without a floor frame, two with one (the floor plan, the side view)."""
+    if cal.floor_frame is None:
+        return _left_layout_figure(cal)
+    return _floor_layout_figure(cal)
+
+
+def _left_layout_figure(cal: Calibration):
     fig, axes = _figure(1, columns=1, panel_in=(7.0, 6.0))
     ax = axes[0]
     lo, hi = layout_limits(cal)
+    _draw_view(ax, cal.cameras, cal.points, (0, 2), lo, hi)
+    fig.draw_without_rendering()  # the constrained layout's final axes, so that the anchors are where they end up
+    _label_cameras(fig, ax, cal.cameras, (0, 2))
+    ax.set_title(f"left camera's frame (camera {cal.world_frame}): X right, Z forward, from above", fontsize=10)
+    return fig
+
+
+def _floor_layout_figure(cal: Calibration):
+    from matplotlib.figure import Figure
+
+    from camnet.model.calibration import in_world_frame
+
+    world = in_world_frame(cal)
+    centres = np.array([cam.centre for cam in world.cameras])
+    lo, hi = _square_limits(centres[:, :2], world.points[:, :2])
+    box = robust_box(world.points)
+    heights = np.r_[0.0, centres[:, 2]] if box is None else np.r_[0.0, centres[:, 2], box.min_m[2], box.max_m[2]]
+    z_lo, z_hi = plot_limits(np.array([heights.min()]), np.array([heights.max()]))
+    side_lo, side_hi = np.array([lo[0], z_lo[0]]), np.array([hi[0], z_hi[0]])
+    ratio = float(np.clip((z_hi[0] - z_lo[0]) / (hi[0] - lo[0]), 0.25, 1.0))
+    fig = Figure(figsize=(7.0, 6.0 * (1.0 + ratio)), layout="constrained")
+    top, side = fig.subplots(2, 1, height_ratios=[1.0, ratio])
+    _draw_view(top, world.cameras, world.points, (0, 1), lo, hi)
+    _draw_view(side, world.cameras, world.points, (0, 2), side_lo, side_hi, vertical=True)
+    side.axhline(0.0, color="0.2", linewidth=1.5, label="floor (z = 0)")
+    fig.draw_without_rendering()
+    for ax, axes in ((top, (0, 1)), (side, (0, 2))):
+        _label_cameras(fig, ax, world.cameras, axes)
+    top.set_title(f"floor plan (X-Y, from above); {FLOOR_TITLE}", fontsize=10)
+    side.set_title(f"side view (X-Z); {FLOOR_TITLE}", fontsize=10)
+    return fig
+
+
+def _draw_view(ax, cameras, points: np.ndarray, axes: tuple[int, int], lo: np.ndarray, hi: np.ndarray, *,
+               vertical: bool = False) -> None:
+    """The points and the cameras' frusta (horizontal, or `vertical`) on the world `axes` (two of 0, 1, 2), to
+    scale within [lo, hi] (metres)."""
+    i, j = axes
     depth = 0.25 * float(np.max(hi - lo)) / 1.16  # a quarter of the view (the limits carry an 8% margin)
-    if len(cal.points):
-        _clipped(ax, cal.points[:, 0], cal.points[:, 2], (lo[0], hi[0]), (lo[1], hi[1]), colour="0.4",
-                 label="points")
-    for m, cam in enumerate(cal.cameras):
-        c, left, right = frustum_xz(cam, depth)
-        ax.fill([c[0], left[0], right[0]], [c[1], left[1], right[1]], color=camera_colour(m), alpha=0.25)
-        ax.plot([left[0], c[0], right[0]], [left[1], c[1], right[1]], color=camera_colour(m), linewidth=1.5)
+    if len(points):
+        _clipped(ax, points[:, i], points[:, j], (lo[0], hi[0]), (lo[1], hi[1]), colour="0.4", label="points")
+    for m, cam in enumerate(cameras):
+        c, first, second = frustum(cam, depth, vertical=vertical)[:, [i, j]]
+        ax.fill([c[0], first[0], second[0]], [c[1], first[1], second[1]], color=camera_colour(m), alpha=0.25)
+        ax.plot([first[0], c[0], second[0]], [first[1], c[1], second[1]], color=camera_colour(m), linewidth=1.5)
     ax.set_xlim(lo[0], hi[0])
     ax.set_ylim(lo[1], hi[1])
     ax.set_aspect("equal", adjustable="box")
-    fig.draw_without_rendering()  # the constrained layout's final axes, so that the anchors are where they end up
+    ax.set_xlabel(f"{'XYZ'[i]} (m)")
+    ax.set_ylabel(f"{'XYZ'[j]} (m)")
+    ax.grid(alpha=0.3)
+
+
+def _label_cameras(fig, ax, cameras, axes: tuple[int, int]) -> None:
+    """Each camera's id beside its centre, none overlapping; after the figure's layout is drawn."""
     # Anchors in points of the figure: data to pixels, then 72 points to the inch.
-    centres = np.array([cam.centre[[0, 2]] for cam in cal.cameras])
+    centres = np.array([cam.centre[list(axes)] for cam in cameras])
     anchors = ax.transData.transform(centres) * 72.0 / fig.dpi
-    widths = np.array([6.0 * len(cam.id) + 4.0 for cam in cal.cameras])  # 9 pt text: about 6 pt a character
-    for m, (cam, offset) in enumerate(zip(cal.cameras, label_offsets_pt(anchors, widths), strict=True)):
+    widths = np.array([6.0 * len(cam.id) + 4.0 for cam in cameras])  # 9 pt text: about 6 pt a character
+    for m, (cam, offset) in enumerate(zip(cameras, label_offsets_pt(anchors, widths), strict=True)):
         ax.annotate(cam.id, centres[m], textcoords="offset points", xytext=offset, fontsize=9,
                     color=camera_colour(m))
-    ax.set_xlabel("X (m)")
-    ax.set_ylabel("Z (m)")
-    ax.grid(alpha=0.3)
     ax.legend(fontsize=7, loc="upper right")
-    ax.set_title(f"world frame: camera {cal.world_frame}", fontsize=10)
-    return fig
