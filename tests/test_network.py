@@ -151,12 +151,17 @@ def test_simulated_network_calibrates_to_scale(tmp_path, n_cameras):
 
     # The run's Rerun recording: every camera, the cloud, the series, one entry per solve.
     data = read_rrd(rrd)
-    solves = len(data["/series/network/rms_px"]["Scalars:scalars"])
-    assert solves >= 1
+    series = data["/series/network/rms_px"]["solve"]
+    solves = len(series)
+    assert solves >= 1 and series == sorted(set(series))
+    assert data[f"/world/cameras/{cal.world_frame}"]["solve"] == series  # the left camera is in every one
     for cam in cal.cameras:
-        assert len(data[f"/world/cameras/{cam.id}"]["Pinhole:image_from_camera"]) == solves
+        # Every solve that placed it, from the first on to the last: a first pool may not place every camera yet.
+        placed = data[f"/world/cameras/{cam.id}"]["solve"]
+        assert placed and placed == series[solves - len(placed):], (cam.id, placed, series)
+        assert len(data[f"/world/cameras/{cam.id}"]["Pinhole:image_from_camera"]) == len(placed)
         assert len(data[f"/world/cameras/{cam.id}/image"]["EncodedImage:blob"]) >= 1
-        assert len(data[f"/series/focal_error_pct/{cam.id}"]["Scalars:scalars"]) == solves
+        assert len(data[f"/series/focal_error_pct/{cam.id}"]["Scalars:scalars"]) == len(placed)
     assert len(data["/world/points"]["Points3D:positions"]) == solves
     assert len(data["/series/network/scale_error_pct"]["Scalars:scalars"]) == solves
 
