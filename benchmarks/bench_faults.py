@@ -3,19 +3,21 @@
 
 A 4-camera sim rig at 30 fps (small images, so that it runs on 2 cores):
 drivers, matcher and calibrator as processes meeting at a router, and an
-observer that queries the calibration key. For each fault, once the network
-has published a good calibration:
+observer that queries the calibration key. A calibration here is any a
+solve published, whatever its verdict: a fault asks whether calibrations go
+on, and how good they are is the rig's (benchmarks/bench_rigs.py). For each
+fault, once the network has published a calibration:
 
 - alive: every node still running (or restarted) afterwards;
-- lost: good calibrations published before the fault that the network no
-  longer answers after it (must be 0: the last good one is always answered);
-- next good s: seconds from the end of the fault to the next good
-  calibration published (the network calibrates again);
+- lost: calibrations published before the fault that the network no
+  longer answers after it (must be 0: the last one is always answered);
+- next s: seconds from the end of the fault to the next calibration
+  published (the network calibrates again);
 - RSS MB: the nodes' resident memory before and after.
 
 Then the same rig under `camnet up`, whose supervisor restarts a node that
 dies: a driver, the matcher and the calibrator killed with SIGKILL in turn,
-with the same columns (next good s: from the death to the next good
+with the same columns (next s: from the death to the next
 calibration solved from frames captured after it).
 
     python benchmarks/bench_faults.py                # every fault, full length
@@ -46,7 +48,6 @@ from camnet.bus.launch import Child, Launch, NetworkSpec, start_network
 from camnet.bus.session import BusOptions, open_session
 from camnet.errors import InputError
 from camnet.io.messages import CalibrationMessage, decode_calibration_message
-from camnet.solve.report.verdict import Level
 from camnet.testing.ports import free_port
 
 BOX_CENTRE = [0.0625, 0.0, 0.65]
@@ -140,7 +141,7 @@ class Network:
             message = decode_calibration_message(sample.payload.to_bytes())
         except InputError:  # the flood reaches this observer too
             return
-        if message.status == Level.GOOD:
+        if not message.resumed:  # a restarted calibrator's from its state file was solved before
             with self._lock:
                 self.calibrations.append((time.monotonic(), message))
 
@@ -153,16 +154,16 @@ class Network:
         verbose = command[:1] == ["-v"]
         return self.launch.start(child.name, command[1:] if verbose else command, verbose=verbose)
 
-    def good_after(self, since_s: float) -> float | None:
+    def solved_after(self, since_s: float) -> float | None:
         with self._lock:
             times = [t for t, _ in self.calibrations if t >= since_s]
         return times[0] if times else None
 
-    def wait_good(self, since_s: float, timeout_s: float) -> float | None:
-        """Seconds from `since_s` to the first good calibration published after it (None: none came)."""
+    def wait_calibration(self, since_s: float, timeout_s: float) -> float | None:
+        """Seconds from `since_s` to the first calibration published after it (None: none came)."""
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
-            got = self.good_after(since_s)
+            got = self.solved_after(since_s)
             if got is not None:
                 return got - since_s
             self.check()
@@ -189,7 +190,7 @@ class Network:
         return None
 
     def published_ns(self) -> list[int]:
-        """When each good calibration published so far was solved."""
+        """When each calibration published so far was solved."""
         with self._lock:
             return [m.solved_ns or 0 for _, m in self.calibrations]
 
@@ -247,8 +248,8 @@ class SupervisedNetwork(Network):
             raise RuntimeError(f"camnet up exited with status {self.up.returncode}; its output ends:\n"
                                f"{(self.work / 'up.log').read_text()[-3000:]}")
 
-    def good_after(self, since_s: float) -> float | None:
-        """The first good calibration published after `since_s` from frames captured after it: the rig
+    def solved_after(self, since_s: float) -> float | None:
+        """The first calibration published after `since_s` from frames captured after it: the rig
         calibrating again, not a solve already under way."""
         since_ns = time.time_ns() - round((time.monotonic() - since_s) * 1e9)
         with self._lock:
@@ -274,19 +275,19 @@ class Result:
     fault: str
     alive: bool
     lost: int | None
-    next_good_s: float | None
+    next_s: float | None
     rss_before_mb: float
     rss_after_mb: float
     note: str = ""
 
     def row(self) -> str:
         lost = "?" if self.lost is None else str(self.lost)
-        good = "none" if self.next_good_s is None else f"{self.next_good_s:.1f}"
-        return (f"{self.fault:<36}{'yes' if self.alive else 'NO':>6}{lost:>6}{good:>10}"
+        after = "none" if self.next_s is None else f"{self.next_s:.1f}"
+        return (f"{self.fault:<36}{'yes' if self.alive else 'NO':>6}{lost:>6}{after:>10}"
                 f"{self.rss_before_mb:>9.0f}{self.rss_after_mb:>9.0f}  {self.note}")
 
 
-HEADER = f"{'fault':<36}{'alive':>6}{'lost':>6}{'good s':>10}{'RSS MB':>9}{'after':>9}  note"
+HEADER = f"{'fault':<36}{'alive':>6}{'lost':>6}{'next s':>10}{'RSS MB':>9}{'after':>9}  note"
 
 
 def measure(net: Network, name: str, fault: Callable[[Network], str], *, recover_s: float) -> Result:
@@ -295,11 +296,11 @@ def measure(net: Network, name: str, fault: Callable[[Network], str], *, recover
     before_ns = net.published_ns()
     note = fault(net) or ""
     ended_s = time.monotonic()
-    next_good = net.wait_good(ended_s, recover_s)
+    next_cal = net.wait_calibration(ended_s, recover_s)
     answered_ns = net.answered_ns()
-    # Lost: good calibrations from before the fault newer than what the network answers after it.
+    # Lost: calibrations from before the fault newer than what the network answers after it.
     lost = None if answered_ns is None else sum(t > answered_ns for t in before_ns)
-    return Result(name, net.alive(), lost, next_good, rss_before, net.rss_mb(), note)
+    return Result(name, net.alive(), lost, next_cal, rss_before, net.rss_mb(), note)
 
 
 # ------------------------------------------------------------------ the faults
@@ -330,7 +331,7 @@ def silent_camera(camera: str, silent_s: float, *, check_status: bool = False) -
         started_s = time.monotonic()
         shown, tries = False, 0
         try:
-            during = net.wait_good(started_s + 2.0, silent_s)
+            during = net.wait_calibration(started_s + 2.0, silent_s)
             while check_status and not shown and tries < STATUS_TRIES:
                 tries += 1
                 shown = any(camera in line and "MISSING" in line for line in run_status(net).splitlines())
@@ -342,7 +343,7 @@ def silent_camera(camera: str, silent_s: float, *, check_status: bool = False) -
             missing = (f"shown MISSING by status (try {tries})" if shown
                        else f"status did not show it missing in {tries} tries")
         during_text = "none" if during is None else f"{during:.1f} s"
-        return f"silent {silent_s:.0f} s; first good calibration during it after {during_text} {missing}".strip()
+        return f"silent {silent_s:.0f} s; first calibration during it after {during_text} {missing}".strip()
     return fault
 
 
@@ -456,10 +457,10 @@ def scenarios(short: bool) -> list[tuple[str, Callable[[Network], str]]]:
 def run(work: Path, *, short: bool, recover_s: float, out=print) -> list[Result]:
     results = []
     with Network(work, rig_document("faults")) as net:
-        first = net.wait_good(net.started_s, 180.0)
+        first = net.wait_calibration(net.started_s, 180.0)
         if first is None:
             raise RuntimeError(f"no first calibration; logs in {work}")
-        out(f"first good calibration after {first:.1f} s of the run")
+        out(f"first calibration after {first:.1f} s of the run")
         out(HEADER)
         for name, fault in scenarios(short):
             result = measure(net, name, fault, recover_s=recover_s)
@@ -471,14 +472,14 @@ def run(work: Path, *, short: bool, recover_s: float, out=print) -> list[Result]
 def run_supervised(work: Path, *, recover_s: float, out=print) -> list[Result]:
     results = []
     with SupervisedNetwork(work, rig_document("supervised")) as net:
-        first = net.wait_good(net.started_s, 180.0)
+        first = net.wait_calibration(net.started_s, 180.0)
         if first is None:
             raise RuntimeError(f"no first calibration under camnet up; its output ends:\n"
                                f"{(work / 'up.log').read_text()[-3000:]}")
-        out(f"under camnet up: first good calibration after {first:.1f} s of the run")
+        out(f"under camnet up: first calibration after {first:.1f} s of the run")
         out(HEADER)
         for name, pattern in SUPERVISED:
-            net.wait_good(time.monotonic(), recover_s)  # calibrating again since the fault before
+            net.wait_calibration(time.monotonic(), recover_s)  # calibrating again since the fault before
             result = measure(net, f"camnet up: kill -9 {name}", kill_supervised(pattern), recover_s=recover_s)
             out(result.row())
             results.append(result)
@@ -488,7 +489,7 @@ def run_supervised(work: Path, *, recover_s: float, out=print) -> list[Result]:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--short", action="store_true", help="the few short faults the tests run")
-    parser.add_argument("--recover-s", type=float, default=90.0, help="longest wait for the next good calibration")
+    parser.add_argument("--recover-s", type=float, default=90.0, help="longest wait for the next calibration")
     parser.add_argument("--supervised", action="store_true", help="only the rows under camnet up")
     args = parser.parse_args()
     results = []

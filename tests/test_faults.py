@@ -25,14 +25,14 @@ def test_calibrations_go_on_while_a_mono_camera_is_silent(tmp_path):
     faults = bench_faults()
     with faults.Network(tmp_path, faults.rig_document("monoout", fps=30.0, side_px=320)) as net:
         # Progress-based: the first calibration comes when the machine lets it; the margin is generous.
-        assert net.wait_good(net.started_s, 240.0) is not None, "no first calibration"
+        assert net.wait_calibration(net.started_s, 240.0) is not None, "no first calibration"
         result = faults.measure(net, "silent", faults.silent_camera("mono_b", 6.0, check_status=True),
                                 recover_s=120.0)
         assert result.alive, [c.log_tail() for c in net.launch.exited()]
-        assert "first good calibration during it after none" not in result.note, result.note
+        assert "first calibration during it after none" not in result.note, result.note
         assert "shown MISSING by status" in result.note, result.note
-        assert result.lost == 0 and result.next_good_s is not None, result
+        assert result.lost == 0 and result.next_s is not None, result
         status = faults.run_status(net)
         assert "MISSING" not in status, status  # it came back
         started_s = time.monotonic()
-        assert net.wait_good(started_s, 120.0) is not None
+        assert net.wait_calibration(started_s, 120.0) is not None

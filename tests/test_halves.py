@@ -21,7 +21,7 @@ from camnet.model.calibration import CameraSigmas
 from camnet.model.projection import rotation_exp
 from camnet.sim.simulate import make_rig, observe
 from camnet.solve import Options, calibrate
-from camnet.solve.halves import MIN_HALF_OBSERVATIONS, track_sides, with_halves_check
+from camnet.solve.halves import MIN_HALF_OBSERVATIONS, track_sides, unsolved_half, with_halves_check
 from camnet.solve.report.halves import DISAGREE_SIGMAS, INFLATE_FROM, differences, widened
 from camnet.solve.report.verdict import Level, judge
 from tests.test_live import pooled
@@ -168,7 +168,7 @@ def test_a_camera_seen_in_few_tracks_of_a_long_pool_keeps_its_second_opinion():
     cal = calibrate(obs, Options(halves=False)).calibration
 
     checked = with_halves_check(obs, cal, lambda half: calibrate(half, Options(halves=False)).calibration,
-                                max_half_tracks=300)
+                                truncation_px=Options().truncation_px(cal.rms_reprojection_px), max_half_tracks=300)
 
     assert checked.report.halves.splits == 1, checked.report.halves.reason
     assert f"f {obs.camera_ids[4]}" in checked.report.halves.in_sigmas
@@ -203,3 +203,60 @@ def test_the_live_calibrator_asks_again_once_half_its_pool_is_new_and_carries_th
     assert asked.splits == 1
     assert carried.half_differences == asked.half_differences and carried.in_sigmas == asked.in_sigmas
     assert again.splits == 1 and again.half_differences != asked.half_differences
+
+
+def _split_solved(obs, whole):
+    """The first split's sides and each half solved alone."""
+    _, side = next(iter(track_sides(obs, whole)))
+    halves = []
+    for h in (0, 1):
+        keep = side == h
+        rows = keep[obs.track_index]
+        part = replace(obs, cam_index=obs.cam_index[rows], track_index=obs.track_index[rows], uv=obs.uv[rows])
+        halves.append((keep, calibrate(part, Options(halves=False)).calibration))
+    return halves
+
+
+def test_a_half_whose_cold_solve_fell_short_of_its_own_minimum_is_ruled_out_and_the_next_split_compared(
+        rig_and_obs):
+    _, obs = rig_and_obs
+    whole = calibrate(obs, Options(halves=False)).calibration
+    truncation = Options().truncation_px(whole.rms_reprojection_px)
+    (keep_a, a), (keep_b, b) = _split_solved(obs, whole)
+    cam = whole.cameras[3].id
+    lost = turned(b, cam, f_rel=0.15, rotation_deg=3.0)  # where a half's cold solve may stop
+
+    assert unsolved_half(obs, whole, ((keep_a, a), (keep_b, b)), truncation) == ""  # both solved
+    said = unsolved_half(obs, whole, ((keep_a, a), (keep_b, lost)), truncation)
+    assert said.startswith("the whole's solution fits half 2 better than that half's own, by"), said
+    # The same through the check: the first split's second half is lost, the next split is compared instead.
+    solves = iter([a, lost])
+    checked = with_halves_check(obs, whole, lambda half: next(solves, None) or calibrate(
+        half, Options(halves=False)).calibration, truncation_px=truncation)
+    halves = checked.report.halves
+    assert halves.ruled_out == ("across the widest axis",) and halves.splits == 1, halves
+    assert not halves.widened and halves.sigma_factor == 1.0, halves
+    assert f"f {cam}" in halves.in_sigmas and halves.in_sigmas[f"f {cam}"] < DISAGREE_SIGMAS
+    assert parse_calibration(calibration_to_doc(checked)).report.halves == halves
+    # Every split's halves lost: no second opinion, and why.
+    calls = iter(range(6))
+
+    def second_lost(half):
+        solved = calibrate(half, Options(halves=False)).calibration
+        return turned(solved, cam, f_rel=0.15) if next(calls) % 2 else solved
+
+    lost_every = with_halves_check(obs, whole, second_lost, truncation_px=truncation)
+    assert lost_every.report.halves.splits == 0 and len(lost_every.report.halves.ruled_out) == 3
+    assert "its cold solve fell short of its own minimum" in lost_every.report.halves.reason
+    assert judge(lost_every).level == Level.POOR
+
+
+def test_halves_that_fit_themselves_better_than_the_whole_are_never_ruled_out(rig_and_obs):
+    # However far the whole lies from them: then the model does not fit the scene alike, or the whole is wrong.
+    _, obs = rig_and_obs
+    whole = calibrate(obs, Options(halves=False)).calibration
+    truncation = Options().truncation_px(whole.rms_reprojection_px)
+    halves = tuple(_split_solved(obs, whole))
+    cam = whole.cameras[3].id
+
+    assert unsolved_half(obs, turned(whole, cam, f_rel=0.15, rotation_deg=3.0), halves, truncation) == ""

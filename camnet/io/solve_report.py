@@ -156,6 +156,8 @@ def _halves_to_doc(h: HalvesCheck) -> dict:
                            "sigma_factor": h.sigma_factor}
     if h.reason:
         out["reason"] = h.reason
+    if h.ruled_out:
+        out["ruled_out"] = list(h.ruled_out)
     return out
 
 
@@ -274,7 +276,7 @@ def _parse_halves(value: Any, path: str) -> HalvesCheck:
     return HalvesCheck(v.integer(v.require(value, "splits", path), f"{path}.splits"), numbers["half_differences"],
                        numbers["in_sigmas"], tuple(v.strings(value.get("widened", []), f"{path}.widened")),
                        v.number(value.get("sigma_factor", 1.0), f"{path}.sigma_factor", positive=True),
-                       str(value.get("reason", "")))
+                       str(value.get("reason", "")), tuple(v.strings(value.get("ruled_out", []), f"{path}.ruled_out")))
 
 
 def _parse_camera_stats(value: Any, path: str) -> dict[str, CameraStats]:

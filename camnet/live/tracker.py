@@ -179,6 +179,7 @@ class Tracker:
             cal = self._freed_again(obs, cal)
         cold = self._options
         cal = with_halves_check(obs, cal, lambda half: calibrate(half, cold).calibration,
+                                truncation_px=cold.truncation_px(cal.rms_reprojection_px),
                                 max_half_tracks=HALVES_MAX_TRACKS)
         cal = with_lens_check(obs, with_pair_check(obs, cal), self.config.options, solved_from)
         self._halves, self._halves_max_id = cal.report.halves, int(obs.track_ids.max())

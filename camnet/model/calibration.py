@@ -148,7 +148,8 @@ class HalvesCheck:
     """A second opinion: the scene split in two halves across its point cloud, each half solved alone, and the
     halves compared (camnet.solve.halves).
 
-    splits: how many splits were solved and compared (0: none could be, `reason` says why);
+    splits: how many splits were solved and compared (0: none could be, `reason` says why); ruled_out: the splits
+    not compared because a half's cold solve fell short of its own minimum (camnet.solve.halves);
     half_differences: per parameter, half the largest difference between two halves over the splits: "scale"
     (relative), "f CAM" (relative), "rotation CAM" (degrees), "centre CAM" (metres); in_sigmas: that difference
     over the sigma the two halves' own uncertainties give it; widened: the parameters the halves disagreed on
@@ -162,6 +163,7 @@ class HalvesCheck:
     widened: tuple[str, ...] = ()
     sigma_factor: float = 1.0
     reason: str = ""
+    ruled_out: tuple[str, ...] = ()  # by name ("across the widest axis")
 
 
 @dataclass(frozen=True)

@@ -10,6 +10,15 @@ its basin, and agrees), and every parameter the halves disagree on beyond
 their own sigmas gets its reported sigma widened to their half-difference
 (camnet.solve.report.halves), said in a warning.
 
+A half is smaller than the whole, and its cold solve can end short of the
+half's own least-cost solution, in a minimum that is no solution of the
+half. A split whose halves disagree is ruled out, and the next tried, where
+the whole's solution fits one half better than that half's own does, by more
+than the noise's spread of a cost (as the rivals of a cold solve are
+weighed: camnet.solve.report.rivals): that half was not solved, so the split
+says nothing of the whole. A half's own solution fits it better than the
+whole's does wherever it was solved, however far apart the two lie.
+
 Split tracks by position: points in metres, in the calibration's world frame.
 """
 
@@ -25,7 +34,9 @@ import numpy as np
 from camnet.errors import SolveError, in_words
 from camnet.model.calibration import Calibration, HalvesCheck
 from camnet.model.observations import Observations
-from camnet.solve.report.halves import HalfDifference, differences, disagreement_warning, widened, widest
+from camnet.solve.report.halves import HalfDifference, differences, disagreement_warning, sigma_factor, widened, widest
+from camnet.solve.report.rivals import NEAR_COST_SIGMAS, cost_noise_px2
+from camnet.solve.start.choice import msac_cost
 
 log = logging.getLogger(__name__)
 
@@ -99,11 +110,12 @@ def _short(obs: Observations, side: np.ndarray, cameras: list[str]) -> list[str]
 
 
 def with_halves_check(obs: Observations, cal: Calibration, solve: Callable[[Observations], Calibration], *,
-                      max_half_tracks: int | None = None) -> Calibration:
+                      truncation_px: float, max_half_tracks: int | None = None) -> Calibration:
     """`cal` with its report's `halves` check, and its sigmas widened where the halves disagree.
 
     solve: solves observations with the whole's options from a cold start, with no halves check of its own; raises
     SolveError where it cannot. A half that cannot be solved ends its split, which is not compared.
+    truncation_px: the MSAC cost's truncation, by which a split's disagreement is ruled out (`ruled_out`).
     max_half_tracks: each half keeps at most this many of its tracks, drawn evenly (None: all), so that a live
     calibrator's check of a long pool costs two cold solves of a bounded size.
     """
@@ -113,6 +125,7 @@ def with_halves_check(obs: Observations, cal: Calibration, solve: Callable[[Obse
     t0 = time.perf_counter()
     cameras = [c.id for c in cal.cameras]
     compared: list[dict[str, HalfDifference]] = []
+    dismissed: list[str] = []
     why = "no split keeps every camera's view in both halves"
     fewest: list[str] | None = None
     for name, side in track_sides(obs, cal):
@@ -138,12 +151,41 @@ def with_halves_check(obs: Observations, cal: Calibration, solve: Callable[[Obse
             why = f"a half {name} left out {in_words(unplaced, noun='camera')}"
             log.info("halves check: %s", why)
             continue
-        compared.append(differences(a, b))
+        diffs = differences(a, b)
+        short_of = _disagree(diffs) and unsolved_half(obs, cal, ((side == 0, a), (side == 1, b)), truncation_px)
+        if short_of:
+            log.info("halves check: the split %s is ruled out: %s", name, short_of)
+            dismissed.append(name)
+            why = f"the split {name} is ruled out: {short_of}"
+            continue
+        compared.append(diffs)
     report = replace(report, timings_s={**report.timings_s, "halves": time.perf_counter() - t0})
     if not compared:
-        return replace(cal, report=replace(report, halves=HalvesCheck(0, reason=why)))
-    diffs = widest(compared)
-    return _widened_by(replace(cal, report=report), diffs, len(compared))
+        return replace(cal, report=replace(report, halves=HalvesCheck(0, reason=why, ruled_out=tuple(dismissed))))
+    return _widened_by(replace(cal, report=report), widest(compared), len(compared), tuple(dismissed))
+
+
+def _disagree(diffs: dict[str, HalfDifference]) -> bool:
+    """Whether the halves differ anywhere beyond their sigmas: one parameter, or all of them together."""
+    return any(d.disagrees for d in diffs.values()) or sigma_factor(diffs) > 1.0
+
+
+def unsolved_half(obs: Observations, cal: Calibration, halves: tuple[tuple[np.ndarray, Calibration], ...],
+                  truncation_px: float) -> str:
+    """How a half's own solution falls short of the whole `cal`'s on that half's tracks (the module docstring's
+    rule), or "" where each half's fits it as well or better. halves: (keep (T,) bool per track row of `obs`,
+    that half's solution) each; costs MSAC's, truncated at `truncation_px`."""
+    sigma = cal.uncertainty.sigma_px if cal.uncertainty is not None else np.nan
+    if not np.isfinite(sigma) or sigma <= 0.0:
+        return ""
+    for k, (keep, half) in enumerate(halves):
+        part = _half(obs, keep)
+        short = msac_cost(part, half, truncation_px) - msac_cost(part, cal, truncation_px)
+        noise = cost_noise_px2(sigma, half.report.inliers if half.report is not None else 0)
+        if short > NEAR_COST_SIGMAS * noise:
+            return (f"the whole's solution fits half {k + 1} better than that half's own, by {short / noise:.0f} "
+                    "times the noise's spread of a cost: its cold solve fell short of its own minimum")
+    return ""
 
 
 def with_check_carried(cal: Calibration, check: HalvesCheck) -> Calibration:
@@ -157,15 +199,17 @@ def with_check_carried(cal: Calibration, check: HalvesCheck) -> Calibration:
     # Each difference's sigma back from its half and its ratio (infinite where the ratio was 0: none needed).
     diffs = {name: HalfDifference(half, half / check.in_sigmas[name] if check.in_sigmas.get(name) else np.inf)
              for name, half in check.half_differences.items()}
-    return _widened_by(cal, diffs, check.splits)
+    return _widened_by(cal, diffs, check.splits, check.ruled_out)
 
 
-def _widened_by(cal: Calibration, diffs: dict[str, HalfDifference], splits: int) -> Calibration:
-    """`cal` with its sigmas widened to the halves' `diffs`, the check in its report, any disagreement warned."""
+def _widened_by(cal: Calibration, diffs: dict[str, HalfDifference], splits: int,
+                ruled: tuple[str, ...] = ()) -> Calibration:
+    """`cal` with its sigmas widened to the halves' `diffs`, the check in its report (`ruled`: the splits ruled
+    out), any disagreement warned."""
     report = cal.report
     uncertainty, raised, factor = widened(report.uncertainty, cal, diffs)
     check = HalvesCheck(splits, {k: d.half for k, d in diffs.items()}, {k: d.in_sigmas for k, d in diffs.items()},
-                        raised, factor)
+                        raised, factor, ruled_out=ruled)
     said = raised or factor > 1.0
     warnings = report.warnings + ((disagreement_warning(diffs, raised, factor),) if said else ())
     floor = cal.floor_frame

@@ -42,3 +42,8 @@ class Options:
     # length and distance together by more than their sigmas.
     free_again: bool = False
     world: World = World.LEFT_CAMERA
+
+    def truncation_px(self, rms_px: float) -> float:
+        """The MSAC cost's truncation for a solution of reprojection RMS `rms_px` (pixels): `outlier_sigmas` times
+        it, at least `min_outlier_px`, as the outlier rejection's."""
+        return max(self.min_outlier_px, self.outlier_sigmas * rms_px)

@@ -199,7 +199,8 @@ def with_second_opinion(obs: Observations, cal: Calibration, options: Options) -
     obs, _ = without_unobserved(obs)
     # Each half from a cold start: warm from the whole, it keeps the whole's outliers and basin and agrees.
     alone = replace(options, halves=False, world=World.LEFT_CAMERA)
-    cal = with_halves_check(obs, cal, lambda half: calibrate(half, alone).calibration)
+    cal = with_halves_check(obs, cal, lambda half: calibrate(half, alone).calibration,
+                            truncation_px=options.truncation_px(cal.rms_reprojection_px))
     return with_lens_check(obs, with_pair_check(obs, cal), options, solved_from)
 
 

@@ -350,9 +350,11 @@ def _halves_findings(report: SolveReport) -> list[Finding]:
     halves = report.halves
     if halves is None or halves.splits:
         return []
+    weak = ("each half of the scene too weak for a cold solve to find its own best solution" if halves.ruled_out
+            else "too few tracks for each half of the scene to place every camera")
     return [Finding(Level.POOR, f"no second opinion: {halves.reason}",
-                    "too few tracks for each half of the scene to place every camera, so nothing checks the sigmas "
-                    "beyond the curvature at this one solution", Action.ADD_FRAME_SET,
+                    f"{weak}, so nothing checks the sigmas beyond the curvature at this one solution",
+                    Action.ADD_FRAME_SET,
                     "add frame sets, or texture every camera sees more of")]
 
 

@@ -174,8 +174,7 @@ def _least_cost(obs: Observations, kept: list[tuple[PairStart, Result]], outlier
     with its rivals among the other converged, sound ones (`rivals.rival`)."""
     if len(kept) == 1:
         return kept[0][1]
-    rms = min(r.calibration.rms_reprojection_px for _, r in kept)
-    truncation_px = max(min_outlier_px, outlier_sigmas * rms)
+    truncation_px = max(min_outlier_px, outlier_sigmas * min(r.calibration.rms_reprojection_px for _, r in kept))
     costs = [msac_cost(obs, r.calibration, truncation_px) for _, r in kept]
     log.info("MSAC cost (truncated at %.2f px): %s", truncation_px,
              ", ".join(f"from the {p.value} start {c:.0f} px^2" for (p, _), c in zip(kept, costs, strict=True)))
