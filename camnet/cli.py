@@ -30,6 +30,7 @@ COMMANDS = {
     "secure": "Write a rig's CA and certificates, for nodes that join with --secure DIR.",
     "export": "Write a calibration for OpenCV, COLMAP, ROS, Kalibr, anipose, or its points as PLY.",
     "report": "Write an HTML report of a calibration: errors, uncertainty, layout.",
+    "fuse": "Place two calibrated sites in one metric space, floors coinciding, facing each other.",
 }
 
 

@@ -30,6 +30,9 @@ Entity layout (application id ``camnet``, recording name = the rig)::
     series/centre_error_mm/<id>             with ground truth only: camera centre error, mm
     log                                     TextLog: one line per solve, solver warnings, failures
 
+Sites placed in one space (`camnet fuse`, `log_meeting`) are logged once, Z up, under
+``world/sites/<name>/cameras/<id>`` and ``world/sites/<name>/points``, over one ``world/floor``.
+
 Cameras and points are logged in the frame the calibration is written in
 (`camnet.model.calibration.in_world_frame`): the floor's where it has one,
 so that the cameras stand upright over the floor, the left camera's if not.
@@ -66,6 +69,8 @@ from camnet.viz_sinks import RerunSink
 
 if TYPE_CHECKING:
     import rerun as rr
+
+    from camnet.io.meeting import Meeting
 
 log = logging.getLogger(__name__)
 
@@ -346,7 +351,27 @@ def _log_world(rec: rr.RecordingStream, posed: WorldPosed, view: rr.ViewCoordina
                                                radii=rr.Radius.ui_points(0.75)))
 
 
-def _log_cameras(rec: rr.RecordingStream, posed: WorldPosed) -> None:
+def log_meeting(rec: rr.RecordingStream | None, meeting: Meeting) -> None:
+    """Log sites placed in one space (camnet.io.meeting), Z up over one floor grid: ``world/sites/<name>/cameras/
+    <id>`` and ``world/sites/<name>/points`` in the meeting frame. Unlike a live rig's logging, it raises: the
+    recording is what was asked for. None: nothing to do."""
+    if rec is None:
+        return
+    import rerun as rr
+
+    rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+    xy = []
+    for site in meeting.sites:
+        cameras, points = site.cameras(), site.points()
+        _log_cameras(rec, WorldPosed(FLOOR_FRAME, cameras, points), root=("world", "sites", site.name))
+        rec.log(_entity("world", "sites", site.name, "points"), rr.Points3D(points, radii=rr.Radius.ui_points(2.5)))
+        body = np.percentile(points, (1.0, 99.0), axis=0) if len(points) else np.empty((0, 3))
+        xy.append(np.vstack([np.array([c.centre for c in cameras]), body])[:, :2])
+    rec.log("world/floor", rr.LineStrips3D(floor_grid(np.vstack(xy)), colors=[(110, 110, 110)],
+                                           radii=rr.Radius.ui_points(0.75)))
+
+
+def _log_cameras(rec: rr.RecordingStream, posed: WorldPosed, *, root: tuple[str, ...] = ("world",)) -> None:
     import rerun as rr
 
     plane_m = None
@@ -357,7 +382,7 @@ def _log_cameras(rec: rr.RecordingStream, posed: WorldPosed) -> None:
         K = np.array(cam.K, dtype=float)
         K[:2, 2] += 0.5  # pixel centre to pixel corner origin
         rec.log(
-            _entity("world", "cameras", cam.id),
+            _entity(*root, "cameras", cam.id),
             rr.Transform3D(translation=cam.centre, mat3x3=cam.R.T),  # world_from_cam
             rr.Pinhole(image_from_camera=K, resolution=[cam.width, cam.height], camera_xyz=rr.ViewCoordinates.RDF,
                        image_plane_distance=plane_m),

@@ -29,7 +29,8 @@ OBSERVATIONS_FORMAT = "camnet.observations/1"
 CALIBRATION_FORMAT = "camnet.calibration/1"
 
 
-def _check_format(doc: Any, expected: str) -> None:
+def check_format(doc: Any, expected: str) -> None:
+    """Raise unless `doc` is a JSON object whose "format" is `expected`."""
     if not isinstance(doc, dict):
         raise InputError("document: expected a JSON object")
     fmt = v.require(doc, "format", "")
@@ -100,7 +101,7 @@ def parse_observations(doc: Any, *, any_distance: bool = False, max_tracks: int 
     max_tracks: refuse a document with more tracks (MAX_TRACKS for a solve),
     or, with `subsample_seed`, keep that many of them drawn at random.
     """
-    _check_format(doc, OBSERVATIONS_FORMAT)
+    check_format(doc, OBSERVATIONS_FORMAT)
     cams_raw = v.non_empty_list(v.require(doc, "cameras", ""), "cameras")
     cameras = tuple(_parse_camera(c, f"cameras[{i}]") for i, c in enumerate(cams_raw))
     ids = [c.id for c in cameras]
@@ -330,7 +331,7 @@ def _parse_camera_pose(c: Any, path: str) -> Camera:
 
 def parse_calibration(doc: Any) -> Calibration:
     """Validate a ``camnet.calibration/1`` document; its further keys, when present, become the report."""
-    _check_format(doc, CALIBRATION_FORMAT)
+    check_format(doc, CALIBRATION_FORMAT)
     cams_raw = v.non_empty_list(v.require(doc, "cameras", ""), "cameras")
     cameras = tuple(_parse_camera_pose(c, f"cameras[{i}]") for i, c in enumerate(cams_raw))
     ids, xyz = [], []
