@@ -32,6 +32,7 @@ from functools import partial
 import cv2
 import numpy as np
 
+from camnet.live.held_world import held_floor
 from camnet.live.judged_solve import Judged, Status, solve_judged
 from camnet.live.moved_cameras import MoveEvidence, drop_before, move_evidence, off_their_pose
 from camnet.live.newest_first import solve_newest_first
@@ -152,8 +153,8 @@ class Tracker:
         outcome = replace(outcome, told=told, solve_s=time.perf_counter() - t0)
         self.counts[outcome.status] += 1
         if outcome.status == Status.GOOD:
-            outcome = replace(outcome, calibration=self._second_opinion(solve_obs, outcome.calibration,
-                                                                        warm=outcome.warm),
+            checked = self._second_opinion(solve_obs, outcome.calibration, warm=outcome.warm)
+            outcome = replace(outcome, calibration=self._world_held(checked, moved),
                               solve_s=time.perf_counter() - t0)
             self.good = outcome.calibration
             # A moved camera left out stays to be placed again (by the checked warm path, with its lens).
@@ -186,6 +187,20 @@ class Tracker:
         self._pairs, self._lens = cal.report.pair_checks, cal.report.lens_shifts
         self._halves_at_s = time.monotonic()
         return cal
+
+    def _world_held(self, cal: Calibration, moved: tuple[str, ...]) -> Calibration:
+        """`cal` with the last good calibration's floor frame held, carried through the cameras that stayed
+        (camnet.live.held_world), where its floor has not moved beyond its sigmas; set anew and said so where it
+        has."""
+        if self.good is None or cal.floor_frame is None:
+            return cal
+        still = {c.id for c in cal.cameras} - set(moved) - set(self._pending)
+        frame, said = held_floor(self.good, cal, still)
+        if not said:
+            return replace(cal, floor_frame=frame)
+        log.info("%s", said)
+        report = cal.report if cal.report is None else replace(cal.report, warnings=(*cal.report.warnings, said))
+        return replace(cal, floor_frame=frame, report=report)
 
     def _waiting(self, obs: Observations) -> dict[str, str]:
         """The cameras of `obs` left out until the matcher has forgotten their views, with why."""

@@ -1,0 +1,63 @@
+"""The world frame held from solve to solve: a live rig's floor frame stays put while the floor does.
+
+Each solve finds the floor anew (camnet.solve.world_frame), and its frame
+jitters within its sigma; a moved camera, the left stereo camera above all,
+moves the left camera's frame in which a calibration is solved. So the
+frame of the last calibration is carried into the new one's left camera
+frame through the cameras that did not move, and kept where the new floor
+lies within HOLD_SIGMAS of its sigmas of it (up and height); only then is it
+set anew from the new floor, and said so.
+
+Frames: ``X_world = R @ X_left + t`` (camnet.model.calibration.FloorFrame),
+cameras ``x_cam = R X + t``, metres, degrees.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Collection
+from dataclasses import replace
+
+import numpy as np
+
+from camnet.model.calibration import Calibration, FloorFrame
+
+HOLD_SIGMAS = 3.0  # a new floor within this many of its sigmas of the held one is the same floor
+
+
+def old_from_new(previous: Calibration, new: Calibration, still: Collection[str]) -> tuple[np.ndarray, np.ndarray]:
+    """(A, b) with ``X_previous_left = A @ X_new_left + b``: the rigid motion between the two calibrations' left
+    camera frames that the cameras of `still` (in both) agree on. Raises ValueError where none is in both."""
+    before = {c.id: c for c in previous.cameras}
+    pairs = [(before[c.id], c) for c in new.cameras if c.id in before and c.id in still]
+    if not pairs:
+        raise ValueError("no camera that stayed is in both calibrations")
+    # Each camera's rotation gives A = R_old^T R_new; their chordal mean is the nearest rotation to the sum.
+    u, _, vt = np.linalg.svd(sum(old.R.T @ cam.R for old, cam in pairs))
+    A = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
+    b = np.mean([old.centre - A @ cam.centre for old, cam in pairs], axis=0)
+    return A, b
+
+
+def held_floor(previous: Calibration, new: Calibration, still: Collection[str]) -> tuple[FloorFrame, str]:
+    """(the floor frame for `new`, "" where the held one was kept, else why it was set anew).
+
+    previous: the last calibration published, its floor frame the one held; new: a solve of the same rig with a
+    floor frame of its own; still: the cameras that did not move between them. The held frame keeps its origin
+    and heading; it takes the new floor's sigmas.
+    """
+    frame = new.floor_frame
+    held = previous.floor_frame
+    if frame is None or held is None or not frame.found or not held.found:
+        return frame, ""
+    try:
+        A, b = old_from_new(previous, new, still)
+    except ValueError:
+        return frame, "the world frame was set anew: no camera that stayed is in both calibrations"
+    R, t = held.R @ A, held.R @ b + held.t
+    tilt_deg = float(np.degrees(np.arctan2(np.linalg.norm(np.cross(R[2], frame.R[2])), R[2] @ frame.R[2])))
+    origin = frame.R.T @ -frame.t  # the new frame's origin, on the new floor, in the new left frame
+    height_m = abs(float(R[2] @ origin + t[2]))
+    if tilt_deg <= HOLD_SIGMAS * frame.normal_sigma_deg and height_m <= HOLD_SIGMAS * frame.height_sigma_m:
+        return replace(frame, R=R, t=t), ""
+    return frame, (f"the world frame was set anew: the floor moved by {tilt_deg:.2f} deg and {1e3 * height_m:.0f} mm "
+                   f"({tilt_deg / frame.normal_sigma_deg:.1f} and {height_m / frame.height_sigma_m:.1f} sigma)")
