@@ -18,7 +18,10 @@ the scale (the similarity of the camera centres), every focal length and
 every rotation beside its reported 1 sigma, and the verdict; a run is
 `right` (within 3 sigma everywhere), `refused` (exit 2 with a reason),
 `poor and wrong`, `WRONG IN SILENCE` (good or usable, yet beyond 3 sigma) or
-`CRASH` (a traceback). Progress goes to stderr; the tables, Markdown, to
+`CRASH` (a traceback). Every calibration is written in the floor's frame
+(`world: floor`), and where the scene showed a floor its normal counts among
+what must lie within 3 sigma: against the normal of the plane the
+reference's camera centres lie in, where they lie in one. Progress goes to stderr; the tables, Markdown, to
 stdout.
 
     python benchmarks/bench_real.py [--scenes kitti,temple,fountain,castle,webcams4,fisheye] [--known none,K]
@@ -220,7 +223,8 @@ def rig_document(scene: Scene, cameras: list[str], known: str, drivers: dict[str
             if np.any(ref.dist):
                 entry["intrinsics"]["dist"] = ref.dist.tolist()
         entries.append(entry)
-    return {"rig": f"bench-{scene.name}", "stereo": stereo, "cameras": entries}
+    # In the floor's frame: its up is checked against the reference's where its camera centres give one.
+    return {"rig": f"bench-{scene.name}", "stereo": stereo, "world": "floor", "cameras": entries}
 
 
 @dataclass
@@ -294,7 +298,7 @@ def match_and_calibrate(scene: Scene, frame_set: str, known: str, work: Path) ->
     run.steps.append(match)
     if match.returncode != 0:
         return judged(run, scene, match, work / "cal.json")
-    solve = run_command("calibrate", ["calibrate", "obs.json", "-o", "cal.json", "--json"], work)
+    solve = run_command("calibrate", ["calibrate", "obs.json", "-o", "cal.json", "--json", "--world", "floor"], work)
     run.steps.append(solve)
     if solve.returncode == 0:
         run.summary_verdict = json.loads(solve.stdout.strip().splitlines()[-1]).get("verdict")
@@ -400,6 +404,16 @@ def summary_rows(runs: list[Run]) -> list[str]:
     return rows
 
 
+def floor_note(check: Check) -> str:
+    """The calibration's up against the reference's camera centres' plane, where both are."""
+    if check.floor is None:
+        return ""
+    tilt = check.floor.tilt_deg
+    if not check.floor.found:
+        return f"; no floor found, up from the cameras' down {tilt.error:.2f} deg off the reference's"
+    return f"; floor normal {tilt.error:.2f} deg off the reference's up (σ {tilt.sigma:.2f}, {sigmas(tilt.in_sigmas)}σ)"
+
+
 def detail_rows(scene: Scene, runs: list[Run]) -> list[str]:
     rows = [f"### {scene.name}", "",
             f"{len(scene.reference)} cameras; known pair {scene.left}-{scene.right}, {scene.baseline_m:.4f} m"
@@ -426,7 +440,7 @@ def detail_rows(scene: Scene, runs: list[Run]) -> list[str]:
                     else "")
         findings = f"; the rig's findings: {'; '.join(c.findings)}" if c.findings else ""
         notes.append(f"- {r.frame_set}, {r.known}: {r.outcome} ({c.level}); {scale}; RMS {c.rms_px:.2f} px"
-                     + findings + (f"; {left_out}" if left_out else "") + mismatch)
+                     + floor_note(c) + findings + (f"; {left_out}" if left_out else "") + mismatch)
     return [*rows, "", *notes, ""]
 
 

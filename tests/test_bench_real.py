@@ -148,3 +148,26 @@ def test_a_reference_in_its_left_cameras_frame_keeps_its_lens_model():
     moved = in_frame_of({c.id: c for c in [rig.cameras[0], rig.cameras[1], fisheye]}, "right")
     assert moved["mono_a"].model == LensModel.FISHEYE and np.array_equal(moved["mono_a"].dist, fisheye.dist)
     assert np.allclose(moved["right"].R, np.eye(3)) and np.allclose(moved["right"].t, 0.0)
+
+
+def test_a_floor_is_checked_against_the_plane_of_the_references_camera_centres():
+    from camnet.datasets.sigma_check import reference_up
+    from camnet.sim.simulate import with_floor
+    from camnet.solve.options import World
+
+    rig, truth_floor = with_floor(make_rig(n_points=300, seed=2), seed=2)  # level cameras, all at one height
+    cal = calibrate(observe(rig, seed=2, noise_px=0.3).observations, Options(world=World.FLOOR)).calibration
+    truth = in_another_frame(rig.cameras, rotation_exp(np.array([0.3, -1.2, 0.7])), np.array([5.0, -2.0, 40.0]))
+    assert cal.floor_frame.found
+    np.testing.assert_allclose(reference_up(list(in_frame_of(truth, "left").values())), truth_floor.up_left,
+                               atol=1e-9)
+    check = check_calibration(parse_calibration(calibration_to_doc(cal)), truth, "left")
+    assert check.floor.found and check.floor.tilt_deg.within(), check.floor
+    # The same floor turned 5 degrees: wrong, and among what lies beyond.
+    frame = cal.floor_frame
+    turned = replace(frame, R=frame.R @ rotation_exp(np.radians([5.0, 0.0, 0.0])))
+    check = check_calibration(replace(cal, floor_frame=turned), truth, "left")
+    assert "floor" in [what for what, _ in check.beyond()], check.floor
+    # Cameras along a line give no up: the floor is not judged.
+    line = {c.id: replace(c, t=-c.R @ (np.array([1.0, 0.0, 0.0]) * k)) for k, c in enumerate(truth.values())}
+    assert reference_up(list(line.values())) is None

@@ -75,9 +75,12 @@ def test_a_table_top_over_the_floor_showing_more_than_it_is_passed_over_and_the_
     fit = fit_floor(points, camera_down(np.array([c.R for c in cameras])), np.array([c.centre for c in cameras]))
     assert not isinstance(fit, str) and fit.inliers[:35].all() and fit.inliers.sum() == 35
     assert angle_deg(fit.normal, up_truth) < 1.0
-    assert fit.ambiguity.startswith("the floor is ambiguous: another plane 0.75 m above it holds about 70")
+    assert fit.ambiguity.startswith("the floor is ambiguous: another plane 0.75 m above it, tilted 0 degrees from "
+                                    "it, holds about 70"), fit.ambiguity
     frame = world_frame(calibration(cameras, points))
     assert frame.ambiguity == fit.ambiguity
+    # Its sigmas cover the other plane too, as a rival solution's are: its height within two of them.
+    assert 0.75 <= 2 * frame.floor.height_sigma_m < 0.8
     written = floor_frame(frame)  # as a calibration holds it: said in its document, and read back
     assert written.ambiguity == fit.ambiguity
     doc = calibration_to_doc(replace(calibration(cameras, points), floor_frame=written))

@@ -16,10 +16,16 @@ rotations and centres in the known pair's left camera's frame, which is the
 calibration's world frame (`camnet.datasets.published.compare_cameras`).
 Sigmas are the calibration's own: a rotation's and a centre's the root of
 their summed per-axis variances, 0 for what was held as given.
+
+A calibration with a floor frame has its up direction checked too, against
+the reference's: the normal of the plane its camera centres lie in (a
+photographer walking a scene, a rig's cameras at one height), where they lie
+in one (`reference_up`).
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import StrEnum
 
@@ -80,6 +86,15 @@ class CameraCheck:
 
 
 @dataclass(frozen=True)
+class FloorCheck:
+    """A calibration's up against the reference's: the angle between them (degrees) beside the floor's normal
+    sigma; where the scene showed no floor (`found` false), up is the cameras' down and no sigma judges it."""
+
+    tilt_deg: Measure
+    found: bool
+
+
+@dataclass(frozen=True)
 class Check:
     """A calibration against its reference."""
 
@@ -89,6 +104,7 @@ class Check:
     cameras: tuple[CameraCheck, ...]
     left_out: dict[str, str]  # camera id -> why the calibration left it out
     rms_px: float
+    floor: FloorCheck | None = None  # None: no floor frame, or a reference that gives no up
 
     def beyond(self, k: float = K_SIGMAS) -> list[tuple[str, float]]:
         """(what, error in sigmas) of the scale, focal lengths and rotations beyond `k` sigmas, worst first."""
@@ -96,6 +112,8 @@ class Check:
         for c in self.cameras:
             found += [(f"f {c.id}", c.focal_rel.in_sigmas)] if not c.focal_rel.within(k) else []
             found += [(f"rotation {c.id}", c.rotation_deg.in_sigmas)] if not c.rotation_deg.within(k) else []
+        if self.floor is not None and self.floor.found and not self.floor.tilt_deg.within(k):
+            found.append(("floor", self.floor.tilt_deg.in_sigmas))
         return sorted(found, key=lambda item: -item[1])
 
     def silent(self, k: float = K_SIGMAS) -> list[str]:
@@ -131,7 +149,36 @@ def check_calibration(cal: Calibration, reference: dict[str, Camera], left: str)
     left_out = dict(cal.report.cameras_left_out) if cal.report is not None else {}
     findings = tuple(f"{f.level.value}: {f.what}" for f in verdict.findings) if verdict is not None else ()
     return Check(verdict.level.value if verdict is not None else None, findings, scale, tuple(cameras), left_out,
-                 cal.rms_reprojection_px)
+                 cal.rms_reprojection_px, _floor_check(cal, in_frame_of(reference, left)))
+
+
+MIN_FLATNESS = 10.0  # camera centres lie in a plane where it is this many times wider, both ways, than thick
+
+
+def reference_up(cameras: Sequence[Camera]) -> np.ndarray | None:
+    """The up direction (3,) the cameras' centres give: the normal of the plane they lie in, on the side their
+    image y axes point away from (down); None where they lie along a line, spread in height as much as across, or
+    look sideways to the plane."""
+    if len(cameras) < 3:
+        return None
+    centres = np.array([c.centre for c in cameras])
+    _, spread, axes = np.linalg.svd(centres - centres.mean(axis=0), full_matrices=False)
+    if not spread[1] >= MIN_FLATNESS * spread[2]:
+        return None
+    up = -np.mean([c.R[1] for c in cameras], axis=0)  # each camera's image y axis in the world frame, negated
+    normal = axes[2] if axes[2] @ up >= 0 else -axes[2]
+    return normal if normal @ up >= np.linalg.norm(up) * np.cos(np.radians(45.0)) else None
+
+
+def _floor_check(cal: Calibration, reference: dict[str, Camera]) -> FloorCheck | None:
+    """`cal`'s up (its floor frame's Z in its left camera's frame) against `reference` in that frame."""
+    frame = cal.floor_frame
+    up = reference_up(list(reference.values())) if frame is not None else None
+    if up is None:
+        return None
+    tilt = float(np.degrees(np.arccos(np.clip(up @ frame.R[2], -1.0, 1.0))))
+    sigma = frame.normal_sigma_deg if frame.found else float("nan")
+    return FloorCheck(Measure(tilt, sigma), frame.found)
 
 
 def error_line(stderr: str) -> str:

@@ -162,6 +162,9 @@ class PlaneFit:
     axes: np.ndarray
     tilt_cov: np.ndarray
     ambiguity: str = ""  # another plane could be the floor: which, and that the lowest was taken
+    # That plane's tilt from this one's normal (degrees) and its height over it (metres): the floor's sigmas cover it.
+    rival_tilt_deg: float = 0.0
+    rival_height_m: float = 0.0
 
 
 def fit_floor(points: np.ndarray, down: np.ndarray, camera_centres: np.ndarray, *, seed: int = 0) -> PlaneFit | str:
@@ -178,7 +181,7 @@ def fit_floor(points: np.ndarray, down: np.ndarray, camera_centres: np.ndarray, 
     planes holding MIN_INLIERS are sought among the points below the one taken, down to the lowest (at most
     MAX_LOWER times); it is refitted by least squares to its inliers, twice, the second time to those within
     ROBUST_SIGMAS of 1.4826 times the median absolute residual. Another plane that may be the floor holding
-    RIVAL_SHARE of its points makes it ambiguous (PlaneFit.ambiguity).
+    RIVAL_SHARE of its points makes it ambiguous (PlaneFit.ambiguity, with that plane's tilt and height).
     """
     points = np.asarray(points, dtype=float).reshape(-1, 3)
     down = np.asarray(down, dtype=float)
@@ -234,12 +237,15 @@ def fit_floor(points: np.ndarray, down: np.ndarray, camera_centres: np.ndarray, 
     median, apart = _apart(on, heights, chosen, threshold)
     inliers = on.sum(axis=0)
     rivals = valid & apart & (inliers >= max(enough, RIVAL_SHARE * inliers[chosen]))
-    ambiguity = ""
+    ambiguity, rival_tilt_deg, rival_height_m = "", 0.0, 0.0
     if rivals.any():
         rival = int(np.argmax(np.where(rivals, inliers, -1)))
+        rival_tilt_deg = float(np.degrees(np.arccos(np.clip(normals[rival] @ normals[chosen], -1.0, 1.0))))
+        rival_height_m = float(median[rival])
         ambiguity = (f"the floor is ambiguous: another plane {abs(median[rival]):.2f} m "
-                     f"{'above' if median[rival] > 0 else 'below'} it holds about {int(inliers[rival] * per_scored)} "
-                     f"points to its {int(inliers[chosen] * per_scored)}; the lowest was taken")
+                     f"{'above' if median[rival] > 0 else 'below'} it, tilted {rival_tilt_deg:.0f} degrees from it, "
+                     f"holds about {int(inliers[rival] * per_scored)} points to its "
+                     f"{int(inliers[chosen] * per_scored)}; the lowest was taken, and the floor's sigmas cover both")
     normal, offset = normals[chosen], offsets[chosen]
     keep = np.abs(points @ normal - offset) <= threshold
     normal, offset = _refit(points[keep], up)
@@ -256,7 +262,8 @@ def fit_floor(points: np.ndarray, down: np.ndarray, camera_centres: np.ndarray, 
     s = float(np.sqrt(np.sum((on_floor @ normal - offset) ** 2) / max(n - 3, 1)))
     axes = np.linalg.svd(np.eye(3) - np.outer(normal, normal))[0][:, :2].T  # any orthonormal pair across the normal
     along = (on_floor - on_floor.mean(axis=0)) @ axes.T
-    return PlaneFit(normal, offset, keep, s, axes, s**2 * np.linalg.inv(along.T @ along), ambiguity)
+    return PlaneFit(normal, offset, keep, s, axes, s**2 * np.linalg.inv(along.T @ along), ambiguity, rival_tilt_deg,
+                    rival_height_m)
 
 
 def _apart(on: np.ndarray, heights: np.ndarray, chosen: int, threshold: float) -> tuple[np.ndarray, np.ndarray]:
@@ -391,6 +398,9 @@ def world_frame(cal: Calibration, *, x_toward: Sequence[str] = (), variance: Poi
                                       "capture volume")
     scale = cal.uncertainty.scale_rel.value if cal.uncertainty is not None else None
     floor = floor_sigmas(fit, cal.points, variance=variance, scale_rel=scale or 0.0)
+    if fit.ambiguity:  # the other plane within two sigmas, as a rival solution is (camnet.solve.report.rivals)
+        floor = replace(floor, normal_sigma_deg=float(np.hypot(floor.normal_sigma_deg, fit.rival_tilt_deg / 2)),
+                        height_sigma_m=float(np.hypot(floor.height_sigma_m, fit.rival_height_m / 2)))
     origin = centre - floor.height_m(centre)[0] * floor.up_left
     R, t = frame_from(floor.up_left, origin, toward)
     return WorldFrame(R, t, floor, ambiguity=fit.ambiguity)
