@@ -76,9 +76,10 @@ def run(args: argparse.Namespace) -> int:
     calibrations = [site_calibration(p) for p in args.calibrations]
     meeting = Meeting(layout, tuple(Site(n, c, p) for n, c, p in zip(names, calibrations, placements(layout, 2),
                                                                       strict=True)))
-    written = write_text_atomic(args.output, json.dumps(meeting_to_doc(meeting)))
-    rec = viz.open_recording(rig="meeting", sinks=sinks)
+    doc = json.dumps(meeting_to_doc(meeting))
+    rec = viz.open_recording(rig="meeting", sinks=sinks)  # a sink that cannot open leaves nothing written
     try:
+        written = write_text_atomic(args.output, doc)
         viz.log_meeting(rec, meeting)
     finally:
         viz.close_recording(rec)
