@@ -206,14 +206,14 @@ def test_the_live_calibrator_asks_again_once_half_its_pool_is_new_and_carries_th
 
 
 def _split_solved(obs, whole):
-    """The first split's sides and each half solved alone."""
+    """The first split's halves, each with its solution alone."""
     _, side = next(iter(track_sides(obs, whole)))
     halves = []
     for h in (0, 1):
         keep = side == h
         rows = keep[obs.track_index]
         part = replace(obs, cam_index=obs.cam_index[rows], track_index=obs.track_index[rows], uv=obs.uv[rows])
-        halves.append((keep, calibrate(part, Options(halves=False)).calibration))
+        halves.append((part, calibrate(part, Options(halves=False)).calibration))
     return halves
 
 
@@ -222,12 +222,12 @@ def test_a_half_whose_cold_solve_fell_short_of_its_own_minimum_is_ruled_out_and_
     _, obs = rig_and_obs
     whole = calibrate(obs, Options(halves=False)).calibration
     truncation = Options().truncation_px(whole.rms_reprojection_px)
-    (keep_a, a), (keep_b, b) = _split_solved(obs, whole)
+    (part_a, a), (part_b, b) = _split_solved(obs, whole)
     cam = whole.cameras[3].id
     lost = turned(b, cam, f_rel=0.15, rotation_deg=3.0)  # where a half's cold solve may stop
 
-    assert unsolved_half(obs, whole, ((keep_a, a), (keep_b, b)), truncation) == ""  # both solved
-    said = unsolved_half(obs, whole, ((keep_a, a), (keep_b, lost)), truncation)
+    assert unsolved_half(whole, ((part_a, a), (part_b, b)), truncation) == ""  # both solved
+    said = unsolved_half(whole, ((part_a, a), (part_b, lost)), truncation)
     assert said.startswith("the whole's solution fits half 2 better than that half's own, by"), said
     # The same through the check: the first split's second half is lost, the next split is compared instead.
     solves = iter([a, lost])
@@ -259,4 +259,4 @@ def test_halves_that_fit_themselves_better_than_the_whole_are_never_ruled_out(ri
     halves = tuple(_split_solved(obs, whole))
     cam = whole.cameras[3].id
 
-    assert unsolved_half(obs, turned(whole, cam, f_rel=0.15, rotation_deg=3.0), halves, truncation) == ""
+    assert unsolved_half(turned(whole, cam, f_rel=0.15, rotation_deg=3.0), halves, truncation) == ""

@@ -32,7 +32,7 @@ from enum import StrEnum
 import numpy as np
 
 from camnet.datasets.published import compare_cameras, in_frame_of
-from camnet.model.accuracy import scale_error, scale_sigma_rel
+from camnet.model.accuracy import angle_between_deg, scale_error, scale_sigma_rel
 from camnet.model.calibration import Calibration
 from camnet.model.camera import Camera
 from camnet.solve.report.verdict import Level, judge
@@ -176,7 +176,7 @@ def _floor_check(cal: Calibration, reference: dict[str, Camera]) -> FloorCheck |
     up = reference_up(list(reference.values())) if frame is not None else None
     if up is None:
         return None
-    tilt = float(np.degrees(np.arccos(np.clip(up @ frame.R[2], -1.0, 1.0))))
+    tilt = angle_between_deg(up, frame.R[2])
     sigma = frame.normal_sigma_deg if frame.found else float("nan")
     return FloorCheck(Measure(tilt, sigma), frame.found)
 

@@ -19,6 +19,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from camnet.model.accuracy import angle_between_deg
 from camnet.model.calibration import Calibration, FloorFrame
 
 HOLD_SIGMAS = 3.0  # a new floor within this many of its sigmas of the held one is the same floor
@@ -54,7 +55,7 @@ def held_floor(previous: Calibration, new: Calibration, still: Collection[str]) 
     except ValueError:
         return frame, "the world frame was set anew: no camera that stayed is in both calibrations"
     R, t = held.R @ A, held.R @ b + held.t
-    tilt_deg = float(np.degrees(np.arctan2(np.linalg.norm(np.cross(R[2], frame.R[2])), R[2] @ frame.R[2])))
+    tilt_deg = angle_between_deg(R[2], frame.R[2])
     origin = frame.R.T @ -frame.t  # the new frame's origin, on the new floor, in the new left frame
     height_m = abs(float(R[2] @ origin + t[2]))
     if tilt_deg <= HOLD_SIGMAS * frame.normal_sigma_deg and height_m <= HOLD_SIGMAS * frame.height_sigma_m:

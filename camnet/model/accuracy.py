@@ -74,6 +74,11 @@ def rotation_angle_deg(R: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
 
 
+def angle_between_deg(a: np.ndarray, b: np.ndarray) -> float:
+    """The angle (degrees, 0-180) between two 3-vectors."""
+    return float(np.degrees(np.arctan2(np.linalg.norm(np.cross(a, b)), np.dot(a, b))))
+
+
 def compare(cal: Calibration, truth_cameras: list[Camera], truth_points: np.ndarray) -> Comparison:
     """Errors of `cal` against the truth; truth_points are indexed by track id."""
     truth = {c.id: c for c in truth_cameras}

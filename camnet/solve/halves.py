@@ -140,8 +140,9 @@ def with_halves_check(obs: Observations, cal: Calibration, solve: Callable[[Obse
                 why = (f"no split keeps every camera's view in both halves ({in_words(short, noun='camera')} "
                        f"{'has' if len(short) == 1 else 'have'} too few observations for two)")
             continue
+        parts = (_half(obs, side == 0), _half(obs, side == 1))
         try:
-            a, b = solve(_half(obs, side == 0)), solve(_half(obs, side == 1))
+            a, b = solve(parts[0]), solve(parts[1])
         except SolveError as exc:
             why = f"a half {name} could not be solved alone: {str(exc).split(' (')[0]}"  # its first clause
             log.info("halves check: %s", why)
@@ -152,7 +153,7 @@ def with_halves_check(obs: Observations, cal: Calibration, solve: Callable[[Obse
             log.info("halves check: %s", why)
             continue
         diffs = differences(a, b)
-        short_of = _disagree(diffs) and unsolved_half(obs, cal, ((side == 0, a), (side == 1, b)), truncation_px)
+        short_of = _disagree(diffs) and unsolved_half(cal, ((parts[0], a), (parts[1], b)), truncation_px)
         if short_of:
             log.info("halves check: the split %s is ruled out: %s", name, short_of)
             dismissed.append(name)
@@ -170,16 +171,14 @@ def _disagree(diffs: dict[str, HalfDifference]) -> bool:
     return any(d.disagrees for d in diffs.values()) or sigma_factor(diffs) > 1.0
 
 
-def unsolved_half(obs: Observations, cal: Calibration, halves: tuple[tuple[np.ndarray, Calibration], ...],
-                  truncation_px: float) -> str:
+def unsolved_half(cal: Calibration, halves: tuple[tuple[Observations, Calibration], ...], truncation_px: float) -> str:
     """How a half's own solution falls short of the whole `cal`'s on that half's tracks (the module docstring's
-    rule), or "" where each half's fits it as well or better. halves: (keep (T,) bool per track row of `obs`,
-    that half's solution) each; costs MSAC's, truncated at `truncation_px`."""
+    rule), or "" where each half's fits it as well or better. halves: (that half's observations, its solution)
+    each; costs MSAC's, truncated at `truncation_px`."""
     sigma = cal.uncertainty.sigma_px if cal.uncertainty is not None else np.nan
     if not np.isfinite(sigma) or sigma <= 0.0:
         return ""
-    for k, (keep, half) in enumerate(halves):
-        part = _half(obs, keep)
+    for k, (part, half) in enumerate(halves):
         short = msac_cost(part, half, truncation_px) - msac_cost(part, cal, truncation_px)
         noise = cost_noise_px2(sigma, half.report.inliers if half.report is not None else 0)
         if short > NEAR_COST_SIGMAS * noise:

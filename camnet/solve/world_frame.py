@@ -22,6 +22,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from camnet.model.accuracy import angle_between_deg
 from camnet.model.calibration import Calibration, FloorFrame
 from camnet.model.camera import Camera
 from camnet.model.observations import Observations
@@ -240,7 +241,7 @@ def fit_floor(points: np.ndarray, down: np.ndarray, camera_centres: np.ndarray, 
     ambiguity, rival_tilt_deg, rival_height_m = "", 0.0, 0.0
     if rivals.any():
         rival = int(np.argmax(np.where(rivals, inliers, -1)))
-        rival_tilt_deg = float(np.degrees(np.arccos(np.clip(normals[rival] @ normals[chosen], -1.0, 1.0))))
+        rival_tilt_deg = angle_between_deg(normals[rival], normals[chosen])
         rival_height_m = float(median[rival])
         ambiguity = (f"the floor is ambiguous: another plane {abs(median[rival]):.2f} m "
                      f"{'above' if median[rival] > 0 else 'below'} it, tilted {rival_tilt_deg:.0f} degrees from it, "
