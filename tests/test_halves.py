@@ -20,7 +20,7 @@ from camnet.model.accuracy import scale_error
 from camnet.model.calibration import CameraSigmas
 from camnet.model.projection import rotation_exp
 from camnet.sim.simulate import make_rig, observe
-from camnet.solve import Options, calibrate
+from camnet.solve import Options, calibrate, solved_from
 from camnet.solve.halves import MIN_HALF_OBSERVATIONS, track_sides, unsolved_half, with_halves_check
 from camnet.solve.report.halves import DISAGREE_SIGMAS, INFLATE_FROM, differences, widened
 from camnet.solve.report.verdict import Level, judge
@@ -187,18 +187,21 @@ def test_the_check_is_written_and_read_back(solved):
     assert parse_calibration(old).report.halves is None
 
 
-def test_the_live_calibrator_asks_again_once_half_its_pool_is_new_and_carries_the_last_answer_between():
+@pytest.mark.parametrize("interval_s", [0.0, 1e9])
+def test_the_live_calibrator_asks_again_once_half_its_pool_is_new_and_carries_the_last_answer_between(interval_s):
+    # Asked again once half the pool is new and the interval is up (live, a minute apart at least), or where the
+    # pool has doubled however recent the last check (1e9: never for the time alone).
     rig = make_rig(n_points=300, seed=1)
     first = observe(rig, seed=1).observations
-    tracker = Tracker(LiveConfig(halves_interval_s=0.0))  # live, a minute apart at least
+    tracker = Tracker(LiveConfig(halves_interval_s=interval_s))
 
     asked = tracker.update(first).calibration.report.halves
-    # A few new tracks: the last answer is carried, not asked again.
-    few = pooled(first, observe(replace(rig, points=rig.points[:30] + 0.002), seed=2).observations)
-    carried = tracker.update(few).calibration.report.halves
-    # As many new tracks again as the pool held: asked afresh.
-    many = pooled(few, observe(replace(rig, points=rig.points + 0.003), seed=3).observations)
-    again = tracker.update(many).calibration.report.halves
+    # A third of the pool new: the last answer is carried, not asked again.
+    third = pooled(first, observe(replace(rig, points=rig.points[:150] + 0.002), seed=2).observations)
+    carried = tracker.update(third).calibration.report.halves
+    # As many new tracks again as the pool held: half of it new, the pool doubled: asked afresh.
+    twice = pooled(first, observe(replace(rig, points=rig.points + 0.003), seed=3).observations)
+    again = tracker.update(twice).calibration.report.halves
 
     assert asked.splits == 1
     assert carried.half_differences == asked.half_differences and carried.in_sigmas == asked.in_sigmas
@@ -249,6 +252,36 @@ def test_a_half_whose_cold_solve_fell_short_of_its_own_minimum_is_ruled_out_and_
     assert lost_every.report.halves.splits == 0 and len(lost_every.report.halves.ruled_out) == 3
     assert "its cold solve fell short of its own minimum" in lost_every.report.halves.reason
     assert judge(lost_every).level == Level.POOR
+
+
+def test_a_half_stopped_along_a_valley_is_compared_at_its_better_solution_from_the_whole(rig_and_obs):
+    # A weak half's cold solve can stop where its cost has barely risen, several of its sigmas from a solution as
+    # good: its focal length held 8% off and the rest solved to it, as such a stop would be.
+    _, obs = rig_and_obs
+    whole = calibrate(obs, Options(halves=False)).calibration
+    truncation = Options().truncation_px(whole.rms_reprojection_px)
+    (part_a, a), (part_b, b) = _split_solved(obs, whole)
+    cam = whole.cameras[3].id
+    held_f = Options(halves=False, free=frozenset({"stereo_rotation", "stereo_direction"}))
+    stopped = calibrate(part_b, held_f, initial=turned(b, cam, f_rel=0.08)).calibration
+    assert unsolved_half(whole, ((part_a, a), (part_b, stopped)), truncation) == ""  # within a cost's noise
+
+    def checked(polish):
+        solves = iter([a, stopped])
+        return with_halves_check(obs, whole, lambda half: next(solves, None) or calibrate(
+            half, Options(halves=False)).calibration, truncation_px=truncation, polish=polish).report.halves
+
+    alone = checked(None)
+    assert alone.splits == 1 and f"f {cam}" in alone.widened, alone
+    from_whole = checked(lambda half, start: solved_from(half, Options(halves=False), start))
+    assert from_whole.from_whole == ("half 2 across the widest axis",), from_whole
+    assert not from_whole.widened and from_whole.sigma_factor == 1.0, from_whole
+    assert from_whole.in_sigmas[f"f {cam}"] < DISAGREE_SIGMAS
+    assert parse_calibration(calibration_to_doc(replace(whole, report=replace(
+        whole.report, halves=from_whole)))).report.halves == from_whole
+    # A solution from the whole's start that fits a half worse than its cold one leaves the disagreement.
+    worse = checked(lambda half, start: turned(start, cam, f_rel=0.15))
+    assert worse.from_whole == () and f"f {cam}" in worse.widened, worse
 
 
 def test_halves_that_fit_themselves_better_than_the_whole_are_never_ruled_out(rig_and_obs):

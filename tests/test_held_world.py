@@ -8,7 +8,8 @@ import numpy as np
 from camnet.live.held_world import HOLD_SIGMAS, held_floor
 from camnet.live.policy import LIVE_FREE, LiveConfig
 from camnet.live.tracker import Tracker
-from camnet.model.calibration import in_world_frame
+from camnet.model.calibration import FloorFrame, in_world_frame
+from camnet.model.projection import rotation_exp
 from camnet.sim.simulate import make_rig, observe, with_floor
 from camnet.solve import Options
 from camnet.solve.options import World
@@ -70,3 +71,46 @@ def test_a_floor_that_moved_beyond_its_sigmas_is_set_anew_and_said_so():
     near = replace(cal, floor_frame=replace(frame, t=frame.t + [0.0, 0.0, 0.5 * HOLD_SIGMAS * frame.height_sigma_m]))
     kept, said = held_floor(cal, near, {c.id for c in cal.cameras})
     assert said == "" and np.allclose(kept.t, frame.t) and np.allclose(kept.R, frame.R)
+
+
+def test_a_solve_that_sees_no_floor_keeps_the_held_frame_through_the_cameras_that_stayed():
+    # After a stereo head's move the rig is solved afresh from the new tracks alone, in the moved left camera's
+    # frame, and those may show no floor: the floor has not left the room, so the held frame is carried.
+    rig = floor_rig(2)
+    tracker = Tracker(LiveConfig(options=Options(free=LIVE_FREE, world=World.FLOOR)))
+    cal = tracker.update(observe(rig, seed=1).observations).calibration
+    Q, d = rotation_exp(np.radians([2.0, -5.0, 1.0])), np.array([0.04, -0.02, 0.01])  # X_new = Q X + d
+    cameras = []
+    for c in cal.cameras:
+        R = c.R @ Q.T
+        cameras.append(replace(c, R=R, t=-R @ (Q @ c.centre + d)))
+    unseen = FloorFrame(np.eye(3), np.zeros(3), reason="no floor in view (none below the cameras)")
+    new = replace(cal, cameras=tuple(cameras), floor_frame=unseen)
+
+    kept, said = held_floor(cal, new, {c.id for c in cal.cameras})
+
+    assert said == "" and kept.found, said
+    assert (kept.normal_sigma_deg, kept.height_sigma_m) == (cal.floor_frame.normal_sigma_deg,
+                                                           cal.floor_frame.height_sigma_m)
+    was, now = centres(cal), centres(replace(new, floor_frame=kept))
+    for cam_id in was:
+        assert np.linalg.norm(now[cam_id] - was[cam_id]) < 1e-9, cam_id
+
+
+def test_the_left_camera_moved_keeps_the_world_frame_and_says_nothing_of_a_floor_out_of_view():
+    before = floor_rig(3)
+    tracker = Tracker(LiveConfig(options=Options(free=LIVE_FREE, world=World.FLOOR)))
+    first = tracker.update(observe(before, seed=5).observations)
+    after = replace(floor_rig(4), cameras=[moved(before.cameras[0], np.array([0.0, -0.04, 0.0]), 0.0),
+                                           *before.cameras[1:]])
+
+    out = tracker.update(pooled(observe(before, seed=5).observations, observe(after, seed=6).observations))
+
+    assert out.status == "good" and out.moved == ("left",), (out.reason, out.moved)
+    frame = out.calibration.floor_frame
+    assert frame.found and frame.normal_sigma_deg == first.calibration.floor_frame.normal_sigma_deg
+    assert not any(w.startswith("no floor in view") for w in out.calibration.warnings), out.calibration.warnings
+    # The world frame is the one held: the right camera, which stayed, keeps its place in it to a few cm (the left
+    # camera's move alone changed the stereo baseline the solve holds at its known length).
+    was, now = centres(first.calibration), centres(out.calibration)
+    assert np.linalg.norm(now["right"] - was["right"]) < 0.03

@@ -158,6 +158,8 @@ def _halves_to_doc(h: HalvesCheck) -> dict:
         out["reason"] = h.reason
     if h.ruled_out:
         out["ruled_out"] = list(h.ruled_out)
+    if h.from_whole:
+        out["from_whole"] = list(h.from_whole)
     return out
 
 
@@ -276,7 +278,8 @@ def _parse_halves(value: Any, path: str) -> HalvesCheck:
     return HalvesCheck(v.integer(v.require(value, "splits", path), f"{path}.splits"), numbers["half_differences"],
                        numbers["in_sigmas"], tuple(v.strings(value.get("widened", []), f"{path}.widened")),
                        v.number(value.get("sigma_factor", 1.0), f"{path}.sigma_factor", positive=True),
-                       str(value.get("reason", "")), tuple(v.strings(value.get("ruled_out", []), f"{path}.ruled_out")))
+                       str(value.get("reason", "")), tuple(v.strings(value.get("ruled_out", []), f"{path}.ruled_out")),
+                       tuple(v.strings(value.get("from_whole", []), f"{path}.from_whole")))
 
 
 def _parse_camera_stats(value: Any, path: str) -> dict[str, CameraStats]:

@@ -44,17 +44,19 @@ def held_floor(previous: Calibration, new: Calibration, still: Collection[str]) 
 
     previous: the last calibration published, its floor frame the one held; new: a solve of the same rig with a
     floor frame of its own; still: the cameras that did not move between them. The held frame keeps its origin
-    and heading; it takes the new floor's sigmas.
+    and heading; it takes the new floor's sigmas, or keeps its own where the new solve found no floor.
     """
     frame = new.floor_frame
     held = previous.floor_frame
-    if frame is None or held is None or not frame.found or not held.found:
+    if frame is None or held is None or not held.found:
         return frame, ""
     try:
         A, b = old_from_new(previous, new, still)
     except ValueError:
         return frame, "the world frame was set anew: no camera that stayed is in both calibrations"
     R, t = held.R @ A, held.R @ b + held.t
+    if not frame.found:  # the floor is out of this solve's tracks (fresh ones after a move), not out of the room
+        return replace(held, R=R, t=t), ""
     tilt_deg = angle_between_deg(R[2], frame.R[2])
     origin = frame.R.T @ -frame.t  # the new frame's origin, on the new floor, in the new left frame
     height_m = abs(float(R[2] @ origin + t[2]))

@@ -50,6 +50,9 @@ log = logging.getLogger(__name__)
 # A second opinion is asked afresh once this share of the pool is newer than the last one saw: in between, the
 # last one's half-differences are carried (a check costs two cold solves of half the pool).
 HALVES_TURNOVER = 0.5
+# A pool grown to this many times the one the last check saw is asked afresh, however recent the check: a
+# rig's first pools are a few frame sets, whose halves are weak and whose check says little of the pool after.
+HALVES_GROWTH = 2.0
 # Each half of a live check keeps at most this many tracks: a check of a long pool holds up the calibrations
 # no longer than a cold solve of this size.
 HALVES_MAX_TRACKS = 600
@@ -103,6 +106,7 @@ class Tracker:
     # The last second opinion (camnet.solve.halves) and the newest track id it saw.
     _halves: HalvesCheck | None = None
     _halves_max_id: int = -1
+    _halves_tracks: int = 0  # the pool's tracks it saw
     _halves_at_s: float = -np.inf
     _pairs: tuple[PairPoseCheck, ...] = ()  # the pair checks made with the last second opinion
     _lens: Mapping[str, LensShift] | None = None  # and the lens check (camnet.solve.lens_check)
@@ -167,13 +171,15 @@ class Tracker:
     def _second_opinion(self, obs: Observations, cal: Calibration, *, warm: bool) -> Calibration:
         """`cal` with the halves check and the pair check (camnet.solve.pair_check): asked afresh where at least
         HALVES_TURNOVER of the pool is newer than the last check saw (the first time, and after a move) and
-        `halves_interval_s` have passed since, else the last checks carried over. Asked afresh, a `warm` solve is
-        first solved on with the free rule tried again (`_freed_again`)."""
+        `halves_interval_s` have passed since or the pool has grown HALVES_GROWTH times, else the last checks
+        carried over. Asked afresh, a `warm` solve is first solved on with the free rule tried again
+        (`_freed_again`)."""
         if not self.config.options.halves:
             return cal
         turnover = float(np.mean(obs.track_ids > self._halves_max_id)) if len(obs.track_ids) else 0.0
         recent = time.monotonic() - self._halves_at_s < self.config.halves_interval_s
-        if self._halves is not None and (turnover < HALVES_TURNOVER or recent):
+        grown = len(obs.track_ids) >= HALVES_GROWTH * self._halves_tracks
+        if self._halves is not None and (turnover < HALVES_TURNOVER or (recent and not grown)):
             return with_lens_carried(with_pairs_carried(with_check_carried(cal, self._halves), self._pairs),
                                      self._lens)
         if warm:
@@ -181,9 +187,11 @@ class Tracker:
         cold = self._options
         cal = with_halves_check(obs, cal, lambda half: calibrate(half, cold).calibration,
                                 truncation_px=cold.truncation_px(cal.rms_reprojection_px),
-                                max_half_tracks=HALVES_MAX_TRACKS)
+                                max_half_tracks=HALVES_MAX_TRACKS, polish=lambda half, start: solved_from(
+                                    half, cold, start))
         cal = with_lens_check(obs, with_pair_check(obs, cal), self.config.options, solved_from)
         self._halves, self._halves_max_id = cal.report.halves, int(obs.track_ids.max())
+        self._halves_tracks = len(obs.track_ids)
         self._pairs, self._lens = cal.report.pair_checks, cal.report.lens_shifts
         self._halves_at_s = time.monotonic()
         return cal
@@ -197,6 +205,10 @@ class Tracker:
         still = {c.id for c in cal.cameras} - set(moved) - set(self._pending)
         frame, said = held_floor(self.good, cal, still)
         if not said:
+            unseen = cal.floor_frame.reason if frame.found and not cal.floor_frame.found else ""
+            if unseen and cal.report is not None:  # held through a solve that saw no floor: its warning is moot
+                cal = replace(cal, report=replace(cal.report, warnings=tuple(
+                    w for w in cal.report.warnings if w != unseen)))
             return replace(cal, floor_frame=frame)
         log.info("%s", said)
         report = cal.report if cal.report is None else replace(cal.report, warnings=(*cal.report.warnings, said))

@@ -154,7 +154,9 @@ class HalvesCheck:
     (relative), "f CAM" (relative), "rotation CAM" (degrees), "centre CAM" (metres); in_sigmas: that difference
     over the sigma the two halves' own uncertainties give it; widened: the parameters the halves disagreed on
     beyond their sigmas, whose reported sigma was widened to the half-difference; sigma_factor: what every reported
-    sigma was multiplied by, where the halves differ more than their sigmas allow over all parameters (1: not).
+    sigma was multiplied by, where the halves differ more than their sigmas allow over all parameters (1: not);
+    from_whole: the halves compared at their solution from the whole's start, which fit them better than their cold
+    one ("half 2 across the widest axis").
     """
 
     splits: int
@@ -164,6 +166,7 @@ class HalvesCheck:
     sigma_factor: float = 1.0
     reason: str = ""
     ruled_out: tuple[str, ...] = ()  # by name ("across the widest axis")
+    from_whole: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)

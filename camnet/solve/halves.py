@@ -19,6 +19,15 @@ weighed: camnet.solve.report.rivals): that half was not solved, so the split
 says nothing of the whole. A half's own solution fits it better than the
 whole's does wherever it was solved, however far apart the two lie.
 
+A half the scene leaves weak can lie in a valley along which its cost
+barely changes: its cold solve stops anywhere along it, and the curvature
+there, which knows nothing of the valley's length, calls a point as good as
+the whole's several sigmas away. So the halves of a split that disagree are
+each solved again from the whole's solution, and compared at whichever of
+the two solutions fits that half better: where the half's data prefer its
+cold solution, the disagreement stands; where one near the whole fits it as
+well or better, the half never said otherwise.
+
 Split tracks by position: points in metres, in the calibration's world frame.
 """
 
@@ -87,9 +96,9 @@ def _thinned(obs: Observations, side: np.ndarray, most: int) -> np.ndarray:
                 spare = tracks[~kept[tracks]]
                 kept[spare[np.linspace(0, len(spare) - 1, min(short, len(spare))).astype(int)]] = True
         rest = rows[~kept[rows]]
-        room = most - int(kept.sum())
-        if room > 0:
-            kept[rest[:: max(1, int(np.ceil(len(rest) / room)))]] = True
+        room = min(most - int(kept.sum()), len(rest))
+        if room > 0:  # `room` of them, drawn evenly: every k-th with k rounded up would keep as few as half
+            kept[rest[np.linspace(0, len(rest) - 1, room).round().astype(int)]] = True
         out[kept] = h
     return out
 
@@ -110,11 +119,14 @@ def _short(obs: Observations, side: np.ndarray, cameras: list[str]) -> list[str]
 
 
 def with_halves_check(obs: Observations, cal: Calibration, solve: Callable[[Observations], Calibration], *,
-                      truncation_px: float, max_half_tracks: int | None = None) -> Calibration:
+                      truncation_px: float, max_half_tracks: int | None = None,
+                      polish: Callable[[Observations, Calibration], Calibration] | None = None) -> Calibration:
     """`cal` with its report's `halves` check, and its sigmas widened where the halves disagree.
 
     solve: solves observations with the whole's options from a cold start, with no halves check of its own; raises
     SolveError where it cannot. A half that cannot be solved ends its split, which is not compared.
+    polish: solves observations the same way from a given calibration's start (the module docstring: a disagreeing
+    half compared at the better of its two solutions); None: each half at its cold solution.
     truncation_px: the MSAC cost's truncation, by which a split's disagreement is ruled out (`ruled_out`).
     max_half_tracks: each half keeps at most this many of its tracks, drawn evenly (None: all), so that a live
     calibrator's check of a long pool costs two cold solves of a bounded size.
@@ -126,6 +138,7 @@ def with_halves_check(obs: Observations, cal: Calibration, solve: Callable[[Obse
     cameras = [c.id for c in cal.cameras]
     compared: list[dict[str, HalfDifference]] = []
     dismissed: list[str] = []
+    from_whole: list[str] = []
     why = "no split keeps every camera's view in both halves"
     fewest: list[str] | None = None
     for name, side in track_sides(obs, cal):
@@ -153,22 +166,45 @@ def with_halves_check(obs: Observations, cal: Calibration, solve: Callable[[Obse
             log.info("halves check: %s", why)
             continue
         diffs = differences(a, b)
-        short_of = _disagree(diffs) and unsolved_half(cal, ((parts[0], a), (parts[1], b)), truncation_px)
-        if short_of:
-            log.info("halves check: the split %s is ruled out: %s", name, short_of)
-            dismissed.append(name)
-            why = f"the split {name} is ruled out: {short_of}"
-            continue
+        if _disagree(diffs):
+            short_of = unsolved_half(cal, ((parts[0], a), (parts[1], b)), truncation_px)
+            if short_of:
+                log.info("halves check: the split %s is ruled out: %s", name, short_of)
+                dismissed.append(name)
+                why = f"the split {name} is ruled out: {short_of}"
+                continue
+            if polish is not None:
+                cold = (a, b)
+                better = [_better(parts[k], cold[k], polish, cal, truncation_px) for k in (0, 1)]
+                from_whole += [f"half {k + 1} {name}" for k in (0, 1) if better[k] is not cold[k]]
+                diffs = differences(*better)
         compared.append(diffs)
     report = replace(report, timings_s={**report.timings_s, "halves": time.perf_counter() - t0})
     if not compared:
         return replace(cal, report=replace(report, halves=HalvesCheck(0, reason=why, ruled_out=tuple(dismissed))))
-    return _widened_by(replace(cal, report=report), widest(compared), len(compared), tuple(dismissed))
+    return _widened_by(replace(cal, report=report), widest(compared), len(compared), tuple(dismissed),
+                       tuple(from_whole))
 
 
 def _disagree(diffs: dict[str, HalfDifference]) -> bool:
     """Whether the halves differ anywhere beyond their sigmas: one parameter, or all of them together."""
     return any(d.disagrees for d in diffs.values()) or sigma_factor(diffs) > 1.0
+
+
+def _better(part: Observations, cold: Calibration, polish: Callable[[Observations, Calibration], Calibration],
+            whole: Calibration, truncation_px: float) -> Calibration:
+    """Of a half's `cold` solution and its solution from the `whole`'s start, the one of lower MSAC cost on the
+    half's observations `part` (truncated at `truncation_px`), by more than one observation's expected cost (less
+    is the solver's tolerance: two solutions that close are one); `cold` where the other cannot be had or leaves
+    out a camera `cold` placed."""
+    try:
+        warm = polish(part, whole)
+    except SolveError:
+        return cold
+    if {c.id for c in cold.cameras} - {c.id for c in warm.cameras}:
+        return cold
+    one = 2.0 * whole.uncertainty.sigma_px**2  # px^2, two axes
+    return warm if msac_cost(part, warm, truncation_px) < msac_cost(part, cold, truncation_px) - one else cold
 
 
 def unsolved_half(cal: Calibration, halves: tuple[tuple[Observations, Calibration], ...], truncation_px: float) -> str:
@@ -198,17 +234,17 @@ def with_check_carried(cal: Calibration, check: HalvesCheck) -> Calibration:
     # Each difference's sigma back from its half and its ratio (infinite where the ratio was 0: none needed).
     diffs = {name: HalfDifference(half, half / check.in_sigmas[name] if check.in_sigmas.get(name) else np.inf)
              for name, half in check.half_differences.items()}
-    return _widened_by(cal, diffs, check.splits, check.ruled_out)
+    return _widened_by(cal, diffs, check.splits, check.ruled_out, check.from_whole)
 
 
 def _widened_by(cal: Calibration, diffs: dict[str, HalfDifference], splits: int,
-                ruled: tuple[str, ...] = ()) -> Calibration:
+                ruled: tuple[str, ...] = (), from_whole: tuple[str, ...] = ()) -> Calibration:
     """`cal` with its sigmas widened to the halves' `diffs`, the check in its report (`ruled`: the splits ruled
-    out), any disagreement warned."""
+    out; `from_whole`: the halves compared at their solution from the whole's start), any disagreement warned."""
     report = cal.report
     uncertainty, raised, factor = widened(report.uncertainty, cal, diffs)
     check = HalvesCheck(splits, {k: d.half for k, d in diffs.items()}, {k: d.in_sigmas for k, d in diffs.items()},
-                        raised, factor, ruled_out=ruled)
+                        raised, factor, ruled_out=ruled, from_whole=from_whole)
     said = raised or factor > 1.0
     warnings = report.warnings + ((disagreement_warning(diffs, raised, factor),) if said else ())
     floor = cal.floor_frame

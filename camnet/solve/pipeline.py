@@ -200,7 +200,8 @@ def with_second_opinion(obs: Observations, cal: Calibration, options: Options) -
     # Each half from a cold start: warm from the whole, it keeps the whole's outliers and basin and agrees.
     alone = replace(options, halves=False, world=World.LEFT_CAMERA)
     cal = with_halves_check(obs, cal, lambda half: calibrate(half, alone).calibration,
-                            truncation_px=options.truncation_px(cal.rms_reprojection_px))
+                            truncation_px=options.truncation_px(cal.rms_reprojection_px),
+                            polish=lambda half, start: solved_from(half, alone, start))
     return with_lens_check(obs, with_pair_check(obs, cal), options, solved_from)
 
 
