@@ -95,22 +95,57 @@ def test_a_solve_that_sees_no_floor_keeps_the_held_frame_through_the_cameras_tha
     was, now = centres(cal), centres(replace(new, floor_frame=kept))
     for cam_id in was:
         assert np.linalg.norm(now[cam_id] - was[cam_id]) < 1e-9, cam_id
+    # The tracker's calibration keeps the held frame, and no warning of a floor out of view.
+    warned = replace(new, report=replace(new.report, warnings=(*new.report.warnings, unseen.reason)))
+    held = tracker._world_held(warned, ())
+    assert np.allclose(held.floor_frame.R, kept.R) and np.allclose(held.floor_frame.t, kept.t)
+    assert held.floor_frame.found and unseen.reason not in held.warnings, held.warnings
 
 
-def test_the_left_camera_moved_keeps_the_world_frame_and_says_nothing_of_a_floor_out_of_view():
-    before = floor_rig(3)
+def surround(seed: int):
+    rig, _ = with_floor(make_rig(n_cameras=8, n_points=400, seed=seed), pitch_deg=10.0, seed=seed)
+    return rig
+
+
+def moved_at_once(indices: list[int]):
+    """(tracker, its first outcome, the outcome on a pool of tracks from before and after the cameras at
+    `indices` moved 4 cm down in the left camera's frame, that shift) on an 8-camera rig, world frame floor."""
+    before = surround(3)
     tracker = Tracker(LiveConfig(options=Options(free=LIVE_FREE, world=World.FLOOR)))
     first = tracker.update(observe(before, seed=5).observations)
-    after = replace(floor_rig(4), cameras=[moved(before.cameras[0], np.array([0.0, -0.04, 0.0]), 0.0),
-                                           *before.cameras[1:]])
+    assert first.status == "good" and first.calibration.floor_frame.found, first.reason
+    shift = np.array([0.0, 0.04, 0.0])
+    cameras = [moved(c, shift, 0.0) if k in indices else c for k, c in enumerate(before.cameras)]
+    after = replace(surround(4), cameras=cameras)
+    pool = pooled(observe(before, seed=5).observations, observe(after, seed=6).observations)
+    return tracker, first, tracker.update(pool), shift
 
-    out = tracker.update(pooled(observe(before, seed=5).observations, observe(after, seed=6).observations))
 
-    assert out.status == "good" and out.moved == ("left",), (out.reason, out.moved)
-    frame = out.calibration.floor_frame
-    assert frame.found and frame.normal_sigma_deg == first.calibration.floor_frame.normal_sigma_deg
-    assert not any(w.startswith("no floor in view") for w in out.calibration.warnings), out.calibration.warnings
-    # The world frame is the one held: the right camera, which stayed, keeps its place in it to a few cm (the left
-    # camera's move alone changed the stereo baseline the solve holds at its known length).
+def test_a_stereo_head_moved_is_found_and_moves_only_itself_in_the_world():
+    # Each of the pair sees most of its tracks with the other, which puts them all off: each is judged without
+    # its partner, the rig solved afresh from the new tracks, and the world held through the cameras that stayed.
+    _, first, out, shift = moved_at_once([0, 1])
+
+    assert out.status == "good" and out.moved == ("left", "right"), (out.reason, out.moved)
+    cal, was = out.calibration, centres(first.calibration)
+    # The new tracks alone may show no floor: the frame held says nothing of one out of view.
+    assert cal.floor_frame.found and not any(w.startswith("no floor in view") for w in cal.warnings), cal.warnings
+    now, sigma = centres(cal), cal.uncertainty.cameras
+    drop = first.calibration.floor_frame.R @ shift  # the same 4 cm in the world frame
+    for cam_id in now:
+        expected = was[cam_id] + (drop if cam_id in ("left", "right") else 0.0)
+        error = np.linalg.norm(now[cam_id] - expected)
+        assert error <= 3 * np.linalg.norm(sigma[cam_id].centre_m) + 1e-3, (cam_id, error)
+
+
+def test_one_stereo_camera_moved_alone_is_not_placed_again_on_a_known_distance_that_no_longer_holds():
+    # Solved afresh, the rig would take its scale from the pair's distance, which the move changed: the cameras
+    # that stayed say so, and the last calibration's evidence stands, with why.
+    _, first, out, _ = moved_at_once([0])
+
+    assert out.status == "good" and out.moved == (), (out.reason, out.moved)
+    said = [w for w in out.calibration.warnings if w.startswith("camera left moved, not placed again: ")]
+    assert said and "the stereo pair's known distance no longer holds" in said[0], out.calibration.warnings
     was, now = centres(first.calibration), centres(out.calibration)
-    assert np.linalg.norm(now["right"] - was["right"]) < 0.03
+    for cam_id in now:
+        assert np.linalg.norm(now[cam_id] - was[cam_id]) < 0.005, cam_id

@@ -19,10 +19,11 @@ from dataclasses import replace
 
 import numpy as np
 
-from camnet.model.accuracy import angle_between_deg
+from camnet.model.accuracy import angle_between_deg, scale_error
 from camnet.model.calibration import Calibration, FloorFrame
 
 HOLD_SIGMAS = 3.0  # a new floor within this many of its sigmas of the held one is the same floor
+MIN_SCALE_CAMERAS = 3  # a scale between two sets of camera centres needs a triangle
 
 
 def old_from_new(previous: Calibration, new: Calibration, still: Collection[str]) -> tuple[np.ndarray, np.ndarray]:
@@ -37,6 +38,27 @@ def old_from_new(previous: Calibration, new: Calibration, still: Collection[str]
     A = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
     b = np.mean([old.centre - A @ cam.centre for old, cam in pairs], axis=0)
     return A, b
+
+
+def scale_apart(previous: Calibration, new: Calibration, still: Collection[str]) -> str:
+    """Why `new`'s scale cannot stand beside `previous`'s ("" where it can): the cameras of `still` (in both,
+    three or more) lie further apart or nearer in `new` than in `previous` by more than HOLD_SIGMAS of the two
+    scales' sigmas together. A rig solved afresh after a stereo camera moved takes its scale from the stereo
+    pair's known distance; where one of the pair moved without the other, that distance no longer holds, while
+    the cameras that stayed keep theirs."""
+    before = {c.id: c for c in previous.cameras}
+    pairs = [(before[c.id].centre, c.centre) for c in new.cameras if c.id in before and c.id in still]
+    sigmas = [cal.uncertainty.scale_rel.value if cal.uncertainty is not None else None for cal in (previous, new)]
+    if len(pairs) < MIN_SCALE_CAMERAS or None in sigmas:
+        return ""
+    error = scale_error(np.array([n for _, n in pairs]), np.array([p for p, _ in pairs]))
+    sigma = float(np.hypot(*sigmas))
+    if abs(error) <= HOLD_SIGMAS * sigma:
+        return ""
+    return (f"the cameras that stayed lie {100 * abs(error):.1f}% {'further apart' if error > 0 else 'nearer'} "
+            f"in the solve after the move than before ({abs(error) / sigma:.1f} sigma): the stereo pair's known "
+            "distance no longer holds (one of its cameras moved without the other); measure it again and give "
+            "it in the rig file")
 
 
 def held_floor(previous: Calibration, new: Calibration, still: Collection[str]) -> tuple[FloorFrame, str]:

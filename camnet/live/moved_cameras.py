@@ -110,14 +110,16 @@ def _triangulate_many(P: np.ndarray, xn: np.ndarray) -> np.ndarray:
 
 
 def neighbour_views(calibration: Calibration, obs: Observations, rows: np.ndarray,
-                    limits_px: Mapping[str, float]) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+                    limits_px: Mapping[str, float], without: Mapping[str, str] | None = None,
+                    ) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """Per calibrated camera, its views of the tracks at `rows` that its neighbours hold on their poses: (track
     ids, points X (n, 3) in metres, world frame, its pixels (n, 2)).
 
     Each point is triangulated without the camera, from the two or more other cameras that see the track, and
     kept only where every one of them sees it in front and within its `limits_px` (a camera missing there: no
     limit). A static rig's views of a moving person taken at slightly different instants put the neighbours
-    off too, where one moved camera leaves them on theirs.
+    off too, where one moved camera leaves them on theirs. without: per camera, another left out of its
+    neighbours too (only the cameras named are judged then).
     """
     cameras, uv = _pixel_table(calibration, obs, rows)
     ids = obs.track_ids[np.asarray(rows, dtype=np.int64)]
@@ -130,7 +132,9 @@ def neighbour_views(calibration: Calibration, obs: Observations, rows: np.ndarra
     limit = np.array([limits_px.get(cam.id, np.inf) for cam in cameras])
     views = {}
     for k, cam in enumerate(cameras):
-        others = [j for j in range(len(cameras)) if j != k]
+        if without is not None and cam.id not in without:
+            continue
+        others = [j for j in range(len(cameras)) if j != k and (without is None or cameras[j].id != without[cam.id])]
         seen = np.isfinite(uv[:, :, 0])
         judged = seen[:, k] & (seen[:, others].sum(axis=1) >= 2)
         X = _triangulate_many(P[others], xn[judged][:, others])
@@ -191,16 +195,26 @@ def first_moved_track(track_ids: np.ndarray, errors_px: np.ndarray, limit_px: fl
 
 def move_evidence(calibration: Calibration, obs: Observations, rows: np.ndarray,
                   reference_rms_px: Mapping[str, float | None], rule: MoveRule = MoveRule(),
-                  since: Mapping[str, int] | None = None, newest_from: int | None = None) -> dict[str, MoveEvidence]:
+                  since: Mapping[str, int] | None = None, newest_from: int | None = None,
+                  partners: Mapping[str, str] | None = None) -> dict[str, MoveEvidence]:
     """Per camera with at least `rule.min_observations` views of the tracks at `rows` that its neighbours hold
     on their poses (`neighbour_views`), the evidence `MoveRule` judges. Its views are judged from track id
     `since[camera]` on where given, else from where they leave its pose (`first_moved_track`); those of tracks
-    from `newest_from` on (None: all) also alone."""
+    from `newest_from` on (None: all) also alone.
+
+    partners: cameras that move together (a stereo head's two), each by the other's id. Where a camera's partner
+    sees most of its tracks and moved with it, the partner puts every one of them off, and the camera has too few
+    views left to judge: it is judged on its views without its partner among its neighbours.
+    """
     limits = {c.id: rule.limit_px(reference_rms_px.get(c.id)) for c in calibration.cameras}
     by_id = {c.id: c for c in calibration.cameras}
     evidence = {}
     held = {c: rule.neighbour_share * limit for c, limit in limits.items()}
-    for cam_id, (ids, X, uv) in neighbour_views(calibration, obs, rows, held).items():
+    views = neighbour_views(calibration, obs, rows, held)
+    hidden = {c: p for c, p in (partners or {}).items() if c in views and len(views[c][0]) < rule.min_observations}
+    if hidden:
+        views |= neighbour_views(calibration, obs, rows, held, without=hidden)
+    for cam_id, (ids, X, uv) in views.items():
         err = np.linalg.norm(by_id[cam_id].project(X) - uv, axis=1)
         if not len(err):
             continue

@@ -32,7 +32,8 @@ from functools import partial
 import cv2
 import numpy as np
 
-from camnet.live.held_world import held_floor
+from camnet.errors import in_words
+from camnet.live.held_world import held_floor, scale_apart
 from camnet.live.judged_solve import Judged, Status, solve_judged
 from camnet.live.moved_cameras import MoveEvidence, drop_before, move_evidence, off_their_pose
 from camnet.live.newest_first import solve_newest_first
@@ -144,6 +145,9 @@ class Tracker:
         self._frame_sets = frame_sets
         solve_obs = drop_before(obs, self._cutoffs) if self._cutoffs else obs
         outcome = self._solve(solve_obs, moved)
+        apart = self._scale_apart(obs, outcome, found, moved)
+        if apart:
+            outcome = Outcome(Status.REJECTED, apart, None, moved)
         if found and outcome.status != Status.GOOD:
             # The moves found here placed nothing better than the last good calibration: its evidence stays.
             log.warning("camera(s) %s taken for moved, but no solve without their views before stands (%s): "
@@ -154,6 +158,11 @@ class Tracker:
             moved = told
             solve_obs = drop_before(obs, self._cutoffs) if self._cutoffs else obs
             outcome = self._solve(solve_obs, moved)
+            if apart and outcome.calibration is not None and outcome.calibration.report is not None:
+                said = f"{in_words(list(found), noun='camera')} moved, not placed again: {apart}"
+                report = outcome.calibration.report
+                outcome = replace(outcome, calibration=replace(outcome.calibration, report=replace(
+                    report, warnings=(*report.warnings, said))))
         outcome = replace(outcome, told=told, solve_s=time.perf_counter() - t0)
         self.counts[outcome.status] += 1
         if outcome.status == Status.GOOD:
@@ -195,6 +204,14 @@ class Tracker:
         self._pairs, self._lens = cal.report.pair_checks, cal.report.lens_shifts
         self._halves_at_s = time.monotonic()
         return cal
+
+    def _scale_apart(self, obs: Observations, outcome: Outcome, found: tuple[str, ...],
+                     moved: tuple[str, ...]) -> str:
+        """Why a good solve after a stereo camera was found moved cannot stand (camnet.live.held_world.scale_apart:
+        its scale, from the pair's known distance, against the cameras that stayed), "" where it can."""
+        if outcome.status != Status.GOOD or self.good is None or not {obs.stereo.left, obs.stereo.right} & set(found):
+            return ""
+        return scale_apart(self.good, outcome.calibration, set(obs.camera_ids) - set(moved) - set(self._pending))
 
     def _world_held(self, cal: Calibration, moved: tuple[str, ...]) -> Calibration:
         """`cal` with the last good calibration's floor frame held, carried through the cameras that stayed
@@ -274,7 +291,8 @@ class Tracker:
         since = {c: first for c, (first, _) in self._suspects.items()}
         judged = np.flatnonzero(obs.track_ids >= min([first_new, *since.values()]))
         try:
-            evidence = move_evidence(self.good, obs, judged, reference, rule, since=since, newest_from=first_new)
+            evidence = move_evidence(self.good, obs, judged, reference, rule, since=since, newest_from=first_new,
+                                     partners={obs.stereo.left: obs.stereo.right, obs.stereo.right: obs.stereo.left})
         except (KeyError, ValueError, cv2.error) as exc:
             log.warning("cannot check for moved cameras: %s", exc)
             return ()
