@@ -36,6 +36,7 @@ from camnet.model.accuracy import angle_between_deg, scale_error, scale_sigma_re
 from camnet.model.calibration import Calibration
 from camnet.model.camera import Camera
 from camnet.solve.report.verdict import Level, judge
+from camnet.solve.world_frame import camera_down
 
 K_SIGMAS = 3.0  # an error within this many of its reported sigmas is right
 EXACT = 1e-9  # an error this small (relative, degrees, millimetres) is a value held as given: rounding
@@ -165,9 +166,12 @@ def reference_up(cameras: Sequence[Camera]) -> np.ndarray | None:
     _, spread, axes = np.linalg.svd(centres - centres.mean(axis=0), full_matrices=False)
     if not spread[1] >= MIN_FLATNESS * spread[2]:
         return None
-    up = -np.mean([c.R[1] for c in cameras], axis=0)  # each camera's image y axis in the world frame, negated
+    try:
+        up = -camera_down(np.array([c.R for c in cameras]))
+    except ValueError:  # their image y axes cancel out: no up from them
+        return None
     normal = axes[2] if axes[2] @ up >= 0 else -axes[2]
-    return normal if normal @ up >= np.linalg.norm(up) * np.cos(np.radians(45.0)) else None
+    return normal if normal @ up >= np.cos(np.radians(45.0)) else None
 
 
 def _floor_check(cal: Calibration, reference: dict[str, Camera]) -> FloorCheck | None:

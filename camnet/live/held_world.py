@@ -21,16 +21,22 @@ import numpy as np
 
 from camnet.model.accuracy import angle_between_deg, scale_error
 from camnet.model.calibration import Calibration, FloorFrame
+from camnet.model.camera import Camera
 
 HOLD_SIGMAS = 3.0  # a new floor within this many of its sigmas of the held one is the same floor
 MIN_SCALE_CAMERAS = 3  # a scale between two sets of camera centres needs a triangle
 
 
+def _stayed(previous: Calibration, new: Calibration, still: Collection[str]) -> list[tuple[Camera, Camera]]:
+    """(its camera in `previous`, in `new`) of each camera of `still` that both hold."""
+    before = {c.id: c for c in previous.cameras}
+    return [(before[c.id], c) for c in new.cameras if c.id in before and c.id in still]
+
+
 def old_from_new(previous: Calibration, new: Calibration, still: Collection[str]) -> tuple[np.ndarray, np.ndarray]:
     """(A, b) with ``X_previous_left = A @ X_new_left + b``: the rigid motion between the two calibrations' left
     camera frames that the cameras of `still` (in both) agree on. Raises ValueError where none is in both."""
-    before = {c.id: c for c in previous.cameras}
-    pairs = [(before[c.id], c) for c in new.cameras if c.id in before and c.id in still]
+    pairs = _stayed(previous, new, still)
     if not pairs:
         raise ValueError("no camera that stayed is in both calibrations")
     # Each camera's rotation gives A = R_old^T R_new; their chordal mean is the nearest rotation to the sum.
@@ -46,12 +52,11 @@ def scale_apart(previous: Calibration, new: Calibration, still: Collection[str])
     scales' sigmas together. A rig solved afresh after a stereo camera moved takes its scale from the stereo
     pair's known distance; where one of the pair moved without the other, that distance no longer holds, while
     the cameras that stayed keep theirs."""
-    before = {c.id: c for c in previous.cameras}
-    pairs = [(before[c.id].centre, c.centre) for c in new.cameras if c.id in before and c.id in still]
+    pairs = _stayed(previous, new, still)
     sigmas = [cal.uncertainty.scale_rel.value if cal.uncertainty is not None else None for cal in (previous, new)]
     if len(pairs) < MIN_SCALE_CAMERAS or None in sigmas:
         return ""
-    error = scale_error(np.array([n for _, n in pairs]), np.array([p for p, _ in pairs]))
+    error = scale_error(np.array([n.centre for _, n in pairs]), np.array([p.centre for p, _ in pairs]))
     sigma = float(np.hypot(*sigmas))
     if abs(error) <= HOLD_SIGMAS * sigma:
         return ""

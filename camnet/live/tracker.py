@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from functools import partial
 
@@ -158,11 +158,9 @@ class Tracker:
             moved = told
             solve_obs = drop_before(obs, self._cutoffs) if self._cutoffs else obs
             outcome = self._solve(solve_obs, moved)
-            if apart and outcome.calibration is not None and outcome.calibration.report is not None:
+            if apart and outcome.calibration is not None:
                 said = f"{in_words(list(found), noun='camera')} moved, not placed again: {apart}"
-                report = outcome.calibration.report
-                outcome = replace(outcome, calibration=replace(outcome.calibration, report=replace(
-                    report, warnings=(*report.warnings, said))))
+                outcome = replace(outcome, calibration=outcome.calibration.warned(said))
         outcome = replace(outcome, told=told, solve_s=time.perf_counter() - t0)
         self.counts[outcome.status] += 1
         if outcome.status == Status.GOOD:
@@ -211,7 +209,11 @@ class Tracker:
         its scale, from the pair's known distance, against the cameras that stayed), "" where it can."""
         if outcome.status != Status.GOOD or self.good is None or not {obs.stereo.left, obs.stereo.right} & set(found):
             return ""
-        return scale_apart(self.good, outcome.calibration, set(obs.camera_ids) - set(moved) - set(self._pending))
+        return scale_apart(self.good, outcome.calibration, self._still(obs.camera_ids, moved))
+
+    def _still(self, cameras: Sequence[str], moved: tuple[str, ...]) -> set[str]:
+        """Of `cameras`, those that stayed put: not `moved` by this update, nor still to be placed after a move."""
+        return set(cameras) - set(moved) - set(self._pending)
 
     def _world_held(self, cal: Calibration, moved: tuple[str, ...]) -> Calibration:
         """`cal` with the last good calibration's floor frame held, carried through the cameras that stayed
@@ -219,8 +221,7 @@ class Tracker:
         has."""
         if self.good is None or cal.floor_frame is None:
             return cal
-        still = {c.id for c in cal.cameras} - set(moved) - set(self._pending)
-        frame, said = held_floor(self.good, cal, still)
+        frame, said = held_floor(self.good, cal, self._still([c.id for c in cal.cameras], moved))
         if not said:
             unseen = cal.floor_frame.reason if frame.found and not cal.floor_frame.found else ""
             if unseen and cal.report is not None:  # held through a solve that saw no floor: its warning is moot
@@ -228,8 +229,7 @@ class Tracker:
                     w for w in cal.report.warnings if w != unseen)))
             return replace(cal, floor_frame=frame)
         log.info("%s", said)
-        report = cal.report if cal.report is None else replace(cal.report, warnings=(*cal.report.warnings, said))
-        return replace(cal, floor_frame=frame, report=report)
+        return replace(cal, floor_frame=frame).warned(said)
 
     def _waiting(self, obs: Observations) -> dict[str, str]:
         """The cameras of `obs` left out until the matcher has forgotten their views, with why."""

@@ -8,7 +8,7 @@ lengths in metres, pixels with the origin at the centre of the top-left pixel.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from enum import StrEnum
 
 import numpy as np
@@ -303,6 +303,12 @@ class Calibration:
     def warnings(self) -> tuple[str, ...]:
         """The report's warnings; none without a report."""
         return self.report.warnings if self.report is not None else ()
+
+    def warned(self, *said: str) -> Calibration:
+        """This calibration with `said` added to its report's warnings (itself where it has no report)."""
+        if self.report is None or not said:
+            return self
+        return replace(self, report=replace(self.report, warnings=(*self.report.warnings, *said)))
 
 
 FLOOR_FRAME = "floor"  # the name a calibration's floor frame (FloorFrame) is written under

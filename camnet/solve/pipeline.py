@@ -300,8 +300,7 @@ def _start(ctx: SolveContext, initial, reset, options: Options, pair: PairStart)
 
 
 def _with_warning(result: Result, warning: str) -> Result:
-    report = replace(result.calibration.report, warnings=(*result.calibration.report.warnings, warning))
-    return replace(result, calibration=replace(result.calibration, report=report))
+    return replace(result, calibration=result.calibration.warned(warning))
 
 
 def _held_pair(obs, problem: Problem, wider: Problem | None, state: State, cov: Covariance, tolerance_deg: float,

@@ -427,9 +427,5 @@ def with_floor_frame(result: Result, obs: Observations) -> Result:
         variance = points_variance(result.covariance, kept)
     pair = tuple(c for c in (obs.stereo.left, obs.stereo.right) if c in {k.id for k in cal.cameras})
     frame = world_frame(cal, x_toward=pair, variance=variance)
-    report = cal.report
-    cal = replace(cal, floor_frame=floor_frame(frame))
-    said = tuple(w for w in (frame.reason, frame.ambiguity) if w)
-    if said and report is not None:
-        cal = replace(cal, report=replace(report, warnings=(*report.warnings, *said)))
+    cal = replace(cal, floor_frame=floor_frame(frame)).warned(*(w for w in (frame.reason, frame.ambiguity) if w))
     return replace(result, calibration=cal)
